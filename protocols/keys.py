@@ -1,0 +1,115 @@
+"""Key expressions, built here and nowhere else.
+
+Every robot has seven keys ``roger/<robot>/<kind>``; daemons also declare a liveliness token
+``roger/@daemon/<daemon-id>``.
+"""
+
+from __future__ import annotations
+
+import re
+
+from protocols.errors import ProtocolError
+
+__all__ = [
+    "KINDS",
+    "ROOT",
+    "action",
+    "all_of_kind",
+    "command",
+    "control",
+    "daemon_liveliness",
+    "daemon_liveliness_all",
+    "episode",
+    "everything",
+    "key",
+    "parse",
+    "perception",
+    "prediction",
+    "status",
+    "validate_robot_id",
+]
+
+ROOT = "roger"
+KINDS = ("perception", "action", "command", "prediction", "episode", "status", "control")
+_ID = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
+
+
+def validate_robot_id(robot: str) -> str:
+    """Return ``robot`` if it is a valid id (1-64 of ``[A-Za-z0-9_-]``), else raise."""
+    if not isinstance(robot, str) or not _ID.match(robot):
+        raise ProtocolError(
+            "bad_value", f"robot id must be 1-64 characters of [A-Za-z0-9_-], got {robot!r}"
+        )
+    return robot
+
+
+def key(robot: str, kind: str) -> str:
+    """``roger/<robot>/<kind>`` for one of :data:`KINDS`."""
+    if kind not in KINDS:
+        raise ProtocolError("bad_key", f"kind must be one of {KINDS}, got {kind!r}")
+    return f"{ROOT}/{validate_robot_id(robot)}/{kind}"
+
+
+def perception(robot: str) -> str:
+    """Perception published by the robot or simulator."""
+    return key(robot, "perception")
+
+
+def action(robot: str) -> str:
+    """Demonstrator action (with subtask label), the learner's training target."""
+    return key(robot, "action")
+
+
+def command(robot: str) -> str:
+    """Command executed by the robot or simulator."""
+    return key(robot, "command")
+
+
+def prediction(robot: str) -> str:
+    """Learner prediction (mean, variance, multimap)."""
+    return key(robot, "prediction")
+
+
+def episode(robot: str) -> str:
+    """Episode events from the simulator."""
+    return key(robot, "episode")
+
+
+def status(robot: str) -> str:
+    """Daemon status for one robot, 1 Hz."""
+    return key(robot, "status")
+
+
+def control(robot: str) -> str:
+    """Control requests to the daemon (mode, reset, checkpoint)."""
+    return key(robot, "control")
+
+
+def all_of_kind(kind: str) -> str:
+    """``roger/*/<kind>``: one kind for every robot."""
+    if kind not in KINDS:
+        raise ProtocolError("bad_key", f"kind must be one of {KINDS}, got {kind!r}")
+    return f"{ROOT}/*/{kind}"
+
+
+def everything() -> str:
+    """``roger/**``: every ROGER message (what a recorder subscribes to)."""
+    return f"{ROOT}/**"
+
+
+def daemon_liveliness(daemon_id: str) -> str:
+    """Liveliness token of one daemon."""
+    return f"{ROOT}/@daemon/{validate_robot_id(daemon_id)}"
+
+
+def daemon_liveliness_all() -> str:
+    """Liveliness key expression matching every daemon."""
+    return f"{ROOT}/@daemon/*"
+
+
+def parse(key_expr: str) -> tuple[str, str]:
+    """Split ``roger/<robot>/<kind>`` into ``(robot, kind)``; raise ``ProtocolError`` otherwise."""
+    parts = str(key_expr).split("/")
+    if len(parts) != 3 or parts[0] != ROOT or parts[2] not in KINDS or not _ID.match(parts[1]):
+        raise ProtocolError("bad_key", f"expected roger/<robot>/<kind>, got {key_expr!r}")
+    return parts[1], parts[2]

@@ -1,0 +1,514 @@
+"""Message types of the ROGER wire, encoded as msgpack maps.
+
+Every message carries the header ``v`` (schema version), ``robot``, ``tick``, ``t`` (sim time in
+seconds) and ``stamp_ns`` (the sender's wall clock, ns since the Unix epoch). The field tables
+live in ``protocols/README.md``; this module is their executable form. ``decode`` validates
+type, dimensions, finiteness and size and raises :class:`~protocols.errors.ProtocolError`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import msgpack
+import numpy as np
+import numpy.typing as npt
+
+from protocols.errors import ProtocolError
+from protocols.keys import validate_robot_id
+
+__all__ = [
+    "CONTROL_OPS",
+    "EPISODE_EVENTS",
+    "MAX_PAYLOAD_BYTES",
+    "MODES",
+    "SCHEMA_VERSION",
+    "Action",
+    "Command",
+    "Control",
+    "Dims",
+    "EpisodeEvent",
+    "ExpertOutput",
+    "Message",
+    "Perception",
+    "Prediction",
+    "Status",
+    "decode",
+    "encode",
+    "now_ns",
+]
+
+SCHEMA_VERSION = 1
+MAX_PAYLOAD_BYTES = 64 * 1024
+MAX_VECTOR = 1024
+MAX_STR = 256
+MAX_MULTIMAP = 512
+MAX_MAP_ENTRIES = 64
+MODES = ("learn", "predict", "learn+predict", "pause")
+CONTROL_OPS = ("mode", "reset", "checkpoint")
+EPISODE_EVENTS = ("start", "goal", "own_goal", "out", "timeout", "end", "truth")
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def now_ns() -> int:
+    """The sender's wall clock for ``stamp_ns``."""
+    return time.time_ns()
+
+
+@dataclass(frozen=True)
+class Dims:
+    """Expected vector sizes: ``x`` perception, ``y`` action/command/prediction mean."""
+
+    x: int
+    y: int
+
+
+def _vec(values: Any) -> FloatArray:
+    arr = np.array(values, dtype=np.float64).reshape(-1)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Message:
+    """Header shared by every message."""
+
+    robot: str
+    tick: int
+    t: float
+    stamp_ns: int = field(default_factory=now_ns, kw_only=True)
+
+    KIND: ClassVar[str] = ""
+
+    def header(self) -> dict[str, Any]:
+        """The header fields as a msgpack-ready map."""
+        return {
+            "v": SCHEMA_VERSION,
+            "robot": self.robot,
+            "tick": int(self.tick),
+            "t": float(self.t),
+            "stamp_ns": int(self.stamp_ns),
+        }
+
+    def body(self) -> dict[str, Any]:
+        """The kind-specific fields (overridden)."""
+        return {}
+
+    def to_map(self) -> dict[str, Any]:
+        """The whole message as a plain map (also what the JSON export writes)."""
+        return {**self.header(), **self.body()}
+
+
+@dataclass(frozen=True, eq=False)
+class Perception(Message):
+    """What the robot senses at ``tick``: ``x``, ``Dims.x`` floats."""
+
+    x: FloatArray
+
+    KIND: ClassVar[str] = "perception"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "x", _vec(self.x))
+
+    def body(self) -> dict[str, Any]:
+        return {"x": self.x.tolist()}
+
+
+@dataclass(frozen=True, eq=False)
+class Action(Message):
+    """The demonstrator's action for the perception of the same ``tick``, with its subtask label.
+
+    The label is ground truth for evaluation and for grouping experts; it never enters the learner.
+    """
+
+    y: FloatArray
+    label: str = ""
+
+    KIND: ClassVar[str] = "action"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "y", _vec(self.y))
+
+    def body(self) -> dict[str, Any]:
+        return {"y": self.y.tolist(), "label": self.label}
+
+
+@dataclass(frozen=True, eq=False)
+class Command(Message):
+    """What the robot is told to do at ``tick``; ``source`` names the controller."""
+
+    y: FloatArray
+    source: str = ""
+
+    KIND: ClassVar[str] = "command"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "y", _vec(self.y))
+
+    def body(self) -> dict[str, Any]:
+        return {"y": self.y.tolist(), "source": self.source}
+
+
+@dataclass(frozen=True, eq=False)
+class ExpertOutput:
+    """One expert of the MAP particle, as seen from one query perception."""
+
+    expert: int
+    p: float
+    mean: FloatArray
+    var: FloatArray
+    n: int
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", _vec(self.mean))
+        object.__setattr__(self, "var", _vec(self.var))
+
+    def to_map(self) -> dict[str, Any]:
+        """Plain map for msgpack/JSON."""
+        return {
+            "expert": int(self.expert),
+            "p": float(self.p),
+            "mean": self.mean.tolist(),
+            "var": self.var.tolist(),
+            "n": int(self.n),
+            "label": self.label,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Prediction(Message):
+    """The learner's answer for the perception of ``tick``.
+
+    ``mean``/``var`` are the chosen expert's predictive mean and variance (per output, in action
+    units); ``expert`` its id (-1 when the model has no expert yet); ``multimap`` every expert of
+    the MAP particle; ``latency_ms`` from perception receipt to publish.
+    """
+
+    mean: FloatArray
+    var: FloatArray
+    expert: int
+    multimap: tuple[ExpertOutput, ...] = ()
+    latency_ms: float = 0.0
+    mode: str = "learn+predict"
+
+    KIND: ClassVar[str] = "prediction"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", _vec(self.mean))
+        object.__setattr__(self, "var", _vec(self.var))
+        object.__setattr__(self, "multimap", tuple(self.multimap))
+
+    def body(self) -> dict[str, Any]:
+        return {
+            "mean": self.mean.tolist(),
+            "var": self.var.tolist(),
+            "expert": int(self.expert),
+            "multimap": [e.to_map() for e in self.multimap],
+            "latency_ms": float(self.latency_ms),
+            "mode": self.mode,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class EpisodeEvent(Message):
+    """An episode event from the simulator; ``data`` holds small named values (pose, location)."""
+
+    event: str
+    episode: int
+    data: Mapping[str, Any] = field(default_factory=dict)
+
+    KIND: ClassVar[str] = "episode"
+
+    def body(self) -> dict[str, Any]:
+        return {"event": self.event, "episode": int(self.episode), "data": dict(self.data)}
+
+
+@dataclass(frozen=True, eq=False)
+class Status(Message):
+    """Daemon health for one robot, published at 1 Hz."""
+
+    daemon: str
+    mode: str
+    ticks: int
+    updates: int
+    updates_per_s: float
+    experts: int
+    queue_depth: int
+    dropped: int
+    invalid: Mapping[str, int] = field(default_factory=dict)
+    latency_ms_p50: float = 0.0
+    latency_ms_p99: float = 0.0
+    uptime_s: float = 0.0
+    info: Mapping[str, Any] = field(default_factory=dict)
+
+    KIND: ClassVar[str] = "status"
+
+    def body(self) -> dict[str, Any]:
+        return {
+            "daemon": self.daemon,
+            "mode": self.mode,
+            "ticks": int(self.ticks),
+            "updates": int(self.updates),
+            "updates_per_s": float(self.updates_per_s),
+            "experts": int(self.experts),
+            "queue_depth": int(self.queue_depth),
+            "dropped": int(self.dropped),
+            "invalid": {str(k): int(v) for k, v in self.invalid.items()},
+            "latency_ms_p50": float(self.latency_ms_p50),
+            "latency_ms_p99": float(self.latency_ms_p99),
+            "uptime_s": float(self.uptime_s),
+            "info": dict(self.info),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Control(Message):
+    """A request to the daemon: ``op`` is ``mode`` (with ``mode``), ``reset`` or ``checkpoint``."""
+
+    op: str
+    mode: str = ""
+
+    KIND: ClassVar[str] = "control"
+
+    def body(self) -> dict[str, Any]:
+        return {"op": self.op, "mode": self.mode}
+
+
+_TYPES: dict[str, type[Message]] = {
+    cls.KIND: cls
+    for cls in (Perception, Action, Command, Prediction, EpisodeEvent, Status, Control)
+}
+
+
+def encode(msg: Message) -> bytes:
+    """Serialise a message to msgpack bytes."""
+    out: bytes = msgpack.packb(msg.to_map(), use_bin_type=True)
+    return out
+
+
+# --- decoding -----------------------------------------------------------------------------
+
+
+def _get(m: Mapping[str, Any], name: str, kind: str) -> Any:
+    if name not in m:
+        raise ProtocolError("missing_field", f"{kind}: field {name!r} is missing")
+    return m[name]
+
+
+def _int(m: Mapping[str, Any], name: str, kind: str, *, lo: int | None = None) -> int:
+    v = _get(m, name, kind)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ProtocolError(
+            "wrong_type", f"{kind}: {name!r} must be an integer, got {type(v).__name__}"
+        )
+    if lo is not None and v < lo:
+        raise ProtocolError("bad_value", f"{kind}: {name!r} must be >= {lo}, got {v}")
+    return v
+
+
+def _float(m: Mapping[str, Any], name: str, kind: str, *, finite: bool = True) -> float:
+    v = _get(m, name, kind)
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ProtocolError(
+            "wrong_type", f"{kind}: {name!r} must be a number, got {type(v).__name__}"
+        )
+    f = float(v)
+    if finite and not math.isfinite(f):
+        raise ProtocolError("not_finite", f"{kind}: {name!r} must be finite, got {f}")
+    return f
+
+
+def _str(m: Mapping[str, Any], name: str, kind: str, *, choices: tuple[str, ...] = ()) -> str:
+    v = _get(m, name, kind)
+    if not isinstance(v, str):
+        raise ProtocolError(
+            "wrong_type", f"{kind}: {name!r} must be a string, got {type(v).__name__}"
+        )
+    if len(v) > MAX_STR:
+        raise ProtocolError("oversized", f"{kind}: {name!r} longer than {MAX_STR} characters")
+    if choices and v not in choices:
+        raise ProtocolError("bad_value", f"{kind}: {name!r} must be one of {choices}, got {v!r}")
+    return v
+
+
+def _vector(
+    m: Mapping[str, Any], name: str, kind: str, dim: int | None, *, positive: bool = False
+) -> FloatArray:
+    v = _get(m, name, kind)
+    if not isinstance(v, list | tuple):
+        raise ProtocolError(
+            "wrong_type", f"{kind}: {name!r} must be an array of numbers, got {type(v).__name__}"
+        )
+    if len(v) > MAX_VECTOR:
+        raise ProtocolError("oversized", f"{kind}: {name!r} has {len(v)} > {MAX_VECTOR} entries")
+    if any(isinstance(e, bool) or not isinstance(e, int | float) for e in v):
+        raise ProtocolError("wrong_type", f"{kind}: {name!r} must contain only numbers")
+    if dim is not None and len(v) != dim:
+        raise ProtocolError(
+            "wrong_dimension", f"{kind}: {name!r} must have {dim} entries, got {len(v)}"
+        )
+    arr = _vec(v)
+    if not np.all(np.isfinite(arr)):
+        raise ProtocolError("not_finite", f"{kind}: {name!r} contains NaN or infinity")
+    if positive and np.any(arr <= 0):
+        raise ProtocolError("bad_value", f"{kind}: {name!r} must be > 0 everywhere")
+    return arr
+
+
+def _small_map(m: Mapping[str, Any], name: str, kind: str) -> dict[str, Any]:
+    v = _get(m, name, kind)
+    if not isinstance(v, dict):
+        raise ProtocolError(
+            "wrong_type", f"{kind}: {name!r} must be a map, got {type(v).__name__}"
+        )
+    if len(v) > MAX_MAP_ENTRIES:
+        raise ProtocolError("oversized", f"{kind}: {name!r} has more than {MAX_MAP_ENTRIES} keys")
+    for k in v:
+        if not isinstance(k, str):
+            raise ProtocolError("wrong_type", f"{kind}: keys of {name!r} must be strings")
+    return dict(v)
+
+
+def _expert(e: Any, dim: int | None) -> ExpertOutput:
+    kind = "prediction.multimap[]"
+    if not isinstance(e, dict):
+        raise ProtocolError("wrong_type", f"{kind}: each entry must be a map")
+    return ExpertOutput(
+        expert=_int(e, "expert", kind, lo=-1),
+        p=_float(e, "p", kind),
+        mean=_vector(e, "mean", kind, dim),
+        var=_vector(e, "var", kind, dim, positive=True),
+        n=_int(e, "n", kind, lo=0),
+        label=_str(e, "label", kind),
+    )
+
+
+def decode(
+    kind: str,
+    payload: bytes | bytearray | memoryview,
+    *,
+    dims: Dims | None = None,
+    robot: str | None = None,
+    max_bytes: int = MAX_PAYLOAD_BYTES,
+) -> Message:
+    """Decode and validate one payload of ``kind`` (one of ``protocols.keys.KINDS``).
+
+    Parameters
+    ----------
+    kind
+        The message kind, usually the last segment of the key expression.
+    payload
+        The raw bytes.
+    dims
+        Expected vector sizes; ``None`` checks only that vectors are vectors.
+    robot
+        The robot id of the key expression the payload came on; the payload must carry the same.
+    max_bytes
+        Payloads larger than this are rejected before parsing.
+    """
+    if kind not in _TYPES:
+        raise ProtocolError("bad_key", f"unknown message kind {kind!r}")
+    raw = bytes(payload)
+    if len(raw) > max_bytes:
+        raise ProtocolError("oversized", f"{kind}: payload of {len(raw)} bytes > {max_bytes}")
+    try:
+        m = msgpack.unpackb(
+            raw,
+            raw=False,
+            strict_map_key=True,
+            max_str_len=4 * MAX_STR,
+            max_bin_len=max_bytes,
+            max_array_len=max(MAX_VECTOR, MAX_MULTIMAP),
+            max_map_len=MAX_MAP_ENTRIES,
+            max_ext_len=0,
+        )
+    except Exception as exc:  # msgpack raises several unrelated types for bad bytes
+        raise ProtocolError("not_msgpack", f"{kind}: payload is not msgpack ({exc})") from None
+    if not isinstance(m, dict):
+        raise ProtocolError("not_a_map", f"{kind}: top level must be a map, got {type(m).__name__}")
+    version = m.get("v")
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ProtocolError("bad_version", f"{kind}: schema version 'v' missing or not an integer")
+    if version != SCHEMA_VERSION:
+        raise ProtocolError(
+            "bad_version",
+            f"{kind}: schema version {version} not supported (this is {SCHEMA_VERSION})",
+        )
+    who = _str(m, "robot", kind)
+    try:
+        validate_robot_id(who)
+    except ProtocolError as exc:
+        raise ProtocolError("bad_value", f"{kind}: {exc.detail}") from None
+    if robot is not None and who != robot:
+        raise ProtocolError(
+            "unknown_robot", f"{kind}: payload robot {who!r} does not match key robot {robot!r}"
+        )
+    head: dict[str, Any] = {
+        "robot": who,
+        "tick": _int(m, "tick", kind, lo=0),
+        "t": _float(m, "t", kind),
+        "stamp_ns": _int(m, "stamp_ns", kind, lo=0),
+    }
+    dx = dims.x if dims else None
+    dy = dims.y if dims else None
+    if kind == "perception":
+        return Perception(**head, x=_vector(m, "x", kind, dx))
+    if kind == "action":
+        return Action(**head, y=_vector(m, "y", kind, dy), label=_str(m, "label", kind))
+    if kind == "command":
+        return Command(**head, y=_vector(m, "y", kind, dy), source=_str(m, "source", kind))
+    if kind == "prediction":
+        mm = _get(m, "multimap", kind)
+        if not isinstance(mm, list):
+            raise ProtocolError("wrong_type", f"{kind}: 'multimap' must be an array")
+        if len(mm) > MAX_MULTIMAP:
+            raise ProtocolError("oversized", f"{kind}: multimap has more than {MAX_MULTIMAP}")
+        return Prediction(
+            **head,
+            mean=_vector(m, "mean", kind, dy),
+            var=_vector(m, "var", kind, dy, positive=True),
+            expert=_int(m, "expert", kind, lo=-1),
+            multimap=tuple(_expert(e, dy) for e in mm),
+            latency_ms=_float(m, "latency_ms", kind),
+            mode=_str(m, "mode", kind, choices=MODES),
+        )
+    if kind == "episode":
+        return EpisodeEvent(
+            **head,
+            event=_str(m, "event", kind, choices=EPISODE_EVENTS),
+            episode=_int(m, "episode", kind, lo=0),
+            data=_small_map(m, "data", kind),
+        )
+    if kind == "status":
+        invalid = _small_map(m, "invalid", kind)
+        for k, v in invalid.items():
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise ProtocolError("wrong_type", f"{kind}: invalid[{k!r}] must be an integer")
+        return Status(
+            **head,
+            daemon=_str(m, "daemon", kind),
+            mode=_str(m, "mode", kind, choices=MODES),
+            ticks=_int(m, "ticks", kind, lo=0),
+            updates=_int(m, "updates", kind, lo=0),
+            updates_per_s=_float(m, "updates_per_s", kind),
+            experts=_int(m, "experts", kind, lo=0),
+            queue_depth=_int(m, "queue_depth", kind, lo=0),
+            dropped=_int(m, "dropped", kind, lo=0),
+            invalid=invalid,
+            latency_ms_p50=_float(m, "latency_ms_p50", kind),
+            latency_ms_p99=_float(m, "latency_ms_p99", kind),
+            uptime_s=_float(m, "uptime_s", kind),
+            info=_small_map(m, "info", kind),
+        )
+    # control
+    op = _str(m, "op", kind, choices=CONTROL_OPS)
+    mode = _str(m, "mode", kind)
+    if op == "mode" and mode not in MODES:
+        raise ProtocolError("bad_value", f"{kind}: op 'mode' needs 'mode' in {MODES}, got {mode!r}")
+    return Control(**head, op=op, mode=mode)
