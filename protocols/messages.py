@@ -187,7 +187,9 @@ class Prediction(Message):
 
     ``mean``/``var`` are the chosen expert's predictive mean and variance (per output, in action
     units); ``expert`` its id (-1 when the model has no expert yet); ``multimap`` every expert of
-    the MAP particle; ``latency_ms`` from perception receipt to publish.
+    the MAP particle; ``latency_ms`` from perception receipt to publish; ``updates`` the number
+    of training pairs the model had learned when it computed this prediction (so that a replay
+    can recompute it from the same model state).
     """
 
     mean: FloatArray
@@ -196,6 +198,7 @@ class Prediction(Message):
     multimap: tuple[ExpertOutput, ...] = ()
     latency_ms: float = 0.0
     mode: str = "learn+predict"
+    updates: int = 0
 
     KIND: ClassVar[str] = "prediction"
 
@@ -212,6 +215,7 @@ class Prediction(Message):
             "multimap": [e.to_map() for e in self.multimap],
             "latency_ms": float(self.latency_ms),
             "mode": self.mode,
+            "updates": int(self.updates),
         }
 
 
@@ -477,6 +481,7 @@ def decode(
             multimap=tuple(_expert(e, dy) for e in mm),
             latency_ms=_float(m, "latency_ms", kind),
             mode=_str(m, "mode", kind, choices=MODES),
+            updates=_int(m, "updates", kind, lo=0),
         )
     if kind == "episode":
         return EpisodeEvent(
