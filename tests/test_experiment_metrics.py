@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -48,3 +50,24 @@ def test_perfect_and_mixed_segmentation() -> None:
 
 def test_majority_tie_is_deterministic() -> None:
     assert majority_labels([0, 0], ["trap", "aim"]) == {0: "aim"}
+
+
+def test_figures_are_written(tmp_path: Path) -> None:
+    from simulator.experiment.figures import pca3, plot_experts_histogram, plot_pca, plot_success
+
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(60, 23))
+    y = rng.normal(size=(60, 9))
+    labels = ["seek", "trap", "aim", "kick"] * 15
+    assign = [i % 5 for i in range(60)]
+    p = pca3(np.hstack([x, y]))
+    assert p.shape == (60, 3)
+    # principal components are uncorrelated and sorted by variance
+    var = p.var(axis=0)
+    assert var[0] >= var[1] >= var[2]
+    for f in (
+        plot_pca(x, y, labels, assign, tmp_path / "pca.png"),
+        plot_experts_histogram(assign, labels, tmp_path / "hist.png"),
+        plot_success({"hcc": [1, 0.5], "roger": [0.5, 0]}, tmp_path / "succ.png"),
+    ):
+        assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,0 +1,120 @@
+"""The paper's figures (Fig. 7a-c, Fig. 8) and per-location success rates, as PNG files."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import numpy.typing as npt  # noqa: E402
+
+from protocols.aibo import SUBTASKS  # noqa: E402
+from simulator.experiment.metrics import majority_labels  # noqa: E402
+
+__all__ = ["SUBTASK_COLOURS", "pca3", "plot_experts_histogram", "plot_pca", "plot_success"]
+
+SUBTASK_COLOURS = {"seek": "tab:blue", "trap": "tab:orange", "aim": "tab:green", "kick": "tab:red"}
+
+
+def pca3(data: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Project rows of ``data`` on their first 3 principal components (standardised columns)."""
+    z = data - data.mean(axis=0)
+    sd = z.std(axis=0)
+    z = z / np.where(sd > 0, sd, 1.0)
+    _, _, vt = np.linalg.svd(z, full_matrices=False)
+    out: npt.NDArray[np.float64] = z @ vt[:3].T
+    return out
+
+
+def _colour(label: str) -> str:
+    return SUBTASK_COLOURS.get(label, "tab:gray")
+
+
+def plot_pca(
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    labels: Sequence[str],
+    assignments: Sequence[int],
+    out: Path,
+) -> Path:
+    """Fig. 7: the joint (x, y) data in 3-D PCA coloured (a) by subtask, (b) by expert,
+    (c) by the subtask group of each expert (its majority label)."""
+    p = pca3(np.hstack([x, y]))
+    experts = np.asarray(assignments)
+    groups = majority_labels(experts.tolist(), list(labels))
+    uniq = sorted(set(experts.tolist()))
+    cmap = plt.get_cmap("tab20")
+    expert_colour = {e: cmap(i % 20) for i, e in enumerate(uniq)}
+    fig = plt.figure(figsize=(16, 5.5))
+    panels = [
+        ("(a) by demonstrated subtask", [_colour(s) for s in labels]),
+        (f"(b) by ROGER expert ({len(uniq)} experts)", [expert_colour[e] for e in experts]),
+        ("(c) experts grouped by majority subtask", [_colour(groups[e]) for e in experts]),
+    ]
+    for i, (title, colours) in enumerate(panels):
+        ax = fig.add_subplot(1, 3, i + 1, projection="3d")
+        ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=colours, s=4, alpha=0.7, linewidths=0)
+        ax.set_title(title)
+        ax.set_xlabel("PC1")
+        ax.set_ylabel("PC2")
+        ax.set_zlabel("PC3")
+    handles = [
+        plt.Line2D([], [], marker="o", ls="", color=_colour(s), label=s) for s in SUBTASKS
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=len(SUBTASKS))
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_experts_histogram(assignments: Sequence[int], labels: Sequence[str], out: Path) -> Path:
+    """Fig. 8: data per expert, stacked by subtask (experts in id order)."""
+    experts = np.asarray(assignments)
+    lab = np.asarray(labels)
+    uniq = sorted(set(experts.tolist()))
+    pos = np.arange(len(uniq))
+    fig, ax = plt.subplots(figsize=(max(8.0, 0.18 * len(uniq) + 4), 4.5))
+    bottom = np.zeros(len(uniq))
+    for s in SUBTASKS:
+        counts = np.array([np.sum((experts == e) & (lab == s)) for e in uniq], dtype=float)
+        ax.bar(pos, counts, bottom=bottom, color=_colour(s), label=s, width=0.85)
+        bottom += counts
+    ax.set_xticks(pos)
+    ax.set_xticklabels([str(e) for e in uniq], rotation=90, fontsize=6)
+    ax.set_xlabel("expert id (MAP particle)")
+    ax.set_ylabel("data points")
+    ax.set_title(f"Data per expert, coloured by subtask ({len(uniq)} experts)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_success(
+    per_location: Mapping[str, Sequence[float]], out: Path, *, title: str = ""
+) -> Path:
+    """Success rate per start location, one bar group per location, one bar per controller."""
+    names = list(per_location)
+    n_loc = max((len(v) for v in per_location.values()), default=0)
+    fig, ax = plt.subplots(figsize=(max(7.0, 0.7 * n_loc + 3), 4))
+    width = 0.8 / max(1, len(names))
+    for i, name in enumerate(names):
+        vals = np.asarray(per_location[name], dtype=float)
+        ax.bar(np.arange(len(vals)) + i * width, vals, width=width, label=name)
+    ax.set_xticks(np.arange(n_loc) + 0.4 - width / 2)
+    ax.set_xticklabels([str(i) for i in range(n_loc)])
+    ax.set_xlabel("start location")
+    ax.set_ylabel("success rate")
+    ax.set_ylim(0, 1.05)
+    ax.set_title(title or "Success per start location")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
