@@ -1,0 +1,25 @@
+"""The ROGER learner: sparse online GP experts, NIW gates, CRP particle filter (numpy/scipy).
+
+No I/O here.  The public API (``docs/learner-api.md``)::
+
+    from roger_daemon.learner import RogerParams, Roger, UnimapGP, Prediction, ExpertPrediction
+    from roger_daemon.learner import ParameterError, load_model
+"""
+
+from __future__ import annotations
+
+from roger_daemon.learner.load import load_model
+from roger_daemon.learner.params import ParameterError, RogerParams
+from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.roger import Roger
+from roger_daemon.learner.unimap import UnimapGP
+
+__all__ = [
+    "ExpertPrediction",
+    "ParameterError",
+    "Prediction",
+    "Roger",
+    "RogerParams",
+    "UnimapGP",
+    "load_model",
+]

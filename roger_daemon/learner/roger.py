@@ -1,0 +1,553 @@
+"""ROGER: an infinite mixture of sparse online GP experts, tracked by a particle filter.
+
+Grollman & Jenkins (IROS 2010), section III: each expert is an NIW input gate
+(:mod:`.gate`) plus a sparse online GP (:mod:`.sogp`); a particle is one partition of the data
+into experts under a CRP prior; ``P`` particles are carried by Fearnhead's optimal resampling
+(:mod:`.resampling`).
+
+Algorithm 1 (``learn_one``), roger-math.md §4:
+
+1. for every particle ``p`` and every expert ``k`` of it, plus one new empty expert, the
+   putative log weight is ``log w_p + log CRP(k) + log t_k(x) + log N(y; mu_k(x), s_k^2 I)``,
+   computed from predictive quantities only (no expert is touched);
+2. resample the putatives to ``P`` survivors;
+3. only then incorporate ``(x, y)`` into the chosen expert of each survivor.
+
+Performance design (pitfalls 13-15): experts live in integer *slots* shared by all particles
+that contain them (a particle is an int array of slots); a slot is copied only when a survivor
+updates an expert that another survivor keeps unchanged (copy-on-write), and survivors that
+choose the same slot share one updated copy.  Per step each *unique* expert is evaluated once:
+all gates in one batched product, then the GP only for experts whose putatives can matter (an
+upper bound on the GP factor prunes putatives more than ``prune_log_margin`` below the best),
+so the cost is bounded by (unique experts) x ``beta^2``, never by the data seen.  The
+segmentation history costs O(P) per step: survivors' ancestor index and chosen expert id,
+traced back by :meth:`Roger.assignments`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner.gate import GatePool
+from roger_daemon.learner.kernel import RBFKernel
+from roger_daemon.learner.params import RogerParams
+from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.resampling import fearnhead_resample
+from roger_daemon.learner.scaling import AffineScaling, as_vector
+from roger_daemon.learner.sogp import LATENT_FLOOR, SparseOnlineGP, gaussian_log_likelihood
+from roger_daemon.learner.state import (
+    SCHEMA_VERSION,
+    Seed,
+    generator_from_state,
+    generator_state,
+    pack_meta,
+    spawn_generators,
+    unpack_meta,
+)
+
+__all__ = ["Roger"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+Terms = tuple[FloatArray, FloatArray, FloatArray, float]
+
+_NEW = np.array([-1], dtype=np.int64)  # the "+1" empty expert in a putative list
+_STAGE1 = 4  # experts evaluated first to sharpen the pruning bound
+
+
+def check_dims(d_x: object, d_y: object) -> tuple[int, int]:
+    """Validate the data dimensions (positive integers)."""
+    for name, v in (("d_x", d_x), ("d_y", d_y)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or int(v) < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+    return int(d_x), int(d_y)  # type: ignore[call-overload]
+
+
+class Roger:
+    """The ROGER multimap learner (paper Algorithms 1 and 2).
+
+    Parameters
+    ----------
+    d_x, d_y : int
+        Input and output dimensions.
+    params : RogerParams, optional
+        Hyperparameters; the paper's by default.
+    seed : int, numpy Generator or None
+        Source of randomness.  Two independent streams are spawned from it: one for learning
+        (resampling) and one for prediction (expert sampling), so predictions never change
+        what is learned.
+
+    Examples
+    --------
+    >>> model = Roger(d_x=1, d_y=1, seed=0)
+    >>> for i in range(200):
+    ...     x = np.array([i % 20 / 20.0])
+    ...     y = np.array([(-1.0) ** i * np.sqrt(x[0])])  # two interleaved branches
+    ...     model.learn_one(x, y)
+    >>> model.n_learned, model.n_experts >= 2
+    (200, True)
+    >>> means = sorted(float(e.mean[0]) for e in model.predict_multimap(np.array([0.5])))
+    >>> min(abs(m - 0.707) for m in means) < 0.1, min(abs(m + 0.707) for m in means) < 0.1
+    (True, True)
+
+    Notes
+    -----
+    Cost per step: O(U d_x^2) for the gates of the U unique experts, O(U' (beta d_x + beta^2))
+    for the U' <= U experts that survive pruning, and O(beta^2) for each of the at most ``P``
+    experts updated.
+    """
+
+    kind = "roger"
+
+    def __init__(self, d_x: int, d_y: int, params: RogerParams | None = None,
+                 seed: Seed = None) -> None:
+        self.d_x, self.d_y = check_dims(d_x, d_y)
+        self.params = RogerParams() if params is None else params
+        if not isinstance(self.params, RogerParams):
+            raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
+        self.params.check_dims(self.d_x, self.d_y)
+        self._learn_rng, self._predict_rng = spawn_generators(seed)
+        self._setup()
+
+    # -- construction ------------------------------------------------------------------------
+
+    def _setup(self) -> None:
+        p = self.params
+        self._scaling = AffineScaling(p, self.d_x, self.d_y)
+        self.kernel = RBFKernel(p.theta_w, self.d_x, p.kernel_dim_scaling)
+        self._gates = GatePool(self.d_x, p.mu0, p.kappa0, p.lambda0, p.nu0)
+        cap = self._gates.capacity
+        self._gps: list[SparseOnlineGP | None] = [None] * cap
+        self._ids = np.full(cap, -1, dtype=np.int64)
+        self._npts = np.zeros(cap, dtype=np.int64)
+        self._ref = np.zeros(cap, dtype=np.int64)
+        self._free: list[int] = list(range(cap - 1, -1, -1))  # pop() yields the lowest slot
+        self._particles: list[IntArray] = [np.zeros(0, dtype=np.int64)]
+        self._logw = np.zeros(1)
+        self._hist_anc = np.zeros((0, p.particles), dtype=np.int32)
+        self._hist_eid = np.zeros((0, p.particles), dtype=np.int64)
+        self.n_learned = 0
+        self._next_id = 0
+        self._log_alpha = math.log(p.alpha)
+        self._empty_var = self.kernel.k_star + p.theta_n  # empty expert: y ~ N(0, (k*+s0^2) I)
+        dims = self.d_y if p.likelihood_normaliser == "multivariate" else 1
+        # upper bound of any expert's log N(y; mu, s^2 I): s^2 >= s0^2 (+ latent floor)
+        self._gp_bound = -0.5 * dims * math.log(2.0 * math.pi * (p.theta_n + LATENT_FLOOR))
+
+    def _new_gp(self) -> SparseOnlineGP:
+        p = self.params
+        return SparseOnlineGP(self.d_x, self.d_y, self.kernel, p.theta_n, p.beta,
+                              p.novelty_threshold, p.likelihood_normaliser)
+
+    def _alloc_slot(self) -> int:
+        if not self._free:
+            old = len(self._gps)
+            new = 2 * old
+            self._gates.grow(new)
+            self._gps.extend([None] * (new - old))
+            for name in ("_ids", "_npts", "_ref"):
+                arr = getattr(self, name)
+                buf = np.full(new, -1 if name == "_ids" else 0, dtype=np.int64)
+                buf[:old] = arr
+                setattr(self, name, buf)
+            self._free = list(range(new - 1, old - 1, -1))
+        return self._free.pop()
+
+    # -- Algorithm 1: learning -------------------------------------------------------------------
+
+    def learn_one(self, x: npt.ArrayLike, y: npt.ArrayLike) -> None:
+        """Learn one (perception, action) pair (paper Algorithm 1).
+
+        Raises ``ValueError`` (model unchanged) if ``x`` or ``y`` has the wrong shape or is not
+        finite.
+        """
+        xs = self._scaling.x_in(as_vector("x", x, self.d_x))
+        ys = self._scaling.y_in(as_vector("y", y, self.d_y))
+        p = self.params
+        parts = self._particles
+        sizes = np.fromiter((a.size + 1 for a in parts), dtype=np.int64, count=len(parts))
+        flat_slots = np.concatenate([a for s in parts for a in (s, _NEW)])
+        flat_part = np.repeat(np.arange(len(parts)), sizes)
+        offsets = np.cumsum(sizes) - sizes
+        is_new = flat_slots < 0
+        old_slots = flat_slots[~is_new]
+        cap = len(self._gps)
+
+        # gates of all unique experts, batched (§3.4); CRP prior n_k (N + alpha dropped, §4)
+        live = np.flatnonzero(self._ref > 0)
+        slot_gate = np.zeros(cap)
+        slot_gate[live] = self._gates.log_predictive(live, xs)
+        slot_gate[live] += np.log(self._npts[live])
+        base = self._logw[flat_part]
+        base[is_new] += self._log_alpha + self._gates.prior_log_predictive(xs)
+        base[~is_new] += slot_gate[old_slots]
+
+        # GP factor: the empty expert analytically, the others once per unique expert
+        ll_new = float(gaussian_log_likelihood(float(ys @ ys), self._empty_var, self.d_y,
+                                               p.likelihood_normaliser))
+        slot_ll, terms = self._gp_factors(xs, ys, live, base, is_new, old_slots, ll_new, cap)
+        lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])
+
+        # resample to P (Fearnhead), then incorporate the point (Algorithm 1, last two lines)
+        keep, new_logw = fearnhead_resample(lw, p.particles, self._learn_rng)
+        self._instantiate(keep, new_logw, flat_part, flat_slots, offsets, xs, ys, terms)
+
+    def _gp_factors(self, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
+                    is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
+                    ) -> tuple[FloatArray, dict[int, Terms]]:
+        """``log N(y; mu_s(x), s_s^2 I)`` per slot, ``-inf`` where provably negligible."""
+        slot_ll = np.full(cap, -np.inf)
+        terms: dict[int, Terms] = {}
+        if live.size == 0:
+            return slot_ll, terms
+        margin = self.params.prune_log_margin
+        if math.isinf(margin):
+            cand = live
+            order: IntArray = cand
+        else:
+            # best (particle weight + CRP + gate) over the putatives of each slot
+            best = np.full(cap, -np.inf)
+            np.maximum.at(best, old_slots, base[~is_new])
+            known = float(np.max(base[is_new])) + ll_new  # exact, from the empty expert
+            upper = best[live] + self._gp_bound
+            cand = live[upper >= known - margin]
+            order = cand[np.argsort(-best[cand], kind="stable")]
+        gps = self._gps
+
+        def evaluate(slots: IntArray) -> None:
+            for s in slots.tolist():
+                gp = gps[s]
+                assert gp is not None
+                t = gp.terms(xs)
+                terms[s] = t
+                diff = ys - t[2]
+                slot_ll[s] = gaussian_log_likelihood(float(diff @ diff),
+                                                     gp.noise + t[3], self.d_y, gp.normaliser)
+
+        if math.isinf(margin) or order.size <= _STAGE1:
+            evaluate(order)
+            return slot_ll, terms
+        first, rest = order[:_STAGE1], order[_STAGE1:]
+        evaluate(first)
+        known = max(known, float(np.max(best[first] + slot_ll[first])))
+        evaluate(rest[best[rest] + self._gp_bound >= known - margin])
+        return slot_ll, terms
+
+    def _instantiate(self, keep: IntArray, new_logw: FloatArray, flat_part: IntArray,
+                     flat_slots: IntArray, offsets: IntArray, xs: FloatArray, ys: FloatArray,
+                     terms: dict[int, Terms]) -> None:
+        """Build the surviving particles; update each chosen expert once (copy-on-write)."""
+        parts = self._particles
+        surv_parent = flat_part[keep]
+        surv_slot = flat_slots[keep]
+        surv_pos = keep - offsets[surv_parent]
+        cap = len(self._gps)
+        # how many survivors contain each slot, and how many of them chose it
+        contains = np.bincount(np.concatenate([parts[i] for i in surv_parent.tolist()]),
+                               minlength=cap)
+        chose = np.bincount(surv_slot[surv_slot >= 0], minlength=cap)
+        target: dict[int, int] = {}
+        for s in np.unique(surv_slot).tolist():
+            if s < 0:  # a new expert, shared by every survivor that opened one this step
+                t = self._alloc_slot()
+                gp = self._new_gp()
+                gp.update(xs, ys)
+                self._gps[t] = gp
+                self._gates.set_prior_updated(t, xs)
+                self._ids[t] = self._next_id
+                self._next_id += 1
+                self._npts[t] = 1
+            else:
+                src = self._gps[s]
+                assert src is not None
+                if contains[s] == chose[s]:  # nobody keeps the old version: update in place
+                    t, gp = s, src
+                else:
+                    t = self._alloc_slot()
+                    gp = src.copy()
+                    self._gps[t] = gp
+                    self._gates.copy_slot(t, s)
+                    self._ids[t] = self._ids[s]
+                gp.update(xs, ys, terms.get(s))
+                self._gates.update(t, xs)
+                self._npts[t] = self._npts[s] + 1
+            target[s] = t
+        new_parts: list[IntArray] = []
+        chosen_ids = np.empty(keep.size, dtype=np.int64)
+        for j, (i, s, pos) in enumerate(zip(surv_parent.tolist(), surv_slot.tolist(),
+                                            surv_pos.tolist(), strict=True)):
+            t = target[s]
+            arr = parts[i]
+            if s < 0:
+                arr = np.append(arr, t)
+            elif t != s:
+                arr = arr.copy()
+                arr[pos] = t
+            new_parts.append(arr)  # particle arrays are never mutated: sharing is safe
+            chosen_ids[j] = self._ids[t]
+        # reference counts; free the slots no survivor holds
+        cap = len(self._gps)
+        new_ref = np.bincount(np.concatenate(new_parts), minlength=cap)
+        for s in np.flatnonzero((self._ref > 0) & (new_ref == 0)).tolist():
+            self._gps[s] = None
+            self._ids[s] = -1
+            self._npts[s] = 0
+            self._free.append(s)
+        self._free.sort(reverse=True)
+        self._ref = new_ref
+        self._particles = new_parts
+        self._logw = new_logw
+        self._record(surv_parent, chosen_ids)
+        self.n_learned += 1
+
+    def _record(self, ancestors: IntArray, expert_ids: IntArray) -> None:
+        """Append one row of segmentation history (O(P) per step)."""
+        t = self.n_learned
+        if t >= self._hist_anc.shape[0]:
+            grow = max(64, self._hist_anc.shape[0])
+            width = self.params.particles
+            self._hist_anc = np.concatenate(
+                [self._hist_anc, np.full((grow, width), -1, dtype=np.int32)])
+            self._hist_eid = np.concatenate(
+                [self._hist_eid, np.full((grow, width), -1, dtype=np.int64)])
+        n = ancestors.size
+        self._hist_anc[t, :n] = ancestors
+        self._hist_anc[t, n:] = -1
+        self._hist_eid[t, :n] = expert_ids
+        self._hist_eid[t, n:] = -1
+
+    # -- Algorithm 2: prediction -----------------------------------------------------------------
+
+    def _map_slots(self) -> IntArray:
+        """Slots of the MAP particle (highest weight after the last resampling, §6)."""
+        return self._particles[int(np.argmax(self._logw))]
+
+    def _gate_probs(self, slots: IntArray, xs: FloatArray) -> FloatArray:
+        """``p(k | x) ∝ n_k t_k(x)`` over ``slots`` (+ ``alpha t_0(x)`` if the empty expert
+        takes part), normalised (paper Algorithm 2, roger-math.md §6)."""
+        lg = self._gates.log_predictive(slots, xs) + np.log(self._npts[slots])
+        if self.params.predict_empty_expert:
+            lg = np.append(lg, self._log_alpha + self._gates.prior_log_predictive(xs))
+        w = np.exp(lg - np.max(lg))
+        out: FloatArray = w / np.sum(w)
+        return out
+
+    def _prior_prediction(self, gate_prob: float) -> Prediction:
+        s = self._scaling
+        return Prediction(mean=s.mean_out(np.zeros(self.d_y)), var=s.var_out(self._empty_var),
+                          expert_id=-1, gate_prob=gate_prob)
+
+    def predict_one(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
+                    ) -> Prediction:
+        """Predict the action for ``x`` (paper Algorithm 2).
+
+        The expert of the MAP particle is chosen by gate probability: the most probable one
+        (``expert_choice="argmax"``) or a draw (``"sample"``, from the model's prediction
+        stream, or from ``rng`` if given).  Before any learning: the prior, ``expert_id = -1``.
+        """
+        xs = self._scaling.x_in(as_vector("x", x, self.d_x))
+        slots = self._map_slots()
+        if slots.size == 0:
+            return self._prior_prediction(1.0)
+        probs = self._gate_probs(slots, xs)
+        if self.params.expert_choice == "argmax":
+            k = int(np.argmax(probs))
+        else:
+            gen = self._predict_rng if rng is None else rng
+            k = min(int(np.searchsorted(np.cumsum(probs), gen.random(), side="right")),
+                    probs.size - 1)
+        if k == slots.size:  # the empty expert
+            return self._prior_prediction(float(probs[k]))
+        s = int(slots[k])
+        gp = self._gps[s]
+        assert gp is not None
+        mean, var = gp.predict(xs)
+        return Prediction(mean=self._scaling.mean_out(mean), var=self._scaling.var_out(var),
+                          expert_id=int(self._ids[s]), gate_prob=float(probs[k]))
+
+    def predict_multimap(self, x: npt.ArrayLike) -> list[ExpertPrediction]:
+        """Every expert of the MAP particle: gate probability (summing to 1), mean, variance."""
+        xs = self._scaling.x_in(as_vector("x", x, self.d_x))
+        slots = self._map_slots()
+        sc = self._scaling
+        out: list[ExpertPrediction] = []
+        if slots.size == 0 and not self.params.predict_empty_expert:
+            return out
+        probs = self._gate_probs(slots, xs) if slots.size else np.ones(1)
+        for k, s in enumerate(slots.tolist()):
+            gp = self._gps[s]
+            assert gp is not None
+            mean, var = gp.predict(xs)
+            out.append(ExpertPrediction(expert_id=int(self._ids[s]), gate_prob=float(probs[k]),
+                                        mean=sc.mean_out(mean), var=sc.var_out(var),
+                                        n_points=int(self._npts[s])))
+        if self.params.predict_empty_expert:
+            prior = self._prior_prediction(float(probs[-1]))
+            out.append(ExpertPrediction(expert_id=-1, gate_prob=prior.gate_prob, mean=prior.mean,
+                                        var=prior.var, n_points=0))
+        return out
+
+    # -- segmentation and introspection --------------------------------------------------------
+
+    @property
+    def n_experts(self) -> int:
+        """Number of experts in the MAP particle."""
+        return int(self._map_slots().size)
+
+    @property
+    def n_particles(self) -> int:
+        """Particles currently carried (``P`` once there are enough putatives)."""
+        return len(self._particles)
+
+    @property
+    def n_unique_experts(self) -> int:
+        """Distinct expert versions held by all particles together (memory in use)."""
+        return int(np.count_nonzero(self._ref))
+
+    def particle_log_weights(self) -> FloatArray:
+        """Normalised log weights of the particles."""
+        return self._logw.copy()
+
+    def expert_sizes(self) -> dict[int, int]:
+        """``{expert_id: points assigned}`` in the MAP particle."""
+        slots = self._map_slots().tolist()
+        return {int(self._ids[s]): int(self._npts[s]) for s in slots}
+
+    def basis_sizes(self) -> dict[int, int]:
+        """``{expert_id: basis vectors}`` in the MAP particle (each <= ``beta``)."""
+        out = {}
+        for s in self._map_slots().tolist():
+            gp = self._gps[s]
+            assert gp is not None
+            out[int(self._ids[s])] = gp.n
+        return out
+
+    def assignments(self) -> IntArray:
+        """The MAP particle's expert id for every learned point, in order.
+
+        Traced back through the stored (ancestor, chosen expert) of each step: O(N) per call,
+        O(P) memory per step.
+        """
+        n = self.n_learned
+        out = np.empty(n, dtype=np.int64)
+        j = int(np.argmax(self._logw))
+        anc = self._hist_anc
+        eid = self._hist_eid
+        for t in range(n - 1, -1, -1):
+            out[t] = eid[t, j]
+            j = int(anc[t, j])
+        return out
+
+    def unique_expert_slots(self) -> list[SparseOnlineGP]:
+        """The distinct SOGPs held by the particles (for inspection and tests)."""
+        return [g for g, r in zip(self._gps, self._ref.tolist(), strict=True)
+                if r > 0 and g is not None]
+
+    # -- state ----------------------------------------------------------------------------------
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Flat named arrays plus JSON metadata; see :mod:`.state`.  No object arrays."""
+        live = np.flatnonzero(self._ref > 0)
+        compact = np.full(len(self._gps), -1, dtype=np.int64)
+        compact[live] = np.arange(live.size)
+        gps = [self._gps[s] for s in live.tolist()]
+        assert all(g is not None for g in gps)
+        out = _pack_gps([g for g in gps if g is not None], self.d_x, self.d_y)
+        g = self._gates
+        for name in g._FIELDS:
+            out[f"gate_{name}"] = getattr(g, name)[live].copy()
+        out["expert_id"] = self._ids[live].copy()
+        out["expert_count"] = self._npts[live].copy()
+        sizes = np.array([a.size for a in self._particles], dtype=np.int64)
+        out["particle_log_weights"] = self._logw.copy()
+        out["particle_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        out["particle_experts"] = (compact[np.concatenate(self._particles)]
+                                   if self._particles else np.zeros(0, dtype=np.int64))
+        out["history_ancestor"] = self._hist_anc[: self.n_learned].copy()
+        out["history_expert"] = self._hist_eid[: self.n_learned].copy()
+        out["meta"] = pack_meta({
+            "schema": SCHEMA_VERSION,
+            "kind": self.kind,
+            "d_x": self.d_x,
+            "d_y": self.d_y,
+            "params": self.params.to_mapping(),
+            "n_learned": self.n_learned,
+            "next_expert_id": self._next_id,
+            "rng_learn": generator_state(self._learn_rng),
+            "rng_predict": generator_state(self._predict_rng),
+        })
+        return out
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, np.ndarray]) -> Roger:
+        """Rebuild a model that continues exactly as the saved one would."""
+        meta = unpack_meta(state, cls.kind)
+        params = RogerParams.from_mapping(meta["params"])
+        model = cls(int(meta["d_x"]), int(meta["d_y"]), params)
+        model._load(state, meta)
+        return model
+
+    def _load(self, state: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        self._learn_rng = generator_from_state(meta["rng_learn"])
+        self._predict_rng = generator_from_state(meta["rng_predict"])
+        gps = _unpack_gps(state, self._new_gp)
+        u = len(gps)
+        for _ in range(u):
+            self._alloc_slot()
+        for s, gp in enumerate(gps):
+            self._gps[s] = gp
+        g = self._gates
+        for name in g._FIELDS:
+            getattr(g, name)[:u] = state[f"gate_{name}"]
+        self._ids[:u] = state["expert_id"]
+        self._npts[:u] = state["expert_count"]
+        offsets = np.asarray(state["particle_offsets"], dtype=np.int64)
+        flat = np.asarray(state["particle_experts"], dtype=np.int64)
+        self._particles = [flat[offsets[i]:offsets[i + 1]].copy()
+                           for i in range(offsets.size - 1)]
+        self._logw = np.asarray(state["particle_log_weights"], dtype=np.float64).copy()
+        self._ref = np.bincount(flat, minlength=len(self._gps)).astype(np.int64)
+        self.n_learned = int(meta["n_learned"])
+        self._next_id = int(meta["next_expert_id"])
+        width = self.params.particles
+        self._hist_anc = np.asarray(state["history_ancestor"], dtype=np.int32).reshape(-1, width)
+        self._hist_eid = np.asarray(state["history_expert"], dtype=np.int64).reshape(-1, width)
+
+
+def _pack_gps(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.ndarray]:
+    """Concatenate the experts' live arrays (C and Q flattened) into flat named arrays."""
+    ns = np.array([g.n for g in gps], dtype=np.int64)
+    return {
+        "expert_n_bv": ns,
+        "expert_n_points": np.array([g.n_points for g in gps], dtype=np.int64),
+        "expert_alloc": np.array([g._C.shape[0] for g in gps], dtype=np.int64),
+        "expert_B": np.concatenate([g.B for g in gps]) if gps else np.zeros((0, d_x)),
+        "expert_A": np.concatenate([g.A for g in gps]) if gps else np.zeros((0, d_y)),
+        "expert_C": np.concatenate([g.C.ravel() for g in gps]) if gps else np.zeros(0),
+        "expert_Q": np.concatenate([g.Q.ravel() for g in gps]) if gps else np.zeros(0),
+    }
+
+
+def _unpack_gps(state: dict[str, np.ndarray], factory: Any) -> list[SparseOnlineGP]:
+    """Inverse of :func:`_pack_gps`; ``factory()`` makes an empty expert."""
+    ns = np.asarray(state["expert_n_bv"], dtype=np.int64)
+    counts = np.asarray(state["expert_n_points"], dtype=np.int64)
+    allocs = np.asarray(state["expert_alloc"], dtype=np.int64)
+    b_all, a_all = state["expert_B"], state["expert_A"]
+    c_all, q_all = state["expert_C"], state["expert_Q"]
+    out = []
+    row = 0
+    flat = 0
+    for n, cnt, alloc in zip(ns.tolist(), counts.tolist(), allocs.tolist(), strict=True):
+        gp: SparseOnlineGP = factory()
+        gp.load(b_all[row:row + n], a_all[row:row + n],
+                c_all[flat:flat + n * n].reshape(n, n), q_all[flat:flat + n * n].reshape(n, n),
+                cnt, alloc=alloc)
+        row += n
+        flat += n * n
+        out.append(gp)
+    return out

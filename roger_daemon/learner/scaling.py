@@ -1,0 +1,62 @@
+"""Input checking and the fixed affine scaling of inputs and outputs (roger-math.md pitfall 3).
+
+The priors assume normalised data (``mu0 = 0``, unit gate scale, zero GP mean), so the params
+may carry a fixed offset and scale for x and y.  They are configuration, never learned from the
+data: ``x_s = (x - x_offset) / x_scale``, ``y_s = (y - y_offset) / y_scale``; a prediction
+``(m, v)`` in scaled units maps back to ``(m * y_scale + y_offset, v * y_scale^2)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner.params import RogerParams
+
+__all__ = ["AffineScaling", "as_vector"]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def as_vector(name: str, value: object, dim: int) -> FloatArray:
+    """``value`` as a finite float64 vector of length ``dim``, else ``ValueError``."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a sequence of {dim} finite floats: {exc}") from None
+    if arr.shape != (dim,):
+        raise ValueError(f"{name} must have shape ({dim},), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    return arr
+
+
+class AffineScaling:
+    """The fixed scaling of one model (identity where the params give ``None``)."""
+
+    def __init__(self, params: RogerParams, d_x: int, d_y: int) -> None:
+        def vec(v: tuple[float, ...] | None, fill: float, d: int) -> FloatArray:
+            return np.full(d, fill) if v is None else np.asarray(v, dtype=np.float64)
+
+        self.x_offset = vec(params.x_offset, 0.0, d_x)
+        self.x_scale = vec(params.x_scale, 1.0, d_x)
+        self.y_offset = vec(params.y_offset, 0.0, d_y)
+        self.y_scale = vec(params.y_scale, 1.0, d_y)
+        self.identity_x = params.x_offset is None and params.x_scale is None
+        self.identity_y = params.y_offset is None and params.y_scale is None
+
+    def x_in(self, x: FloatArray) -> FloatArray:
+        """Raw input to model units."""
+        return x if self.identity_x else (x - self.x_offset) / self.x_scale
+
+    def y_in(self, y: FloatArray) -> FloatArray:
+        """Raw output to model units."""
+        return y if self.identity_y else (y - self.y_offset) / self.y_scale
+
+    def mean_out(self, mean: FloatArray) -> FloatArray:
+        """Predictive mean back to raw output units."""
+        return mean * self.y_scale + self.y_offset
+
+    def var_out(self, var: float) -> FloatArray:
+        """Scalar predictive variance (model units) to a per-output variance in raw units."""
+        return var * self.y_scale**2

@@ -1,0 +1,307 @@
+"""Sparse online Gaussian process (Csató & Opper 2002), the regressor inside every expert.
+
+Multi-output: the ``d_y`` outputs are independent GPs with the same kernel and noise, so they
+share the covariance coefficients ``C`` and the inverse Gram matrix ``Q`` (roger-math.md §2.2):
+
+* mean ``f(x) = A^T k_x``, latent variance ``k* + k_x^T C k_x`` (clamped at 1e-12);
+* predictive variance of ``y``: ``s0^2 + k* + k_x^T C k_x`` (noise added exactly once, pitfall 4).
+
+Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (roger-math.md
+§2.5); capacity ``beta`` is enforced by a ``while n > beta`` loop of KL-optimal deletions
+(thesis App. G(g), §2.7), followed by the geometric clean-up.  Every update adds an
+elementwise-symmetric rank-1 term, so ``C`` and ``Q`` stay exactly symmetric and Csató's
+``(C + C^T)/2`` is a no-op, hence skipped (the tests check exact symmetry).
+
+Storage is a buffer of ``min(capacity + 1, ...)`` rows that doubles as the expert grows; the
+live part is the leading ``n`` rows/columns.  Cost per step: O(n d_x + n^2 + n d_y).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner.kernel import RBFKernel
+
+__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood"]
+
+FloatArray = npt.NDArray[np.float64]
+
+LATENT_FLOOR = 1e-12  # clamp of k* + k^T C k (Grollman, OTL, Csató)
+_GAMMA_FLOOR = 1e-12  # projection residuals below this count as 0 (roger-math.md §2.5 step 3)
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def gaussian_log_likelihood(sq_err: FloatArray | float, var: FloatArray | float, d_y: int,
+                            normaliser: str = "multivariate") -> FloatArray:
+    """``log N(y; mu, var * I)`` from ``|y - mu|^2`` and the scalar variance (§2.4).
+
+    ``normaliser="grollman"`` uses the 1-D constant of Grollman's ``SOGP::log_prob``
+    (fidelity switch 2): ``-log sqrt(2 pi) - log sigma - |y - mu|^2 / (2 sigma^2)``.
+    """
+    var = np.asarray(var, dtype=np.float64)
+    dims = d_y if normaliser == "multivariate" else 1
+    return np.asarray(-0.5 * dims * (_LOG_2PI + np.log(var)) - 0.5 * np.asarray(sq_err) / var)
+
+
+class SparseOnlineGP:
+    """One sparse online GP with ``d_y`` outputs sharing ``C`` and ``Q``.
+
+    Parameters
+    ----------
+    d_x, d_y : int
+        Input and output dimensions.
+    kernel : RBFKernel
+        Shared kernel (unit amplitude, ``k* = 1``).
+    noise : float
+        Observation-noise variance ``s0^2`` (``theta_n``).
+    capacity : int or None
+        Maximum number of basis vectors ``beta``; ``None`` means unbounded.
+    novelty_threshold : float
+        Full update iff ``gamma >= novelty_threshold * k*`` (and ``gamma > 1e-12``); geometric
+        clean-up when ``1/Q_ii < novelty_threshold / 1000``.
+    normaliser : {"multivariate", "grollman"}
+        Normaliser of :meth:`log_likelihood`.
+
+    Examples
+    --------
+    >>> gp = SparseOnlineGP(1, 1, RBFKernel(0.5, 1), noise=0.01, capacity=20)
+    >>> for x in np.linspace(0, 1, 30):
+    ...     gp.update(np.array([x]), np.array([np.sin(3 * x)]))
+    >>> mean, var = gp.predict(np.array([0.5]))
+    >>> abs(mean[0] - np.sin(1.5)) < 0.05, gp.n <= 20
+    (True, True)
+    """
+
+    __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
+                 "n", "n_points", "_B", "_A", "_C", "_Q")
+
+    def __init__(self, d_x: int, d_y: int, kernel: RBFKernel, noise: float,
+                 capacity: int | None, novelty_threshold: float = 1e-6,
+                 normaliser: str = "multivariate", *, _alloc: int | None = None) -> None:
+        self.d_x = d_x
+        self.d_y = d_y
+        self.kernel = kernel
+        self.noise = float(noise)
+        self.capacity = capacity
+        self.novelty_threshold = float(novelty_threshold)
+        self.normaliser = normaliser
+        self.n = 0  # basis vectors
+        self.n_points = 0  # pairs learned
+        alloc = _alloc if _alloc is not None else self._initial_alloc()
+        self._B: FloatArray = np.zeros((alloc, d_x))
+        self._A: FloatArray = np.zeros((alloc, d_y))
+        self._C: FloatArray = np.zeros((alloc, alloc))
+        self._Q: FloatArray = np.zeros((alloc, alloc))
+
+    def _initial_alloc(self) -> int:
+        return 8 if self.capacity is None else min(8, self.capacity + 1)
+
+    # -- views of the live part ---------------------------------------------------------------
+
+    @property
+    def B(self) -> FloatArray:  # noqa: N802 - the thesis' name
+        """Basis-vector inputs (n, d_x)."""
+        return self._B[: self.n]
+
+    @property
+    def A(self) -> FloatArray:  # noqa: N802
+        """Mean coefficients alpha (n, d_y), one column per output."""
+        return self._A[: self.n]
+
+    @property
+    def C(self) -> FloatArray:  # noqa: N802
+        """Covariance coefficients (n, n), symmetric, negative-definite-ish."""
+        return self._C[: self.n, : self.n]
+
+    @property
+    def Q(self) -> FloatArray:  # noqa: N802
+        """Inverse Gram matrix ``K_B^{-1}`` (n, n)."""
+        return self._Q[: self.n, : self.n]
+
+    # -- prediction ------------------------------------------------------------------------------
+
+    def terms(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+        """``(k_x, C k_x, mean, latent variance)``; reused by :meth:`update` (§2.4)."""
+        n = self.n
+        if n == 0:
+            empty = np.zeros(0)
+            return empty, empty, np.zeros(self.d_y), self.kernel.k_star
+        k = self.kernel(self._B[:n], x)
+        ck = self._C[:n, :n] @ k
+        latent = max(self.kernel.k_star + float(k @ ck), LATENT_FLOOR)
+        return k, ck, k @ self._A[:n], latent
+
+    def predict(self, x: FloatArray) -> tuple[FloatArray, float]:
+        """Predictive mean (d_y,) and variance of y (scalar, shared by the outputs)."""
+        _, _, mean, latent = self.terms(x)
+        return mean, self.noise + latent
+
+    def log_likelihood(self, x: FloatArray, y: FloatArray) -> float:
+        """``log p(y | x)`` under the predictive Gaussian (§2.4)."""
+        mean, var = self.predict(x)
+        diff = y - mean
+        return float(gaussian_log_likelihood(float(diff @ diff), var, self.d_y, self.normaliser))
+
+    # -- learning ----------------------------------------------------------------------------------
+
+    def update(self, x: FloatArray, y: FloatArray,
+               terms: tuple[FloatArray, FloatArray, FloatArray, float] | None = None) -> None:
+        """Learn one pair (Csató thesis eq. 2.46, App. G; roger-math.md §2.5).
+
+        ``terms`` may pass :meth:`terms` ``(x)`` computed earlier for this very state.
+        """
+        self.n_points += 1
+        n = self.n
+        kstar = self.kernel.k_star
+        s0 = self.noise
+        if n == 0:  # first point, §2.5
+            self._B[0] = x
+            self._A[0] = y / (kstar + s0)
+            self._C[0, 0] = -1.0 / (kstar + s0)
+            self._Q[0, 0] = 1.0 / kstar
+            self.n = 1
+            return
+        k, ck, mean, latent = terms if terms is not None else self.terms(x)
+        # step 2: Gaussian-likelihood scalars (Csató's K2 = r and K1 = q)
+        r = -1.0 / (s0 + latent)
+        q = (y - mean) / (s0 + latent)
+        # step 3: novelty, the projection residual gamma = k* - k^T Q k
+        e_hat = self._Q[:n, :n] @ k
+        gamma = kstar - float(k @ e_hat)
+        if gamma < _GAMMA_FLOOR:
+            gamma = 0.0
+        if gamma < self.novelty_threshold * kstar or gamma <= 0.0:
+            # step 4a: sparse (projection) update, BV set unchanged; eta = 1/(1 + gamma r)
+            eta = 1.0 / (1.0 + gamma * r)
+            s_hat = ck + e_hat
+            self._A[:n] += np.outer(s_hat, q) * eta
+            self._C[:n, :n] += np.outer(s_hat, s_hat) * (r * eta)
+        else:
+            # step 4b: full update, x becomes basis vector n (thesis eq. 2.46 and eq. 3.5)
+            self._grow(n + 1)
+            self._B[n] = x
+            s = np.empty(n + 1)
+            s[:n] = ck
+            s[n] = 1.0
+            self._A[n] = 0.0
+            self._A[: n + 1] += np.outer(s, q)
+            self._C[n, : n + 1] = 0.0
+            self._C[:n, n] = 0.0
+            self._C[: n + 1, : n + 1] += np.outer(s, s) * r  # elementwise symmetric
+            e = np.empty(n + 1)
+            e[:n] = e_hat
+            e[n] = -1.0
+            self._Q[n, : n + 1] = 0.0
+            self._Q[:n, n] = 0.0
+            self._Q[: n + 1, : n + 1] += np.outer(e, e) * (1.0 / gamma)
+            self.n = n + 1
+        # step 5: capacity, KL-optimal deletion while n > beta (Grollman's while loop)
+        if self.capacity is not None:
+            while self.n > self.capacity:
+                self.delete(self._deletion_choice())
+        # step 6: geometric clean-up, 1/Q_ii < threshold / 1000 (Csató)
+        floor = self.novelty_threshold * 1e-3
+        while self.n > 1 and floor > 0.0:
+            diag = np.diagonal(self._Q)[: self.n]
+            i = int(np.argmax(diag))
+            if 1.0 / diag[i] >= floor:
+                break
+            self.delete(i)
+
+    def _deletion_choice(self) -> int:
+        """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
+        n = self.n
+        a = self._A[:n]
+        den = np.diagonal(self._Q)[:n] + np.diagonal(self._C)[:n]
+        # Q_ii + C_ii > 0 in exact arithmetic (a diagonal of K^-1 Sigma_post K^-1); guard it
+        score = np.einsum("ij,ij->i", a, a) / np.maximum(den, 1e-300)
+        return int(np.argmin(score))
+
+    def delete(self, i: int) -> None:
+        """Remove basis vector ``i`` with the rank-1 corrections of thesis App. G(g) (§2.7)."""
+        n = self.n
+        j = n - 1
+        if i != j:  # permute i to the end
+            idx = [i, j]
+            rev = [j, i]
+            for mat in (self._C, self._Q):
+                v = mat[:n, :n]
+                v[idx] = v[rev]
+                v[:, idx] = v[:, rev]
+            self._A[idx] = self._A[rev]
+            self._B[idx] = self._B[rev]
+        a_star = self._A[j].copy()
+        c_star = float(self._C[j, j])
+        q_star = float(self._Q[j, j])
+        c_v = self._C[:j, j].copy()
+        q_v = self._Q[:j, j].copy()
+        qc = q_v + c_v
+        den = q_star + c_star
+        if den <= 0.0:  # numerically broken: fall back to the Q-only (marginal) removal
+            den = math.inf
+        self._A[:j] -= np.outer(qc, a_star) / den
+        qq = np.outer(q_v, q_v) / q_star
+        self._C[:j, :j] += qq - np.outer(qc, qc) / den
+        self._Q[:j, :j] -= qq
+        self.n = j
+
+    def _grow(self, need: int) -> None:
+        alloc = self._C.shape[0]
+        if need <= alloc:
+            return
+        new = alloc * 2
+        if self.capacity is not None:
+            new = min(new, self.capacity + 1)
+        new = max(new, need)
+        n = self.n
+        for name in ("_B", "_A"):
+            old = getattr(self, name)
+            buf = np.zeros((new, old.shape[1]))
+            buf[:n] = old[:n]
+            setattr(self, name, buf)
+        for name in ("_C", "_Q"):
+            old = getattr(self, name)
+            buf = np.zeros((new, new))
+            buf[:n, :n] = old[:n, :n]
+            setattr(self, name, buf)
+
+    # -- copies and state ----------------------------------------------------------------------
+
+    def copy(self) -> SparseOnlineGP:
+        """An independent copy (used for copy-on-write in :class:`~.roger.Roger`)."""
+        alloc = self._C.shape[0]
+        out = SparseOnlineGP(self.d_x, self.d_y, self.kernel, self.noise, self.capacity,
+                             self.novelty_threshold, self.normaliser, _alloc=alloc)
+        n = self.n
+        out.n = n
+        out.n_points = self.n_points
+        out._B[:n] = self._B[:n]
+        out._A[:n] = self._A[:n]
+        out._C[:n, :n] = self._C[:n, :n]
+        out._Q[:n, :n] = self._Q[:n, :n]
+        return out
+
+    def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,  # noqa: N803
+             n_points: int, alloc: int | None = None) -> None:
+        """Set the state from arrays (inverse of reading :attr:`B`, :attr:`A`, :attr:`C`, ...).
+
+        ``alloc`` restores the buffer size too, so that a restored expert computes with the
+        same memory layout as the saved one.
+        """
+        n = B.shape[0]
+        self.n = 0
+        size = max(n, self._C.shape[0] if alloc is None else int(alloc))
+        if size != self._C.shape[0]:
+            self._B = np.zeros((size, self.d_x))
+            self._A = np.zeros((size, self.d_y))
+            self._C = np.zeros((size, size))
+            self._Q = np.zeros((size, size))
+        self._B[:n] = B
+        self._A[:n] = A
+        self._C[:n, :n] = C
+        self._Q[:n, :n] = Q
+        self.n = n
+        self.n_points = int(n_points)

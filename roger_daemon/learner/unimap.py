@@ -1,0 +1,147 @@
+"""The unimap baseline: one sparse online GP on all data (the paper's "DPA").
+
+Same API as :class:`~.roger.Roger`: ``n_experts`` is 1 once anything has been learned,
+``assignments()`` is all zeros, the multimap has one branch with gate probability 1.  On a
+multimap (one input, several outputs) it predicts near the average of the branches, which is
+what ROGER is meant to avoid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner.kernel import RBFKernel
+from roger_daemon.learner.params import RogerParams
+from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.roger import _pack_gps, _unpack_gps, check_dims
+from roger_daemon.learner.scaling import AffineScaling, as_vector
+from roger_daemon.learner.sogp import SparseOnlineGP
+from roger_daemon.learner.state import (
+    SCHEMA_VERSION,
+    Seed,
+    generator_from_state,
+    generator_state,
+    pack_meta,
+    spawn_generators,
+    unpack_meta,
+)
+
+__all__ = ["UnimapGP"]
+
+IntArray = npt.NDArray[np.int64]
+
+
+class UnimapGP:
+    """One multi-output sparse online GP with ROGER's kernel, noise, capacity and scaling.
+
+    Parameters
+    ----------
+    d_x, d_y : int
+        Input and output dimensions.
+    params : RogerParams, optional
+        Only ``theta_w``, ``theta_n``, ``beta``, the kernel/likelihood options, the novelty
+        threshold and the scalings are used.
+    seed : int, numpy Generator or None
+        Accepted for API symmetry; the baseline is deterministic and draws nothing.
+
+    Examples
+    --------
+    >>> base = UnimapGP(d_x=1, d_y=1)
+    >>> for i in range(40):
+    ...     base.learn_one([0.5], [(-1.0) ** i])  # two branches: +1 and -1
+    >>> abs(float(base.predict_one([0.5]).mean[0])) < 0.1  # the average
+    True
+    """
+
+    kind = "unimap"
+
+    def __init__(self, d_x: int, d_y: int, params: RogerParams | None = None,
+                 seed: Seed = None) -> None:
+        self.d_x, self.d_y = check_dims(d_x, d_y)
+        self.params = RogerParams() if params is None else params
+        if not isinstance(self.params, RogerParams):
+            raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
+        self.params.check_dims(self.d_x, self.d_y)
+        self._learn_rng, self._predict_rng = spawn_generators(seed)
+        p = self.params
+        self._scaling = AffineScaling(p, self.d_x, self.d_y)
+        self.kernel = RBFKernel(p.theta_w, self.d_x, p.kernel_dim_scaling)
+        self._gp = SparseOnlineGP(self.d_x, self.d_y, self.kernel, p.theta_n, p.beta,
+                                  p.novelty_threshold, p.likelihood_normaliser)
+
+    @property
+    def n_learned(self) -> int:
+        """Points learned so far."""
+        return self._gp.n_points
+
+    @property
+    def n_experts(self) -> int:
+        """1 once anything has been learned, else 0."""
+        return 1 if self._gp.n_points else 0
+
+    def learn_one(self, x: npt.ArrayLike, y: npt.ArrayLike) -> None:
+        """Learn one pair; ``ValueError`` (model unchanged) on bad shape or non-finite values."""
+        xs = self._scaling.x_in(as_vector("x", x, self.d_x))
+        ys = self._scaling.y_in(as_vector("y", y, self.d_y))
+        self._gp.update(xs, ys)
+
+    def predict_one(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
+                    ) -> Prediction:
+        """Predictive mean and variance of the single GP (the prior before any learning)."""
+        xs = self._scaling.x_in(as_vector("x", x, self.d_x))
+        mean, var = self._gp.predict(xs)
+        return Prediction(mean=self._scaling.mean_out(mean), var=self._scaling.var_out(var),
+                          expert_id=0 if self._gp.n_points else -1, gate_prob=1.0)
+
+    def predict_multimap(self, x: npt.ArrayLike) -> list[ExpertPrediction]:
+        """A one-branch multimap (empty before any learning)."""
+        if not self._gp.n_points:
+            as_vector("x", x, self.d_x)
+            return []
+        pred = self.predict_one(x)
+        return [ExpertPrediction(expert_id=0, gate_prob=1.0, mean=pred.mean, var=pred.var,
+                                 n_points=self._gp.n_points)]
+
+    def assignments(self) -> IntArray:
+        """All zeros: every point belongs to the one expert."""
+        return np.zeros(self._gp.n_points, dtype=np.int64)
+
+    def expert_sizes(self) -> dict[int, int]:
+        """``{0: points learned}`` (empty before any learning)."""
+        return {0: self._gp.n_points} if self._gp.n_points else {}
+
+    def basis_sizes(self) -> dict[int, int]:
+        """``{0: basis vectors}`` (empty before any learning)."""
+        return {0: self._gp.n} if self._gp.n_points else {}
+
+    @property
+    def gp(self) -> SparseOnlineGP:
+        """The underlying sparse online GP."""
+        return self._gp
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Flat named arrays plus JSON metadata (no pickle)."""
+        out = _pack_gps([self._gp], self.d_x, self.d_y)
+        out["meta"] = pack_meta({
+            "schema": SCHEMA_VERSION,
+            "kind": self.kind,
+            "d_x": self.d_x,
+            "d_y": self.d_y,
+            "params": self.params.to_mapping(),
+            "rng_learn": generator_state(self._learn_rng),
+            "rng_predict": generator_state(self._predict_rng),
+        })
+        return out
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, np.ndarray]) -> UnimapGP:
+        """Rebuild the model from :meth:`state_dict` output."""
+        meta = unpack_meta(state, cls.kind)
+        model = cls(int(meta["d_x"]), int(meta["d_y"]), RogerParams.from_mapping(meta["params"]))
+        model._learn_rng = generator_from_state(meta["rng_learn"])
+        model._predict_rng = generator_from_state(meta["rng_predict"])
+        (model._gp,) = _unpack_gps(state, lambda: SparseOnlineGP(
+            model.d_x, model.d_y, model.kernel, model.params.theta_n, model.params.beta,
+            model.params.novelty_threshold, model.params.likelihood_normaliser))
+        return model
