@@ -1,0 +1,192 @@
+"""``roger replay FILE``: rebuild the learner offline and compare; or re-publish on Zenoh.
+
+Exit codes: 0 ok; 1 ``--check`` found a mismatch beyond ``--tolerance`` (or nothing to
+compare, or predictions the log cannot reproduce); 2 the session cannot be replayed as asked.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import tomllib
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+__all__ = ["configure", "run"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``roger replay``."""
+    parser.add_argument("files", nargs="+", type=Path, metavar="FILE",
+                        help="session MCAP file(s); the other parts of a rotated session are "
+                             "added automatically")
+    parser.add_argument("--config", type=Path, metavar="CONFIG.toml",
+                        help="take learner params from this config's [learner] table")
+    parser.add_argument("--seed", type=int, help="model seed (default: the recorded one)")
+    parser.add_argument("--robot", help="robot to replay (default: the recorded one)")
+    parser.add_argument("--model", choices=("roger", "unimap"), help="default: the recorded one")
+    parser.add_argument("--checkpoint", type=Path, metavar="FILE.npz",
+                        help="model the session resumed from (state_dict arrays, no pickle)")
+    parser.add_argument("--check", action="store_true",
+                        help="exit 1 unless every recorded prediction is reproduced")
+    parser.add_argument("--tolerance", type=float, default=1e-9,
+                        help="max abs difference allowed by --check (default 1e-9)")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g = parser.add_argument_group("re-publish on Zenoh instead of replaying offline")
+    g.add_argument("--publish", action="store_true", help="re-publish the recorded messages")
+    g.add_argument("--speed", type=float, default=1.0,
+                   help="pace by log_time: 1 realtime, 0 as fast as possible")
+    g.add_argument("--kinds", default="perception,action,command,episode,control",
+                   help="message kinds to re-publish (comma-separated)")
+    from roger_daemon.recording import zenoh_net
+
+    zenoh_net.add_arguments(parser)
+
+
+def _session_files(files: list[Path]) -> list[Path]:
+    from roger_daemon.recording import files as sfiles
+
+    if len(files) != 1:
+        return files
+    sf = sfiles.parse_name(files[0])
+    if sf is None:
+        return files
+    parts = [f.path for f in sfiles.list_session_files(files[0].parent, robot=sf.robot)
+             if f.session_id == sf.session_id]
+    return parts or files
+
+
+def _config(path: Path) -> tuple[dict[str, Any] | None, int | None]:
+    with open(path, "rb") as f:
+        cfg = tomllib.load(f)
+    table = cfg.get("learner")
+    params = dict(table) if isinstance(table, dict) else None
+    seed = None
+    if params is not None and "seed" in params:
+        seed = int(params.pop("seed"))
+    for section in (cfg, cfg.get("daemon", {}), cfg.get("model", {})):
+        if isinstance(section, dict) and isinstance(section.get("seed"), int) and seed is None:
+            seed = int(section["seed"])
+    return params, seed
+
+
+def _load_checkpoint(path: Path) -> Any:
+    import numpy as np
+
+    from roger_daemon import learner
+
+    with np.load(path, allow_pickle=False) as z:
+        state = {k: z[k] for k in z.files}
+    return learner.load_model(state)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Replay (or re-publish) and report."""
+    files = _session_files(list(args.files))
+    for f in files:
+        if not f.is_file():
+            print(f"roger replay: no such file {f}", file=sys.stderr)
+            return 2
+    if args.publish:
+        return _publish(args, files)
+    return _replay(args, files)
+
+
+def _replay(args: argparse.Namespace, files: list[Path]) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    from roger_daemon.recording.replay import ReplayError, replay_timeline
+    from roger_daemon.recording.timeline import read_timeline
+
+    err = Console(stderr=True)
+    params, seed = (None, None)
+    if args.config:
+        params, seed = _config(args.config)
+    if args.seed is not None:
+        seed = args.seed
+    try:
+        tl = read_timeline(files, robot=args.robot)
+        initial = _load_checkpoint(args.checkpoint) if args.checkpoint else None
+        total = sum(len(s.pairs) for s in tl.segments)
+        with Progress(
+            "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+            TimeElapsedColumn(), console=err, transient=True,
+            disable=args.no_progress or args.json,
+        ) as prog:
+            task = prog.add_task("replaying", total=total)
+            res = replay_timeline(
+                tl, params=params, seed=seed, model_kind=args.model, initial_model=initial,
+                progress=lambda n: prog.advance(task, n),
+            )
+    except (ReplayError, ValueError) as exc:
+        print(f"roger replay: {exc}", file=sys.stderr)
+        return 2
+    summary = res.summary(args.tolerance)
+    if args.json:
+        print(json.dumps(summary, indent=2, sort_keys=True))
+    else:
+        _print_summary(summary, res)
+    if not args.check:
+        return 0
+    if not res.diffs:
+        print("roger replay --check: the log has no predictions to compare", file=sys.stderr)
+        return 1
+    return 0 if res.ok(args.tolerance) else 1
+
+
+def _print_summary(s: dict[str, Any], res: Any) -> None:
+    print(f"files:        {', '.join(s['files'])}")
+    print(f"robot:        {s['robot']}   model: {s['model']}   seed: {s['seed']}")
+    print(f"learned:      {s['pairs_learned']} pairs ({s['segments']} segment(s)); "
+          f"n_learned {s['n_learned']}")
+    sizes = ", ".join(f"{k}:{v}" + (f"({s['expert_labels'][k]})" if k in s["expert_labels"]
+                                     else "") for k, v in s["expert_sizes"].items())
+    print(f"experts:      {s['n_experts']}  [{sizes}]")
+    print(f"predictions:  {s['predictions_compared']} compared, "
+          f"{s['predictions_unreplayable']} unreplayable")
+    print(f"max |diff|:   mean {s['max_abs_diff_mean']:.3g}  var {s['max_abs_diff_var']:.3g}  "
+          f"multimap {s['max_abs_diff_multimap']}")
+    print(f"mismatches:   {s['mismatches']} beyond {s['tolerance']:g} (expert "
+          f"{s['expert_mismatches']}, multimap ids {s['multimap_id_mismatches']}, sizes "
+          f"{s['size_mismatches']}; labels {s['label_mismatches']} reported only)")
+    if s["first_mismatch"]:
+        print(f"first:        {s['first_mismatch']}")
+    if s["invalid_messages"]:
+        print(f"invalid:      {s['invalid_messages']}")
+    for w in s["warnings"]:
+        print(f"warning:      {w}")
+    print("result:       " + ("OK" if s["ok"] else "MISMATCH"))
+
+
+def _publish(args: argparse.Namespace, files: list[Path]) -> int:
+    import zenoh
+
+    from roger_daemon.recording import zenoh_net
+    from roger_daemon.recording.publish import publish_log
+
+    stop = {"flag": False}
+
+    def _on_signal(signum: int, frame: FrameType | None) -> None:
+        stop["flag"] = True
+
+    old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    try:
+        with zenoh.open(zenoh_net.config_from_args(args)) as session:
+            st = publish_log(session, files, speed=args.speed, kinds=kinds, robot=args.robot,
+                             should_stop=lambda: stop["flag"])
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    out = {"published": st.published, "skipped": st.skipped, "by_topic": st.by_topic,
+           "wall_s": round(st.wall_s, 3), "log_span_s": round(st.log_span_s, 3),
+           "max_late_s": round(st.max_late_s, 4), "interrupted": stop["flag"]}
+    print(json.dumps(out, indent=2, sort_keys=True) if args.json else
+          f"published {st.published} messages in {st.wall_s:.2f} s (log span "
+          f"{st.log_span_s:.2f} s, speed {args.speed:g}); skipped {st.skipped}")
+    return 0

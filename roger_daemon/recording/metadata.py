@@ -1,0 +1,209 @@
+"""The session metadata record: config, learner params, dims, seed and versions.
+
+Every MCAP file (every rotated part too) holds one metadata record named ``roger.session``
+(:data:`METADATA_NAME`), a ``{str: str}`` map. The daemon builds it with
+:func:`session_metadata` and hands it to :class:`~roger_daemon.recording.SessionRecorder`, which
+adds the recorder's own keys (session id, part, start time). Replay and log-tail catch-up read it
+back with :func:`SessionInfo.from_metadata`.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import socket
+from collections.abc import Mapping
+from dataclasses import dataclass
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import Any
+
+from protocols.messages import MODES, Dims
+
+__all__ = [
+    "FORMAT",
+    "METADATA_NAME",
+    "SessionInfo",
+    "git_commit",
+    "package_versions",
+    "session_metadata",
+]
+
+#: Name of the metadata record in every file.
+METADATA_NAME = "roger.session"
+#: Value of the ``format`` key: bump when the meaning of the log changes.
+FORMAT = "roger-session/1"
+
+_DISTRIBUTIONS = {
+    "roger": "roger",
+    "numpy": "numpy",
+    "scipy": "scipy",
+    "zenoh": "eclipse-zenoh",
+    "mcap": "mcap",
+    "msgpack": "msgpack",
+}
+
+
+def package_versions() -> dict[str, str]:
+    """``{"<name>_version": version}`` for roger, numpy, scipy, zenoh, mcap, msgpack, python.
+
+    Read from the installed distributions' metadata, so nothing heavy (zenoh) is imported.
+    """
+    out: dict[str, str] = {}
+    for name, dist in _DISTRIBUTIONS.items():
+        try:
+            out[f"{name}_version"] = importlib_metadata.version(dist)
+        except importlib_metadata.PackageNotFoundError:
+            out[f"{name}_version"] = ""
+    if not out["roger_version"]:
+        from roger_daemon import __version__
+
+        out["roger_version"] = __version__
+    out["python_version"] = platform.python_version()
+    return out
+
+
+def git_commit() -> str:
+    """The project's git commit if it runs from a checkout (read from ``.git``, no subprocess)."""
+    root = Path(__file__).resolve().parents[2]
+    git = root / ".git"
+    try:
+        head = (git / "HEAD").read_text().strip()
+        if not head.startswith("ref: "):
+            return head
+        ref = head[5:]
+        ref_file = git / ref
+        if ref_file.is_file():
+            return ref_file.read_text().strip()
+        packed = git / "packed-refs"
+        if packed.is_file():
+            for line in packed.read_text().splitlines():
+                parts = line.split()
+                if len(parts) == 2 and parts[1] == ref:
+                    return parts[0]
+    except OSError:
+        pass
+    return ""
+
+
+def _params_json(params: Any) -> str:
+    if params is None:
+        return ""
+    if hasattr(params, "to_mapping"):
+        params = params.to_mapping()
+    if not isinstance(params, Mapping):
+        raise TypeError(f"learner_params must be a mapping or have to_mapping(), got {params!r}")
+    return json.dumps(dict(params), sort_keys=True, allow_nan=False)
+
+
+def session_metadata(
+    *,
+    robot: str,
+    config_text: str = "",
+    learner_params: Any = None,
+    dims: Dims | tuple[int, int] | None = None,
+    seed: int | None = None,
+    model: str = "roger",
+    mode: str = "learn+predict",
+    start_updates: int = 0,
+    checkpoint: str = "",
+    created_by: str = "roger daemon",
+    extra: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """Build the ``roger.session`` metadata map (all values are strings).
+
+    Parameters
+    ----------
+    robot
+        The robot this session is for.
+    config_text
+        The daemon's config file, verbatim (TOML).
+    learner_params
+        A ``RogerParams`` (anything with ``to_mapping()``) or a mapping; stored as sorted JSON.
+    dims
+        Perception and action sizes.
+    seed
+        The model's integer seed.
+    model
+        ``"roger"`` or ``"unimap"`` (the baseline).
+    mode
+        The daemon's mode at the start of the session (replay applies later ``control`` messages).
+    start_updates
+        ``model.n_learned`` when the session starts: 0 for a fresh model, the checkpoint's count
+        when the daemon resumed from a checkpoint.
+    checkpoint
+        The checkpoint the model was restored from, if any.
+    created_by
+        Which program wrote the file.
+    extra
+        More string keys (they must not collide with the standard ones).
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if isinstance(dims, tuple):
+        dims = Dims(*dims)
+    out: dict[str, str] = {
+        "format": FORMAT,
+        "robot": robot,
+        "created_by": created_by,
+        "config": config_text,
+        "learner_params": _params_json(learner_params),
+        "dims": json.dumps({"x": dims.x, "y": dims.y}) if dims is not None else "",
+        "seed": "" if seed is None else str(int(seed)),
+        "model": model,
+        "mode": mode,
+        "start_updates": str(int(start_updates)),
+        "checkpoint": checkpoint,
+        "hostname": socket.gethostname(),
+        "platform": platform.platform(),
+        "git_commit": git_commit(),
+        **package_versions(),
+    }
+    for k, v in (extra or {}).items():
+        if k in out:
+            raise ValueError(f"extra metadata key {k!r} collides with a standard key")
+        out[str(k)] = str(v)
+    return out
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """The replay-relevant part of a ``roger.session`` record, parsed."""
+
+    robot: str
+    dims: Dims | None
+    seed: int | None
+    learner_params: dict[str, Any] | None
+    model: str
+    mode: str
+    start_updates: int
+    session_id: str
+    part: int
+    raw: dict[str, str]
+
+    @classmethod
+    def from_metadata(cls, meta: Mapping[str, str]) -> SessionInfo:
+        """Parse a metadata map; missing keys (``roger record`` files) become None/defaults."""
+        dims_txt = meta.get("dims", "")
+        dims = None
+        if dims_txt:
+            d = json.loads(dims_txt)
+            dims = Dims(int(d["x"]), int(d["y"]))
+        params_txt = meta.get("learner_params", "")
+        params = json.loads(params_txt) if params_txt else None
+        if params is not None and not isinstance(params, dict):
+            raise ValueError("metadata learner_params is not a JSON object")
+        seed_txt = meta.get("seed", "")
+        mode = meta.get("mode", "") or "learn+predict"
+        return cls(
+            robot=meta.get("robot", ""),
+            dims=dims,
+            seed=int(seed_txt) if seed_txt else None,
+            learner_params=params,
+            model=meta.get("model", "") or "roger",
+            mode=mode if mode in MODES else "learn+predict",
+            start_updates=int(meta.get("start_updates", "") or 0),
+            session_id=meta.get("session_id", ""),
+            part=int(meta.get("part", "") or 0),
+            raw=dict(meta),
+        )

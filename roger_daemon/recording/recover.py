@@ -1,0 +1,171 @@
+"""Salvage a footer-less MCAP (killed writer) into a valid, indexed file.
+
+Everything that :class:`~roger_daemon.recording.mcapio.LogReader` can read (every complete chunk
+up to the first damaged record, plus metadata and attachments) is rewritten, in file order, by a
+fresh ``Writer`` that adds the summary, indexes and footer. Channel and schema ids are remapped;
+log time, publish time, sequence and payload bytes are kept exactly.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+from mcap.writer import CompressionType, Writer
+
+from roger_daemon.recording.mcapio import LogReader
+
+__all__ = ["RecoverReport", "default_output", "recover", "recover_in_place"]
+
+
+@dataclass(frozen=True)
+class RecoverReport:
+    """What a recovery kept."""
+
+    source: str
+    output: str
+    complete: bool  # the source already had its footer
+    messages: int  # messages written to the output
+    chunks: int  # complete chunks read from the source
+    channels: int
+    metadata: int
+    attachments: int
+    bytes_total: int  # source size
+    bytes_valid: int  # readable prefix of the source
+    error: str  # why reading stopped early ('' if it did not)
+
+    @property
+    def bytes_dropped(self) -> int:
+        """Unreadable tail of the source, in bytes."""
+        return self.bytes_total - self.bytes_valid
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready form."""
+        return {**asdict(self), "bytes_dropped": self.bytes_dropped}
+
+
+def default_output(path: str | Path) -> Path:
+    """``X.mcap`` -> ``X.recovered.mcap`` next to it."""
+    p = Path(path)
+    return p.with_name(p.stem + ".recovered.mcap")
+
+
+def recover(
+    path: str | Path,
+    out: str | Path | None = None,
+    *,
+    chunk_size: int = 1024 * 1024,
+    compression: CompressionType = CompressionType.ZSTD,
+) -> RecoverReport:
+    """Read ``path`` as far as it is readable and write a finished MCAP to ``out``.
+
+    ``out`` defaults to :func:`default_output`; it must differ from ``path`` (use
+    :func:`recover_in_place` to replace a file). Raises ``ValueError`` if ``path`` is not an
+    MCAP file at all (bad magic or no header); the output is then not written.
+    """
+    src = Path(path)
+    dst = default_output(src) if out is None else Path(out)
+    if dst.resolve() == src.resolve():
+        raise ValueError("output must differ from input; use recover_in_place()")
+    reader = LogReader(src)
+    records = reader.records()
+    first = next(records, None)
+    if not isinstance(first, Header):
+        raise ValueError(f"{src}: not an MCAP file ({reader.error or 'no header'})")
+    schema_map: dict[int, int] = {}
+    channel_map: dict[int, int] = {}
+    pending_schemas: dict[int, Schema] = {}
+    n_msg = n_meta = n_att = 0
+    tmp = dst.with_name(dst.name + ".part")
+    try:
+        with open(tmp, "wb") as f:
+            w = Writer(f, chunk_size=chunk_size, compression=compression)
+            w.start(profile=first.profile, library=first.library)
+            for rec in records:
+                if isinstance(rec, Schema):
+                    pending_schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    if rec.id in channel_map:
+                        continue
+                    sid = 0
+                    if rec.schema_id:
+                        if rec.schema_id not in schema_map:
+                            s = pending_schemas.get(rec.schema_id)
+                            if s is None:
+                                continue  # channel without its schema: its messages are dropped
+                            schema_map[rec.schema_id] = w.register_schema(
+                                name=s.name, encoding=s.encoding, data=s.data
+                            )
+                        sid = schema_map[rec.schema_id]
+                    channel_map[rec.id] = w.register_channel(
+                        topic=rec.topic,
+                        message_encoding=rec.message_encoding,
+                        schema_id=sid,
+                        metadata=dict(rec.metadata),
+                    )
+                elif isinstance(rec, Message):
+                    cid = channel_map.get(rec.channel_id)
+                    if cid is None:
+                        continue
+                    w.add_message(
+                        cid,
+                        log_time=rec.log_time,
+                        data=rec.data,
+                        publish_time=rec.publish_time,
+                        sequence=rec.sequence,
+                    )
+                    n_msg += 1
+                elif isinstance(rec, Metadata):
+                    w.add_metadata(rec.name, dict(rec.metadata))
+                    n_meta += 1
+                elif isinstance(rec, Attachment):
+                    w.add_attachment(
+                        create_time=rec.create_time,
+                        log_time=rec.log_time,
+                        name=rec.name,
+                        media_type=rec.media_type,
+                        data=rec.data,
+                    )
+                    n_att += 1
+            w.finish()
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, dst)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return RecoverReport(
+        source=str(src),
+        output=str(dst),
+        complete=reader.complete,
+        messages=n_msg,
+        chunks=reader.chunks,
+        channels=len(channel_map),
+        metadata=n_meta,
+        attachments=n_att,
+        bytes_total=reader.bytes_total,
+        bytes_valid=reader.bytes_valid,
+        error=reader.error,
+    )
+
+
+def recover_in_place(path: str | Path, *, keep_original: bool = False) -> RecoverReport:
+    """Replace ``path`` by its recovered form atomically (same name, so session discovery and
+    catch-up keep working). With ``keep_original`` the damaged file stays as ``X.mcap.damaged``.
+    """
+    src = Path(path)
+    fd, tmpname = tempfile.mkstemp(prefix=src.name + ".", suffix=".recovering", dir=src.parent)
+    os.close(fd)
+    tmp = Path(tmpname)
+    try:
+        rep = recover(src, tmp)
+        if keep_original:
+            os.link(src, src.with_name(src.name + ".damaged"))
+        os.replace(tmp, src)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return RecoverReport(**{**asdict(rep), "output": str(src)})

@@ -1,0 +1,455 @@
+"""Offline replay: rebuild the learner from a recorded session and compare its predictions.
+
+:func:`replay_session` is the core (used by ``roger replay``, the tests and the experiment).
+It reads the session with :func:`~roger_daemon.recording.timeline.read_timeline`, rebuilds the
+model with the recorded params and seed, learns the recorded pairs in the daemon's order, and
+recomputes every recorded prediction from the model at the same ``updates`` count (predictions
+are evaluated in ``updates`` order, then file order, calling ``predict_one`` then
+``predict_multimap`` as the daemon does). No Zenoh is involved.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.recording.metadata import SessionInfo
+from roger_daemon.recording.timeline import (
+    LearnedPair,
+    RecordedPrediction,
+    Segment,
+    Timeline,
+    read_timeline,
+)
+
+__all__ = [
+    "Model",
+    "ModelFactory",
+    "PredictionDiff",
+    "ReplayError",
+    "ReplayResult",
+    "default_model_factory",
+    "majority_labels",
+    "replay_session",
+    "replay_timeline",
+]
+
+
+class ReplayError(RuntimeError):
+    """The session cannot be replayed as asked (e.g. it resumed from a checkpoint not given)."""
+
+
+class Model(Protocol):
+    """The part of the learner API (docs/learner-api.md) that replay uses."""
+
+    @property
+    def n_learned(self) -> int: ...
+    @property
+    def n_experts(self) -> int: ...
+
+    def learn_one(self, x: Any, y: Any) -> Any: ...
+    def predict_one(self, x: Any) -> Any: ...
+    def predict_multimap(self, x: Any) -> Any: ...
+    def assignments(self) -> Any: ...
+    def expert_sizes(self) -> Any: ...
+
+
+#: ``factory(model_kind, d_x, d_y, params_mapping_or_None, seed_or_None) -> Model``
+ModelFactory = Callable[[str, int, int, "Mapping[str, Any] | None", "int | None"], Model]
+
+
+def default_model_factory(
+    kind: str, d_x: int, d_y: int, params: Mapping[str, Any] | None, seed: int | None
+) -> Model:
+    """Build ``Roger`` (or ``UnimapGP`` for model ``"unimap"``) from ``roger_daemon.learner``."""
+    from roger_daemon import learner
+
+    p = learner.RogerParams.from_mapping(dict(params)) if params else learner.RogerParams()
+    cls = learner.UnimapGP if kind == "unimap" else learner.Roger
+    model: Model = cls(d_x=d_x, d_y=d_y, params=p, seed=seed)
+    return model
+
+
+@dataclass(frozen=True)
+class PredictionDiff:
+    """One recorded prediction against its recomputation."""
+
+    segment: int
+    tick: int
+    updates: int
+    log_time_ns: int
+    mean_abs: float  # max |mean_replayed - mean_recorded|
+    var_abs: float  # max |var_replayed - var_recorded|
+    expert_recorded: int
+    expert_replayed: int
+    multimap_abs: float  # max |p|,|mean|,|var| difference over the experts; inf if ids differ
+    multimap_ids_match: bool
+    sizes_match: bool  # points per expert (the multimap's n) equal
+    labels_match: bool | None  # majority labels equal (None: not compared)
+
+    @property
+    def expert_match(self) -> bool:
+        """Same chosen expert id."""
+        return self.expert_recorded == self.expert_replayed
+
+    def ok(self, tolerance: float) -> bool:
+        """Within tolerance, same chosen expert, same multimap experts and sizes."""
+        return (
+            self.mean_abs <= tolerance
+            and self.var_abs <= tolerance
+            and self.multimap_abs <= tolerance
+            and self.expert_match
+            and self.multimap_ids_match
+            and self.sizes_match
+        )
+
+
+@dataclass
+class ReplayResult:
+    """What a replay rebuilt and how it compares with the recording."""
+
+    files: list[Path]
+    info: SessionInfo
+    robot: str
+    model_kind: str
+    params: dict[str, Any] | None
+    seed: int | None
+    model: Model | None  # the final model (last segment)
+    pairs: list[LearnedPair]  # learned pairs of the last segment, in order
+    labels: list[str]  # the action label of each learned pair (last segment)
+    assignments: npt.NDArray[np.int64]  # final model's expert of every learned pair
+    expert_labels: dict[int, str]  # majority label per expert of the final model
+    diffs: list[PredictionDiff]
+    unreplayable: int  # predictions whose model state the log cannot reproduce
+    timeline: Timeline
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def n_experts(self) -> int:
+        """Experts of the final model."""
+        return int(self.model.n_experts) if self.model is not None else 0
+
+    @property
+    def n_learned(self) -> int:
+        """``n_learned`` of the final model."""
+        return int(self.model.n_learned) if self.model is not None else 0
+
+    def max_mean_diff(self) -> float:
+        """Max abs difference of means over all compared predictions (0 if none)."""
+        return max((d.mean_abs for d in self.diffs), default=0.0)
+
+    def max_var_diff(self) -> float:
+        """Max abs difference of variances over all compared predictions (0 if none)."""
+        return max((d.var_abs for d in self.diffs), default=0.0)
+
+    def max_multimap_diff(self) -> float:
+        """Max abs difference inside the multimaps (inf if some expert ids differ)."""
+        return max((d.multimap_abs for d in self.diffs), default=0.0)
+
+    def mismatches(self, tolerance: float) -> list[PredictionDiff]:
+        """Predictions that do not reproduce within ``tolerance``."""
+        return [d for d in self.diffs if not d.ok(tolerance)]
+
+    def ok(self, tolerance: float) -> bool:
+        """Every recorded prediction reproduced and none left unreplayable."""
+        return self.unreplayable == 0 and not self.mismatches(tolerance)
+
+    def summary(self, tolerance: float) -> dict[str, Any]:
+        """JSON-ready report."""
+        bad = self.mismatches(tolerance)
+        tl = self.timeline
+        sizes = {}
+        if self.model is not None:
+            sizes = {str(k): int(v) for k, v in dict(self.model.expert_sizes()).items()}
+
+        def _f(v: float) -> float | str:
+            return v if math.isfinite(v) else "inf"
+
+        return {
+            "files": [str(p) for p in self.files],
+            "robot": self.robot,
+            "model": self.model_kind,
+            "seed": self.seed,
+            "params": self.params,
+            "pairs_learned": len(self.pairs),
+            "n_learned": self.n_learned,
+            "n_experts": self.n_experts,
+            "expert_sizes": sizes,
+            "expert_labels": {str(k): v for k, v in sorted(self.expert_labels.items())},
+            "segments": len(tl.segments),
+            "predictions_compared": len(self.diffs),
+            "predictions_unreplayable": self.unreplayable,
+            "max_abs_diff_mean": _f(self.max_mean_diff()),
+            "max_abs_diff_var": _f(self.max_var_diff()),
+            "max_abs_diff_multimap": _f(self.max_multimap_diff()),
+            "expert_mismatches": sum(not d.expert_match for d in self.diffs),
+            "multimap_id_mismatches": sum(not d.multimap_ids_match for d in self.diffs),
+            "size_mismatches": sum(not d.sizes_match for d in self.diffs),
+            "label_mismatches": sum(d.labels_match is False for d in self.diffs),
+            "tolerance": tolerance,
+            "mismatches": len(bad),
+            "first_mismatch": None
+            if not bad
+            else {"tick": bad[0].tick, "updates": bad[0].updates, "segment": bad[0].segment},
+            "ok": self.ok(tolerance),
+            "invalid_messages": dict(tl.invalid),
+            "pairs_not_learned": tl.pairs_not_learned,
+            "unpaired": {"perceptions": tl.unpaired[0], "actions": tl.unpaired[1]},
+            "predictions_without_query": tl.predictions_without_query,
+            "incomplete_files": tl.incomplete_files,
+            "file_errors": tl.file_errors,
+            "warnings": self.warnings,
+        }
+
+
+def majority_labels(assignments: Iterable[int], labels: Iterable[str]) -> dict[int, str]:
+    """Majority label per expert; ties go to the label seen first in the session."""
+    a = np.asarray(list(assignments), dtype=np.int64)
+    labs = list(labels)
+    if a.size == 0:
+        return {}
+    if a.size != len(labs):
+        raise ValueError(f"{a.size} assignments but {len(labs)} labels")
+    order: dict[str, int] = {}
+    codes = np.fromiter((order.setdefault(s, len(order)) for s in labs), np.int64, len(labs))
+    names = list(order)
+    experts, inv = np.unique(a, return_inverse=True)
+    counts = np.zeros((experts.size, len(names)), dtype=np.int64)
+    np.add.at(counts, (inv, codes), 1)
+    best = counts.argmax(axis=1)  # first maximum = the label seen first
+    return {int(e): names[int(b)] for e, b in zip(experts, best, strict=True)}
+
+
+def _maxabs(a: Any, b: Any) -> float:
+    x = np.asarray(a, dtype=np.float64)
+    y = np.asarray(b, dtype=np.float64)
+    if x.shape != y.shape:
+        return math.inf
+    if x.size == 0:
+        return 0.0
+    d = float(np.max(np.abs(x - y)))
+    return d if not math.isnan(d) else math.inf
+
+
+def _compare(
+    seg_no: int,
+    rec: RecordedPrediction,
+    model: Model,
+    labels_now: dict[int, str] | None,
+) -> PredictionDiff:
+    pred = model.predict_one(rec.x)
+    mm = list(model.predict_multimap(rec.x))
+    rep_ids = [int(e.expert_id) for e in mm]
+    rec_ids = [int(e.expert) for e in rec.multimap]
+    ids_match = sorted(rep_ids) == sorted(rec_ids)
+    mm_abs = 0.0
+    sizes = True
+    labels_ok: bool | None = None
+    if ids_match:
+        by_id = {int(e.expert_id): e for e in mm}
+        if labels_now is not None:
+            labels_ok = True
+        for r in rec.multimap:
+            e = by_id[int(r.expert)]
+            mm_abs = max(
+                mm_abs,
+                abs(float(e.gate_prob) - r.p),
+                _maxabs(e.mean, r.mean),
+                _maxabs(e.var, r.var),
+            )
+            sizes = sizes and int(e.n_points) == r.n
+            if labels_now is not None:
+                labels_ok = labels_ok and labels_now.get(int(r.expert), "") == r.label
+    else:
+        mm_abs = math.inf
+        sizes = False
+    return PredictionDiff(
+        segment=seg_no,
+        tick=rec.tick,
+        updates=rec.updates,
+        log_time_ns=rec.log_time_ns,
+        mean_abs=_maxabs(pred.mean, rec.mean),
+        var_abs=_maxabs(pred.var, rec.var),
+        expert_recorded=rec.expert,
+        expert_replayed=int(pred.expert_id),
+        multimap_abs=mm_abs,
+        multimap_ids_match=ids_match,
+        sizes_match=sizes,
+        labels_match=labels_ok,
+    )
+
+
+def _replay_segment(
+    seg_no: int,
+    seg: Segment,
+    model: Model,
+    diffs: list[PredictionDiff],
+    *,
+    compare_labels: bool,
+    progress: Callable[[int], None] | None,
+) -> int:
+    """Learn the segment's pairs, evaluating predictions on the way; return unreplayable."""
+    preds = sorted(seg.predictions, key=lambda p: p.updates)  # stable: file order within a count
+    labels: list[str] = []
+    unreplayable = 0
+    pi = 0
+    label_budget = compare_labels and len(seg.pairs) * max(len(preds), 1) <= 200_000_000
+
+    def evaluate(upto: int) -> None:
+        nonlocal pi, unreplayable
+        while pi < len(preds) and preds[pi].updates <= upto:
+            rec = preds[pi]
+            pi += 1
+            if rec.updates < seg.start_updates:
+                unreplayable += 1
+                continue
+            labels_now = None
+            if label_budget and rec.multimap and labels:
+                labels_now = majority_labels(np.asarray(model.assignments())[-len(labels):],
+                                             labels)
+            diffs.append(_compare(seg_no, rec, model, labels_now))
+
+    for k, pair in enumerate(seg.pairs):
+        evaluate(seg.start_updates + k)
+        model.learn_one(pair.x, pair.y)
+        labels.append(pair.label)
+        if progress is not None:
+            progress(1)
+    evaluate(seg.end_updates)
+    unreplayable += len(preds) - pi  # computed after pairs the log does not have
+    return unreplayable
+
+
+def replay_timeline(
+    tl: Timeline,
+    *,
+    params: Mapping[str, Any] | None = None,
+    seed: int | None = None,
+    model_kind: str | None = None,
+    initial_model: Model | None = None,
+    model_factory: ModelFactory | None = None,
+    compare_labels: bool = True,
+    progress: Callable[[int], None] | None = None,
+) -> ReplayResult:
+    """Replay an already read :class:`Timeline` (see :func:`replay_session`)."""
+    info = tl.info
+    warnings: list[str] = []
+    if tl.dims is None:
+        raise ReplayError("no dims in the metadata and no valid perception/action to infer them")
+    kind = model_kind or info.model
+    use_params = dict(params) if params is not None else info.learner_params
+    use_seed = seed if seed is not None else info.seed
+    if use_seed is None:
+        warnings.append("no seed recorded and none given: using seed 0 (replay may differ)")
+        use_seed = 0
+    factory = model_factory or default_model_factory
+    diffs: list[PredictionDiff] = []
+    unreplayable = 0
+    model: Model | None = None
+    for i, seg in enumerate(tl.segments):
+        if i == 0 and seg.start_updates > 0:
+            if initial_model is None:
+                warnings.append(
+                    f"session resumed from a checkpoint at {seg.start_updates} updates "
+                    f"({info.raw.get('checkpoint', '?')}); give the checkpoint to replay it"
+                )
+                unreplayable += len(seg.predictions)
+                model = None
+                continue
+            if int(initial_model.n_learned) != seg.start_updates:
+                raise ReplayError(
+                    f"initial model has learned {initial_model.n_learned} pairs, the session "
+                    f"started at {seg.start_updates}"
+                )
+            model = initial_model
+        else:
+            model = factory(kind, tl.dims.x, tl.dims.y, use_params, use_seed)
+        unreplayable += _replay_segment(
+            i, seg, model, diffs, compare_labels=compare_labels, progress=progress
+        )
+    last = tl.segments[-1]
+    labels = [p.label for p in last.pairs]
+    if model is not None:
+        assignments = np.asarray(model.assignments(), dtype=np.int64)
+        own = assignments[-len(labels):] if labels else assignments[:0]
+        expert_labels = majority_labels(own, labels) if labels else {}
+    else:
+        assignments = np.zeros(0, dtype=np.int64)
+        expert_labels = {}
+    if tl.incomplete_files:
+        warnings.append(f"incomplete files (no footer): {tl.incomplete_files}")
+    return ReplayResult(
+        files=tl.files,
+        info=info,
+        robot=tl.robot,
+        model_kind=kind,
+        params=use_params,
+        seed=use_seed,
+        model=model,
+        pairs=last.pairs,
+        labels=labels,
+        assignments=assignments,
+        expert_labels=expert_labels,
+        diffs=diffs,
+        unreplayable=unreplayable,
+        timeline=tl,
+        warnings=warnings,
+    )
+
+
+def replay_session(
+    path: str | Path | Iterable[str | Path],
+    params: Mapping[str, Any] | None = None,
+    *,
+    seed: int | None = None,
+    robot: str | None = None,
+    model_kind: str | None = None,
+    initial_model: Model | None = None,
+    model_factory: ModelFactory | None = None,
+    compare_labels: bool = True,
+    progress: Callable[[int], None] | None = None,
+) -> ReplayResult:
+    """Replay one session (a file, or its parts in order) offline.
+
+    Parameters
+    ----------
+    path
+        The MCAP file, or the session's parts in order (footer-less files are read up to their
+        last complete chunk).
+    params
+        Learner params (e.g. a config's ``[learner]`` table); default: the recorded ones.
+    seed
+        Model seed; default: the recorded one.
+    robot
+        Which robot to replay; default: the metadata's (needed for multi-robot ``roger record``
+        files).
+    model_kind
+        ``"roger"`` or ``"unimap"``; default: the recorded one.
+    initial_model
+        The model the session started from, when it resumed from a checkpoint
+        (metadata ``start_updates`` > 0).
+    model_factory
+        Builds the model (default: :func:`default_model_factory`).
+    compare_labels
+        Also compare the multimaps' majority labels (reported; not part of :meth:`ReplayResult.ok`).
+    progress
+        Called with 1 after each learned pair.
+    """
+    paths = [path] if isinstance(path, str | Path) else list(path)
+    tl = read_timeline(paths, robot=robot)
+    return replay_timeline(
+        tl,
+        params=params,
+        seed=seed,
+        model_kind=model_kind,
+        initial_model=initial_model,
+        model_factory=model_factory,
+        compare_labels=compare_labels,
+        progress=progress,
+    )

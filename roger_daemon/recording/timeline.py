@@ -1,0 +1,319 @@
+"""From a recorded session to what the learner saw: learned pairs and recorded predictions.
+
+The rules mirror the daemon's loop, read in the log's write order (which is the order the daemon
+processed messages in, because it records each message as it takes it off its queues):
+
+* **Pairing** (:class:`PairTracker`): ``perception(t)`` and ``action(t)`` of the same robot and
+  tick form a training pair when the second of the two arrives; the newest perception of a tick
+  wins; each tick pairs at most once; pending halves older than ``max_pending`` ticks are
+  dropped. Messages that fail ``protocols.decode`` (with the session's dims) are skipped.
+* **Learning**: a pair is learned iff the mode is ``learn`` or ``learn+predict`` when it forms.
+  The mode starts as the metadata's ``mode`` and follows ``control`` messages with ``op=mode``.
+* **Reset**: ``control`` with ``op=reset`` starts a new :class:`Segment` whose model is fresh
+  (``n_learned`` 0, same params and seed).
+* **Predictions**: each recorded prediction is tied to the newest perception of its tick (its
+  query) and to its ``updates`` (the model's ``n_learned`` when it was computed).
+
+The first segment starts at the metadata's ``start_updates`` (non-zero when the daemon resumed
+from a checkpoint), so a pair's ``index`` is the model's ``n_learned`` just before learning it.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, OrderedDict
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from protocols import keys as keyexpr
+from protocols.errors import ProtocolError
+from protocols.messages import (
+    Action,
+    Control,
+    Dims,
+    ExpertOutput,
+    Perception,
+    Prediction,
+    decode,
+)
+from roger_daemon.recording.mcapio import LogReader
+from roger_daemon.recording.metadata import SessionInfo
+
+__all__ = [
+    "LEARNING_MODES",
+    "LearnedPair",
+    "PairTracker",
+    "RecordedPrediction",
+    "Segment",
+    "Timeline",
+    "read_timeline",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Modes in which the daemon learns the pairs it forms.
+LEARNING_MODES = ("learn", "learn+predict")
+
+
+@dataclass(frozen=True)
+class LearnedPair:
+    """One training pair, as the learner got it."""
+
+    index: int  # model.n_learned just before this pair was learned
+    tick: int
+    x: FloatArray
+    y: FloatArray
+    label: str
+    log_time_ns: int
+
+
+@dataclass(frozen=True)
+class RecordedPrediction:
+    """A prediction from the log, with the perception it answered."""
+
+    tick: int
+    updates: int
+    x: FloatArray
+    mean: FloatArray
+    var: FloatArray
+    expert: int
+    multimap: tuple[ExpertOutput, ...]
+    mode: str
+    log_time_ns: int
+
+
+@dataclass
+class Segment:
+    """A stretch of the session learned by one model (the session start, or after a reset)."""
+
+    start_updates: int
+    after_reset: bool
+    pairs: list[LearnedPair] = field(default_factory=list)
+    predictions: list[RecordedPrediction] = field(default_factory=list)
+
+    @property
+    def end_updates(self) -> int:
+        """``n_learned`` of the model after the last pair."""
+        return self.start_updates + len(self.pairs)
+
+
+class PairTracker:
+    """Pair perception and action of one robot by tick (the daemon's rule; see module doc).
+
+    The daemon can use this very class, which guarantees that replay pairs the same way.
+    """
+
+    def __init__(self, max_pending: int = 256) -> None:
+        self.max_pending = max_pending
+        self._perc: OrderedDict[int, Perception] = OrderedDict()
+        self._act: OrderedDict[int, Action] = OrderedDict()
+        self.dropped_perceptions = 0
+        self.dropped_actions = 0
+
+    def perception(self, msg: Perception) -> tuple[Perception, Action] | None:
+        """Take a perception; return the pair it completes, if any."""
+        act = self._act.pop(msg.tick, None)
+        if act is not None:
+            return msg, act
+        self._perc[msg.tick] = msg
+        self._perc.move_to_end(msg.tick)
+        while len(self._perc) > self.max_pending:
+            self._perc.popitem(last=False)
+            self.dropped_perceptions += 1
+        return None
+
+    def action(self, msg: Action) -> tuple[Perception, Action] | None:
+        """Take an action; return the pair it completes, if any."""
+        perc = self._perc.pop(msg.tick, None)
+        if perc is not None:
+            return perc, msg
+        self._act[msg.tick] = msg
+        self._act.move_to_end(msg.tick)
+        while len(self._act) > self.max_pending:
+            self._act.popitem(last=False)
+            self.dropped_actions += 1
+        return None
+
+    @property
+    def pending(self) -> tuple[int, int]:
+        """(perceptions, actions) waiting for their other half."""
+        return len(self._perc), len(self._act)
+
+
+@dataclass
+class Timeline:
+    """Everything replay and catch-up need from one session's files."""
+
+    info: SessionInfo
+    robot: str
+    dims: Dims | None
+    segments: list[Segment]
+    files: list[Path]
+    file_errors: dict[str, str]
+    incomplete_files: list[str]
+    messages: int = 0
+    invalid: Counter[str] = field(default_factory=Counter)
+    pairs_not_learned: int = 0  # formed while the mode did not learn
+    unpaired: tuple[int, int] = (0, 0)  # (perceptions, actions) left without a partner
+    predictions_without_query: int = 0
+
+    @property
+    def pairs(self) -> list[LearnedPair]:
+        """Learned pairs of the last segment (the final model's history)."""
+        return self.segments[-1].pairs
+
+    @property
+    def resets(self) -> int:
+        """Number of resets in the session."""
+        return len(self.segments) - 1
+
+
+def _robot_for(info: SessionInfo, topics: Iterable[str], robot: str | None) -> str:
+    if robot:
+        return robot
+    if info.robot and info.robot not in ("*", "all"):
+        return info.robot
+    robots = set()
+    for t in topics:
+        try:
+            r, kind = keyexpr.parse(t)
+        except ProtocolError:
+            continue
+        if kind in ("perception", "action"):
+            robots.add(r)
+    if len(robots) == 1:
+        return robots.pop()
+    raise ValueError(
+        f"cannot tell which robot to replay: the log has {sorted(robots) or 'none'}; pass robot="
+    )
+
+
+def read_timeline(
+    paths: Iterable[str | Path],
+    *,
+    robot: str | None = None,
+    dims: Dims | None = None,
+    mode: str | None = None,
+    start_updates: int | None = None,
+) -> Timeline:
+    """Read a session (its parts in order) into segments of learned pairs and predictions.
+
+    ``robot``, ``dims``, ``mode`` and ``start_updates`` override the metadata (needed for files
+    from ``roger record``, which has no learner metadata: dims then come from the first valid
+    perception and action).
+    """
+    files = [Path(p) for p in paths]
+    if not files:
+        raise ValueError("no files to read")
+    readers = [LogReader(p) for p in files]
+    # Metadata first (cheap: it is at the front of each file).
+    from roger_daemon.recording.mcapio import read_metadata
+
+    meta = read_metadata(files[0])
+    info = SessionInfo.from_metadata(meta)
+    topics: set[str] = set()
+    if not robot and not (info.robot and info.robot not in ("*", "all")):
+        for r in readers:
+            for lm in LogReader(r.path).messages():
+                topics.add(lm.topic)
+    who = _robot_for(info, topics, robot)
+    dims = dims or info.dims
+    mode_now = mode or info.mode
+    start = info.start_updates if start_updates is None else start_updates
+    segments = [Segment(start_updates=start, after_reset=False)]
+    tl = Timeline(
+        info=info,
+        robot=who,
+        dims=dims,
+        segments=segments,
+        files=files,
+        file_errors={},
+        incomplete_files=[],
+    )
+    tracker = PairTracker()
+    recent: OrderedDict[int, Perception] = OrderedDict()  # newest perception per tick (queries)
+    want = {keyexpr.key(who, k): k for k in ("perception", "action", "control", "prediction")}
+    dx = dims.x if dims else None
+    dy = dims.y if dims else None
+    for reader in readers:
+        for lm in reader.messages():
+            kind = want.get(lm.topic)
+            if kind is None:
+                continue
+            tl.messages += 1
+            try:
+                msg = decode(kind, lm.message.data, dims=Dims(dx, dy) if dx and dy else None,
+                             robot=who)
+            except ProtocolError as exc:
+                tl.invalid[exc.reason] += 1
+                continue
+            t_ns = lm.message.log_time
+            pair = None
+            if isinstance(msg, Perception):
+                if dx is None:
+                    dx = msg.x.size
+                elif msg.x.size != dx:
+                    tl.invalid["wrong_dimension"] += 1
+                    continue
+                recent[msg.tick] = msg
+                recent.move_to_end(msg.tick)
+                if len(recent) > tracker.max_pending:
+                    recent.popitem(last=False)
+                pair = tracker.perception(msg)
+            elif isinstance(msg, Action):
+                if dy is None:
+                    dy = msg.y.size
+                elif msg.y.size != dy:
+                    tl.invalid["wrong_dimension"] += 1
+                    continue
+                pair = tracker.action(msg)
+            elif isinstance(msg, Control):
+                if msg.op == "mode":
+                    mode_now = msg.mode
+                elif msg.op == "reset":
+                    segments.append(Segment(start_updates=0, after_reset=True))
+            elif isinstance(msg, Prediction):
+                q = recent.get(msg.tick)
+                if q is None:
+                    tl.predictions_without_query += 1
+                    continue
+                segments[-1].predictions.append(
+                    RecordedPrediction(
+                        tick=msg.tick,
+                        updates=msg.updates,
+                        x=q.x,
+                        mean=msg.mean,
+                        var=msg.var,
+                        expert=msg.expert,
+                        multimap=msg.multimap,
+                        mode=msg.mode,
+                        log_time_ns=t_ns,
+                    )
+                )
+            if pair is not None:
+                if mode_now not in LEARNING_MODES:
+                    tl.pairs_not_learned += 1
+                    continue
+                p, a = pair
+                seg = segments[-1]
+                seg.pairs.append(
+                    LearnedPair(
+                        index=seg.end_updates,
+                        tick=p.tick,
+                        x=p.x,
+                        y=a.y,
+                        label=a.label,
+                        log_time_ns=t_ns,
+                    )
+                )
+        if reader.error:
+            tl.file_errors[str(reader.path)] = reader.error
+        if not reader.complete:
+            tl.incomplete_files.append(str(reader.path))
+    if tl.dims is None and dx is not None and dy is not None:
+        tl.dims = Dims(dx, dy)
+    tl.unpaired = tracker.pending
+    return tl

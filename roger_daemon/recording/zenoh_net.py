@@ -1,0 +1,63 @@
+"""Zenoh session config for the recorder and the replay publisher (loopback peers).
+
+Peer mode, multicast scouting off, gossip on, explicit endpoints on 127.0.0.1 by default.
+Import this module only where Zenoh is needed (``roger record``, ``roger replay --publish``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+
+import zenoh
+
+__all__ = ["DEFAULT_CONNECT", "DEFAULT_LISTEN", "add_arguments", "make_config"]
+
+#: The conventional port of the daemon or router on this machine.
+DEFAULT_CONNECT = ("tcp/127.0.0.1:7447",)
+#: An ephemeral loopback port (others find it by gossip).
+DEFAULT_LISTEN = ("tcp/127.0.0.1:0",)
+
+
+def make_config(
+    *,
+    listen: Sequence[str] = DEFAULT_LISTEN,
+    connect: Sequence[str] = DEFAULT_CONNECT,
+    mode: str = "peer",
+    config_file: str | None = None,
+) -> zenoh.Config:
+    """A Zenoh config: ``config_file`` (JSON5) if given, then mode/endpoints/scouting on top."""
+    cfg = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("scouting/gossip/enabled", "true")
+    return cfg
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--connect``, ``--listen`` (repeatable) and ``--zenoh-config``."""
+    parser.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"Zenoh endpoint to connect to (repeatable; default {DEFAULT_CONNECT[0]})",
+    )
+    parser.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"Zenoh endpoint to listen on (repeatable; default {DEFAULT_LISTEN[0]})",
+    )
+    parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config to start from")
+
+
+def config_from_args(args: argparse.Namespace) -> zenoh.Config:
+    """The config for parsed :func:`add_arguments` options."""
+    return make_config(
+        listen=args.listen if args.listen is not None else DEFAULT_LISTEN,
+        connect=args.connect if args.connect is not None else DEFAULT_CONNECT,
+        config_file=args.zenoh_config,
+    )
