@@ -22,6 +22,9 @@ from collections.abc import Sequence
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("roger_daemon.bench", "benchmarks: learner, daemon, sim (table or --json)"),
+    "record": ("roger_daemon.recording.cli_record", "record Zenoh traffic to MCAP"),
+    "log": ("roger_daemon.recording.cli_log", "log tools: info, recover, export"),
+    "replay": ("roger_daemon.recording.cli_replay", "replay a log into the learner"),
 }
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()
