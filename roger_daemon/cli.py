@@ -22,6 +22,8 @@ from collections.abc import Sequence
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("roger_daemon.bench", "benchmarks: learner, daemon, sim (table or --json)"),
+    "daemon": ("roger_daemon.daemon", "the learner daemon: predictions, status, checkpoints"),
+    "router": ("roger_daemon.router", "a Zenoh router (Python session) for several hosts"),
     "record": ("roger_daemon.recording.cli_record", "record Zenoh traffic to MCAP"),
     "log": ("roger_daemon.recording.cli_log", "log tools: info, recover, export"),
     "replay": ("roger_daemon.recording.cli_replay", "replay a log into the learner"),
@@ -30,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 # roger bench NAME -> (module, one-line help); each module has configure() and run()
 BENCHES: dict[str, tuple[str, str]] = {
     "learner": ("roger_daemon.bench.learner", "learner updates/s and latency, synthetic stream"),
+    "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
 }
 
 

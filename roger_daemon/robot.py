@@ -1,0 +1,357 @@
+"""One served robot: its model, pairing by tick, the bounded training queue, labels, counters.
+
+Everything here runs on the service loop's thread; nothing is shared with transport threads.
+
+Pairing: perception(t) and action(t) meet by tick in two small insertion-ordered buffers of
+``pair_window`` entries (whichever arrives first waits). A completed pair goes into the
+training queue of ``queue_size`` pairs; when it is full the new pair is dropped, counted in
+``dropped``, logged, and shown in status. An action whose perception never arrives is
+evicted after ``pair_window`` newer actions and counted as ``unpaired_actions``.
+
+Labels: the daemon keeps the subtask label of every learned pair (as a code into a
+vocabulary) and maps the model's ``assignments()`` to the majority label of each expert.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter, OrderedDict, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from protocols.errors import REASONS
+from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
+
+__all__ = ["Pair", "RobotRuntime", "majority_labels"]
+
+log = logging.getLogger(__name__)
+
+LEARN_MODES = ("learn", "learn+predict")
+PREDICT_MODES = ("predict", "learn+predict")
+
+
+@dataclass(frozen=True, slots=True)
+class Pair:
+    """A training pair waiting in the queue."""
+
+    x: np.ndarray
+    y: np.ndarray
+    label: int
+    tick: int
+
+
+def majority_labels(assignments: np.ndarray, codes: np.ndarray, vocab: list[str]) -> dict[int, str]:
+    """Expert id -> most frequent non-empty label of its points ("" if none is labelled).
+
+    Ties go to the label seen first (lowest code), so the result is deterministic.
+    """
+    if len(assignments) == 0 or not vocab:
+        return {}
+    ids, inv = np.unique(assignments, return_inverse=True)
+    n_lab = len(vocab)
+    counts = np.bincount(inv * n_lab + codes, minlength=len(ids) * n_lab).reshape(len(ids), n_lab)
+    if "" in vocab:
+        counts[:, vocab.index("")] = 0
+    best = counts.argmax(axis=1)
+    has = counts.max(axis=1) > 0
+    return {int(e): (vocab[int(b)] if h else "") for e, b, h in zip(ids, best, has, strict=True)}
+
+
+class _Window:
+    """A fixed-size window of recent float samples with percentiles."""
+
+    def __init__(self, size: int = 1000) -> None:
+        self.values: deque[float] = deque(maxlen=size)
+
+    def add(self, v: float) -> None:
+        self.values.append(v)
+
+    def pct(self, q: float) -> float:
+        if not self.values:
+            return 0.0
+        return float(np.percentile(np.fromiter(self.values, float), q))
+
+
+class RobotRuntime:
+    """The state the loop keeps for one robot.
+
+    Parameters
+    ----------
+    robot
+        The robot id.
+    dims
+        Perception / action sizes.
+    model
+        An object following ``docs/learner-api.md`` (``learn_one``, ``predict_one``,
+        ``predict_multimap``, ``assignments``, ``n_experts``, ``n_learned``, ``state_dict``).
+    make_model
+        Builds a fresh model (used by the ``reset`` control).
+    mode
+        Initial operating mode (one of ``protocols.messages.MODES``).
+    """
+
+    def __init__(
+        self,
+        robot: str,
+        dims: Dims,
+        model: Any,
+        make_model: Callable[[], Any],
+        *,
+        mode: str = "learn+predict",
+        queue_size: int = 256,
+        pair_window: int = 64,
+    ) -> None:
+        self.robot = robot
+        self.dims = dims
+        self.model = model
+        self.make_model = make_model
+        self.mode = mode
+        self.queue_size = queue_size
+        self.pair_window = pair_window
+        self.queue: deque[Pair] = deque()
+        self._perceptions: OrderedDict[int, Perception] = OrderedDict()
+        self._actions: OrderedDict[int, Action] = OrderedDict()
+        self.vocab: list[str] = []
+        self._vocab_index: dict[str, int] = {}
+        self._codes = np.zeros(1024, dtype=np.int32)
+        self.n_codes = 0
+        self.newest: tuple[Perception, int] | None = None  # (message, receipt monotonic ns)
+        # counters (restored from checkpoints)
+        self.ticks = 0
+        self.dropped = 0
+        self.unpaired = 0
+        self.learn_errors = 0
+        self.invalid: Counter[str] = Counter()
+        self.last_tick = 0
+        self.last_t = 0.0
+        # windows and bookkeeping
+        self.latency = _Window()
+        self.learn_ms = _Window(200)
+        self.predict_ms = _Window(200)
+        self.generation = 0  # bumped on every model change (learn, reset)
+        self._labels_cache: tuple[int, dict[int, str]] | None = None
+        self._status_updates = 0
+        self._status_ns: int | None = None
+        self._reported: set[str] = set()
+
+    # --- modes ---------------------------------------------------------------------------
+
+    @property
+    def learning(self) -> bool:
+        return self.mode in LEARN_MODES
+
+    @property
+    def predicting(self) -> bool:
+        return self.mode in PREDICT_MODES
+
+    @property
+    def updates(self) -> int:
+        return int(self.model.n_learned)
+
+    # --- intake --------------------------------------------------------------------------
+
+    def count_invalid(self, reason: str, detail: str) -> None:
+        """Count one rejected message; log the first of each reason at WARNING."""
+        self.invalid[reason] += 1
+        if reason not in self._reported:
+            self._reported.add(reason)
+            log.warning("%s: rejected message (%s); further ones are only counted", self.robot,
+                        detail)
+        else:
+            log.debug("%s: rejected message (%s)", self.robot, detail)
+
+    def on_perception(self, msg: Perception, recv_ns: int) -> None:
+        self.ticks += 1
+        self.last_tick, self.last_t = msg.tick, msg.t
+        self.newest = (msg, recv_ns)
+        if not self.learning:
+            return
+        act = self._actions.pop(msg.tick, None)
+        if act is not None:
+            self._enqueue(msg, act)
+            return
+        self._perceptions[msg.tick] = msg
+        self._perceptions.move_to_end(msg.tick)
+        while len(self._perceptions) > self.pair_window:
+            self._perceptions.popitem(last=False)
+
+    def on_action(self, msg: Action) -> None:
+        if not self.learning:
+            return
+        perc = self._perceptions.pop(msg.tick, None)
+        if perc is not None:
+            self._enqueue(perc, msg)
+            return
+        self._actions[msg.tick] = msg
+        self._actions.move_to_end(msg.tick)
+        while len(self._actions) > self.pair_window:
+            tick, _ = self._actions.popitem(last=False)
+            self.unpaired += 1
+            self._warn_once("unpaired", f"{self.robot}: action of tick {tick} never met its "
+                            "perception; dropped (counted as unpaired_actions)")
+
+    def _label_code(self, label: str) -> int:
+        code = self._vocab_index.get(label)
+        if code is None:
+            code = len(self.vocab)
+            self.vocab.append(label)
+            self._vocab_index[label] = code
+        return code
+
+    def _enqueue(self, perc: Perception, act: Action) -> None:
+        if len(self.queue) >= self.queue_size:
+            self.dropped += 1
+            self._warn_once("overflow", f"{self.robot}: training queue full ({self.queue_size}); "
+                            f"pair of tick {act.tick} dropped (counted in status 'dropped')")
+            return
+        self.queue.append(Pair(perc.x, act.y, self._label_code(act.label), act.tick))
+
+    def _warn_once(self, what: str, text: str) -> None:
+        if what not in self._reported:
+            self._reported.add(what)
+            log.warning("%s; further ones are only counted", text)
+        else:
+            log.debug(text)
+
+    # --- learning and prediction -----------------------------------------------------------
+
+    def learn_one(self) -> float:
+        """Learn the oldest queued pair; return the time it took in ms (0 if queue empty)."""
+        if not self.queue:
+            return 0.0
+        pair = self.queue.popleft()
+        t0 = time.perf_counter_ns()
+        try:
+            self.model.learn_one(pair.x, pair.y)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            self.learn_errors += 1
+            log.error("%s: learning the pair of tick %d failed (%s); pair skipped",
+                      self.robot, pair.tick, exc)
+            return (time.perf_counter_ns() - t0) / 1e6
+        ms = (time.perf_counter_ns() - t0) / 1e6
+        self._append_code(pair.label)
+        self.generation += 1
+        self.learn_ms.add(ms)
+        return ms
+
+    def _append_code(self, code: int) -> None:
+        if self.n_codes == len(self._codes):
+            self._codes = np.concatenate([self._codes, np.zeros_like(self._codes)])
+        self._codes[self.n_codes] = code
+        self.n_codes += 1
+
+    @property
+    def codes(self) -> np.ndarray:
+        return self._codes[: self.n_codes]
+
+    def expert_labels(self) -> dict[int, str]:
+        """Majority label of each expert of the MAP particle (cached per model generation)."""
+        if self._labels_cache is not None and self._labels_cache[0] == self.generation:
+            return self._labels_cache[1]
+        assign = np.asarray(self.model.assignments(), dtype=np.int64)
+        codes = self.codes
+        if len(assign) != len(codes):
+            # Should not happen; keep going with what lines up and say so once.
+            self._warn_once("labels", f"{self.robot}: {len(assign)} assignments but "
+                            f"{len(codes)} labels; labels mapped on the common prefix")
+            n = min(len(assign), len(codes))
+            assign, codes = assign[:n], codes[:n]
+        labels = majority_labels(assign, codes, self.vocab)
+        self._labels_cache = (self.generation, labels)
+        return labels
+
+    def predict(self, perc: Perception, recv_ns: int, now_ns: Callable[[], int]) -> Prediction:
+        """The prediction for ``perc`` with the model as it is now."""
+        t0 = time.perf_counter_ns()
+        p = self.model.predict_one(perc.x)
+        mm = self.model.predict_multimap(perc.x)
+        labels = self.expert_labels() if mm else {}
+        multimap = tuple(
+            ExpertOutput(
+                expert=int(e.expert_id), p=float(e.gate_prob), mean=e.mean, var=e.var,
+                n=int(e.n_points), label=labels.get(int(e.expert_id), ""),
+            )
+            for e in mm
+        )
+        self.predict_ms.add((time.perf_counter_ns() - t0) / 1e6)
+        latency_ms = (now_ns() - recv_ns) / 1e6
+        self.latency.add(latency_ms)
+        return Prediction(
+            self.robot, perc.tick, perc.t, mean=p.mean, var=p.var, expert=int(p.expert_id),
+            multimap=multimap, latency_ms=latency_ms, mode=self.mode, updates=self.updates,
+        )
+
+    # --- control ---------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget everything learned: a fresh model, no labels, empty queue and buffers."""
+        self.model = self.make_model()
+        self.queue.clear()
+        self._perceptions.clear()
+        self._actions.clear()
+        self.vocab, self._vocab_index = [], {}
+        self.n_codes = 0
+        self.generation += 1
+        self._labels_cache = None
+        self._status_updates = 0
+
+    # --- status ----------------------------------------------------------------------------
+
+    def updates_per_s(self, now_ns: int) -> float:
+        """Updates per second since the previous call (0 on the first)."""
+        u = self.updates
+        rate = 0.0
+        if self._status_ns is not None and now_ns > self._status_ns:
+            rate = max(0, u - self._status_updates) / ((now_ns - self._status_ns) / 1e9)
+        self._status_ns, self._status_updates = now_ns, u
+        return rate
+
+    # --- checkpoint state ------------------------------------------------------------------
+
+    def daemon_arrays(self) -> dict[str, np.ndarray]:
+        """Daemon state that must survive a restart, as named arrays."""
+        q = list(self.queue)
+        dx, dy = self.dims.x, self.dims.y
+        return {
+            "label_vocab": np.array(self.vocab, dtype=np.str_) if self.vocab
+            else np.zeros(0, dtype="<U1"),
+            "label_codes": self.codes.copy(),
+            "queue_x": np.array([p.x for p in q], dtype=np.float64).reshape(len(q), dx),
+            "queue_y": np.array([p.y for p in q], dtype=np.float64).reshape(len(q), dy),
+            "queue_labels": np.array([p.label for p in q], dtype=np.int32),
+            "queue_ticks": np.array([p.tick for p in q], dtype=np.int64),
+        }
+
+    def counters(self) -> dict[str, Any]:
+        return {
+            "ticks": self.ticks, "dropped": self.dropped, "unpaired_actions": self.unpaired,
+            "learn_errors": self.learn_errors, "last_tick": self.last_tick,
+            "last_t": self.last_t, "mode": self.mode,
+            "invalid": {k: int(v) for k, v in self.invalid.items()},
+        }
+
+    def restore(self, arrays: dict[str, np.ndarray], counters: dict[str, Any]) -> None:
+        """Load daemon state saved by :meth:`daemon_arrays` / :meth:`counters`."""
+        self.vocab = [str(s) for s in arrays["label_vocab"].tolist()]
+        self._vocab_index = {s: i for i, s in enumerate(self.vocab)}
+        codes = np.asarray(arrays["label_codes"], dtype=np.int32)
+        self._codes = np.zeros(max(1024, 2 * len(codes)), dtype=np.int32)
+        self._codes[: len(codes)] = codes
+        self.n_codes = len(codes)
+        self.queue.clear()
+        for x, y, lab, tick in zip(arrays["queue_x"], arrays["queue_y"], arrays["queue_labels"],
+                                   arrays["queue_ticks"], strict=True):
+            self.queue.append(Pair(np.array(x), np.array(y), int(lab), int(tick)))
+        self.ticks = int(counters.get("ticks", 0))
+        self.dropped = int(counters.get("dropped", 0))
+        self.unpaired = int(counters.get("unpaired_actions", 0))
+        self.learn_errors = int(counters.get("learn_errors", 0))
+        self.last_tick = int(counters.get("last_tick", 0))
+        self.last_t = float(counters.get("last_t", 0.0))
+        inv = counters.get("invalid", {})
+        self.invalid = Counter({str(k): int(v) for k, v in inv.items() if k in REASONS})
+        self._labels_cache = None

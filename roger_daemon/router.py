@@ -1,0 +1,81 @@
+"""``roger router``: a Zenoh router as a Python session in router mode.
+
+For several hosts: run one router, and start daemons, simulators and controllers as Zenoh
+clients that ``connect`` to it (``configs/zenoh/client.json5``); nothing else changes. The
+router's JSON5 file (default ``configs/zenoh/router.json5``) may carry an ``access_control``
+block (``configs/zenoh/router-acl.json5``). Stops cleanly on SIGTERM/SIGINT.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import time
+from pathlib import Path
+from types import FrameType
+
+from roger_daemon.sdnotify import Notifier
+
+__all__ = ["configure", "run"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CONFIG = Path("configs/zenoh/router.json5")
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``roger router``."""
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG,
+                        help=f"Zenoh JSON5 config (default {DEFAULT_CONFIG})")
+    parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                        help="listen endpoint, replacing the file's (repeatable), "
+                             "e.g. tcp/0.0.0.0:7447")
+    parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                        help="another router to connect to (repeatable)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the router until SIGTERM/SIGINT."""
+    import zenoh
+
+    stop = {"flag": False}
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        log.info("received %s", signal.Signals(signum).name)
+        stop["flag"] = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        cfg = zenoh.Config.from_file(str(args.config))
+    except Exception as exc:  # ZError: unreadable or invalid JSON5
+        log.error("config error: %s is not a usable Zenoh config: %s", args.config, exc)
+        return 2
+    cfg.insert_json5("mode", json.dumps("router"))
+    if args.listen:
+        cfg.insert_json5("listen/endpoints", json.dumps(args.listen))
+    if args.connect:
+        cfg.insert_json5("connect/endpoints", json.dumps(args.connect))
+    try:
+        session = zenoh.open(cfg)
+    except Exception as exc:
+        log.error("cannot start the router: %s", exc)
+        return 1
+    notifier = Notifier.from_env()
+    try:
+        listen = json.loads(cfg.get_json("listen/endpoints"))
+        acl = json.loads(cfg.get_json("access_control/enabled"))
+        log.info("router %s listening on %s (access control %s)", session.zid(), listen,
+                 "on" if acl else "off")
+        notifier.ready(f"router listening on {listen}")
+        while not stop["flag"]:
+            time.sleep(0.1)
+            notifier.watchdog(time.monotonic_ns())
+        notifier.stopping()
+    finally:
+        session.close()
+        notifier.close()
+    log.info("router stopped")
+    return 0

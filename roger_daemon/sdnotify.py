@@ -1,0 +1,91 @@
+"""The systemd notify protocol (sd_notify(3)), in a few lines and without a dependency.
+
+Messages are newline-separated ``KEY=VALUE`` datagrams sent to the AF_UNIX socket named by
+``$NOTIFY_SOCKET`` (a leading ``@`` means the abstract namespace). Outside systemd (no
+``NOTIFY_SOCKET``) every call is a no-op. The watchdog is enabled by ``$WATCHDOG_USEC`` (and,
+if set, ``$WATCHDOG_PID`` must be this process); :meth:`Notifier.watchdog` pings at half the
+interval and is meant to be called from the main loop only, after a cycle that made progress.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+from collections.abc import Mapping
+
+__all__ = ["Notifier"]
+
+log = logging.getLogger(__name__)
+
+
+class Notifier:
+    """Sends READY/STATUS/WATCHDOG/STOPPING to systemd when it is listening."""
+
+    def __init__(self, address: str | None, watchdog_usec: int | None = None) -> None:
+        self._addr: str | bytes | None = None
+        self._sock: socket.socket | None = None
+        if address:
+            self._addr = ("\0" + address[1:]) if address.startswith("@") else address
+            self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+        self.watchdog_ns = watchdog_usec * 1000 if watchdog_usec else None
+        self._last_ping_ns: int | None = None
+        self._failed = False
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] | None = None) -> Notifier:
+        """Read ``NOTIFY_SOCKET``, ``WATCHDOG_USEC`` and ``WATCHDOG_PID``."""
+        env = os.environ if env is None else env
+        usec: int | None = None
+        try:
+            usec = int(env.get("WATCHDOG_USEC", "")) or None
+        except ValueError:
+            usec = None
+        pid = env.get("WATCHDOG_PID")
+        if pid and pid != str(os.getpid()):
+            usec = None
+        return cls(env.get("NOTIFY_SOCKET") or None, usec)
+
+    @property
+    def enabled(self) -> bool:
+        return self._sock is not None
+
+    def send(self, *fields: str) -> bool:
+        """Send ``KEY=VALUE`` fields in one datagram; False if not under systemd or on error."""
+        if self._sock is None or self._addr is None:
+            return False
+        data = "\n".join(f.replace("\n", " ") for f in fields).encode("utf-8")
+        try:
+            self._sock.sendto(data, self._addr)
+        except OSError as exc:
+            if not self._failed:
+                log.warning("sd_notify to %r failed: %s", self._addr, exc)
+                self._failed = True
+            return False
+        return True
+
+    def ready(self, status: str = "") -> bool:
+        """Start-up is complete (session open, models loaded)."""
+        return self.send("READY=1", *([f"STATUS={status}"] if status else []))
+
+    def status(self, text: str) -> bool:
+        """Free text for ``systemctl status``."""
+        return self.send(f"STATUS={text}")
+
+    def stopping(self, status: str = "") -> bool:
+        """Shutdown has begun."""
+        return self.send("STOPPING=1", *([f"STATUS={status}"] if status else []))
+
+    def watchdog(self, now_ns: int) -> bool:
+        """Ping ``WATCHDOG=1`` if at least half the watchdog interval passed since the last."""
+        if self.watchdog_ns is None or self._sock is None:
+            return False
+        if self._last_ping_ns is not None and now_ns - self._last_ping_ns < self.watchdog_ns // 2:
+            return False
+        self._last_ping_ns = now_ns
+        return self.send("WATCHDOG=1")
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None

@@ -1,0 +1,303 @@
+"""The daemon's transport, behind a narrow interface: Zenoh in production, memory in tests.
+
+The service loop sees only :class:`Transport`: ``subscribe`` (deliveries arrive on another
+thread and must only be enqueued), ``publisher`` (one per key, declared once), ``declare_token``
+(liveliness), ``stop_intake`` and ``close``. :class:`ZenohTransport` implements it with one
+Zenoh session; :class:`MemoryTransport` is the in-memory fake used by the unit tests.
+
+Zenoh rules followed here (``zenoh-mcap-systemd-notes.md`` sections 0 and 1):
+
+- callbacks only copy the payload and push onto the :class:`Inbox`, never call Zenoh, never
+  block (``put_nowait``; an overflow is counted);
+- payloads larger than the protocol limit are not even copied (``Incoming.payload is None``);
+- predictions go out with ``CongestionControl.DROP``, ``express=True`` and
+  ``Priority.REAL_TIME``; status with DROP at ``Priority.DATA``;
+- the session is closed explicitly (callback subscribers would otherwise keep the
+  interpreter from exiting); the daemon never forks after opening it.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import re
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from roger_daemon.config import ZenohSettings
+
+__all__ = [
+    "Inbox",
+    "Incoming",
+    "MemoryTransport",
+    "Publisher",
+    "Transport",
+    "ZenohTransport",
+    "zenoh_config",
+]
+
+ENCODING = "application/msgpack"
+
+
+@dataclass(frozen=True, slots=True)
+class Incoming:
+    """One received sample, as the callback saw it.
+
+    ``payload`` is ``None`` when the sample was larger than the transport's limit (only its
+    ``size`` is kept). ``recv_ns`` is ``time.monotonic_ns()`` (latency), ``recv_wall_ns`` is
+    ``time.time_ns()`` (the recorder's log time).
+    """
+
+    key: str
+    payload: bytes | None
+    size: int
+    recv_ns: int
+    recv_wall_ns: int
+
+
+Deliver = Callable[[Incoming], None]
+
+
+class Publisher(Protocol):
+    """Publishes bytes on one key."""
+
+    def put(self, payload: bytes) -> None:
+        """Send one payload (never blocks for long: congestion control DROP)."""
+
+
+class Transport(Protocol):
+    """What the service loop needs from the middleware."""
+
+    def subscribe(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver every sample matching ``key_expr`` (from another thread)."""
+
+    def publisher(self, key: str, *, realtime: bool) -> Publisher:
+        """A publisher for ``key``; ``realtime`` selects the prediction QoS."""
+
+    def declare_token(self, key: str) -> None:
+        """Declare a liveliness token held until :meth:`close`."""
+
+    def stop_intake(self) -> None:
+        """Undeclare every subscriber (first step of shutdown)."""
+
+    def close(self) -> None:
+        """Release everything; idempotent."""
+
+
+class Inbox:
+    """The bounded hand-over from transport threads to the loop; overflow is counted.
+
+    ``put`` never blocks (it runs on Zenoh's callback threads); ``get`` blocks the loop up to
+    a timeout.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self._q: queue.Queue[Incoming] = queue.Queue(maxsize=capacity)
+        self._lock = threading.Lock()
+        self._overflow = 0
+        self.capacity = capacity
+
+    def put(self, item: Incoming) -> None:
+        try:
+            self._q.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self._overflow += 1
+
+    def get(self, timeout: float) -> Incoming | None:
+        try:
+            if timeout <= 0:
+                return self._q.get_nowait()
+            return self._q.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    @property
+    def overflow(self) -> int:
+        with self._lock:
+            return self._overflow
+
+    def __len__(self) -> int:
+        return self._q.qsize()
+
+
+# --- Zenoh ---------------------------------------------------------------------------------
+
+
+def zenoh_config(settings: ZenohSettings) -> Any:
+    """Build a ``zenoh.Config``: the JSON5 file (if any), then the explicit settings on top."""
+    import zenoh
+
+    cfg = zenoh.Config.from_file(str(settings.config_file)) if settings.config_file else (
+        zenoh.Config()
+    )
+    if settings.mode is not None:
+        cfg.insert_json5("mode", json.dumps(settings.mode))
+    if settings.listen is not None:
+        cfg.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    if settings.connect is not None:
+        cfg.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    if settings.multicast_scouting is not None:
+        cfg.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    if settings.lease_ms is not None:
+        cfg.insert_json5("transport/link/tx/lease", json.dumps(settings.lease_ms))
+    return cfg
+
+
+class _ZenohPublisher:
+    def __init__(self, pub: Any) -> None:
+        self._pub = pub
+
+    def put(self, payload: bytes) -> None:
+        self._pub.put(payload)
+
+
+class ZenohTransport:
+    """One Zenoh session; open it only after any fork (never fork after this)."""
+
+    def __init__(self, settings: ZenohSettings, *, max_payload_bytes: int) -> None:
+        import zenoh
+
+        self._zenoh = zenoh
+        self._max = max_payload_bytes
+        self.session = zenoh.open(zenoh_config(settings))
+        self._subs: list[Any] = []
+        self._pubs: list[Any] = []
+        self._tokens: list[Any] = []
+        self._closed = False
+
+    def subscribe(self, key_expr: str, deliver: Deliver) -> None:
+        zenoh = self._zenoh
+        limit = self._max
+        put_kind = zenoh.SampleKind.PUT
+
+        def on_sample(sample: Any) -> None:
+            # Runs on a Zenoh callback thread: copy, stamp, enqueue; nothing else.
+            recv_ns = time.monotonic_ns()
+            wall_ns = time.time_ns()
+            if sample.kind != put_kind:
+                return
+            zb = sample.payload
+            size = len(zb)
+            data = zb.to_bytes() if size <= limit else None
+            deliver(Incoming(str(sample.key_expr), data, size, recv_ns, wall_ns))
+
+        sub = self.session.declare_subscriber(
+            key_expr, on_sample, allowed_origin=zenoh.Locality.REMOTE
+        )
+        self._subs.append(sub)
+
+    def publisher(self, key: str, *, realtime: bool) -> Publisher:
+        zenoh = self._zenoh
+        pub = self.session.declare_publisher(
+            key,
+            encoding=zenoh.Encoding(ENCODING),
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.REAL_TIME if realtime else zenoh.Priority.DATA,
+            express=realtime,
+        )
+        self._pubs.append(pub)
+        return _ZenohPublisher(pub)
+
+    def declare_token(self, key: str) -> None:
+        self._tokens.append(self.session.liveliness().declare_token(key))
+
+    def stop_intake(self) -> None:
+        subs, self._subs = self._subs, []
+        for sub in subs:
+            try:
+                sub.undeclare()
+            except Exception:  # already closed with the session
+                pass
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.stop_intake()
+        for obj in (*self._tokens, *self._pubs):
+            try:
+                obj.undeclare()
+            except Exception:
+                pass
+        self._tokens, self._pubs = [], []
+        try:
+            self.session.close()
+        except Exception:  # ZError on timeout: nothing more to do on the way out
+            pass
+
+
+# --- the in-memory fake ------------------------------------------------------------------
+
+
+def _key_regex(key_expr: str) -> re.Pattern[str]:
+    """Literal chunks and ``*`` (one chunk, never a verbatim ``@`` chunk); enough for the fake."""
+    if "**" in key_expr.split("/"):
+        raise ValueError("MemoryTransport supports '*' but not '**' key expressions")
+    parts = [r"[^/@][^/]*" if c == "*" else re.escape(c) for c in key_expr.split("/")]
+    return re.compile("^" + "/".join(parts) + "$")
+
+
+@dataclass
+class _MemoryPublisher:
+    key: str
+    realtime: bool
+    sink: list[tuple[str, bytes, bool]]
+
+    def put(self, payload: bytes) -> None:
+        self.sink.append((self.key, bytes(payload), self.realtime))
+
+
+@dataclass
+class MemoryTransport:
+    """In-memory :class:`Transport` for unit tests: inject samples, inspect publications."""
+
+    max_payload_bytes: int = 64 * 1024
+    published: list[tuple[str, bytes, bool]] = field(default_factory=list)
+    tokens: list[str] = field(default_factory=list)
+    closed: bool = False
+    intake_stopped: bool = False
+    _subs: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
+    now_ns: Callable[[], int] = time.monotonic_ns
+
+    def subscribe(self, key_expr: str, deliver: Deliver) -> None:
+        self._subs.append((_key_regex(key_expr), deliver))
+
+    def publisher(self, key: str, *, realtime: bool) -> Publisher:
+        return _MemoryPublisher(key, realtime, self.published)
+
+    def declare_token(self, key: str) -> None:
+        self.tokens.append(key)
+
+    def stop_intake(self) -> None:
+        self.intake_stopped = True
+        self._subs = []
+
+    def close(self) -> None:
+        self.stop_intake()
+        self.closed = True
+
+    def inject(self, key: str, payload: bytes) -> int:
+        """Deliver ``payload`` on ``key`` to matching subscribers; returns how many matched."""
+        n = 0
+        size = len(payload)
+        data = payload if size <= self.max_payload_bytes else None
+        for rx, deliver in self._subs:
+            if rx.match(key):
+                deliver(Incoming(key, data, size, self.now_ns(), time.time_ns()))
+                n += 1
+        return n
+
+    def take(self, kind: str | None = None) -> list[tuple[str, bytes]]:
+        """Remove and return publications (optionally only keys ending in ``/<kind>``)."""
+        keep, out = [], []
+        for key, data, rt in self.published:
+            if kind is None or key.endswith("/" + kind):
+                out.append((key, data))
+            else:
+                keep.append((key, data, rt))
+        self.published[:] = keep
+        return out
