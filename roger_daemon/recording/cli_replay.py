@@ -42,6 +42,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    help="pace by log_time: 1 realtime, 0 as fast as possible")
     g.add_argument("--kinds", default="perception,action,command,episode,control",
                    help="message kinds to re-publish (comma-separated)")
+    g.add_argument("--wait", type=float, default=2.0, metavar="S",
+                   help="wait up to S seconds for subscribers before publishing (default 2)")
     from roger_daemon.recording import zenoh_net
 
     zenoh_net.add_arguments(parser)
@@ -179,13 +181,14 @@ def _publish(args: argparse.Namespace, files: list[Path]) -> int:
     try:
         with zenoh.open(zenoh_net.config_from_args(args)) as session:
             st = publish_log(session, files, speed=args.speed, kinds=kinds, robot=args.robot,
-                             should_stop=lambda: stop["flag"])
+                             should_stop=lambda: stop["flag"], wait_subscribers_s=args.wait)
     finally:
         for s, h in old.items():
             signal.signal(s, h)
     out = {"published": st.published, "skipped": st.skipped, "by_topic": st.by_topic,
            "wall_s": round(st.wall_s, 3), "log_span_s": round(st.log_span_s, 3),
-           "max_late_s": round(st.max_late_s, 4), "interrupted": stop["flag"]}
+           "max_late_s": round(st.max_late_s, 4), "interrupted": stop["flag"],
+           "subscribers_matched": st.subscribers_matched}
     print(json.dumps(out, indent=2, sort_keys=True) if args.json else
           f"published {st.published} messages in {st.wall_s:.2f} s (log span "
           f"{st.log_span_s:.2f} s, speed {args.speed:g}); skipped {st.skipped}")

@@ -31,7 +31,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-__all__ = ["LogMessage", "LogReader", "is_complete", "read_metadata"]
+__all__ = ["LogMessage", "LogReader", "is_complete", "iter_files", "read_metadata", "topics_of"]
 
 
 @dataclass(frozen=True)
@@ -179,6 +179,23 @@ def read_metadata(path: str | Path) -> dict[str, str]:
         if isinstance(rec, Message | Chunk):
             break
     return {}
+
+
+def topics_of(path: str | Path) -> list[str]:
+    """Channel topics of a file: from the summary when there is one, else by a linear read."""
+    from mcap.reader import SeekingReader
+
+    try:
+        with open(path, "rb") as f:
+            summary = SeekingReader(f).get_summary()
+        if summary is not None:
+            return sorted({c.topic for c in summary.channels.values()})
+    except Exception:
+        pass
+    reader = LogReader(Path(path))
+    for _ in reader.records():
+        pass
+    return sorted({c.topic for c in reader.channels.values()})
 
 
 def is_complete(path: str | Path) -> bool:

@@ -18,7 +18,7 @@ from typing import Any
 
 from protocols import keys as keyexpr
 from protocols.errors import ProtocolError
-from roger_daemon.recording.mcapio import LogReader
+from roger_daemon.recording.mcapio import LogReader, topics_of
 
 __all__ = ["DEFAULT_KINDS", "PublishStats", "publish_log"]
 
@@ -35,6 +35,7 @@ class PublishStats:
     wall_s: float = 0.0
     log_span_s: float = 0.0
     max_late_s: float = 0.0  # worst lateness against the paced schedule
+    subscribers_matched: bool = False  # every publisher had a subscriber when sending began
 
 
 def publish_log(
@@ -46,30 +47,49 @@ def publish_log(
     robot: str | None = None,
     should_stop: Callable[[], bool] | None = None,
     progress: Callable[[int], None] | None = None,
+    wait_subscribers_s: float = 0.0,
 ) -> PublishStats:
-    """Publish the messages of ``paths`` on an open ``zenoh.Session``; see the module doc."""
+    """Publish the messages of ``paths`` on an open ``zenoh.Session``; see the module doc.
+
+    Publishers are declared for every recorded topic first; with ``wait_subscribers_s`` > 0 it
+    then waits (up to that long) until each of them has a matching subscriber, so that the
+    first messages are not sent into the void.
+    """
     import zenoh
 
     if speed < 0:
         raise ValueError("speed must be >= 0")
     wanted = set(kinds)
+    files = [Path(p) for p in paths]
     enc = zenoh.Encoding("application/msgpack")
-    pubs: dict[str, Any] = {}
     st = PublishStats()
+
+    def selected(topic: str) -> bool:
+        try:
+            r, kind = keyexpr.parse(topic)
+        except ProtocolError:
+            return False
+        return kind in wanted and (robot is None or r == robot)
+
+    topics = {t for p in files for t in topics_of(p) if selected(t)}
+    pubs: dict[str, Any] = {t: session.declare_publisher(t, encoding=enc) for t in sorted(topics)}
+    deadline = time.monotonic() + wait_subscribers_s
+    while pubs and time.monotonic() < deadline and not all(
+        pub.matching_status for pub in pubs.values()
+    ):
+        time.sleep(0.01)
+    st.subscribers_matched = all(pub.matching_status for pub in pubs.values()) if pubs else False
     t_wall0 = time.monotonic()
     t_log0: int | None = None
     last_log = 0
     try:
-        for p in paths:
+        for p in files:
             for lm in LogReader(Path(p)).messages():
                 if should_stop is not None and should_stop():
                     return st
                 topic = lm.topic
-                try:
-                    r, kind = keyexpr.parse(topic)
-                except ProtocolError:
-                    r, kind = "", ""
-                if kind not in wanted or (robot is not None and r != robot):
+                pub = pubs.get(topic)
+                if pub is None:
                     st.skipped += 1
                     continue
                 lt = lm.message.log_time
@@ -79,13 +99,13 @@ def publish_log(
                 if speed > 0:
                     due = t_wall0 + (lt - t_log0) / 1e9 / speed
                     wait = due - time.monotonic()
-                    if wait > 0:
-                        time.sleep(wait)
-                    else:
+                    if wait <= 0:
                         st.max_late_s = max(st.max_late_s, -wait)
-                pub = pubs.get(topic)
-                if pub is None:
-                    pub = pubs[topic] = session.declare_publisher(topic, encoding=enc)
+                    while wait > 0:  # in slices, so that a stop request is seen within 0.1 s
+                        time.sleep(min(wait, 0.1))
+                        if should_stop is not None and should_stop():
+                            return st
+                        wait = due - time.monotonic()
                 pub.put(lm.message.data)
                 st.published += 1
                 st.by_topic[topic] = st.by_topic.get(topic, 0) + 1

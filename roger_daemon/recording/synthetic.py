@@ -48,6 +48,7 @@ class SyntheticSession:
     pairs: list[tuple[int, Any, Any, str]] = field(default_factory=list)  # (tick, x, y, label)
     predictions: list[Prediction] = field(default_factory=list)
     recorder: SessionRecorder | None = None
+    checkpoints: dict[int, Any] = field(default_factory=dict)  # n_learned -> state_dict()
 
 
 def _full_params(pmap: Mapping[str, Any]) -> Any:
@@ -95,6 +96,10 @@ def record_synthetic_session(
     model_factory: Callable[..., Model] | None = None,
     recorder_kwargs: Mapping[str, Any] | None = None,
     close: bool = True,
+    initial_model: Model | None = None,
+    tick0: int = 0,
+    start_ns: int = START_NS,
+    checkpoint_at: tuple[int, ...] = (),
 ) -> SyntheticSession:
     """Record a session of ``n_ticks`` ticks, as the daemon would; see the module doc.
 
@@ -102,8 +107,12 @@ def record_synthetic_session(
     ``resets`` are ticks with a ``reset`` control; ``action_first`` ticks send the action before
     the perception; ``drop_action`` ticks have no action; ``garbage`` ticks add an undecodable
     perception payload. ``close=False`` leaves the file open (for crash tests).
+
+    ``initial_model`` continues a model (as a daemon resumed from a checkpoint: the metadata's
+    ``start_updates`` is its ``n_learned``); ``tick0`` starts ticks (and the stream) later;
+    ``checkpoint_at`` takes ``state_dict()`` snapshots when ``n_learned`` reaches those counts.
     """
-    x, y, labels = synthetic_stream(stream, n_ticks, seed=0)
+    x, y, labels = synthetic_stream(stream, tick0 + n_ticks, seed=0)
     dims = Dims(int(x.shape[1]), int(y.shape[1]))
     factory = model_factory or default_model_factory
     pmap = dict(params) if params is not None else {}
@@ -115,11 +124,13 @@ def record_synthetic_session(
         dims=dims,
         seed=seed,
         mode=mode,
+        start_updates=0 if initial_model is None else int(initial_model.n_learned),
         created_by="roger_daemon.recording.synthetic",
     )
-    rec = SessionRecorder(directory, robot=robot, metadata=meta, start_ns=START_NS,
+    rec = SessionRecorder(directory, robot=robot, metadata=meta, start_ns=start_ns,
                           **dict(recorder_kwargs or {}))
-    model = factory("roger", dims.x, dims.y, pmap, seed)
+    model = factory("roger", dims.x, dims.y, pmap, seed) if initial_model is None else (
+        initial_model)
     out = SyntheticSession(paths=[], dims=dims, model=model, recorder=rec)
     learned_labels: list[str] = []
     k_perc, k_act, k_pred = keys.perception(robot), keys.action(robot), keys.prediction(robot)
@@ -129,8 +140,8 @@ def record_synthetic_session(
         rec.write(key, payload, log_time_ns=t_ns, publish_time_ns=t_ns - 1_000_000,
                   sequence=tick)
 
-    for t in range(n_ticks):
-        now = START_NS + t * TICK_NS
+    for t in range(tick0, tick0 + n_ticks):
+        now = start_ns + (t - tick0) * TICK_NS
         if modes and t in modes:
             mode = modes[t]
             put(k_ctl, encode(Control(robot, t, t / 30, op="mode", mode=mode, stamp_ns=now)),
@@ -154,6 +165,8 @@ def record_synthetic_session(
             model.learn_one(x[t], y[t])
             learned_labels.append(labels[t])
             out.pairs.append((t, x[t], y[t], labels[t]))
+            if model.n_learned in checkpoint_at:
+                out.checkpoints[model.n_learned] = model.state_dict()  # type: ignore[attr-defined]
         if mode in ("predict", "learn+predict") and t % predict_every == 0:
             p = model.predict_one(x[t])
             mm = model.predict_multimap(x[t])

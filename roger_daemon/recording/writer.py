@@ -268,7 +268,6 @@ class SessionRecorder:
             compression=COMPRESSIONS[self._compression],
         )
         w.start(profile="", library=self._library)
-        now = time.time_ns()
         meta = {
             **self._meta,
             "session_id": self._session_id,
@@ -277,7 +276,6 @@ class SessionRecorder:
             "start_time_utc": time.strftime(
                 "%Y-%m-%dT%H:%M:%SZ", time.gmtime(self._start_ns // 1_000_000_000)
             ),
-            "part_start_ns": str(now),
             "recorder": (
                 f"flush_interval_s={self._flush_ns / 1e9:g} chunk_size={self._chunk_size} "
                 f"compression={self._compression}"

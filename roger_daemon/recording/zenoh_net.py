@@ -30,11 +30,16 @@ def make_config(
     """A Zenoh config: ``config_file`` (JSON5) if given, then mode/endpoints/scouting on top."""
     cfg = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
-    cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    cfg.insert_json5("listen/endpoints", json.dumps(_endpoints(listen)))
+    cfg.insert_json5("connect/endpoints", json.dumps(_endpoints(connect)))
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("scouting/gossip/enabled", "true")
     return cfg
+
+
+def _endpoints(eps: Sequence[str]) -> list[str]:
+    """Endpoints, where the single word ``none`` means no endpoint."""
+    return [e for e in eps if e.strip().lower() != "none"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,13 +48,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--connect",
         action="append",
         metavar="ENDPOINT",
-        help=f"Zenoh endpoint to connect to (repeatable; default {DEFAULT_CONNECT[0]})",
+        help=f"Zenoh endpoint to connect to (repeatable; 'none' for none; default "
+        f"{DEFAULT_CONNECT[0]})",
     )
     parser.add_argument(
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help=f"Zenoh endpoint to listen on (repeatable; default {DEFAULT_LISTEN[0]})",
+        help=f"Zenoh endpoint to listen on (repeatable; 'none' for none; default "
+        f"{DEFAULT_LISTEN[0]})",
     )
     parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config to start from")
 
