@@ -1,22 +1,41 @@
 """The AIBO task's vector layouts (paper section IV): 23-D perception, 9-D action.
 
-Index names only; units, ranges and the "not seen" encoding are documented in
-``protocols/README.md`` (section "AIBO vectors") and implemented by ``simulator/``.
+Index names, the "not seen" encoding and the action-indicator encoding. Units, ranges and
+conventions are documented in ``protocols/AIBO.md`` and implemented by ``simulator/``.
 """
 
 from __future__ import annotations
 
+import math
+
 from protocols.messages import Dims
 
-__all__ = ["ACTION_NAMES", "COLOURS", "DIMS", "PERCEPTION_NAMES", "SUBTASKS"]
+__all__ = [
+    "ACTION_NAMES",
+    "COLOURS",
+    "DIMS",
+    "INDICATOR",
+    "INDICATOR_THRESHOLD",
+    "NOT_SEEN",
+    "PERCEPTION_NAMES",
+    "SUBTASKS",
+    "blob_slice",
+    "decode_indicator",
+    "encode_indicator",
+    "is_seen",
+]
 
 #: The six colour classes the vision reports, in vector order.
 COLOURS = ("ball", "yellow_goal", "blue_goal", "pink", "yellow_beacon", "blue_beacon")
 
 #: 6 colours x (image x, image y, size) + head (tilt, pan, nod) + tail (pan, tilt) = 23.
-PERCEPTION_NAMES = tuple(
-    f"{c}_{a}" for c in COLOURS for a in ("x", "y", "size")
-) + ("head_tilt", "head_pan", "head_nod", "tail_pan", "tail_tilt")
+PERCEPTION_NAMES = tuple(f"{c}_{a}" for c in COLOURS for a in ("x", "y", "size")) + (
+    "head_tilt",
+    "head_pan",
+    "head_nod",
+    "tail_pan",
+    "tail_tilt",
+)
 
 #: walk (forward, left, turn) + head targets (tilt, pan, nod) + tail targets (pan, tilt)
 #: + the action indicator (kick / trap / none) = 9.
@@ -37,3 +56,40 @@ SUBTASKS = ("seek", "trap", "aim", "kick")
 
 DIMS = Dims(x=len(PERCEPTION_NAMES), y=len(ACTION_NAMES))
 assert DIMS == Dims(23, 9)
+
+#: (x, y, size) of a colour class that is not seen. A seen blob always has size > 0
+#: (at least the minimum pixel count), so ``size < 0`` is unambiguous.
+NOT_SEEN = (0.0, 0.0, -1.0)
+
+#: Action indicator values (``y[8]``): what the controller emits.
+INDICATOR = {"none": 0.0, "kick": 1.0, "trap": -1.0}
+
+#: ``y[8] >= +threshold`` means kick, ``y[8] <= -threshold`` trap, anything between none.
+INDICATOR_THRESHOLD = 0.5
+
+
+def blob_slice(colour: str) -> slice:
+    """The slice of the perception vector holding ``colour``'s (x, y, size)."""
+    i = COLOURS.index(colour)
+    return slice(3 * i, 3 * i + 3)
+
+
+def is_seen(size: float) -> bool:
+    """Whether a blob's size entry means "seen"."""
+    return size > 0.0
+
+
+def encode_indicator(name: str) -> float:
+    """The ``y[8]`` value for ``"none"``, ``"kick"`` or ``"trap"``."""
+    return INDICATOR[name]
+
+
+def decode_indicator(value: float) -> str:
+    """``"kick"``, ``"trap"`` or ``"none"`` for a (possibly regressed) ``y[8]``; NaN is none."""
+    if not math.isfinite(value):
+        return "none"
+    if value >= INDICATOR_THRESHOLD:
+        return "kick"
+    if value <= -INDICATOR_THRESHOLD:
+        return "trap"
+    return "none"

@@ -27,12 +27,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("roger_daemon.recording.cli_record", "record Zenoh traffic to MCAP"),
     "log": ("roger_daemon.recording.cli_log", "log tools: info, recover, export"),
     "replay": ("roger_daemon.recording.cli_replay", "replay a log into the learner"),
+    "sim": ("simulator.sim_node", "the AIBO soccer simulator (pybullet) as a Zenoh process"),
+    "hcc": ("simulator.hcc_node", "the hand-coded FSM goal scorer: demonstrator or transitioner"),
 }
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()
 BENCHES: dict[str, tuple[str, str]] = {
     "learner": ("roger_daemon.bench.learner", "learner updates/s and latency, synthetic stream"),
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
+    "sim": ("simulator.bench", "simulator lockstep ticks/s (rendered, fast) and HCC success"),
 }
 
 

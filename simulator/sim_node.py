@@ -1,0 +1,401 @@
+"""``roger sim``: the AIBO soccer simulator as a Zenoh process.
+
+Publishes ``perception`` (23-D, ``t`` = the episode's sim time, 0 on its first tick; ``tick``
+counts up over the whole run) and ``episode`` events; executes ``command``.
+
+* ``--clock lockstep``: after publishing perception(t) it waits for command(t) (matched by
+  tick), re-publishing perception(t) every 0.25 s; after ``--command-timeout`` it counts a
+  timeout and executes a *hold* command (stand still, head and tail where they are, no motion).
+* ``--clock realtime``: 30 Hz wall clock; each tick executes the newest command received
+  (hold until the first one), steps, publishes. Overruns are counted.
+
+Episodes: every location of ``--locations`` is run ``--episodes-per-location`` times (location
+major), at most ``--max-episodes``; the process then publishes a final ``end`` event with
+``data.run_complete = true``, prints one JSON object (``episodes`` and ``summary``) on stdout,
+writes it to ``--results FILE`` if asked, and exits 0. Episode events:
+
+* ``start``: data ``location``, ``location_name``, ``repetition``, ``seed``, ``tick`` (first),
+  ``robot_x``, ``robot_y``, ``robot_yaw``, ``ball_x``, ``ball_y``;
+* ``goal`` | ``own_goal`` | ``out`` | ``timeout``: the outcome, data ``location``,
+  ``sim_time_s``;
+* ``end``: data = the episode's result record (see ``EpisodeResult.to_map``) plus the
+  transport counters of that episode;
+* ``truth`` (only with ``--truth``): per tick, robot pose and ball position.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from protocols import Command, EpisodeEvent, Perception, keys
+from protocols.aibo import DIMS
+from simulator.config import CameraConfig, SimConfig, load_config
+from simulator.episodes import START_LOCATIONS, EpisodeResult, SoccerSim, parse_locations
+from simulator.transport import (
+    Inbox,
+    InvalidCounter,
+    StopFlag,
+    add_zenoh_args,
+    config_from_args,
+    open_session,
+    publisher,
+    put,
+    wait_for,
+)
+
+__all__ = ["DEFAULT_LISTEN", "configure", "run"]
+
+log = logging.getLogger("roger.sim")
+
+DEFAULT_LISTEN = "tcp/127.0.0.1:7450"
+RESEND_S = 0.25
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Command-line arguments of ``roger sim``."""
+    parser.add_argument("--robot", choices=("aibo",), default="aibo", help="robot model")
+    parser.add_argument(
+        "--robot-id", default=None, help="id in the key expressions (default: --robot)"
+    )
+    parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
+    parser.add_argument(
+        "--vision",
+        choices=("rendered", "fast"),
+        default=None,
+        help="rendered segmentation (default) or fast analytic projection",
+    )
+    parser.add_argument("--width", type=int, default=None, help="camera width (default 208)")
+    parser.add_argument("--height", type=int, default=None, help="camera height (default 160)")
+    parser.add_argument("--config", default=None, help="task TOML (e.g. configs/aibo.toml)")
+    parser.add_argument(
+        "--locations", default="all", help="start locations: 'all' or e.g. '0,3,7' or '0-4' (0..12)"
+    )
+    parser.add_argument("--episodes-per-location", type=int, default=1)
+    parser.add_argument("--max-episodes", type=int, default=0, help="cap (0: no cap)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--time-limit", type=float, default=None, help="seconds of sim time (150)")
+    parser.add_argument(
+        "--command-timeout",
+        type=float,
+        default=2.0,
+        help="lockstep: seconds to wait for command(t) before a hold tick",
+    )
+    parser.add_argument(
+        "--wait-subscribers",
+        type=float,
+        default=30.0,
+        help="seconds to wait for a perception subscriber before starting",
+    )
+    parser.add_argument("--results", default=None, help="write the results JSON here")
+    parser.add_argument("--truth", action="store_true", help="publish a 'truth' event every tick")
+    add_zenoh_args(parser, listen=(DEFAULT_LISTEN,))
+
+
+def _config(args: argparse.Namespace) -> SimConfig:
+    cfg = load_config(args.config)
+    if args.vision:
+        cfg = replace(cfg, vision=args.vision)
+    if args.width or args.height:
+        cam = cfg.camera
+        cfg = replace(
+            cfg,
+            camera=CameraConfig(
+                width=args.width or cam.width,
+                height=args.height or cam.height,
+                hfov=cam.hfov,
+                near=cam.near,
+                far=cam.far,
+                min_pixels=cam.min_pixels,
+            ),
+        )
+    if args.time_limit is not None:
+        cfg = replace(cfg, episode=replace(cfg.episode, time_limit=args.time_limit))
+    return cfg
+
+
+def _plan(args: argparse.Namespace) -> list[tuple[int, int]]:
+    locs = parse_locations(args.locations)
+    if args.episodes_per_location < 1:
+        raise ValueError("--episodes-per-location must be >= 1")
+    plan = [(loc, rep) for loc in locs for rep in range(args.episodes_per_location)]
+    if args.max_episodes > 0:
+        plan = plan[: args.max_episodes]
+    return plan
+
+
+def _matching(pub: Any) -> bool:
+    """Whether a publisher has a matching subscriber (stub: bool; 1.10 returns an object)."""
+    status = pub.matching_status
+    return bool(getattr(status, "matching", status))
+
+
+class SimNode:
+    """The process: one session, one loop."""
+
+    def __init__(self, args: argparse.Namespace, cfg: SimConfig, stop: StopFlag) -> None:
+        self.args = args
+        self.cfg = cfg
+        self.stop = stop
+        self.robot = keys.validate_robot_id(args.robot_id or args.robot)
+        self.sim = SoccerSim(cfg)
+        self.tick = 0
+        self.invalid = InvalidCounter("sim")
+        self.counters = {
+            "command_timeouts": 0,
+            "stale_commands": 0,
+            "future_commands": 0,
+            "hold_ticks": 0,
+            "overruns": 0,
+            "resends": 0,
+        }
+        self.last_cmd = np.zeros(DIMS.y)
+
+    def _hold(self) -> np.ndarray:
+        """Stand still, head and tail where they are, no motion."""
+        y = np.zeros(DIMS.y)
+        y[3:8] = self.sim.world.joint_angles()
+        return y
+
+    def run(self, session: Any) -> dict[str, Any]:
+        args = self.args
+        self.pub_x = publisher(session, keys.perception(self.robot))
+        self.pub_ep = publisher(session, keys.episode(self.robot))
+        self.cmds = Inbox(session, self.robot, "command", DIMS, self.invalid, capacity=256)
+        t_wait = time.monotonic()
+        while not self.stop.stopped and time.monotonic() - t_wait < args.wait_subscribers:
+            if _matching(self.pub_x):
+                break
+            time.sleep(0.02)
+        else:
+            if not self.stop.stopped:
+                log.warning(
+                    "no perception subscriber after %.1f s; starting anyway", args.wait_subscribers
+                )
+        results: list[EpisodeResult] = []
+        t0 = time.monotonic()
+        ticks0 = self.tick
+        for k, (loc, rep) in enumerate(_plan(args)):
+            if self.stop.stopped:
+                break
+            res = self._episode(k, loc, rep)
+            results.append(res)
+            log.info(
+                "episode %d location %d rep %d: %s after %.1f s sim time",
+                k,
+                loc,
+                rep,
+                res.outcome,
+                res.sim_time_s,
+            )
+        wall = time.monotonic() - t0
+        summary = self._summary(results, wall, self.tick - ticks0)
+        put(
+            self.pub_ep,
+            EpisodeEvent(
+                self.robot,
+                self.tick,
+                0.0,
+                event="end",
+                episode=len(results),
+                data={
+                    "run_complete": True,
+                    **{k: v for k, v in summary.items() if not isinstance(v, dict)},
+                },
+            ),
+        )
+        self.cmds.close()
+        return {
+            "schema": "roger.sim.results/1",
+            "robot": self.robot,
+            "clock": args.clock,
+            "vision": self.cfg.vision,
+            "camera": [self.cfg.camera.width, self.cfg.camera.height],
+            "seed": args.seed,
+            "episodes": [r.to_map() for r in results],
+            "summary": summary,
+        }
+
+    def _summary(self, results: list[EpisodeResult], wall: float, ticks: int) -> dict[str, Any]:
+        outcomes: dict[str, int] = {}
+        for r in results:
+            outcomes[r.outcome] = outcomes.get(r.outcome, 0) + 1
+        n = len(results)
+        succ = sum(r.success for r in results)
+        return {
+            "episodes": n,
+            "successes": succ,
+            "success_rate": succ / n if n else 0.0,
+            "outcomes": outcomes,
+            "ticks": ticks,
+            "wall_s": round(wall, 3),
+            "ticks_per_s": round(ticks / wall, 1) if wall > 0 else 0.0,
+            "invalid_messages": self.invalid.total(),
+            "stopped": self.stop.stopped,
+            **self.counters,
+        }
+
+    def _episode(self, k: int, loc: int, rep: int) -> EpisodeResult:
+        sim = self.sim
+        x = sim.reset(loc, self.args.seed, rep)
+        self.last_cmd = self._hold()
+        before = dict(self.counters)
+        truth = sim.truth()
+        put(
+            self.pub_ep,
+            EpisodeEvent(
+                self.robot,
+                self.tick,
+                0.0,
+                event="start",
+                episode=k,
+                data={
+                    "location": loc,
+                    "location_name": START_LOCATIONS[loc].name,
+                    "repetition": rep,
+                    "seed": self.args.seed,
+                    "tick": self.tick,
+                    "clock": self.args.clock,
+                    **{
+                        n: truth[n] for n in ("robot_x", "robot_y", "robot_yaw", "ball_x", "ball_y")
+                    },
+                },
+            ),
+        )
+        lockstep = self.args.clock == "lockstep"
+        period = self.cfg.episode.dt
+        next_deadline = time.monotonic()
+        while True:
+            t_sim = sim.time
+            perception = Perception(self.robot, self.tick, t_sim, x=x)
+            put(self.pub_x, perception)
+            if lockstep:
+                y = self._await_command(perception)
+            else:
+                next_deadline += period
+                y = self._newest_command()
+            if y is None:
+                self.counters["hold_ticks"] += 1
+                y = self._hold()
+            outcome = sim.step(y)
+            if self.args.truth:
+                put(
+                    self.pub_ep,
+                    EpisodeEvent(
+                        self.robot, self.tick, t_sim, event="truth", episode=k, data=sim.truth()
+                    ),
+                )
+            self.tick += 1
+            if outcome is None and self.stop.stopped:
+                sim.stop()
+                outcome = "stopped"
+            if outcome is not None:
+                break
+            if not lockstep:
+                delay = next_deadline - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                else:
+                    self.counters["overruns"] += 1
+                    if delay < -1.0:  # far behind: do not try to catch up
+                        next_deadline = time.monotonic()
+            x = sim.perceive()
+        res = sim.result(k)
+        if outcome != "stopped":
+            put(
+                self.pub_ep,
+                EpisodeEvent(
+                    self.robot,
+                    self.tick,
+                    sim.time,
+                    event=outcome,
+                    episode=k,
+                    data={"location": loc, "sim_time_s": round(sim.time, 4)},
+                ),
+            )
+        delta = {name: self.counters[name] - before[name] for name in self.counters}
+        res.counters.update(delta)
+        put(
+            self.pub_ep,
+            EpisodeEvent(
+                self.robot, self.tick, sim.time, event="end", episode=k, data=res.to_map()
+            ),
+        )
+        return res
+
+    def _take(self, want: int) -> np.ndarray | None:
+        while (m := self.cmds.poll()) is not None:
+            assert isinstance(m, Command)
+            if m.tick == want:
+                return np.array(m.y)
+            if m.tick < want:
+                self.counters["stale_commands"] += 1
+            else:
+                self.counters["future_commands"] += 1
+        return None
+
+    def _await_command(self, perception: Perception) -> np.ndarray | None:
+        deadline = time.monotonic() + self.args.command_timeout
+        while not self.stop.stopped:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            y = wait_for(lambda: self._take(perception.tick), min(RESEND_S, remaining), self.stop)
+            if y is not None:
+                self.last_cmd = y
+                return y
+            if time.monotonic() < deadline and not self.stop.stopped:
+                self.counters["resends"] += 1
+                put(self.pub_x, perception)
+        if not self.stop.stopped:
+            self.counters["command_timeouts"] += 1
+        return None
+
+    def _newest_command(self) -> np.ndarray | None:
+        newest: Command | None = None
+        for m in self.cmds.drain():
+            assert isinstance(m, Command)
+            if newest is None or m.tick >= newest.tick:
+                newest = m
+        if newest is not None:
+            self.last_cmd = np.array(newest.y)
+            return self.last_cmd
+        return self.last_cmd if self.tick > 0 else None
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the planned episodes; print the results JSON; exit 0 (1 on bad arguments)."""
+    try:
+        cfg = _config(args)
+        _plan(args)
+    except (ValueError, OSError) as exc:
+        print(f"roger sim: {exc}", file=sys.stderr)
+        return 2
+    stop = StopFlag()
+    node = SimNode(args, cfg, stop)
+    session = open_session(config_from_args(args))
+    try:
+        out = node.run(session)
+    finally:
+        try:
+            session.close()
+        except Exception as exc:  # zenoh may time out closing; nothing left to save
+            log.warning("closing the zenoh session: %s", exc)
+        node.sim.close()
+    text = json.dumps(out)
+    if args.results:
+        path = Path(args.results)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(json.dumps(out, indent=1))
+        tmp.replace(path)
+    print(text, flush=True)
+    return 0

@@ -1,0 +1,238 @@
+"""Zenoh plumbing shared by ``roger sim`` and ``roger hcc`` (and usable by the experiment).
+
+* :func:`loopback_config`: a peer-mode ``zenoh.Config`` with explicit listen/connect
+  endpoints, multicast scouting off, gossip on (``zenoh-mcap-systemd-notes.md`` 1.3).
+* :func:`add_zenoh_args` / :func:`config_from_args`: ``--listen``, ``--connect``,
+  ``--zenoh-config`` on a command line.
+* :class:`Inbox`: a subscriber on a zenoh ``RingChannel`` (the callback side only enqueues,
+  inside zenoh; nothing of ours runs on zenoh threads) that decodes and validates every sample,
+  counting and logging once per kind the ones that fail, never raising.
+* :class:`StopFlag`: SIGTERM/SIGINT set a flag that the one loop of the process checks.
+* :func:`publisher`: a msgpack publisher with ``express=True`` and the default DROP congestion
+  control (a stalled peer never blocks the loop).
+
+Sessions must be opened after any fork; processes are started with ``subprocess``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from types import FrameType
+from typing import Any
+
+import zenoh
+
+from protocols import Dims, ProtocolError, decode, encode, keys
+from protocols.messages import Message
+
+__all__ = [
+    "MSGPACK",
+    "Inbox",
+    "InvalidCounter",
+    "StopFlag",
+    "add_zenoh_args",
+    "config_from_args",
+    "loopback_config",
+    "open_session",
+    "publisher",
+    "put",
+    "wait_for",
+]
+
+log = logging.getLogger(__name__)
+
+MSGPACK = zenoh.Encoding("application/msgpack")
+
+
+def loopback_config(
+    listen: Sequence[str] = (), connect: Sequence[str] = (), lease_ms: int = 2000
+) -> zenoh.Config:
+    """Peer mode, the given endpoints only, no multicast scouting."""
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps("peer"))
+    cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("scouting/gossip/enabled", "true")
+    cfg.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    return cfg
+
+
+def add_zenoh_args(
+    parser: argparse.ArgumentParser, *, listen: Sequence[str] = (), connect: Sequence[str] = ()
+) -> None:
+    """Add ``--listen``, ``--connect`` (repeatable, comma lists allowed) and ``--zenoh-config``."""
+    g = parser.add_argument_group("zenoh")
+    g.add_argument(
+        "--listen",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help=f"endpoint to listen on, e.g. tcp/127.0.0.1:7450; 'none' for none "
+        f"(default: {', '.join(listen) or 'none'})",
+    )
+    g.add_argument(
+        "--connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help=f"endpoint to connect to (default: {', '.join(connect) or 'none'})",
+    )
+    g.add_argument(
+        "--zenoh-config",
+        default=None,
+        metavar="FILE",
+        help="a zenoh JSON5 config file instead (endpoints flags still override it)",
+    )
+    parser.set_defaults(_listen_default=list(listen), _connect_default=list(connect))
+
+
+def _endpoints(values: list[str] | None, default: list[str]) -> list[str]:
+    if values is None:
+        return list(default)
+    out: list[str] = []
+    for v in values:
+        out.extend(e.strip() for e in v.split(",") if e.strip() and e.strip() != "none")
+    return out
+
+
+def config_from_args(args: argparse.Namespace) -> zenoh.Config:
+    """The session config a command line asked for."""
+    listen = _endpoints(args.listen, args._listen_default)
+    connect = _endpoints(args.connect, args._connect_default)
+    if args.zenoh_config:
+        cfg = zenoh.Config.from_file(args.zenoh_config)
+        if args.listen is not None:
+            cfg.insert_json5("listen/endpoints", json.dumps(listen))
+        if args.connect is not None:
+            cfg.insert_json5("connect/endpoints", json.dumps(connect))
+        return cfg
+    return loopback_config(listen, connect)
+
+
+def open_session(cfg: zenoh.Config) -> zenoh.Session:
+    """Open a session (call after any fork)."""
+    return zenoh.open(cfg)
+
+
+def publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
+    """An express msgpack publisher (DROP congestion control: never blocks)."""
+    return session.declare_publisher(key, encoding=MSGPACK, express=True)
+
+
+def put(pub: zenoh.Publisher, msg: Message) -> None:
+    """Encode and publish one message."""
+    pub.put(encode(msg))
+
+
+class InvalidCounter:
+    """Counts rejected payloads by reason; logs the first of each reason (then every 1000th)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.counts: Counter[str] = Counter()
+
+    def add(self, reason: str, detail: str) -> None:
+        self.counts[reason] += 1
+        n = self.counts[reason]
+        if n == 1 or n % 1000 == 0:
+            log.warning("%s: invalid message #%d (%s): %s", self.name, n, reason, detail)
+
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+class Inbox:
+    """Decoded, validated messages of one kind for one robot, from a zenoh RingChannel.
+
+    ``capacity`` bounds the backlog; when it overflows zenoh drops the oldest samples (a
+    lockstep peer never has more than a few in flight).
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: str,
+        kind: str,
+        dims: Dims | None,
+        invalid: InvalidCounter,
+        capacity: int = 256,
+    ) -> None:
+        self.robot = robot
+        self.kind = kind
+        self.dims = dims
+        self.invalid = invalid
+        self.received = 0
+        self._sub = session.declare_subscriber(
+            keys.key(robot, kind), zenoh.handlers.RingChannel(capacity)
+        )
+
+    def poll(self) -> Message | None:
+        """The next valid message, or ``None`` when none is waiting (never blocks)."""
+        while True:
+            sample = self._sub.try_recv()
+            if sample is None:
+                return None
+            self.received += 1
+            try:
+                robot, kind = keys.parse(str(sample.key_expr))
+                if kind != self.kind or robot != self.robot:
+                    raise ProtocolError("bad_key", f"unexpected key {sample.key_expr}")
+                return decode(kind, sample.payload.to_bytes(), dims=self.dims, robot=robot)
+            except ProtocolError as exc:
+                self.invalid.add(exc.reason, str(exc))
+            except Exception as exc:  # never let a bad sample take the loop down
+                self.invalid.add("not_msgpack", f"{type(exc).__name__}: {exc}")
+
+    def drain(self) -> list[Message]:
+        """Every valid message waiting now."""
+        out = []
+        while (m := self.poll()) is not None:
+            out.append(m)
+        return out
+
+    def close(self) -> None:
+        """Undeclare the subscriber."""
+        try:
+            self._sub.undeclare()
+        except Exception:  # already closed with the session
+            pass
+
+
+def wait_for(poll: Callable[[], Any], timeout: float, stop: StopFlag | None = None) -> Any:
+    """Call ``poll`` until it returns non-``None`` or ``timeout`` seconds pass (then ``None``).
+
+    Polls with a short backoff (50 us growing to 0.5 ms) so that a lockstep round trip costs
+    well under a millisecond without spinning a core.
+    """
+    deadline = time.monotonic() + timeout
+    sleep = 5e-5
+    while True:
+        got = poll()
+        if got is not None:
+            return got
+        if (stop is not None and stop.stopped) or time.monotonic() >= deadline:
+            return None
+        time.sleep(sleep)
+        sleep = min(sleep * 1.5, 5e-4)
+
+
+class StopFlag:
+    """Set by SIGTERM/SIGINT (installed in the main thread); checked by the loop."""
+
+    def __init__(self, install: bool = True) -> None:
+        self.stopped = False
+        self.signal: int | None = None
+        if install:
+            signal.signal(signal.SIGTERM, self._handle)
+            signal.signal(signal.SIGINT, self._handle)
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self.stopped = True
+        self.signal = signum
