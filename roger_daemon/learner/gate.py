@@ -19,7 +19,6 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from scipy.linalg import solve_triangular
 from scipy.special import gammaln
 
 __all__ = ["GatePool", "NIWGate", "niw_update"]
@@ -48,7 +47,7 @@ def _predictive_cache(kappa: float, nu: float, lam: FloatArray
     nu_t = nu - d + 1.0
     c = (kappa + 1.0) / (kappa * nu_t)  # Sigma_t = c * Lambda
     chol = np.linalg.cholesky(lam)
-    linv = solve_triangular(chol, np.eye(d), lower=True)
+    linv = np.linalg.inv(chol)  # lower triangular; numpy's LAPACK (no threaded trsm)
     logdet_sigma = d * math.log(c) + 2.0 * float(np.sum(np.log(np.diagonal(chol))))
     lognorm = (float(gammaln((nu_t + d) / 2.0) - gammaln(nu_t / 2.0))
                - 0.5 * d * math.log(nu_t * math.pi) - 0.5 * logdet_sigma)

@@ -8,12 +8,15 @@ share the covariance coefficients ``C`` and the inverse Gram matrix ``Q`` (roger
 
 Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (roger-math.md
 §2.5); capacity ``beta`` is enforced by a ``while n > beta`` loop of KL-optimal deletions
-(thesis App. G(g), §2.7), followed by the geometric clean-up.  Every update adds an
-elementwise-symmetric rank-1 term, so ``C`` and ``Q`` stay exactly symmetric and Csató's
-``(C + C^T)/2`` is a no-op, hence skipped (the tests check exact symmetry).
+(thesis App. G(g), §2.7), followed by the geometric clean-up.  Every update is a symmetric
+low-rank term, so ``C`` and ``Q`` stay symmetric up to round-off (Csató's ``(C + C^T)/2`` is
+not needed; the tests check it).
 
-Storage is a buffer of ``min(capacity + 1, ...)`` rows that doubles as the expert grows; the
-live part is the leading ``n`` rows/columns.  Cost per step: O(n d_x + n^2 + n d_y).
+Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
+vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
+one rank-2 update of ``Q``, done in place by BLAS on the contiguous ``beta x beta`` buffer
+(:meth:`SparseOnlineGP._full_update_and_delete`).  Buffers double as an expert grows, up to
+``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ import math
 
 import numpy as np
 import numpy.typing as npt
+
+from scipy.linalg.blas import dgemm as _dgemm
 
 from roger_daemon.learner.kernel import RBFKernel
 
@@ -32,6 +37,19 @@ FloatArray = npt.NDArray[np.float64]
 LATENT_FLOOR = 1e-12  # clamp of k* + k^T C k (Grollman, OTL, Csató)
 _GAMMA_FLOOR = 1e-12  # projection residuals below this count as 0 (roger-math.md §2.5 step 3)
 _LOG_2PI = math.log(2.0 * math.pi)
+
+
+def _add_lowrank(buf: FloatArray, n: int, cols: FloatArray, coefs: FloatArray) -> None:
+    """``buf[:n, :n] += cols diag(coefs) cols^T`` (a symmetric rank-m update), in place.
+
+    When the live block fills the buffer it is contiguous, and one BLAS ``dgemm`` updates it
+    in place (``buf`` is symmetric, so its transpose is the same matrix in Fortran order);
+    otherwise numpy forms the product and adds it to the strided view.
+    """
+    if buf.shape[0] == n:
+        _dgemm(1.0, cols, cols * coefs, 1.0, buf.T, trans_b=True, overwrite_c=True)
+    else:
+        buf[:n, :n] += (cols * coefs) @ cols.T
 
 
 def gaussian_log_likelihood(sq_err: FloatArray | float, var: FloatArray | float, d_y: int,
@@ -76,7 +94,7 @@ class SparseOnlineGP:
     """
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "n", "n_points", "_B", "_A", "_C", "_Q")
+                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q")
 
     def __init__(self, d_x: int, d_y: int, kernel: RBFKernel, noise: float,
                  capacity: int | None, novelty_threshold: float = 1e-6,
@@ -88,6 +106,7 @@ class SparseOnlineGP:
         self.capacity = capacity
         self.novelty_threshold = float(novelty_threshold)
         self.normaliser = normaliser
+        self.fused = True  # full update + deletion in one pass at capacity (tests switch it)
         self.n = 0  # basis vectors
         self.n_points = 0  # pairs learned
         alloc = _alloc if _alloc is not None else self._initial_alloc()
@@ -97,7 +116,7 @@ class SparseOnlineGP:
         self._Q: FloatArray = np.zeros((alloc, alloc))
 
     def _initial_alloc(self) -> int:
-        return 8 if self.capacity is None else min(8, self.capacity + 1)
+        return 8 if self.capacity is None else min(8, self.capacity)
 
     # -- views of the live part ---------------------------------------------------------------
 
@@ -178,26 +197,12 @@ class SparseOnlineGP:
             eta = 1.0 / (1.0 + gamma * r)
             s_hat = ck + e_hat
             self._A[:n] += np.outer(s_hat, q) * eta
-            self._C[:n, :n] += np.outer(s_hat, s_hat) * (r * eta)
+            _add_lowrank(self._C, n, s_hat[:, None], np.array([r * eta]))
+        elif self.capacity is not None and n >= self.capacity and self.fused:
+            # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix
+            self._full_update_and_delete(x, k, ck, e_hat, gamma, r, q)
         else:
-            # step 4b: full update, x becomes basis vector n (thesis eq. 2.46 and eq. 3.5)
-            self._grow(n + 1)
-            self._B[n] = x
-            s = np.empty(n + 1)
-            s[:n] = ck
-            s[n] = 1.0
-            self._A[n] = 0.0
-            self._A[: n + 1] += np.outer(s, q)
-            self._C[n, : n + 1] = 0.0
-            self._C[:n, n] = 0.0
-            self._C[: n + 1, : n + 1] += np.outer(s, s) * r  # elementwise symmetric
-            e = np.empty(n + 1)
-            e[:n] = e_hat
-            e[n] = -1.0
-            self._Q[n, : n + 1] = 0.0
-            self._Q[:n, n] = 0.0
-            self._Q[: n + 1, : n + 1] += np.outer(e, e) * (1.0 / gamma)
-            self.n = n + 1
+            self._full_update(x, ck, e_hat, gamma, r, q)
         # step 5: capacity, KL-optimal deletion while n > beta (Grollman's while loop)
         if self.capacity is not None:
             while self.n > self.capacity:
@@ -210,6 +215,99 @@ class SparseOnlineGP:
             if 1.0 / diag[i] >= floor:
                 break
             self.delete(i)
+
+    def _full_update(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray, gamma: float,
+                     r: float, q: FloatArray) -> None:
+        """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
+        n = self.n
+        self._grow(n + 1)
+        self._B[n] = x
+        s = np.empty(n + 1)
+        s[:n] = ck
+        s[n] = 1.0
+        self._A[n] = 0.0
+        self._A[: n + 1] += np.outer(s, q)
+        e = np.empty(n + 1)
+        e[:n] = e_hat
+        e[n] = -1.0
+        for mat in (self._C, self._Q):
+            mat[n, : n + 1] = 0.0
+            mat[:n, n] = 0.0
+        _add_lowrank(self._C, n + 1, s[:, None], np.array([r]))
+        _add_lowrank(self._Q, n + 1, e[:, None], np.array([1.0 / gamma]))
+        self.n = n + 1
+
+    def _full_update_and_delete(self, x: FloatArray, k: FloatArray, ck: FloatArray,
+                                e_hat: FloatArray, gamma: float, r: float,
+                                q: FloatArray) -> None:
+        """Full update to n + 1 BVs followed by one KL-optimal deletion, never materialised.
+
+        With ``s = [Ck; 1]`` and ``e = [Q k; -1]`` the (n+1)-BV state is ``C1 = C (+) 0 +
+        r s s^T``, ``Q1 = Q (+) 0 + e e^T / gamma``, ``A1 = A (+) 0 + s q^T`` (§2.5 step 4b).
+        Deleting BV ``i`` (§2.7) needs only column ``i`` and the diagonals of ``C1``, ``Q1``,
+        which are O(n) from ``C``, ``Q``, ``s``, ``e``.  The new BV takes the place of ``i``, so
+        ``C2 = C_z + [s, q_v, w] diag(r, 1/q*, -1/(q*+c*)) [s, q_v, w]^T`` (``C_z``: ``C`` with
+        row and column ``i`` zeroed, vectors permuted accordingly) and ``Q2 = Q_z +
+        [e, q_v] diag(1/gamma, -1/q*) [e, q_v]^T``: one rank-3 and one rank-2 in-place update
+        instead of five passes.  Equal to :meth:`_full_update` then :meth:`delete` up to
+        round-off (tested).
+        """
+        n = self.n
+        c_mat = self._C[:n, :n]
+        q_mat = self._Q[:n, :n]
+        s = np.empty(n + 1)
+        s[:n] = ck
+        s[n] = 1.0
+        e = np.empty(n + 1)
+        e[:n] = e_hat
+        e[n] = -1.0
+        a1 = np.zeros((n + 1, self.d_y))
+        a1[:n] = self._A[:n]
+        a1 += np.outer(s, q)
+        c1_diag = np.zeros(n + 1)
+        c1_diag[:n] = np.diagonal(c_mat)
+        c1_diag += r * s * s
+        q1_diag = np.zeros(n + 1)
+        q1_diag[:n] = np.diagonal(q_mat)
+        q1_diag += e * e / gamma
+        # deletion score |A1_i|^2 / (Q1_ii + C1_ii) (Csató ogpbvmin.m)
+        den_all = np.maximum(q1_diag + c1_diag, 1e-300)
+        i = int(np.argmin(np.einsum("ij,ij->i", a1, a1) / den_all))
+        a_star = a1[i].copy()
+        c_star = float(c1_diag[i])
+        q_star = float(q1_diag[i])
+        col_c = s * (r * s[i])  # column i of C1 = C(+)0 [:, i] + r s s_i
+        col_q = e * (e[i] / gamma)
+        if i < n:
+            col_c[:n] += c_mat[:, i]
+            col_q[:n] += q_mat[:, i]
+        # permutation: the new BV (index n) moves into position i
+        def perm(v: FloatArray) -> FloatArray:
+            out = v[:n].copy()
+            if i < n:
+                out[i] = v[n]
+            return out
+
+        c_v, q_v = perm(col_c), perm(col_q)
+        s_p, e_p = perm(s), perm(e)
+        w = q_v + c_v
+        den = q_star + c_star
+        inv_den = 1.0 / den if den > 0.0 else 0.0  # broken: Q-only (marginal) removal
+        a2 = a1[:n] if i == n else np.concatenate([a1[:i], a1[n:], a1[i + 1:n]])
+        a2 = a2 - np.outer(w, a_star) * inv_den
+        if i < n:
+            for mat in (c_mat, q_mat):
+                mat[i, :] = 0.0
+                mat[:, i] = 0.0
+            self._B[i] = x
+        self._A[:n] = a2
+        cols = np.empty((n, 3), order="F")
+        cols[:, 0] = s_p
+        cols[:, 1] = q_v
+        cols[:, 2] = w
+        _add_lowrank(self._C, n, cols, np.array([r, 1.0 / q_star, -inv_den]))
+        cols[:, 0] = e_p
+        _add_lowrank(self._Q, n, cols[:, :2], np.array([1.0 / gamma, -1.0 / q_star]))
 
     def _deletion_choice(self) -> int:
         """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
@@ -236,16 +334,16 @@ class SparseOnlineGP:
         a_star = self._A[j].copy()
         c_star = float(self._C[j, j])
         q_star = float(self._Q[j, j])
-        c_v = self._C[:j, j].copy()
         q_v = self._Q[:j, j].copy()
-        qc = q_v + c_v
+        w = q_v + self._C[:j, j]
         den = q_star + c_star
-        if den <= 0.0:  # numerically broken: fall back to the Q-only (marginal) removal
-            den = math.inf
-        self._A[:j] -= np.outer(qc, a_star) / den
-        qq = np.outer(q_v, q_v) / q_star
-        self._C[:j, :j] += qq - np.outer(qc, qc) / den
-        self._Q[:j, :j] -= qq
+        inv_den = 1.0 / den if den > 0.0 else 0.0  # broken: Q-only (marginal) removal
+        self._A[:j] -= np.outer(w, a_star) * inv_den
+        cols = np.empty((j, 2), order="F")
+        cols[:, 0] = q_v
+        cols[:, 1] = w
+        _add_lowrank(self._C, j, cols, np.array([1.0 / q_star, -inv_den]))
+        _add_lowrank(self._Q, j, cols[:, :1], np.array([-1.0 / q_star]))
         self.n = j
 
     def _grow(self, need: int) -> None:
@@ -254,7 +352,7 @@ class SparseOnlineGP:
             return
         new = alloc * 2
         if self.capacity is not None:
-            new = min(new, self.capacity + 1)
+            new = min(new, self.capacity)
         new = max(new, need)
         n = self.n
         for name in ("_B", "_A"):

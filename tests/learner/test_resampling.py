@@ -1,0 +1,118 @@
+"""Fearnhead-Clifford optimal resampling: counts, threshold, unbiasedness, edge cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from roger_daemon.learner.resampling import fearnhead_resample, fearnhead_threshold
+
+log_weight = st.one_of(st.floats(-50.0, 50.0), st.just(-np.inf))
+
+
+def _lse(v: np.ndarray) -> float:
+    m = np.max(v)
+    return float(m + np.log(np.sum(np.exp(v - m))))
+
+
+@given(lw=st.lists(log_weight, min_size=1, max_size=60), p=st.integers(1, 15),
+       seed=st.integers(0, 2**16))
+@settings(max_examples=300, deadline=None)
+def test_resampling_properties(lw: list[float], p: int, seed: int) -> None:
+    arr = np.array(lw)
+    finite = np.isfinite(arr)
+    if not finite.any():
+        with pytest.raises(ValueError):
+            fearnhead_resample(arr, p, np.random.default_rng(seed))
+        return
+    idx, out = fearnhead_resample(arr, p, np.random.default_rng(seed))
+    # exactly min(P, #finite) distinct survivors, in increasing order, all with finite weight
+    assert idx.size == min(p, int(finite.sum()))
+    assert np.all(np.diff(idx) > 0)
+    assert np.all(finite[idx])
+    assert np.all(np.isfinite(out))
+    assert _lse(out) == pytest.approx(0.0, abs=1e-12)
+    w = np.exp(arr[finite] - _lse(arr[finite]))
+    full_w = np.zeros(arr.size)
+    full_w[finite] = w
+    if finite.sum() <= p:  # M <= P keeps them all, weights unchanged
+        np.testing.assert_allclose(np.exp(out), full_w[idx], rtol=1e-9, atol=1e-300)
+        return
+    inv_c, n_top = fearnhead_threshold(w, p)
+    # the threshold solves sum_i min(c w_i, 1) = P
+    assert np.sum(np.minimum(w / inv_c, 1.0)) == pytest.approx(p, rel=1e-9)
+    # every putative with w >= 1/c survives and keeps its weight
+    big = np.flatnonzero(full_w > inv_c * (1 + 1e-9))
+    assert set(big.tolist()) <= set(idx.tolist())
+    pos = np.searchsorted(idx, big)
+    np.testing.assert_allclose(np.exp(out[pos]), full_w[big], rtol=1e-9)
+    # the resampled ones all carry weight 1/c
+    small = np.setdiff1d(idx, np.flatnonzero(full_w >= inv_c))
+    np.testing.assert_allclose(np.exp(out[np.searchsorted(idx, small)]), inv_c, rtol=1e-9)
+
+
+def test_resampling_is_unbiased() -> None:
+    """E[new weight_i] = w_i, with weight 0 when not selected (a test that can fail)."""
+    rng = np.random.default_rng(12345)
+    w = rng.dirichlet(np.full(30, 0.3))
+    lw = np.log(w)
+    p, reps = 10, 20000
+    total = np.zeros(30)
+    total_sq = np.zeros(30)
+    survived = np.zeros(30)
+    for _ in range(reps):
+        idx, out = fearnhead_resample(lw, p, rng)
+        contrib = np.zeros(30)
+        contrib[idx] = np.exp(out)
+        total += contrib
+        total_sq += contrib**2
+        survived[idx] += 1
+    mean = total / reps
+    inv_c, n_top = fearnhead_threshold(w, p)
+    assert 0 < n_top < p  # both regimes are exercised
+    sure = w >= inv_c  # always kept with weight w_i: no randomness
+    np.testing.assert_allclose(mean[sure], w[sure], rtol=1e-9)
+    prob = np.minimum(w / inv_c, 1.0)
+    often = ~sure & (prob * reps >= 20)  # normal approximation valid
+    assert often.sum() >= 10
+    se = np.sqrt((total_sq[often] / reps - mean[often] ** 2) / reps)
+    z = (mean[often] - w[often]) / se
+    assert np.max(np.abs(z)) < 4.5
+    # survival probability is min(1, c w_i)
+    z_p = (survived[often] / reps - prob[often]) / np.sqrt(prob * (1 - prob) / reps)[often]
+    assert np.max(np.abs(z_p)) < 4.5
+    rare = ~sure & ~often  # expected < 20 survivals: the count is Poisson-small
+    assert np.all(survived[rare] <= prob[rare] * reps + 5 * np.sqrt(prob[rare] * reps) + 5)
+
+
+def test_ties_keep_exactly_p_distinct() -> None:
+    counts = np.zeros(20)
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        idx, out = fearnhead_resample(np.zeros(20), 10, rng)
+        assert idx.size == 10 and np.unique(idx).size == 10
+        np.testing.assert_allclose(out, np.log(0.1))
+        counts[idx] += 1
+    assert np.all(np.abs(counts / 2000 - 0.5) < 0.05)
+
+
+def test_underflow_and_invalid_weights() -> None:
+    lw = np.array([0.0, -800.0, -1200.0, np.nan, -np.inf, -5.0, -1e6, -3.0, -2.0, -1.0, -0.5])
+    idx, out = fearnhead_resample(lw, 6, np.random.default_rng(0))
+    assert idx.size == 6 and 3 not in idx and 4 not in idx
+    assert np.all(np.isfinite(out)) and _lse(out) == pytest.approx(0.0)
+    # fewer finite putatives than P: keep them all, tiny ones included, no underflow to -inf
+    idx, out = fearnhead_resample(np.array([0.0, -2000.0, -np.inf]), 5, np.random.default_rng(0))
+    assert idx.tolist() == [0, 1]
+    assert out[1] == pytest.approx(-2000.0)
+    with pytest.raises(ValueError, match=r"\+inf"):
+        fearnhead_resample(np.array([0.0, np.inf]), 1, np.random.default_rng(0))
+
+
+def test_no_draw_when_nothing_to_resample() -> None:
+    rng = np.random.default_rng(7)
+    state = rng.bit_generator.state
+    fearnhead_resample(np.array([0.0, -1.0]), 2, rng)
+    assert rng.bit_generator.state == state
