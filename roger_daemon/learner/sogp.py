@@ -25,7 +25,6 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-
 from scipy.linalg.blas import dgemm as _dgemm
 
 from roger_daemon.learner.kernel import RBFKernel

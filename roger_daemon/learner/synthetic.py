@@ -46,10 +46,11 @@ def subtask_stream(n_points: int = 4000, d_x: int = 23, d_y: int = 9, n_subtasks
 
     Modelled on the AIBO perception of the paper: the first ``3 * n_objects`` inputs are
     (x, y, size) of coloured objects, the rest proprioception.  Each subtask sees a subset of
-    the objects (subtask 0 the even ones, subtask 1 the odd ones) (an invisible object reads ``(-1, -1, -1)``), so gates can tell most subtasks
-    apart by their inputs; subtask 2 has the same visibility and latent region as subtask 0
-    (identical inputs, different actions: the paper's aim/seek multimap) and subtask 3 shares
-    subtask 1's visibility with a half-overlapping region.  Segments of 25-75 steps visit the
+    the objects (subtask 0 the even ones, subtask 1 the odd ones; an invisible object reads
+    ``(-1, -1, -1)``), so gates can tell most subtasks apart by their inputs.  Subtask 2
+    has the same visibility and latent region as subtask 0 (identical inputs, different
+    actions: the paper's aim/seek multimap) and subtask 3 shares subtask 1's visibility with a
+    half-overlapping region.  Segments of 25-75 steps visit the
     subtasks in the order 0, 1, 2, ...; within a segment the latent state random-walks
     (smoothed velocity, reflected at its box).  The last output is a discrete action indicator.
     """
