@@ -1,0 +1,291 @@
+"""Offline replay and log-tail catch-up on sessions recorded with a real learner."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+from mcap.records import Channel, Message, Metadata, Schema
+from mcap.writer import Writer
+
+from protocols import Action, Perception
+from roger_daemon.cli import main as roger
+from roger_daemon.learner import load_model
+from roger_daemon.recording import (
+    CatchUpError,
+    PairTracker,
+    is_complete,
+    log_tail,
+    read_timeline,
+    replay_session,
+)
+from roger_daemon.recording.mcapio import LogReader
+from roger_daemon.recording.replay import majority_labels
+from roger_daemon.recording.synthetic import START_NS, record_synthetic_session
+
+TOL = 1e-9
+
+
+def _rewrite(src: Path, dst: Path, edit: Callable[[str, int, bytes], bytes]) -> None:
+    """Copy a log, passing each payload through ``edit(topic, index_in_topic, data)``."""
+    reader = LogReader(src)
+    seen: dict[str, int] = {}
+    schemas: dict[int, int] = {}
+    channels: dict[int, int] = {}
+    topics: dict[int, str] = {}
+    with open(dst, "wb") as f:
+        w = Writer(f)
+        w.start()
+        for rec in reader.records():
+            if isinstance(rec, Schema):
+                schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel):
+                channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
+                                                      schemas.get(rec.schema_id, 0),
+                                                      dict(rec.metadata))
+                topics[rec.id] = rec.topic
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Message):
+                t = topics[rec.channel_id]
+                i = seen.get(t, 0)
+                seen[t] = i + 1
+                w.add_message(channels[rec.channel_id], rec.log_time, edit(t, i, rec.data),
+                              rec.publish_time, rec.sequence)
+        w.finish()
+
+
+@pytest.fixture(scope="module")
+def busy(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    """A session with mode changes, out-of-order halves, a lost action and a bad payload."""
+    return record_synthetic_session(
+        tmp_path_factory.mktemp("busy"), n_ticks=150,
+        modes={40: "predict", 60: "learn+predict", 90: "learn", 100: "learn+predict",
+               120: "pause", 125: "learn+predict"},
+        action_first=(5, 6, 70), drop_action=(10, 111), garbage=(12,),
+    )
+
+
+def test_replay_reproduces_the_recorded_model(busy) -> None:  # type: ignore[no-untyped-def]
+    res = replay_session(busy.paths)
+    assert res.ok(TOL), res.summary(TOL)
+    assert len(res.diffs) == len(busy.predictions) > 100
+    assert res.max_mean_diff() <= TOL and res.max_var_diff() <= TOL
+    assert res.max_multimap_diff() <= TOL
+    assert all(d.expert_match and d.sizes_match and d.labels_match is not False
+               for d in res.diffs)
+    assert [p.tick for p in res.pairs] == [t for t, *_ in busy.pairs]
+    assert res.labels == [lab for *_, lab in busy.pairs]
+    assert res.n_experts == busy.model.n_experts >= 2
+    assert res.n_learned == busy.model.n_learned
+    np.testing.assert_array_equal(res.assignments, busy.model.assignments())
+    tl = res.timeline
+    assert tl.invalid["not_msgpack"] == 1
+    assert tl.pairs_not_learned == 20 + 5  # mode predict at ticks 40-59, pause at 120-124
+    assert tl.unpaired == (2, 0)  # ticks 10 and 111 never got their action
+    assert res.seed == 7 and res.model_kind == "roger"
+
+
+def test_replay_cli_check_passes_and_fails_on_a_perturbed_prediction(
+    busy, tmp_path: Path, capsys: pytest.CaptureFixture[str]  # type: ignore[no-untyped-def]
+) -> None:
+    path = busy.paths[0]
+    assert roger(["replay", str(path), "--check", "--no-progress"]) == 0
+    assert "result:       OK" in capsys.readouterr().out
+
+    def bump(topic: str, i: int, data: bytes) -> bytes:
+        if topic.endswith("/prediction") and i == 77:
+            m = msgpack.unpackb(data, raw=False)
+            m["mean"][0] += 1e-6
+            out: bytes = msgpack.packb(m, use_bin_type=True)
+            return out
+        return data
+
+    bad = tmp_path / "perturbed.mcap"
+    _rewrite(path, bad, bump)
+    assert roger(["replay", str(bad), "--check", "--json"]) == 1
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["mismatches"] == 1 and not rep["ok"]
+    assert 0.9e-6 < rep["max_abs_diff_mean"] < 1.1e-6
+    assert rep["first_mismatch"]["tick"] == busy.predictions[77].tick
+    assert roger(["replay", str(bad), "--no-progress"]) == 0  # report only
+    assert roger(["replay", str(bad), "--check", "--tolerance", "1e-5", "--no-progress"]) == 0
+
+
+def test_replay_with_other_params_from_a_config_mismatches(
+    busy, tmp_path: Path, capsys: pytest.CaptureFixture[str]  # type: ignore[no-untyped-def]
+) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[learner]\ntheta_n = 0.3\nseed = 7\n")
+    assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check", "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["params"] == {"theta_n": 0.3}
+
+
+def test_replay_across_reset_and_rotated_parts(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    s = record_synthetic_session(tmp_path, n_ticks=120, resets=(70,),
+                                 recorder_kwargs={"rotate_bytes": 3000})
+    assert len(s.paths) >= 3
+    res = replay_session(s.paths)
+    assert res.ok(TOL) and len(res.timeline.segments) == 2
+    assert res.n_learned == s.model.n_learned == 50
+    np.testing.assert_array_equal(res.assignments, s.model.assignments())
+    # the CLI finds the other parts from the first one
+    assert roger(["replay", str(s.paths[0]), "--check", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["files"]) == len(s.paths)
+
+
+def test_replay_aibo_sized_stream(tmp_path: Path) -> None:
+    s = record_synthetic_session(tmp_path, n_ticks=40, stream="subtask", robot="aibo")
+    res = replay_session(s.paths[0])
+    assert res.ok(TOL) and res.timeline.dims is not None and res.timeline.dims.x == 23
+
+
+def test_replay_of_a_footerless_log_reproduces_what_it_kept(tmp_path: Path) -> None:
+    s = record_synthetic_session(tmp_path / "a", n_ticks=100, close=False)
+    cut = tmp_path / "killed.mcap"
+    shutil.copyfile(s.paths[0], cut)  # what a SIGKILL leaves: the flushed chunks
+    assert s.recorder is not None
+    s.recorder.close()
+    assert not is_complete(cut)
+    res = replay_session(cut)
+    assert res.ok(TOL) and res.timeline.incomplete_files == [str(cut)]
+    assert 60 <= len(res.pairs) < 100 and len(res.diffs) == len(res.pairs)
+
+
+# -- catch-up --------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def crash(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    """Session A is killed at tick 130 (checkpoint at 60 updates); session B resumes from the
+    checkpoint plus A's log tail."""
+    root = tmp_path_factory.mktemp("crash")
+    logs = root / "logs"
+    logs.mkdir()
+    a = record_synthetic_session(root / "a", n_ticks=130, close=False, checkpoint_at=(60,),
+                                 drop_action=(20,))
+    shutil.copyfile(a.paths[0], logs / a.paths[0].name)  # the file as the kill left it
+    assert a.recorder is not None
+    a.recorder.close()
+    tail = log_tail(logs, learned=60, robot="sim", last_tick=60)
+    model = load_model(a.checkpoints[60])
+    for p in tail.pairs:
+        model.learn_one(p.x, p.y)
+    b_start = load_model(model.state_dict())
+    b = record_synthetic_session(logs, n_ticks=60, tick0=130, start_ns=START_NS + 10**11,
+                                 initial_model=load_model(model.state_dict()))
+    return {"a": a, "logs": logs, "tail": tail, "caught_up": model, "b": b,
+            "b_start": b_start}
+
+
+def test_log_tail_gives_the_pairs_after_the_checkpoint(crash) -> None:  # type: ignore[no-untyped-def]
+    tail = crash["tail"]
+    a = crash["a"]
+    assert tail.pairs[0].index == 60 and tail.pairs[0].tick == 61  # tick 20 had no action
+    assert tail.incomplete_files and 100 <= tail.final_updates < 129
+    kept = [t for t, *_ in a.pairs][60:tail.final_updates]
+    assert [p.tick for p in tail.pairs] == kept
+
+
+def test_checkpoint_plus_tail_equals_the_uninterrupted_model(crash) -> None:  # type: ignore[no-untyped-def]
+    """The resumed model equals a model that learned the same logged pairs without a crash."""
+    from roger_daemon.learner import Roger
+
+    a, model = crash["a"], crash["caught_up"]
+    ref = Roger(d_x=1, d_y=1, seed=7)
+    for _, x, y, _ in a.pairs[: model.n_learned]:
+        ref.learn_one(x, y)
+    def same(m1: object, m2: object) -> None:
+        np.testing.assert_array_equal(m1.assignments(), m2.assignments())  # type: ignore[attr-defined]
+        assert m1.expert_sizes() == m2.expert_sizes()  # type: ignore[attr-defined]
+        for q in np.linspace(0.0, 1.0, 7):
+            p, r = m1.predict_one([q]), m2.predict_one([q])  # type: ignore[attr-defined]
+            np.testing.assert_array_equal(p.mean, r.mean)
+            np.testing.assert_array_equal(p.var, r.var)
+            mm1 = m1.predict_multimap([q])  # type: ignore[attr-defined]
+            mm2 = m2.predict_multimap([q])  # type: ignore[attr-defined]
+            assert [(e.expert_id, e.gate_prob, e.n_points) for e in mm1] == [
+                (e.expert_id, e.gate_prob, e.n_points) for e in mm2]
+
+    same(model, ref)
+    # and they go on identically (state_dict slot layout may differ; behaviour must not)
+    cont = load_model(model.state_dict())
+    for _, x, y, _ in crash["b"].pairs[:30]:
+        cont.learn_one(x, y)
+        ref.learn_one(x, y)
+    same(cont, ref)
+
+
+def test_log_tail_across_sessions(crash) -> None:  # type: ignore[no-untyped-def]
+    tail, b = crash["tail"], crash["b"]
+    both = log_tail(crash["logs"], learned=60, robot="sim")
+    assert [p.tick for p in both.pairs] == [p.tick for p in tail.pairs] + [t for t, *_ in b.pairs]
+    assert len(both.sessions) == 2 and both.final_updates == b.model.n_learned
+    later = log_tail(crash["logs"], learned=tail.final_updates + 5, robot="sim")
+    assert later.pairs[0].tick == b.pairs[5][0]
+    assert later.sessions == both.sessions[1:]
+
+
+def test_log_tail_refuses_what_it_cannot_continue(crash) -> None:  # type: ignore[no-untyped-def]
+    logs = crash["logs"]
+    with pytest.raises(CatchUpError, match="end at"):
+        log_tail(logs, learned=10_000, robot="sim")
+    with pytest.raises(CatchUpError, match="tick"):
+        log_tail(logs, learned=60, robot="sim", last_tick=59)
+    only_b = crash["b"].paths
+    with pytest.raises(CatchUpError, match="start at"):
+        log_tail(only_b, learned=60, robot="sim")
+
+
+def test_replay_of_a_resumed_session_needs_its_checkpoint(crash) -> None:  # type: ignore[no-untyped-def]
+    b = crash["b"]
+    res = replay_session(b.paths)
+    assert not res.ok(TOL) and res.unreplayable == len(b.predictions)
+    assert any("checkpoint" in w for w in res.warnings)
+    res = replay_session(b.paths, initial_model=crash["b_start"])
+    assert res.ok(TOL) and len(res.diffs) == len(b.predictions)
+
+
+# -- pieces ----------------------------------------------------------------------------------
+
+
+def test_pair_tracker() -> None:
+    tr = PairTracker(max_pending=3)
+    p = [Perception("r", t, 0.0, x=[float(t)]) for t in range(6)]
+    a = [Action("r", t, 0.0, y=[float(-t)]) for t in range(6)]
+    assert tr.perception(p[0]) is None
+    pair = tr.action(a[0])
+    assert pair is not None and pair[0] is p[0] and pair[1] is a[0]
+    assert tr.action(a[1]) is None
+    newer = Perception("r", 1, 0.5, x=[9.0])
+    assert tr.perception(newer) == (newer, a[1])
+    assert tr.perception(p[2]) is None
+    assert tr.perception(Perception("r", 2, 0.7, x=[7.0])) is None  # newest of tick 2 wins
+    got = tr.action(a[2])
+    assert got is not None and float(got[0].x[0]) == 7.0
+    assert tr.action(a[2]) is None  # a tick pairs once
+    for t in range(3, 6):
+        tr.perception(p[t])
+    assert tr.dropped_perceptions == 0 and tr.pending == (3, 1)
+    tr.perception(Perception("r", 9, 0.0, x=[0.0]))
+    assert tr.dropped_perceptions == 1
+
+
+def test_majority_labels_ties_go_to_the_first_seen() -> None:
+    assert majority_labels([0, 0, 1, 1, 1, 0], ["b", "a", "x", "y", "y", "a"]) == {0: "a", 1: "y"}
+    assert majority_labels([2, 2], ["q", "p"]) == {2: "q"}
+    assert majority_labels([], []) == {}
+
+
+def test_read_timeline_segments(busy) -> None:  # type: ignore[no-untyped-def]
+    tl = read_timeline(busy.paths)
+    assert tl.robot == "sim" and tl.resets == 0
+    seg = tl.segments[0]
+    assert [p.index for p in seg.pairs] == list(range(len(seg.pairs)))
+    assert all(p.updates <= seg.end_updates for p in seg.predictions)
