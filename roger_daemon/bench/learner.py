@@ -1,0 +1,217 @@
+"""``roger bench learner``: learner throughput and latency on the shipped synthetic stream.
+
+The stream (:func:`roger_daemon.learner.synthetic.subtask_stream`) has 4,000 points, 23-D
+inputs, 9-D outputs and 4 subtasks with overlapping inputs; the model uses the paper's
+parameters unless ``--param`` overrides one.  Every update is timed; every ``--predict-every``
+steps ``predict_multimap`` and ``predict_one`` are timed on the next input.  The unimap baseline
+learns the same stream in the same run.  ``--json`` prints one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.learner import Roger, RogerParams, UnimapGP
+from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
+
+__all__ = ["configure", "run"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``roger bench learner``."""
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--points", type=int, default=4000, help="stream length (default 4000)")
+    parser.add_argument("--seed", type=int, default=0, help="model seed (default 0)")
+    parser.add_argument("--stream-seed", type=int, default=BENCH_SEED,
+                        help=f"stream seed (default {BENCH_SEED}, the shipped stream)")
+    parser.add_argument("--predict-every", type=int, default=10,
+                        help="time the predictions every K updates (default 10)")
+    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a RogerParams field (VALUE as JSON), repeatable")
+    parser.add_argument("--no-unimap", action="store_true", help="skip the unimap baseline")
+
+
+def _params(overrides: list[str]) -> RogerParams:
+    mapping: dict[str, Any] = {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--param needs KEY=VALUE, got {item!r}")
+        try:
+            mapping[key] = json.loads(value)
+        except json.JSONDecodeError:
+            mapping[key] = value
+    return RogerParams.from_mapping({**RogerParams().to_mapping(), **mapping})
+
+
+def _machine() -> dict[str, Any]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    blas_threads: Any = os.environ.get("OPENBLAS_NUM_THREADS")
+    try:  # optional: report the BLAS pools numpy/scipy really use
+        from threadpoolctl import threadpool_info
+
+        blas_threads = sorted({int(p["num_threads"]) for p in threadpool_info()})
+    except Exception:  # noqa: BLE001 - threadpoolctl is optional
+        pass
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "load_avg_1m_start": round(os.getloadavg()[0], 2),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+        "blas_threads": blas_threads,
+    }
+
+
+def _ms(samples: list[int], q: float) -> float:
+    return round(float(np.percentile(np.asarray(samples) * 1e-6, q)), 3) if samples else 0.0
+
+
+def _purity(assign: np.ndarray, labels: np.ndarray) -> float:
+    """Share of points whose expert's majority subtask is their own subtask."""
+    good = 0
+    for e in np.unique(assign):
+        good += int(np.bincount(labels[assign == e]).max())
+    return good / max(1, labels.size)
+
+
+def _ari(a: np.ndarray, b: np.ndarray) -> float:
+    """Adjusted Rand index of two labelings (Hubert & Arabie 1985)."""
+    _, ai = np.unique(a, return_inverse=True)
+    _, bi = np.unique(b, return_inverse=True)
+    table = np.zeros((ai.max() + 1, bi.max() + 1))
+    np.add.at(table, (ai, bi), 1)
+
+    def comb2(v: np.ndarray) -> float:
+        return float(np.sum(v * (v - 1) / 2))
+
+    index = comb2(table)
+    ra, rb, n = comb2(table.sum(1)), comb2(table.sum(0)), comb2(np.array([a.size]))
+    expected = ra * rb / n if n else 0.0
+    top = 0.5 * (ra + rb)
+    return 1.0 if top == expected else (index - expected) / (top - expected)
+
+
+def measure(points: int, seed: int, stream_seed: int, predict_every: int, params: RogerParams,
+            unimap: bool) -> dict[str, Any]:
+    """Run the benchmark and return the result object."""
+    machine = _machine()
+    stream = subtask_stream(points, seed=stream_seed)
+    d_x, d_y = stream.x.shape[1], stream.y.shape[1]
+    model = Roger(d_x, d_y, params, seed=seed)
+    upd: list[int] = []
+    pm: list[int] = []
+    po: list[int] = []
+    clock = time.perf_counter_ns
+    start = time.perf_counter()
+    for i in range(points):
+        t0 = clock()
+        model.learn_one(stream.x[i], stream.y[i])
+        upd.append(clock() - t0)
+        if predict_every > 0 and i % predict_every == 0:
+            q = stream.x[min(i + 1, points - 1)]
+            t0 = clock()
+            model.predict_multimap(q)
+            pm.append(clock() - t0)
+            t0 = clock()
+            model.predict_one(q)
+            po.append(clock() - t0)
+    wall = time.perf_counter() - start
+    upd_arr = np.asarray(upd) * 1e-9
+    quarters = [round(len(c) / float(c.sum()), 1) for c in np.array_split(upd_arr, 4) if c.size]
+    assign = model.assignments()
+    out: dict[str, Any] = {
+        "bench": "learner",
+        "points": points,
+        "d_x": d_x,
+        "d_y": d_y,
+        "subtasks": int(stream.labels.max()) + 1,
+        "updates_per_s": round(points / float(upd_arr.sum()), 1),
+        "updates_per_s_by_quarter": quarters,
+        "update_p50_ms": _ms(upd, 50),
+        "update_p99_ms": _ms(upd, 99),
+        "update_max_ms": _ms(upd, 100),
+        "predict_multimap_p50_ms": _ms(pm, 50),
+        "predict_multimap_p99_ms": _ms(pm, 99),
+        "predict_one_p99_ms": _ms(po, 99),
+        "experts": model.n_experts,
+        "expert_sizes": sorted(model.expert_sizes().values(), reverse=True),
+        "unique_experts": model.n_unique_experts,
+        "particles": model.n_particles,
+        "max_basis_vectors": max(model.basis_sizes().values(), default=0),
+        "segmentation_purity": round(_purity(assign, stream.labels), 3),
+        "segmentation_ari": round(_ari(assign, stream.labels), 3),
+        "roger_wall_s": round(wall, 2),
+    }
+    if unimap:
+        base = UnimapGP(d_x, d_y, params, seed=seed)
+        uni: list[int] = []
+        for i in range(points):
+            t0 = clock()
+            base.learn_one(stream.x[i], stream.y[i])
+            uni.append(clock() - t0)
+        out["unimap_updates_per_s"] = round(points / (float(np.sum(uni)) * 1e-9), 1)
+        out["unimap_update_p99_ms"] = _ms(uni, 99)
+    out["seed"] = seed
+    out["stream_seed"] = stream_seed
+    out["params"] = params.to_mapping()
+    machine["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
+    out["machine"] = machine
+    out["note"] = ("wall-clock timings on a shared machine: other processes compete for the "
+                   "cores (see machine.load_avg_*)")
+    return out
+
+
+def _table(res: dict[str, Any]) -> str:
+    rows = [
+        ("points", res["points"]),
+        ("updates/s (mean)", res["updates_per_s"]),
+        ("updates/s by quarter", res["updates_per_s_by_quarter"]),
+        ("update p50 / p99 / max ms",
+         f"{res['update_p50_ms']} / {res['update_p99_ms']} / {res['update_max_ms']}"),
+        ("predict_multimap p50 / p99 ms",
+         f"{res['predict_multimap_p50_ms']} / {res['predict_multimap_p99_ms']}"),
+        ("predict_one p99 ms", res["predict_one_p99_ms"]),
+        ("experts (MAP particle)", res["experts"]),
+        ("expert sizes", res["expert_sizes"][:12]),
+        ("unique experts / particles", f"{res['unique_experts']} / {res['particles']}"),
+        ("max basis vectors", res["max_basis_vectors"]),
+        ("segmentation purity / ARI",
+         f"{res['segmentation_purity']} / {res['segmentation_ari']}"),
+    ]
+    if "unimap_updates_per_s" in res:
+        rows.append(("unimap updates/s, p99 ms",
+                     f"{res['unimap_updates_per_s']}, {res['unimap_update_p99_ms']}"))
+    m = res["machine"]
+    rows.append(("machine", f"{m['cpu']}, {m['cores']} cores, load "
+                            f"{m['load_avg_1m_start']}->{m['load_avg_1m_end']}"))
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``roger bench learner``."""
+    if args.points < 1:
+        print("--points must be >= 1", file=sys.stderr)
+        return 2
+    res = measure(args.points, args.seed, args.stream_seed, args.predict_every,
+                  _params(args.param), not args.no_unimap)
+    print(json.dumps(res) if args.json else _table(res))
+    return 0
