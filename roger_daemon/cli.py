@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 # roger bench NAME -> (module, one-line help); each module has configure() and run()
 BENCHES: dict[str, tuple[str, str]] = {
     "learner": ("roger_daemon.bench.learner", "learner updates/s and latency, synthetic stream"),
+    "recorder": ("roger_daemon.recording.bench", "recorder write+poll cost, SIGKILL loss"),
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
     "sim": ("simulator.bench", "simulator lockstep ticks/s (rendered, fast) and HCC success"),
 }
