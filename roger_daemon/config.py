@@ -133,7 +133,7 @@ class DaemonConfig:
     queue_size: int = 256
     pair_window: int = 64
     seed: int = 0
-    listen_all_robots: bool = True
+    count_unserved: bool = True
     log_dir: Path | None = None
     robots: tuple[RobotConfig, ...] = ()
     learner: Mapping[str, Any] = field(default_factory=dict)
@@ -332,7 +332,7 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
     queue_size = d.integer("queue_size", 256, lo=1)
     pair_window = d.integer("pair_window", 64, lo=1)
     seed = d.integer("seed", 0, lo=0)
-    listen_all = d.boolean("listen_all_robots", True)
+    count_unserved = d.boolean("count_unserved", True)
     log_dir = d.path("log_dir", None)
     d.done()
 
@@ -410,7 +410,7 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
     return DaemonConfig(
         id=cfg_id, clock=clock, rate_hz=rate_hz, status_hz=status_hz, mode=mode,
         queue_size=queue_size, pair_window=pair_window, seed=seed,
-        listen_all_robots=listen_all, log_dir=log_dir, robots=tuple(robots),
+        count_unserved=count_unserved, log_dir=log_dir, robots=tuple(robots),
         learner=MappingProxyType(dict(learner_table)), zenoh=zenoh_settings, checkpoint=ckpt,
         recording=recording, source=source,
     )

@@ -8,20 +8,29 @@ shutdown drains, checkpoints and closes within a few seconds, exit status 0.
 
 from __future__ import annotations
 
-import argparse
-import json
-import logging
-import signal
-from pathlib import Path
-from types import FrameType
-from typing import Any
+import os
 
-from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION, Dims
-from roger_daemon.checkpoint import Checkpoint, CheckpointError, load_newest
-from roger_daemon.config import ConfigError, DaemonConfig, RobotConfig, load_config
-from roger_daemon.robot import RobotRuntime
-from roger_daemon.sdnotify import Notifier
-from roger_daemon.service import Recorder, Service
+# One thread computes (the loop owns the model); multithreaded BLAS on a small machine only
+# fights Zenoh's threads and the other processes for cores: measured on 2 cores, a busy second
+# core doubled learn_one's median and produced 60-80 ms spikes. Must precede numpy's import;
+# an explicit setting in the environment wins.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import logging  # noqa: E402
+import signal  # noqa: E402
+from pathlib import Path  # noqa: E402
+from types import FrameType  # noqa: E402
+from typing import Any  # noqa: E402
+
+from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION, Dims  # noqa: E402
+from roger_daemon.checkpoint import Checkpoint, CheckpointError, load_newest  # noqa: E402
+from roger_daemon.config import ConfigError, DaemonConfig, RobotConfig, load_config  # noqa: E402
+from roger_daemon.robot import RobotRuntime  # noqa: E402
+from roger_daemon.sdnotify import Notifier  # noqa: E402
+from roger_daemon.service import Recorder, Service  # noqa: E402
 
 __all__ = ["build_robot", "configure", "run"]
 
@@ -129,7 +138,7 @@ def _describe(cfg: DaemonConfig) -> dict[str, Any]:
     return {
         "id": cfg.id, "clock": cfg.clock, "rate_hz": cfg.rate_hz, "status_hz": cfg.status_hz,
         "mode": cfg.mode, "queue_size": cfg.queue_size, "pair_window": cfg.pair_window,
-        "seed": cfg.seed, "listen_all_robots": cfg.listen_all_robots,
+        "seed": cfg.seed, "count_unserved": cfg.count_unserved,
         "robots": [{"id": r.id, "x_dim": r.x_dim, "y_dim": r.y_dim, "model": r.model,
                     "seed": r.seed, "learner": r.params.to_mapping()} for r in cfg.robots],
         "zenoh": {k: (str(v) if isinstance(v, Path) else v)

@@ -5,7 +5,8 @@ Each cycle of :meth:`Service.step`:
 1. wait on the :class:`~roger_daemon.transport.Inbox` until the next deadline (at most
    ``max_wait_s``; zero when there is learning to do), then drain what is there: decode,
    validate, count rejects by reason, record, route (perception, action, control);
-   in lockstep mode a perception is answered at once;
+   in lockstep mode every perception drained is answered at once, after learning the pairs
+   already complete (so prediction(t+1) includes pair t when action(t) came first);
 2. realtime mode: if the 30 Hz deadline has passed, publish a prediction for the newest
    perception of every predicting robot and measure the period;
 3. learn one queued pair (round robin over robots) if the estimated learning time fits before
@@ -176,6 +177,7 @@ class Service:
         self._started_ns = 0
         self._stop = False
         self._stopping = False
+        self._answer: list[tuple[RobotRuntime, Perception, int]] = []
         self._reported: set[str] = set()
         self._recorder_failed: set[str] = set()
 
@@ -193,13 +195,9 @@ class Service:
                 self.transport.publisher(keys.prediction(rt.robot), realtime=True),
                 self.transport.publisher(keys.status(rt.robot), realtime=False),
             )
-        kinds = INPUT_KINDS + (RECORD_ONLY_KINDS if self.recorders else ())
-        for kind in kinds:
-            if self.config.listen_all_robots:
-                self.transport.subscribe(keys.all_of_kind(kind), self.inbox.put)
-            else:
-                for robot in self.robots:
-                    self.transport.subscribe(keys.key(robot, kind), self.inbox.put)
+        # One subscriber (one callback thread) for everything: samples from one sender keep
+        # their order (action(t) before perception(t+1)), which lockstep determinism needs.
+        self.transport.subscribe(keys.everything(), self.inbox.put)
         self.transport.declare_token(keys.daemon_liveliness(self.config.id))
         if not self._sync_ckpt:
             self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roger-ckpt")
@@ -258,6 +256,8 @@ class Service:
             self._handle(item)
             budget -= 1
             item = self.inbox.get(0) if budget > 0 else None
+        if self._answer:
+            self._answer_lockstep()
         now = self.clock.monotonic_ns()
         if self._realtime and now >= self._next_tick:
             self._on_timer(now)
@@ -312,13 +312,16 @@ class Service:
         try:
             served_robot, kind = keys.parse(item.key)
         except ProtocolError as exc:
-            self._invalid(rt, exc.reason, exc.detail)
+            if rt is not None or self.config.count_unserved:
+                self._invalid(rt, exc.reason, exc.detail)
             return
         if rt is None:
-            if kind in INPUT_KINDS:
+            if kind in INPUT_KINDS and self.config.count_unserved:
                 self._invalid(None, "unknown_robot",
                               f"message on {item.key}: robot {served_robot!r} is not served")
             return
+        if kind not in INPUT_KINDS and not (kind in RECORD_ONLY_KINDS and robot in self.recorders):
+            return  # e.g. predictions and status of other daemons
         if item.payload is None:
             self._invalid(rt, "oversized",
                           f"{kind}: payload of {item.size} bytes > {MAX_PAYLOAD_BYTES}")
@@ -335,13 +338,26 @@ class Service:
             assert isinstance(msg, Perception)
             rt.on_perception(msg, item.recv_ns)
             if not self._realtime and rt.predicting and not self._stopping:
-                self._publish_prediction(rt, msg, item.recv_ns)
+                self._answer.append((rt, msg, item.recv_ns))
         elif kind == "action":
             assert isinstance(msg, Action)
             rt.on_action(msg)
         elif kind == "control":
             assert isinstance(msg, Control)
             self._control(rt, msg)
+
+    def _answer_lockstep(self) -> None:
+        """Lockstep: learn every complete pair first, then answer the perceptions just drained.
+
+        So prediction(t+1) includes pair t whenever action(t) arrived before perception(t+1),
+        which is the causal order of a lock-stepped simulator (deterministic runs).
+        """
+        answer, self._answer = self._answer, []
+        for rt in {id(a[0]): a[0] for a in answer}.values():
+            while rt.learning and rt.queue:
+                rt.learn_one()
+        for rt, msg, recv_ns in answer:
+            self._publish_prediction(rt, msg, recv_ns)
 
     def _invalid(self, rt: RobotRuntime | None, reason: str, detail: str) -> None:
         if rt is not None:

@@ -234,11 +234,16 @@ class ZenohTransport:
 
 
 def _key_regex(key_expr: str) -> re.Pattern[str]:
-    """Literal chunks and ``*`` (one chunk, never a verbatim ``@`` chunk); enough for the fake."""
-    if "**" in key_expr.split("/"):
-        raise ValueError("MemoryTransport supports '*' but not '**' key expressions")
-    parts = [r"[^/@][^/]*" if c == "*" else re.escape(c) for c in key_expr.split("/")]
-    return re.compile("^" + "/".join(parts) + "$")
+    """``*`` (one chunk) and ``**`` (any number of chunks); neither matches a verbatim ``@``."""
+    chunk = r"[^/@][^/]*"
+    pattern = ""
+    for i, c in enumerate(key_expr.split("/")):
+        sep = "/" if i else ""
+        if c == "**":
+            pattern += f"(?:{sep}{chunk})*" if i else f"(?:{chunk}(?:/{chunk})*)?"
+        else:
+            pattern += sep + (chunk if c == "*" else re.escape(c))
+    return re.compile("^" + pattern + "$")
 
 
 @dataclass

@@ -117,21 +117,32 @@ class Harness:
 def test_lockstep_answers_each_perception_and_learns_pairs(tmp_path: Path) -> None:
     h = Harness(make_config(tmp_path))
     for t in range(20):
-        h.pair(t, action_first=(t % 2 == 1))
+        h.send("perception", encode(Perception("aibo", t, t / 30, x=STREAM.x[t])))
+        h.settle()
+        h.send("action", encode(Action("aibo", t, t / 30, y=STREAM.y[t],
+                                       label=LABELS[STREAM.labels[t]])))
         h.settle()
     preds = h.predictions()
     assert [p.tick for p in preds] == list(range(20))
     for p in preds:
         assert np.all(np.isfinite(p.mean)) and np.all(p.var > 0)
         assert p.mode == "learn+predict" and p.latency_ms >= 0
-    # tick t is answered before pair t is learned (perception arrives first when t is even)
-    assert preds[0].updates == 0 and preds[0].expert == -1
-    assert h.rt.updates == 20
-    assert preds[-1].updates in (18, 19)
+    # perception(t) came before action(t): it is answered with pairs 0..t-1 learned
+    assert [p.updates for p in preds] == list(range(20))
+    assert preds[0].expert == -1 and preds[0].multimap == ()
     assert preds[-1].multimap and all(e.label in LABELS for e in preds[-1].multimap)
     assert math.isclose(sum(e.p for e in preds[-1].multimap), 1.0, rel_tol=1e-6)
     st = h.status()
     assert st.updates == 20 and st.ticks == 20 and st.dropped == 0 and st.invalid == {}
+
+
+def test_lockstep_learns_complete_pairs_before_answering(tmp_path: Path) -> None:
+    """action(t) and perception(t+1) drained together: prediction(t+1) includes pair t."""
+    h = Harness(make_config(tmp_path))
+    for t in range(6):
+        h.pair(t, action_first=(t % 2 == 1))  # both halves arrive before the loop runs
+        h.settle()
+    assert [p.updates for p in h.predictions()] == [1, 2, 3, 4, 5, 6]
 
 
 def test_prediction_updates_field_matches_model_state(tmp_path: Path) -> None:
@@ -342,4 +353,8 @@ def test_majority_labels() -> None:
 def test_liveliness_token_and_subscriptions(tmp_path: Path) -> None:
     h = Harness(make_config(tmp_path))
     assert h.transport.tokens == [keys.daemon_liveliness("roger")]
-    assert h.transport.inject(keys.prediction("aibo"), b"x") == 0  # own outputs not consumed
+    # one subscriber on roger/** (order-preserving); other daemons' outputs are ignored
+    assert h.transport.inject(keys.prediction("aibo"), b"x") == 1
+    assert h.transport.inject(keys.status("aibo"), b"x") == 1
+    h.settle()
+    assert h.transport.published == [] and h.rt.invalid == {} and h.service.unserved == {}
