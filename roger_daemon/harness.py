@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from protocols import Action, Control, Perception, Prediction, Status, decode, encode, keys
+from protocols.aibo import DIMS as AIBO_DIMS
 from protocols.messages import Dims
 
 __all__ = ["Client", "DaemonProcess", "Received", "free_port", "write_config"]
@@ -139,7 +140,7 @@ class Received:
 class Client:
     """A Zenoh session that plays robot + demonstrator for one robot and listens to the daemon."""
 
-    def __init__(self, connect: str, *, robot: str = "aibo", dims: Dims = Dims(23, 9),
+    def __init__(self, connect: str, *, robot: str = "aibo", dims: Dims = AIBO_DIMS,
                  mode: str = "peer", daemon_id: str = "roger") -> None:
         import zenoh
 

@@ -1,0 +1,148 @@
+"""The daemon config validator: defaults, the shipped file, and every promised message."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from roger_daemon.config import ConfigError, apply_overrides, load_config, parse_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_defaults_are_the_documented_ones() -> None:
+    cfg = parse_config({})
+    assert cfg.clock == "realtime" and cfg.rate_hz == 30.0 and cfg.status_hz == 1.0
+    assert [r.id for r in cfg.robots] == ["aibo"]
+    assert (cfg.robots[0].x_dim, cfg.robots[0].y_dim) == (23, 9)
+    assert cfg.zenoh.listen == ("tcp/127.0.0.1:7447",) and cfg.zenoh.mode == "peer"
+    assert cfg.zenoh.multicast_scouting is False
+    assert cfg.robots[0].params.alpha == 0.5 and cfg.robots[0].params.beta == 300
+
+
+def test_shipped_config_is_valid_and_equals_the_defaults() -> None:
+    cfg = load_config(ROOT / "configs/roger.toml")
+    default = parse_config({})
+    assert cfg.robots[0].params == default.robots[0].params
+    assert (cfg.clock, cfg.rate_hz, cfg.queue_size, cfg.mode) == (
+        default.clock, default.rate_hz, default.queue_size, default.mode)
+    assert cfg.zenoh == default.zenoh and cfg.checkpoint == default.checkpoint
+
+
+def test_config_is_immutable() -> None:
+    cfg = parse_config({})
+    with pytest.raises(AttributeError):
+        cfg.rate_hz = 10.0  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        cfg.learner["alpha"] = 1.0  # type: ignore[index]
+
+
+def test_several_robots_with_scaling() -> None:
+    cfg = parse_config({
+        "robots": [
+            {"id": "aibo"},
+            {"id": "arm_1", "x_dim": 2, "y_dim": 1, "model": "unimap", "seed": 7,
+             "x_scale": [2.0, 4.0], "y_offset": [0.5]},
+        ],
+        "learner": {"alpha": 1.5, "nu0": 24},
+    })
+    arm = cfg.robot("arm_1")
+    assert arm.model == "unimap" and arm.seed == 7
+    assert arm.params.x_scale == (2.0, 4.0) and arm.params.y_offset == (0.5,)
+    assert arm.params.alpha == 1.5 and cfg.robot("aibo").params.x_scale is None
+
+
+BAD: list[tuple[dict[str, Any], str]] = [
+    ({"daemon": {"rate_hz": "fast"}}, 'daemon.rate_hz must be a number > 0, got "fast"'),
+    ({"daemon": {"rate_hz": 0}}, "daemon.rate_hz must be a number > 0, got 0"),
+    ({"daemon": {"rate_hz": 5000.0}},
+     "daemon.rate_hz must be a number > 0 and <= 1000, got 5000.0"),
+    ({"daemon": {"clock": "wall"}},
+     'daemon.clock must be one of "realtime", "lockstep", got "wall"'),
+    ({"daemon": {"mode": "train"}}, 'daemon.mode must be one of "learn", "predict", '
+                                    '"learn+predict", "pause", got "train"'),
+    ({"daemon": {"queue_size": 0}}, "daemon.queue_size must be an integer >= 1, got 0"),
+    ({"daemon": {"queue_size": 1.5}}, "daemon.queue_size must be an integer >= 1, got 1.5"),
+    ({"daemon": {"seed": -1}}, "daemon.seed must be an integer >= 0, got -1"),
+    ({"daemon": {"id": "my daemon"}},
+     'daemon.id must be a string of 1-64 characters [A-Za-z0-9_-], got "my daemon"'),
+    ({"daemon": {"count_unserved": "yes"}},
+     'daemon.count_unserved must be true or false, got "yes"'),
+    ({"daemon": {"rat_hz": 30}}, "unknown key daemon.rat_hz"),
+    ({"bogus": {}}, "unknown key bogus"),
+    ({"daemon": 3}, "daemon must be a table, got 3"),
+    ({"learner": {"alpha": -1.0}}, "learner.alpha must be a float > 0, got -1.0"),
+    ({"learner": {"beta": 0}}, "learner.beta must be an integer >= 1, got 0"),
+    ({"learner": {"alhpa": 1.0}}, "learner: unknown parameter(s) 'alhpa'"),
+    ({"learner": {"nu0": 5.0}}, "learner.nu0 must be a float > d_x - 1 = 22"),
+    ({"robots": []}, "robots must be a non-empty array of tables ([[robots]]), got []"),
+    ({"robots": [{"x_dim": 3}]}, "robots[0].id is required"),
+    ({"robots": [{"id": "a"}, {"id": "a"}]}, 'robots[1].id must be unique among robots, got "a"'),
+    ({"robots": [{"id": "a", "x_dim": 0}]}, "robots[0].x_dim must be an integer >= 1, got 0"),
+    ({"robots": [{"id": "a", "model": "gp"}]},
+     'robots[0].model must be one of "roger", "unimap", got "gp"'),
+    ({"robots": [{"id": "a", "x_dim": 2, "x_scale": [1.0]}]},
+     "robots[0].x_scale must be an array of 2 finite numbers, got [1.0]"),
+    ({"robots": [{"id": "a", "x_dim": 2, "x_scale": [1.0, 0.0]}]},
+     "robots[0].x_scale must be an array of 2 numbers > 0, got [1.0, 0.0]"),
+    ({"robots": [{"id": "a", "colour": "red"}]}, "unknown key robots[0].colour"),
+    ({"zenoh": {"mode": "router"}}, 'zenoh.mode must be one of "peer", "client", got "router"'),
+    ({"zenoh": {"listen": "tcp/127.0.0.1:7447"}},
+     'zenoh.listen must be an array of strings, got "tcp/127.0.0.1:7447"'),
+    ({"zenoh": {"connect": ["localhost"]}},
+     'zenoh.connect must be an array of endpoints like "tcp/127.0.0.1:7447", got ["localhost"]'),
+    ({"zenoh": {"mode": "client"}},
+     'zenoh.connect must be at least one endpoint when zenoh.mode is "client", got []'),
+    ({"zenoh": {"lease_ms": 5}}, "zenoh.lease_ms must be an integer >= 100 (milliseconds), got 5"),
+    ({"zenoh": {"config_file": "/nonexistent/z.json5"}},
+     'zenoh.config_file must be a readable Zenoh JSON5 config, got "/nonexistent/z.json5"'),
+    ({"checkpoint": {"every_s": -1}}, "checkpoint.every_s must be a number >= 0, got -1"),
+    ({"checkpoint": {"keep": 0}}, "checkpoint.keep must be an integer >= 1, got 0"),
+    ({"checkpoint": {"shutdown_learn_s": 10}},
+     "checkpoint.shutdown_learn_s must be a number in [0, 3] (seconds), got 10.0"),
+    ({"checkpoint": {"dir": 5}}, "checkpoint.dir must be a path (string), got 5"),
+    ({"recording": {"enabled": 1}}, "recording.enabled must be true or false, got 1"),
+]
+
+
+@pytest.mark.parametrize(("raw", "message"), BAD, ids=[m.split(" ")[0] for _, m in BAD])
+def test_bad_values_are_rejected_naming_key_form_and_value(raw: dict[str, Any],
+                                                           message: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        parse_config(raw)
+    assert str(err.value).startswith("config error: ")
+    assert message in str(err.value)
+
+
+def test_file_errors(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_config(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[daemon\nrate_hz = 3\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="is not valid TOML"):
+        load_config(bad)
+
+
+def test_overrides_are_toml_values_and_validated(tmp_path: Path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text('[daemon]\nclock = "realtime"\n', encoding="utf-8")
+    cfg = load_config(f, ["daemon.clock=lockstep", "daemon.rate_hz=60", "learner.alpha=2.5",
+                          'zenoh.listen=["tcp/127.0.0.1:9000"]'])
+    assert cfg.clock == "lockstep" and cfg.rate_hz == 60.0
+    assert cfg.robots[0].params.alpha == 2.5 and cfg.zenoh.listen == ("tcp/127.0.0.1:9000",)
+    with pytest.raises(ConfigError, match='daemon.rate_hz must be a number > 0, got "fast"'):
+        load_config(f, ["daemon.rate_hz=fast"])
+    with pytest.raises(ConfigError, match="must look like SECTION.KEY=VALUE"):
+        apply_overrides({}, ["daemon.rate_hz"])
+    with pytest.raises(ConfigError, match="must be SECTION.KEY"):
+        apply_overrides({}, ["rate_hz=3"])
+
+
+def test_zenoh_file_leaves_unset_keys_to_the_file() -> None:
+    cfg = parse_config({"zenoh": {"config_file": str(ROOT / "configs/zenoh/client.json5")}})
+    assert cfg.zenoh.mode is None and cfg.zenoh.listen is None and cfg.zenoh.connect is None
+    cfg = parse_config({"zenoh": {"config_file": str(ROOT / "configs/zenoh/client.json5"),
+                                  "connect": ["tcp/10.0.0.2:7447"]}})
+    assert cfg.zenoh.connect == ("tcp/10.0.0.2:7447",)
