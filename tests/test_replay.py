@@ -86,7 +86,7 @@ def test_replay_reproduces_the_recorded_model(busy) -> None:  # type: ignore[no-
     np.testing.assert_array_equal(res.assignments, busy.model.assignments())
     tl = res.timeline
     assert tl.invalid["not_msgpack"] == 1
-    assert tl.pairs_not_learned == 20 + 5  # mode predict at ticks 40-59, pause at 120-124
+    assert tl.ignored_not_learning == 2 * (20 + 5)  # mode predict at 40-59, pause at 120-124
     assert tl.unpaired == (2, 0)  # ticks 10 and 111 never got their action
     assert res.seed == 7 and res.model_kind == "roger"
 
@@ -121,9 +121,17 @@ def test_replay_with_other_params_from_a_config_mismatches(
     busy, tmp_path: Path, capsys: pytest.CaptureFixture[str]  # type: ignore[no-untyped-def]
 ) -> None:
     cfg = tmp_path / "c.toml"
-    cfg.write_text("[learner]\ntheta_n = 0.3\nseed = 7\n")
+    cfg.write_text("[daemon]\nseed = 7\n[learner]\ntheta_n = 0.3\n"
+                   "[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check", "--json"]) == 1
-    assert json.loads(capsys.readouterr().out)["params"] == {"theta_n": 0.3}
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["params"]["theta_n"] == 0.3 and rep["seed"] == 7
+    cfg.write_text("[daemon]\nseed = 7\n[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
+    assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check"]) == 0
+    cfg.write_text("[daemon]\nseed = 8\n[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
+    assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check"]) == 1
+    cfg.write_text("[daemon]\nrate_hz = \"fast\"\n")
+    assert roger(["replay", str(busy.paths[0]), "--config", str(cfg)]) == 2
 
 
 def test_replay_across_reset_and_rotated_parts(tmp_path: Path,
@@ -280,6 +288,7 @@ def test_pair_tracker() -> None:
 def test_majority_labels_ties_go_to_the_first_seen() -> None:
     assert majority_labels([0, 0, 1, 1, 1, 0], ["b", "a", "x", "y", "y", "a"]) == {0: "a", 1: "y"}
     assert majority_labels([2, 2], ["q", "p"]) == {2: "q"}
+    assert majority_labels([1, 1, 1, 2], ["", "", "b", ""]) == {1: "b", 2: ""}
     assert majority_labels([], []) == {}
 
 
@@ -289,3 +298,67 @@ def test_read_timeline_segments(busy) -> None:  # type: ignore[no-untyped-def]
     seg = tl.segments[0]
     assert [p.index for p in seg.pairs] == list(range(len(seg.pairs)))
     assert all(p.updates <= seg.end_updates for p in seg.predictions)
+
+
+def _handmade(tmp_path: Path, events: list[tuple[str, object]], **meta: object) -> Path:
+    """A log from (kind, message) events, one per 10 ms, metadata from session_metadata."""
+    from protocols import encode, keys
+    from roger_daemon.recording import SessionRecorder, session_metadata
+
+    md = session_metadata(robot="r", dims=(1, 1), seed=1, **meta)  # type: ignore[arg-type]
+    with SessionRecorder(tmp_path, robot="r", metadata=md, start_ns=START_NS) as rec:
+        for i, (kind, msg) in enumerate(events):
+            rec.write(keys.key("r", kind), encode(msg), log_time_ns=START_NS + i * 10**7,  # type: ignore[arg-type]
+                      publish_time_ns=START_NS, sequence=0)
+    return rec.path
+
+
+def test_timeline_pairs_only_while_learning_like_the_daemon(tmp_path: Path) -> None:
+    from protocols import Control
+
+    def p(t: int) -> tuple[str, object]:
+        return "perception", Perception("r", t, 0.0, x=[float(t)])
+
+    def a(t: int) -> tuple[str, object]:
+        return "action", Action("r", t, 0.0, y=[float(t)], label="s")
+
+    def mode(m: str) -> tuple[str, object]:
+        return "control", Control("r", 0, 0.0, op="mode", mode=m)
+
+    events = [p(0), a(0),                      # learned
+              mode("predict"), p(1),           # perception not buffered while predicting
+              mode("learn"), a(1),             # so action 1 waits in vain
+              a(2), mode("pause"), p(2),       # perception 2 ignored: no pair
+              mode("learn+predict"), p(3), a(3),
+              ("control", Control("r", 0, 0.0, op="reset")), a(4), p(4)]
+    tl = read_timeline([_handmade(tmp_path, events)])
+    assert [[q.tick for q in s.pairs] for s in tl.segments] == [[0, 3], [4]]
+    assert tl.ignored_not_learning == 2 and tl.unpaired == (0, 0)
+
+
+def test_timeline_uses_the_sessions_pair_window(tmp_path: Path) -> None:
+    events: list[tuple[str, object]] = [("action", Action("r", 0, 0.0, y=[0.0]))]
+    events += [("perception", Perception("r", t, 0.0, x=[0.0])) for t in range(100, 170)]
+    events += [("perception", Perception("r", 0, 0.0, x=[0.0]))]
+    narrow = read_timeline([_handmade(tmp_path / "a", events, pair_window=64)])
+    assert narrow.pair_window == 64 and len(narrow.pairs) == 1  # actions wait; perceptions evict
+    events = [("perception", Perception("r", 0, 0.0, x=[0.0]))]
+    events += [("perception", Perception("r", t, 0.0, x=[0.0])) for t in range(100, 170)]
+    events += [("action", Action("r", 0, 0.0, y=[0.0]))]
+    assert read_timeline([_handmade(tmp_path / "b", events, pair_window=64)]).pairs == []
+    assert len(read_timeline([_handmade(tmp_path / "c", events, pair_window=128)]).pairs) == 1
+    cfg = "[daemon]\npair_window = 100\n"
+    assert read_timeline([_handmade(tmp_path / "d", events, config_text=cfg)]).pair_window == 100
+
+
+def test_replay_warns_when_the_daemon_dropped_pairs(tmp_path: Path) -> None:
+    from protocols import Status
+
+    def st(dropped: int) -> tuple[str, object]:
+        return "status", Status("r", 0, 0.0, daemon="d", mode="learn", ticks=0, updates=0,
+                                updates_per_s=0.0, experts=0, queue_depth=0, dropped=dropped)
+
+    events = [st(3), ("perception", Perception("r", 1, 0.0, x=[0.5])),
+              ("action", Action("r", 1, 0.0, y=[0.5])), st(5)]
+    res = replay_session(_handmade(tmp_path, events))
+    assert res.timeline.daemon_dropped == 2 and any("dropped 2" in w for w in res.warnings)

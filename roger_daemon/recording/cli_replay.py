@@ -62,18 +62,23 @@ def _session_files(files: list[Path]) -> list[Path]:
     return parts or files
 
 
-def _config(path: Path) -> tuple[dict[str, Any] | None, int | None]:
+def _config(path: Path, robot: str) -> tuple[dict[str, Any] | None, int | None, str | None]:
+    """(learner params, seed, model kind) of ``robot`` in a daemon config file.
+
+    Read with the daemon's own parser (per-robot overrides included); a file it rejects
+    raises ``ValueError``. A robot the config does not list gets the ``[learner]`` table and
+    ``[daemon] seed``.
+    """
+    from roger_daemon.config import load_config
+
+    cfg = load_config(path)
+    for r in cfg.robots:
+        if r.id == robot:
+            return dict(r.params.to_mapping()), int(r.seed), str(r.model)
     with open(path, "rb") as f:
-        cfg = tomllib.load(f)
-    table = cfg.get("learner")
-    params = dict(table) if isinstance(table, dict) else None
-    seed = None
-    if params is not None and "seed" in params:
-        seed = int(params.pop("seed"))
-    for section in (cfg, cfg.get("daemon", {}), cfg.get("model", {})):
-        if isinstance(section, dict) and isinstance(section.get("seed"), int) and seed is None:
-            seed = int(section["seed"])
-    return params, seed
+        raw = tomllib.load(f)
+    table = raw.get("learner")
+    return (dict(table) if isinstance(table, dict) else None), int(cfg.seed), None
 
 
 def _load_checkpoint(path: Path) -> Any:
@@ -106,13 +111,16 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     from roger_daemon.recording.timeline import read_timeline
 
     err = Console(stderr=True)
-    params, seed = (None, None)
-    if args.config:
-        params, seed = _config(args.config)
-    if args.seed is not None:
-        seed = args.seed
+    params: dict[str, Any] | None = None
+    seed: int | None = None
+    kind: str | None = args.model
     try:
         tl = read_timeline(files, robot=args.robot)
+        if args.config:
+            params, seed, cfg_kind = _config(args.config, tl.robot)
+            kind = kind or cfg_kind
+        if args.seed is not None:
+            seed = args.seed
         initial = _load_checkpoint(args.checkpoint) if args.checkpoint else None
         total = sum(len(s.pairs) for s in tl.segments)
         with Progress(
@@ -122,7 +130,7 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
         ) as prog:
             task = prog.add_task("replaying", total=total)
             res = replay_timeline(
-                tl, params=params, seed=seed, model_kind=args.model, initial_model=initial,
+                tl, params=params, seed=seed, model_kind=kind, initial_model=initial,
                 progress=lambda n: prog.advance(task, n),
             )
     except (ReplayError, ValueError) as exc:

@@ -107,6 +107,8 @@ def session_metadata(
     mode: str = "learn+predict",
     start_updates: int = 0,
     checkpoint: str = "",
+    pair_window: int | None = None,
+    queue_size: int | None = None,
     created_by: str = "roger daemon",
     extra: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
@@ -133,6 +135,9 @@ def session_metadata(
         when the daemon resumed from a checkpoint.
     checkpoint
         The checkpoint the model was restored from, if any.
+    pair_window, queue_size
+        The daemon's pairing window and training-queue size (replay pairs with the same window;
+        default 64 when absent).
     created_by
         Which program wrote the file.
     extra
@@ -154,6 +159,8 @@ def session_metadata(
         "mode": mode,
         "start_updates": str(int(start_updates)),
         "checkpoint": checkpoint,
+        "pair_window": "" if pair_window is None else str(int(pair_window)),
+        "queue_size": "" if queue_size is None else str(int(queue_size)),
         "hostname": socket.gethostname(),
         "platform": platform.platform(),
         "git_commit": git_commit(),
@@ -164,6 +171,24 @@ def session_metadata(
             raise ValueError(f"extra metadata key {k!r} collides with a standard key")
         out[str(k)] = str(v)
     return out
+
+
+def _pair_window(meta: Mapping[str, str]) -> int | None:
+    """``pair_window`` from the metadata, else from the recorded config's ``[daemon]`` table."""
+    txt = meta.get("pair_window", "")
+    if txt:
+        return int(txt)
+    config = meta.get("config", "")
+    if not config:
+        return None
+    import tomllib
+
+    try:
+        daemon = tomllib.loads(config).get("daemon", {})
+    except tomllib.TOMLDecodeError:
+        return None
+    value = daemon.get("pair_window") if isinstance(daemon, dict) else None
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 @dataclass(frozen=True)
@@ -177,6 +202,7 @@ class SessionInfo:
     model: str
     mode: str
     start_updates: int
+    pair_window: int | None
     session_id: str
     part: int
     raw: dict[str, str]
@@ -203,6 +229,7 @@ class SessionInfo:
             model=meta.get("model", "") or "roger",
             mode=mode if mode in MODES else "learn+predict",
             start_updates=int(meta.get("start_updates", "") or 0),
+            pair_window=_pair_window(meta),
             session_id=meta.get("session_id", ""),
             part=int(meta.get("part", "") or 0),
             raw=dict(meta),

@@ -129,6 +129,7 @@ class ReplayResult:
     unreplayable: int  # predictions whose model state the log cannot reproduce
     timeline: Timeline
     warnings: list[str] = field(default_factory=list)
+    learn_errors: int = 0  # pairs the learner rejected (skipped, as the daemon does)
 
     @property
     def n_experts(self) -> int:
@@ -199,7 +200,10 @@ class ReplayResult:
             else {"tick": bad[0].tick, "updates": bad[0].updates, "segment": bad[0].segment},
             "ok": self.ok(tolerance),
             "invalid_messages": dict(tl.invalid),
-            "pairs_not_learned": tl.pairs_not_learned,
+            "ignored_while_not_learning": tl.ignored_not_learning,
+            "pair_window": tl.pair_window,
+            "daemon_dropped_pairs": tl.daemon_dropped,
+            "learn_errors": self.learn_errors,
             "unpaired": {"perceptions": tl.unpaired[0], "actions": tl.unpaired[1]},
             "predictions_without_query": tl.predictions_without_query,
             "incomplete_files": tl.incomplete_files,
@@ -209,7 +213,10 @@ class ReplayResult:
 
 
 def majority_labels(assignments: Iterable[int], labels: Iterable[str]) -> dict[int, str]:
-    """Majority label per expert; ties go to the label seen first in the session."""
+    """Majority non-empty label per expert ("" if none); ties go to the label seen first.
+
+    The daemon's rule (``roger_daemon.robot.majority_labels``).
+    """
     a = np.asarray(list(assignments), dtype=np.int64)
     labs = list(labels)
     if a.size == 0:
@@ -222,8 +229,12 @@ def majority_labels(assignments: Iterable[int], labels: Iterable[str]) -> dict[i
     experts, inv = np.unique(a, return_inverse=True)
     counts = np.zeros((experts.size, len(names)), dtype=np.int64)
     np.add.at(counts, (inv, codes), 1)
+    if "" in order:
+        counts[:, order[""]] = 0
     best = counts.argmax(axis=1)  # first maximum = the label seen first
-    return {int(e): names[int(b)] for e, b in zip(experts, best, strict=True)}
+    has = counts.max(axis=1) > 0
+    return {int(e): (names[int(b)] if h else "")
+            for e, b, h in zip(experts, best, has, strict=True)}
 
 
 def _maxabs(a: Any, b: Any) -> float:
@@ -285,6 +296,11 @@ def _compare(
     )
 
 
+#: What the daemon catches around ``learn_one`` (the pair is skipped, the loop goes on).
+LEARN_ERRORS: tuple[type[BaseException], ...] = (ValueError, ArithmeticError,
+                                                  np.linalg.LinAlgError)
+
+
 def _replay_segment(
     seg_no: int,
     seg: Segment,
@@ -293,11 +309,15 @@ def _replay_segment(
     *,
     compare_labels: bool,
     progress: Callable[[int], None] | None,
-) -> int:
-    """Learn the segment's pairs, evaluating predictions on the way; return unreplayable."""
+) -> tuple[int, int]:
+    """Learn the segment's pairs, evaluating predictions on the way.
+
+    Returns (unreplayable predictions, learn errors).
+    """
     preds = sorted(seg.predictions, key=lambda p: p.updates)  # stable: file order within a count
     labels: list[str] = []
     unreplayable = 0
+    errors = 0
     pi = 0
     label_budget = compare_labels and len(seg.pairs) * max(len(preds), 1) <= 200_000_000
 
@@ -315,15 +335,21 @@ def _replay_segment(
                                              labels)
             diffs.append(_compare(seg_no, rec, model, labels_now))
 
-    for k, pair in enumerate(seg.pairs):
-        evaluate(seg.start_updates + k)
-        model.learn_one(pair.x, pair.y)
-        labels.append(pair.label)
+    learned = seg.start_updates
+    for pair in seg.pairs:
+        evaluate(learned)
+        try:
+            model.learn_one(pair.x, pair.y)
+        except LEARN_ERRORS:
+            errors += 1
+        else:
+            learned += 1
+            labels.append(pair.label)
         if progress is not None:
             progress(1)
-    evaluate(seg.end_updates)
+    evaluate(learned)
     unreplayable += len(preds) - pi  # computed after pairs the log does not have
-    return unreplayable
+    return unreplayable, errors
 
 
 def replay_timeline(
@@ -351,6 +377,7 @@ def replay_timeline(
     factory = model_factory or default_model_factory
     diffs: list[PredictionDiff] = []
     unreplayable = 0
+    learn_errors = 0
     model: Model | None = None
     for i, seg in enumerate(tl.segments):
         if i == 0 and seg.start_updates > 0:
@@ -370,20 +397,31 @@ def replay_timeline(
             model = initial_model
         else:
             model = factory(kind, tl.dims.x, tl.dims.y, use_params, use_seed)
-        unreplayable += _replay_segment(
+        lost, errs = _replay_segment(
             i, seg, model, diffs, compare_labels=compare_labels, progress=progress
         )
+        unreplayable += lost
+        learn_errors += errs
     last = tl.segments[-1]
     labels = [p.label for p in last.pairs]
+    if learn_errors:
+        labels = []  # which pairs were rejected is not kept; no label mapping then
     if model is not None:
         assignments = np.asarray(model.assignments(), dtype=np.int64)
         own = assignments[-len(labels):] if labels else assignments[:0]
-        expert_labels = majority_labels(own, labels) if labels else {}
+        expert_labels = majority_labels(own, labels) if labels and len(own) == len(labels) else {}
     else:
         assignments = np.zeros(0, dtype=np.int64)
         expert_labels = {}
     if tl.incomplete_files:
         warnings.append(f"incomplete files (no footer): {tl.incomplete_files}")
+    if tl.daemon_dropped:
+        warnings.append(
+            f"the daemon dropped {tl.daemon_dropped} pairs (training queue full); the log cannot "
+            "say which, so predictions after the first drop may differ"
+        )
+    if learn_errors:
+        warnings.append(f"the learner rejected {learn_errors} pairs (skipped, as the daemon does)")
     return ReplayResult(
         files=tl.files,
         info=info,
@@ -400,6 +438,7 @@ def replay_timeline(
         unreplayable=unreplayable,
         timeline=tl,
         warnings=warnings,
+        learn_errors=learn_errors,
     )
 
 

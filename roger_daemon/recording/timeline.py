@@ -1,21 +1,28 @@
 """From a recorded session to what the learner saw: learned pairs and recorded predictions.
 
-The rules mirror the daemon's loop, read in the log's write order (which is the order the daemon
-processed messages in, because it records each message as it takes it off its queues):
+The rules mirror the daemon's loop (``roger_daemon.robot.RobotRuntime`` and
+``roger_daemon.service.Service``), read in the log's write order, which is the order the
+daemon handled messages in (it records each message as it takes it off its inbox, before
+routing it, and each prediction and status as it publishes it):
 
-* **Pairing** (:class:`PairTracker`): ``perception(t)`` and ``action(t)`` of the same robot and
-  tick form a training pair when the second of the two arrives; the newest perception of a tick
-  wins; each tick pairs at most once; pending halves older than ``max_pending`` ticks are
-  dropped. Messages that fail ``protocols.decode`` (with the session's dims) are skipped.
-* **Learning**: a pair is learned iff the mode is ``learn`` or ``learn+predict`` when it forms.
-  The mode starts as the metadata's ``mode`` and follows ``control`` messages with ``op=mode``.
-* **Reset**: ``control`` with ``op=reset`` starts a new :class:`Segment` whose model is fresh
-  (``n_learned`` 0, same params and seed).
+* **Pairing** (:class:`PairTracker`), only while the mode learns (``learn``,
+  ``learn+predict``): ``perception(t)`` and ``action(t)`` of the robot wait for each other by
+  tick in two insertion-ordered buffers of ``pair_window`` entries (the session's, default 64);
+  the second to arrive forms a pair; the newest perception of a tick wins; a tick pairs once.
+  In the other modes perceptions and actions are not buffered at all. Payloads that fail
+  ``protocols.decode`` with the session's dims are skipped.
+* **Learning order** = pair formation order (the daemon's FIFO training queue). Pairs the
+  daemon dropped because its queue was full cannot be seen in the log: the ``dropped`` counter
+  of its status messages is watched and reported (:attr:`Timeline.daemon_dropped`).
+* **Mode** starts as the metadata's ``mode`` and follows ``control`` messages ``op=mode``.
+* **Reset** (``control`` ``op=reset``) starts a new :class:`Segment` with a fresh model
+  (``n_learned`` 0, same params and seed) and empties the pairing buffers.
 * **Predictions**: each recorded prediction is tied to the newest perception of its tick (its
   query) and to its ``updates`` (the model's ``n_learned`` when it was computed).
 
 The first segment starts at the metadata's ``start_updates`` (non-zero when the daemon resumed
-from a checkpoint), so a pair's ``index`` is the model's ``n_learned`` just before learning it.
+from a checkpoint), so a pair's ``index`` is the model's ``n_learned`` just before learning it
+(assuming the learner rejected no pair).
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ from protocols.messages import (
     ExpertOutput,
     Perception,
     Prediction,
+    Status,
     decode,
 )
 from roger_daemon.recording.mcapio import LogReader
@@ -54,8 +62,10 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 
-#: Modes in which the daemon learns the pairs it forms.
+#: Modes in which the daemon pairs and learns.
 LEARNING_MODES = ("learn", "learn+predict")
+#: The daemon's default pairing window (``[daemon] pair_window``).
+DEFAULT_PAIR_WINDOW = 64
 
 
 @dataclass(frozen=True)
@@ -106,7 +116,7 @@ class PairTracker:
     The daemon can use this very class, which guarantees that replay pairs the same way.
     """
 
-    def __init__(self, max_pending: int = 256) -> None:
+    def __init__(self, max_pending: int = DEFAULT_PAIR_WINDOW) -> None:
         self.max_pending = max_pending
         self._perc: OrderedDict[int, Perception] = OrderedDict()
         self._act: OrderedDict[int, Action] = OrderedDict()
@@ -156,9 +166,11 @@ class Timeline:
     incomplete_files: list[str]
     messages: int = 0
     invalid: Counter[str] = field(default_factory=Counter)
-    pairs_not_learned: int = 0  # formed while the mode did not learn
+    ignored_not_learning: int = 0  # perceptions/actions that arrived while not learning
     unpaired: tuple[int, int] = (0, 0)  # (perceptions, actions) left without a partner
     predictions_without_query: int = 0
+    pair_window: int = DEFAULT_PAIR_WINDOW
+    daemon_dropped: int = 0  # pairs the daemon dropped (queue full), from its status counter
 
     @property
     def pairs(self) -> list[LearnedPair]:
@@ -233,9 +245,12 @@ def read_timeline(
         file_errors={},
         incomplete_files=[],
     )
-    tracker = PairTracker()
+    tl.pair_window = info.pair_window or DEFAULT_PAIR_WINDOW
+    tracker = PairTracker(tl.pair_window)
     recent: OrderedDict[int, Perception] = OrderedDict()  # newest perception per tick (queries)
-    want = {keyexpr.key(who, k): k for k in ("perception", "action", "control", "prediction")}
+    last_dropped: int | None = None
+    want = {keyexpr.key(who, k): k
+            for k in ("perception", "action", "control", "prediction", "status")}
     dx = dims.x if dims else None
     dy = dims.y if dims else None
     for reader in readers:
@@ -260,21 +275,28 @@ def read_timeline(
                     continue
                 recent[msg.tick] = msg
                 recent.move_to_end(msg.tick)
-                if len(recent) > tracker.max_pending:
+                if len(recent) > 4 * tracker.max_pending:
                     recent.popitem(last=False)
-                pair = tracker.perception(msg)
+                if mode_now in LEARNING_MODES:
+                    pair = tracker.perception(msg)
+                else:
+                    tl.ignored_not_learning += 1
             elif isinstance(msg, Action):
                 if dy is None:
                     dy = msg.y.size
                 elif msg.y.size != dy:
                     tl.invalid["wrong_dimension"] += 1
                     continue
-                pair = tracker.action(msg)
+                if mode_now in LEARNING_MODES:
+                    pair = tracker.action(msg)
+                else:
+                    tl.ignored_not_learning += 1
             elif isinstance(msg, Control):
                 if msg.op == "mode":
                     mode_now = msg.mode
                 elif msg.op == "reset":
                     segments.append(Segment(start_updates=0, after_reset=True))
+                    tracker = PairTracker(tl.pair_window)
             elif isinstance(msg, Prediction):
                 q = recent.get(msg.tick)
                 if q is None:
@@ -293,10 +315,11 @@ def read_timeline(
                         log_time_ns=t_ns,
                     )
                 )
+            elif isinstance(msg, Status):
+                if last_dropped is not None and msg.dropped > last_dropped:
+                    tl.daemon_dropped += msg.dropped - last_dropped
+                last_dropped = msg.dropped
             if pair is not None:
-                if mode_now not in LEARNING_MODES:
-                    tl.pairs_not_learned += 1
-                    continue
                 p, a = pair
                 seg = segments[-1]
                 seg.pairs.append(
