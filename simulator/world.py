@@ -304,6 +304,8 @@ class World:
             spinningFriction=b.spinning_friction,
             lateralFriction=b.lateral_friction,
             restitution=b.restitution,
+            linearDamping=b.linear_damping,
+            angularDamping=b.angular_damping,
             physicsClientId=c,
         )
         self.instances.append(
