@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -49,10 +50,12 @@ def _info(args: argparse.Namespace) -> int:
         print(f"roger log info: no such file {args.file}", file=sys.stderr)
         return 2
     info = log_info(args.file)
-    if args.json:
-        print(json.dumps(info, indent=2, sort_keys=True))
-    else:
-        print(format_info(info))
+    text = json.dumps(info, indent=2, sort_keys=True) if args.json else format_info(info)
+    try:
+        print(text)
+        sys.stdout.flush()
+    except BrokenPipeError:  # `roger log info F | head`
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
 
 
