@@ -297,3 +297,23 @@ def test_export_counts_non_msgpack_payloads(tmp_path: Path) -> None:
         rows = list(make_reader(f).iter_messages(log_time_order=False))
     assert rows[1][0] is None and json.loads(rows[1][2].data) == [1, "YWI="]
     assert to_json_value({"a": float("nan"), "b": b"\x00"}) == {"a": None, "b": "AA=="}
+
+
+def test_recover_directory_fixes_only_damaged_session_files(session_file: Path,
+                                                            tmp_path: Path) -> None:
+    from roger_daemon.recording import recover_directory
+
+    data = session_file.read_bytes()
+    good = tmp_path / "roger-aibo-20261118T110640Z.mcap"
+    cut = tmp_path / "roger-aibo-20261118T110641Z.mcap"
+    empty = tmp_path / "roger-aibo-20261118T110642Z.mcap"
+    good.write_bytes(data)
+    cut.write_bytes(data[: len(data) // 3])
+    empty.write_bytes(b"")
+    reps = recover_directory(tmp_path)
+    assert [Path(r.source).name for r in reps] == [cut.name, empty.name]
+    assert reps[0].messages > 0 and reps[1].messages == 0
+    assert is_complete(good) and is_complete(cut) and not empty.exists()
+    assert (tmp_path / (cut.name + ".damaged")).read_bytes() == data[: len(data) // 3]
+    assert (tmp_path / (empty.name + ".damaged")).exists()
+    assert recover_directory(tmp_path) == []

@@ -362,3 +362,17 @@ def test_replay_warns_when_the_daemon_dropped_pairs(tmp_path: Path) -> None:
               ("action", Action("r", 1, 0.0, y=[0.5])), st(5)]
     res = replay_session(_handmade(tmp_path, events))
     assert res.timeline.daemon_dropped == 2 and any("dropped 2" in w for w in res.warnings)
+
+
+def test_log_tail_after_a_restored_queue_and_from_session(crash) -> None:  # type: ignore[no-untyped-def]
+    tail = crash["tail"]
+    ticks = [p.tick for p in tail.pairs]
+    assert tail.after_queue(ticks[:5]) == tail.pairs[5:]
+    assert tail.after_queue([*ticks, 10_000]) == []  # the log ends inside the queue
+    with pytest.raises(CatchUpError, match="queued"):
+        tail.after_queue([ticks[1], ticks[0]])
+    sessions = log_tail(crash["logs"], learned=60, robot="sim").sessions
+    again = log_tail(crash["logs"], learned=60, robot="sim", from_session=sessions[0])
+    assert [p.tick for p in again.pairs][: len(ticks)] == ticks
+    with pytest.raises(CatchUpError, match="not among"):
+        log_tail(crash["logs"], learned=60, robot="sim", from_session="roger-sim-nope")

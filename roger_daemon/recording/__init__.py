@@ -25,7 +25,12 @@ from roger_daemon.recording.metadata import (
     package_versions,
     session_metadata,
 )
-from roger_daemon.recording.recover import RecoverReport, recover, recover_in_place
+from roger_daemon.recording.recover import (
+    RecoverReport,
+    recover,
+    recover_directory,
+    recover_in_place,
+)
 from roger_daemon.recording.replay import (
     PredictionDiff,
     ReplayError,
@@ -70,6 +75,7 @@ __all__ = [
     "read_metadata",
     "read_timeline",
     "recover",
+    "recover_directory",
     "recover_in_place",
     "replay_session",
     "replay_timeline",

@@ -15,7 +15,7 @@ them first, though the daemon should, so the files become indexed).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,6 +52,24 @@ class CatchUp:
         """Tick of the last pair to re-learn (None if nothing to re-learn)."""
         return self.pairs[-1].tick if self.pairs else None
 
+    def after_queue(self, queue_ticks: Sequence[int]) -> list[LearnedPair]:
+        """The pairs that follow a checkpoint's restored training queue.
+
+        A daemon checkpoint holds the model (``learned`` pairs) and its queue of pairs formed
+        but not yet learned: the first pairs of the log tail. Keep the restored queue, check
+        that it agrees with the log, and enqueue what this returns after it. (If the log ends
+        inside the queue, because the crash lost the last flush interval, nothing is returned
+        and the queue alone is right.)
+        """
+        n = min(len(queue_ticks), len(self.pairs))
+        logged = [p.tick for p in self.pairs[:n]]
+        if [int(t) for t in queue_ticks[:n]] != logged:
+            raise CatchUpError(
+                f"the checkpoint's queued ticks {list(queue_ticks[:n])[:5]}... differ from the "
+                f"log's {logged[:5]}..."
+            )
+        return self.pairs[len(queue_ticks):]
+
 
 def _sessions(source: str | Path | Iterable[str | Path], robot: str | None) -> list[list[Path]]:
     if isinstance(source, str | Path) and Path(source).is_dir():
@@ -82,6 +100,7 @@ def log_tail(
     robot: str | None = None,
     last_tick: int | None = None,
     dims: Dims | None = None,
+    from_session: str | None = None,
 ) -> CatchUp:
     """The pairs learned after a checkpoint that had learned ``learned`` pairs.
 
@@ -100,6 +119,10 @@ def log_tail(
         catch a checkpoint that belongs to another history.
     dims
         Perception/action sizes if the metadata lacks them.
+    from_session
+        The session the checkpoint was taken in (``SessionRecorder.session_id``, e.g. stored in
+        the checkpoint's metadata): start reading there. Default: the last session whose
+        ``start_updates`` is <= ``learned``.
 
     Raises
     ------
@@ -109,15 +132,17 @@ def log_tail(
     sessions = _sessions(source, robot)
     if not sessions:
         raise CatchUpError(f"no session logs in {source}")
-    # Only sessions from the last one that started at or before the checkpoint matter.
-    starts = []
-    for parts in sessions:
-        meta = read_metadata(parts[0])
-        starts.append(int(meta.get("start_updates", "") or 0))
     first = 0
-    for i, s in enumerate(starts):
-        if s <= learned:
-            first = i
+    if from_session is not None:
+        ids = [_session_id(parts[0]) for parts in sessions]
+        if from_session not in ids:
+            raise CatchUpError(f"session {from_session} is not among the logs ({len(ids)} found)")
+        first = ids.index(from_session)
+    else:
+        # Only sessions from the last one that started at or before the checkpoint matter.
+        for i, parts in enumerate(sessions):
+            if int(read_metadata(parts[0]).get("start_updates", "") or 0) <= learned:
+                first = i
     base = None
     history: list[LearnedPair] = []
     used: list[Path] = []

@@ -18,7 +18,13 @@ from mcap.writer import CompressionType, Writer
 
 from roger_daemon.recording.mcapio import LogReader
 
-__all__ = ["RecoverReport", "default_output", "recover", "recover_in_place"]
+__all__ = [
+    "RecoverReport",
+    "default_output",
+    "recover",
+    "recover_directory",
+    "recover_in_place",
+]
 
 
 @dataclass(frozen=True)
@@ -152,6 +158,15 @@ def recover(
     )
 
 
+def _unused(path: Path) -> Path:
+    """``path``, or ``path.1``, ``path.2``, ... whichever does not exist yet."""
+    out, k = path, 0
+    while out.exists():
+        k += 1
+        out = path.with_name(f"{path.name}.{k}")
+    return out
+
+
 def recover_in_place(path: str | Path, *, keep_original: bool = False) -> RecoverReport:
     """Replace ``path`` by its recovered form atomically (same name, so session discovery and
     catch-up keep working). With ``keep_original`` the damaged file stays as ``X.mcap.damaged``.
@@ -162,10 +177,37 @@ def recover_in_place(path: str | Path, *, keep_original: bool = False) -> Recove
     tmp = Path(tmpname)
     try:
         rep = recover(src, tmp)
-        if keep_original:
-            os.link(src, src.with_name(src.name + ".damaged"))
+        if keep_original:  # a second name for the damaged bytes; src itself is swapped atomically
+            os.link(src, _unused(src.with_name(src.name + ".damaged")))
         os.replace(tmp, src)
     finally:
         if tmp.exists():
             tmp.unlink()
     return RecoverReport(**{**asdict(rep), "output": str(src)})
+
+
+def recover_directory(directory: str | Path, robot: str | None = None,
+                      *, keep_original: bool = True) -> list[RecoverReport]:
+    """Recover in place every session file in ``directory`` that lacks its footer.
+
+    For the daemon's start-up: after this every log is indexed and readable by any MCAP tool.
+    Complete files are left alone (checked by reading their footer and summary only).
+    Damaged originals are kept as ``X.mcap.damaged`` unless ``keep_original`` is false.
+    """
+    from roger_daemon.recording.files import list_session_files
+    from roger_daemon.recording.mcapio import is_complete
+
+    reports = []
+    for sf in list_session_files(directory, robot=robot):
+        if is_complete(sf.path):
+            continue
+        try:
+            reports.append(recover_in_place(sf.path, keep_original=keep_original))
+        except ValueError as exc:  # not even a header: move it out of the way
+            size = sf.path.stat().st_size
+            os.replace(sf.path, _unused(sf.path.with_name(sf.path.name + ".damaged")))
+            reports.append(RecoverReport(
+                source=str(sf.path), output="", complete=False, messages=0, chunks=0,
+                channels=0, metadata=0, attachments=0, bytes_total=size, bytes_valid=0,
+                error=str(exc)))
+    return reports
