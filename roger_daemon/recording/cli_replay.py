@@ -154,13 +154,14 @@ def _print_summary(s: dict[str, Any], res: Any) -> None:
     print(f"robot:        {s['robot']}   model: {s['model']}   seed: {s['seed']}")
     print(f"learned:      {s['pairs_learned']} pairs ({s['segments']} segment(s)); "
           f"n_learned {s['n_learned']}")
-    sizes = ", ".join(f"{k}:{v}" + (f"({s['expert_labels'][k]})" if k in s["expert_labels"]
+    sizes = ", ".join(f"{k}:{v}" + (f"({s['expert_labels'][k]})" if s["expert_labels"].get(k)
                                      else "") for k, v in s["expert_sizes"].items())
     print(f"experts:      {s['n_experts']}  [{sizes}]")
     print(f"predictions:  {s['predictions_compared']} compared, "
           f"{s['predictions_unreplayable']} unreplayable")
+    mm = s["max_abs_diff_multimap"]
     print(f"max |diff|:   mean {s['max_abs_diff_mean']:.3g}  var {s['max_abs_diff_var']:.3g}  "
-          f"multimap {s['max_abs_diff_multimap']}")
+          f"multimap {mm if isinstance(mm, str) else format(mm, '.3g')}")
     print(f"mismatches:   {s['mismatches']} beyond {s['tolerance']:g} (expert "
           f"{s['expert_mismatches']}, multimap ids {s['multimap_id_mismatches']}, sizes "
           f"{s['size_mismatches']}; labels {s['label_mismatches']} reported only)")

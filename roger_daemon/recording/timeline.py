@@ -199,7 +199,7 @@ def _robot_for(info: SessionInfo, topics: Iterable[str], robot: str | None) -> s
     if len(robots) == 1:
         return robots.pop()
     raise ValueError(
-        f"cannot tell which robot to replay: the log has {sorted(robots) or 'none'}; pass robot="
+        f"cannot tell which robot to replay: the log has {sorted(robots) or 'none'}; pass --robot"
     )
 
 
