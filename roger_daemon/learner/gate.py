@@ -7,10 +7,12 @@ predictive of x, a multivariate Student-t (§3.3)::
     nu_t = nu_n - d + 1,   Sigma_t = Lambda_n (kappa_n + 1) / (kappa_n nu_t)
 
 Statistics are kept as (kappa, nu, mu, Lambda) and updated with the rank-1 recursion of §3.2,
-never as raw sums of x x^T (pitfall 10).  For evaluation each gate caches ``L^{-1}`` (inverse
-Cholesky factor of Lambda) and the log normaliser, so ``log t(x)`` costs one triangular
-matrix-vector product; :class:`GatePool` stacks the caches of many gates and evaluates them all
-in one batched product (§3.4).
+never as raw sums of x x^T (pitfall 10).  For evaluation each gate caches the precision
+``Lambda^{-1}``, ``log|Lambda|`` and the log normaliser; a rank-1 update of Lambda updates them
+in O(d^2) by Sherman-Morrison and the matrix determinant lemma, and every 32 updates they are
+recomputed from Lambda by Cholesky, so round-off cannot accumulate.  ``log t(x)`` then costs
+one matrix-vector product; :class:`GatePool` stacks the caches of many gates and evaluates them
+all in one batched product (§3.4).
 """
 
 from __future__ import annotations
@@ -40,22 +42,163 @@ def niw_update(kappa: float, nu: float, mu: FloatArray, lam: FloatArray,
     return kappa + 1.0, nu + 1.0, mu_new, lam_new
 
 
-def _predictive_cache(kappa: float, nu: float, lam: FloatArray
-                      ) -> tuple[FloatArray, float, float, float]:
-    """``(L^{-1}, log normaliser, (nu_t + d)/2, 1/(nu_t c))`` of the Student-t of §3.3."""
-    d = lam.shape[0]
+_REFRESH = 32  # recompute the precision from Lambda every this many updates
+
+
+def _normaliser(kappa: float, nu: float, logdet_lam: float, d: int) -> tuple[float, float, float]:
+    """``(log normaliser, (nu_t + d)/2, 1/(nu_t c))`` of the Student-t of §3.3.
+
+    ``log t(x) = lognorm - (nu_t + d)/2 * log(1 + delta / nu_t)`` with
+    ``delta = (x - mu)^T Lambda^{-1} (x - mu) / c`` and ``Sigma_t = c Lambda``.
+    """
     nu_t = nu - d + 1.0
-    c = (kappa + 1.0) / (kappa * nu_t)  # Sigma_t = c * Lambda
-    chol = np.linalg.cholesky(lam)
-    linv = np.linalg.inv(chol)  # lower triangular; numpy's LAPACK (no threaded trsm)
-    logdet_sigma = d * math.log(c) + 2.0 * float(np.sum(np.log(np.diagonal(chol))))
-    lognorm = (float(gammaln((nu_t + d) / 2.0) - gammaln(nu_t / 2.0))
+    c = (kappa + 1.0) / (kappa * nu_t)
+    logdet_sigma = d * math.log(c) + logdet_lam
+    lognorm = (math.lgamma((nu_t + d) / 2.0) - math.lgamma(nu_t / 2.0)
                - 0.5 * d * math.log(nu_t * math.pi) - 0.5 * logdet_sigma)
-    return linv, lognorm, 0.5 * (nu_t + d), 1.0 / (nu_t * c)
+    return lognorm, 0.5 * (nu_t + d), 1.0 / (nu_t * c)
+
+
+def _precision(lam: FloatArray) -> tuple[FloatArray, float]:
+    """``(Lambda^{-1}, log|Lambda|)`` through the Cholesky factor."""
+    chol = np.linalg.cholesky(lam)
+    linv = np.linalg.inv(chol)  # lower triangular (numpy LAPACK; no threaded trsm)
+    return linv.T @ linv, 2.0 * float(np.sum(np.log(np.diagonal(chol))))
+
+
+class GatePool:
+    """Gates of many experts in stacked arrays, indexed by integer slot.
+
+    Slots are allocated and freed by the owner (the :class:`~.roger.Roger` model).  Arrays
+    double when full.  :meth:`log_predictive` evaluates ``log t_s(x)`` for many slots with one
+    batched product of the cached precisions (cost ~ slots x d^2, §3.4).
+    """
+
+    FIELDS = ("count", "kappa", "nu", "mu", "lam", "prec", "logdet", "lognorm", "half_nu_d",
+              "inv_nu_c")
+
+    def __init__(self, d: int, mu0: float, kappa0: float, lambda0: float, nu0: float,
+                 capacity: int = 16) -> None:
+        self.d = d
+        self.count = np.zeros(capacity, dtype=np.int64)  # inputs absorbed
+        self.kappa = np.zeros(capacity)
+        self.nu = np.zeros(capacity)
+        self.mu = np.zeros((capacity, d))
+        self.lam = np.zeros((capacity, d, d))
+        self.prec = np.zeros((capacity, d, d))
+        self.logdet = np.zeros(capacity)
+        self.lognorm = np.zeros(capacity)
+        self.half_nu_d = np.zeros(capacity)
+        self.inv_nu_c = np.zeros(capacity)
+        self._prior = (float(kappa0), float(nu0), np.full(d, float(mu0)), np.eye(d) * lambda0)
+        kappa, nu, mu, lam = self._prior
+        self._prior_prec, self._prior_logdet = _precision(lam)
+        self._prior_norm = _normaliser(kappa, nu, self._prior_logdet, d)
+
+    @property
+    def capacity(self) -> int:
+        """Number of slots allocated."""
+        return int(self.kappa.shape[0])
+
+    def grow(self, need: int) -> None:
+        """Make room for slot indices ``< need``."""
+        cap = self.capacity
+        if need <= cap:
+            return
+        new = max(need, 2 * cap)
+        for name in self.FIELDS:
+            old = getattr(self, name)
+            buf = np.zeros((new, *old.shape[1:]), dtype=old.dtype)
+            buf[:cap] = old
+            setattr(self, name, buf)
+
+    def copy_slot(self, dst: int, src: int) -> None:
+        """Slot ``dst`` becomes a copy of slot ``src``."""
+        for name in self.FIELDS:
+            arr = getattr(self, name)
+            arr[dst] = arr[src]
+
+    def set_prior(self, slot: int) -> None:
+        """Slot becomes the prior (no data)."""
+        kappa, nu, mu, lam = self._prior
+        self.count[slot] = 0
+        self.kappa[slot] = kappa
+        self.nu[slot] = nu
+        self.mu[slot] = mu
+        self.lam[slot] = lam
+        self.prec[slot] = self._prior_prec
+        self.logdet[slot] = self._prior_logdet
+        self.lognorm[slot], self.half_nu_d[slot], self.inv_nu_c[slot] = self._prior_norm
+
+    def set_prior_updated(self, slot: int, x: FloatArray) -> None:
+        """Slot becomes the prior updated with one input (a new expert's first point)."""
+        self.set_prior(slot)
+        self.update(slot, x)
+
+    def update(self, slot: int, x: FloatArray) -> None:
+        """Absorb one input into the slot's gate (§3.2) and update its cached predictive."""
+        self.update_many(np.array([slot], dtype=np.int64), x)
+
+    def update_many(self, slots: IntArray, x: FloatArray) -> None:
+        """Absorb the same input into several distinct slots (batched §3.2).
+
+        ``Lambda' = Lambda + w u u^T`` with ``u = x - mu``, ``w = kappa / (kappa + 1)``; the
+        precision follows by Sherman-Morrison, ``log|Lambda|`` by the determinant lemma, and
+        both are recomputed by Cholesky every 32 updates of a gate.
+        """
+        kappa = self.kappa[slots]
+        u = x - self.mu[slots]
+        w = kappa / (kappa + 1.0)
+        self.lam[slots] += np.einsum("si,sj->sij", u, u * w[:, None])
+        self.mu[slots] += u / (kappa + 1.0)[:, None]  # (kappa mu + x) / (kappa + 1)
+        self.kappa[slots] = kappa + 1.0
+        self.nu[slots] += 1.0
+        count = self.count[slots] + 1
+        self.count[slots] = count
+        refresh = count % _REFRESH == 0
+        if np.any(refresh):
+            for slot in slots[refresh].tolist():
+                self.prec[slot], self.logdet[slot] = _precision(self.lam[slot])
+        inc = ~refresh
+        if np.any(inc):
+            sl, ui, wi = slots[inc], u[inc], w[inc]
+            prec = self.prec[sl]
+            pu = np.einsum("sij,sj->si", prec, ui)
+            t = wi * np.einsum("si,si->s", ui, pu)
+            coef = (wi / (1.0 + t))[:, None]
+            self.prec[sl] = prec - np.einsum("si,sj->sij", pu, pu * coef)
+            self.logdet[sl] += np.log1p(t)
+        nu_t = self.nu[slots] - self.d + 1.0
+        kap = self.kappa[slots]
+        c = (kap + 1.0) / (kap * nu_t)
+        logdet_sigma = self.d * np.log(c) + self.logdet[slots]
+        self.lognorm[slots] = (gammaln((nu_t + self.d) / 2.0) - gammaln(nu_t / 2.0)
+                               - 0.5 * self.d * np.log(nu_t * np.pi) - 0.5 * logdet_sigma)
+        self.half_nu_d[slots] = 0.5 * (nu_t + self.d)
+        self.inv_nu_c[slots] = 1.0 / (nu_t * c)
+
+    def log_predictive(self, slots: IntArray, x: FloatArray) -> FloatArray:
+        """``log t_s(x)`` for every slot in ``slots`` (batched, §3.4)."""
+        diff = x - self.mu[slots]
+        delta = np.einsum("si,sij,sj->s", diff, self.prec[slots], diff)
+        return self.lognorm[slots] - self.half_nu_d[slots] * np.log1p(delta * self.inv_nu_c[slots])
+
+    def prior_log_predictive(self, x: FloatArray) -> float:
+        """``log t_0(x)``, the prior predictive of the empty expert."""
+        diff = x - self._prior[2]
+        delta = float(diff @ self._prior_prec @ diff)
+        lognorm, half, inv = self._prior_norm
+        return lognorm - half * math.log1p(delta * inv)
+
+    def predictive(self, slot: int) -> tuple[float, FloatArray, FloatArray]:
+        """``(df, loc, shape)`` of slot's Student-t posterior predictive (for scipy)."""
+        nu_t = float(self.nu[slot]) - self.d + 1.0
+        kappa = float(self.kappa[slot])
+        return nu_t, self.mu[slot].copy(), self.lam[slot] * ((kappa + 1.0) / (kappa * nu_t))
 
 
 class NIWGate:
-    """The NIW posterior of one expert's inputs, with a cached predictive.
+    """The NIW posterior of one expert's inputs: a one-slot :class:`GatePool`.
 
     Parameters
     ----------
@@ -74,110 +217,44 @@ class NIWGate:
 
     def __init__(self, d: int, mu0: float, kappa0: float, lambda0: float, nu0: float) -> None:
         self.d = d
-        self.n = 0
-        self.kappa = float(kappa0)
-        self.nu = float(nu0)
-        self.mu = np.full(d, float(mu0))
-        self.lam = np.eye(d) * float(lambda0)
-        self._refresh()
+        self._pool = GatePool(d, mu0, kappa0, lambda0, nu0, capacity=1)
+        self._pool.set_prior(0)
+        self._slot = np.zeros(1, dtype=np.int64)
 
-    def _refresh(self) -> None:
-        self.linv, self.lognorm, self.half_nu_d, self.inv_nu_c = _predictive_cache(
-            self.kappa, self.nu, self.lam)
+    @property
+    def n(self) -> int:
+        """Inputs absorbed."""
+        return int(self._pool.count[0])
+
+    @property
+    def kappa(self) -> float:
+        """Posterior ``kappa_n``."""
+        return float(self._pool.kappa[0])
+
+    @property
+    def nu(self) -> float:
+        """Posterior ``nu_n``."""
+        return float(self._pool.nu[0])
+
+    @property
+    def mu(self) -> FloatArray:
+        """Posterior mean ``mu_n``."""
+        return self._pool.mu[0]
+
+    @property
+    def lam(self) -> FloatArray:
+        """Posterior scale ``Lambda_n``."""
+        return self._pool.lam[0]
 
     def update(self, x: FloatArray) -> None:
-        """Absorb one input (§3.2) and refresh the cached Cholesky factor."""
-        self.kappa, self.nu, self.mu, self.lam = niw_update(self.kappa, self.nu, self.mu,
-                                                            self.lam, x)
-        self.n += 1
-        self._refresh()
+        """Absorb one input (§3.2)."""
+        self._pool.update(0, x)
 
     def predictive(self) -> tuple[float, FloatArray, FloatArray]:
         """``(df, loc, shape)`` of the Student-t posterior predictive (for scipy)."""
-        nu_t = self.nu - self.d + 1.0
-        shape = self.lam * ((self.kappa + 1.0) / (self.kappa * nu_t))
-        return nu_t, self.mu.copy(), shape
+        return self._pool.predictive(0)
 
     def log_predictive(self, x: FloatArray) -> FloatArray:
         """``log t(x)`` for one input (d,) or a batch (m, d)."""
-        z = (np.atleast_2d(x) - self.mu) @ self.linv.T
-        delta = np.einsum("ij,ij->i", z, z)
-        out = self.lognorm - self.half_nu_d * np.log1p(delta * self.inv_nu_c)
-        return out if np.ndim(x) > 1 else out[:1]
-
-
-class GatePool:
-    """Gates of many experts in stacked arrays, indexed by integer slot.
-
-    Slots are allocated and freed by the owner (the :class:`~.roger.Roger` model).  Arrays
-    double when full.  :meth:`log_predictive` evaluates ``log t_s(x)`` for many slots with one
-    batched product of the cached inverse Cholesky factors (cost ~ slots x d^2, §3.4).
-    """
-
-    def __init__(self, d: int, mu0: float, kappa0: float, lambda0: float, nu0: float,
-                 capacity: int = 16) -> None:
-        self.d = d
-        self.prior = NIWGate(d, mu0, kappa0, lambda0, nu0)
-        self.kappa = np.zeros(capacity)
-        self.nu = np.zeros(capacity)
-        self.mu = np.zeros((capacity, d))
-        self.lam = np.zeros((capacity, d, d))
-        self.linv = np.zeros((capacity, d, d))
-        self.lognorm = np.zeros(capacity)
-        self.half_nu_d = np.zeros(capacity)
-        self.inv_nu_c = np.zeros(capacity)
-
-    _FIELDS = ("kappa", "nu", "mu", "lam", "linv", "lognorm", "half_nu_d", "inv_nu_c")
-
-    @property
-    def capacity(self) -> int:
-        """Number of slots allocated."""
-        return int(self.kappa.shape[0])
-
-    def grow(self, need: int) -> None:
-        """Make room for slot indices ``< need``."""
-        cap = self.capacity
-        if need <= cap:
-            return
-        new = max(need, 2 * cap)
-        for name in self._FIELDS:
-            old = getattr(self, name)
-            buf = np.zeros((new, *old.shape[1:]))
-            buf[:cap] = old
-            setattr(self, name, buf)
-
-    def copy_slot(self, dst: int, src: int) -> None:
-        """Slot ``dst`` becomes a copy of slot ``src``."""
-        for name in self._FIELDS:
-            arr = getattr(self, name)
-            arr[dst] = arr[src]
-
-    def set_prior_updated(self, slot: int, x: FloatArray) -> None:
-        """Slot becomes the prior updated with one input (a new expert's first point)."""
-        p = self.prior
-        self._store(slot, *niw_update(p.kappa, p.nu, p.mu, p.lam, x))
-
-    def update(self, slot: int, x: FloatArray) -> None:
-        """Absorb one input into slot's gate (§3.2)."""
-        self._store(slot, *niw_update(float(self.kappa[slot]), float(self.nu[slot]),
-                                      self.mu[slot], self.lam[slot], x))
-
-    def _store(self, slot: int, kappa: float, nu: float, mu: FloatArray,
-               lam: FloatArray) -> None:
-        self.kappa[slot] = kappa
-        self.nu[slot] = nu
-        self.mu[slot] = mu
-        self.lam[slot] = lam
-        (self.linv[slot], self.lognorm[slot], self.half_nu_d[slot],
-         self.inv_nu_c[slot]) = _predictive_cache(kappa, nu, lam)
-
-    def log_predictive(self, slots: IntArray, x: FloatArray) -> FloatArray:
-        """``log t_s(x)`` for every slot in ``slots`` (batched, §3.4)."""
-        diff = x - self.mu[slots]
-        z = np.matmul(self.linv[slots], diff[:, :, None])[:, :, 0]
-        delta = np.einsum("ij,ij->i", z, z)
-        return self.lognorm[slots] - self.half_nu_d[slots] * np.log1p(delta * self.inv_nu_c[slots])
-
-    def prior_log_predictive(self, x: FloatArray) -> float:
-        """``log t_0(x)``, the prior predictive of the empty expert."""
-        return float(self.prior.log_predictive(x)[0])
+        xs = np.atleast_2d(x)
+        return np.array([self._pool.log_predictive(self._slot, xi)[0] for xi in xs])

@@ -38,7 +38,12 @@ from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
 from roger_daemon.learner.scaling import AffineScaling, as_vector
-from roger_daemon.learner.sogp import LATENT_FLOOR, SparseOnlineGP, gaussian_log_likelihood
+from roger_daemon.learner.sogp import (
+    LATENT_FLOOR,
+    SparseOnlineGP,
+    gaussian_log_likelihood,
+    update_many,
+)
 from roger_daemon.learner.state import (
     SCHEMA_VERSION,
     Seed,
@@ -251,6 +256,9 @@ class Roger:
                                minlength=cap)
         chose = np.bincount(surv_slot[surv_slot >= 0], minlength=cap)
         target: dict[int, int] = {}
+        upd_gps: list[SparseOnlineGP] = []
+        upd_terms: list[Terms | None] = []
+        upd_slots: list[int] = []
         for s in np.unique(surv_slot).tolist():
             if s < 0:  # a new expert, shared by every survivor that opened one this step
                 t = self._alloc_slot()
@@ -272,10 +280,15 @@ class Roger:
                     self._gps[t] = gp
                     self._gates.copy_slot(t, s)
                     self._ids[t] = self._ids[s]
-                gp.update(xs, ys, terms.get(s))
-                self._gates.update(t, xs)
+                upd_gps.append(gp)
+                upd_terms.append(terms.get(s))
+                upd_slots.append(t)
                 self._npts[t] = self._npts[s] + 1
             target[s] = t
+        # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
+        update_many(upd_gps, xs, ys, upd_terms)
+        if upd_slots:
+            self._gates.update_many(np.array(upd_slots, dtype=np.int64), xs)
         new_parts: list[IntArray] = []
         chosen_ids = np.empty(keep.size, dtype=np.int64)
         for j, (i, s, pos) in enumerate(zip(surv_parent.tolist(), surv_slot.tolist(),
@@ -458,7 +471,7 @@ class Roger:
         assert all(g is not None for g in gps)
         out = _pack_gps([g for g in gps if g is not None], self.d_x, self.d_y)
         g = self._gates
-        for name in g._FIELDS:
+        for name in g.FIELDS:
             out[f"gate_{name}"] = getattr(g, name)[live].copy()
         out["expert_id"] = self._ids[live].copy()
         out["expert_count"] = self._npts[live].copy()
@@ -501,7 +514,7 @@ class Roger:
         for s, gp in enumerate(gps):
             self._gps[s] = gp
         g = self._gates
-        for name in g._FIELDS:
+        for name in g.FIELDS:
             getattr(g, name)[:u] = state[f"gate_{name}"]
         self._ids[:u] = state["expert_id"]
         self._npts[:u] = state["expert_count"]

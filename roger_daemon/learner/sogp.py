@@ -22,6 +22,7 @@ one rank-2 update of ``Q``, done in place by BLAS on the contiguous ``beta x bet
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -29,7 +30,7 @@ from scipy.linalg.blas import dgemm as _dgemm
 
 from roger_daemon.learner.kernel import RBFKernel
 
-__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood"]
+__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -192,21 +193,34 @@ class SparseOnlineGP:
         if gamma < _GAMMA_FLOOR:
             gamma = 0.0
         if gamma < self.novelty_threshold * kstar or gamma <= 0.0:
-            # step 4a: sparse (projection) update, BV set unchanged; eta = 1/(1 + gamma r)
-            eta = 1.0 / (1.0 + gamma * r)
-            s_hat = ck + e_hat
-            self._A[:n] += np.outer(s_hat, q) * eta
-            _add_lowrank(self._C, n, s_hat[:, None], np.array([r * eta]))
-        elif self.capacity is not None and n >= self.capacity and self.fused:
+            self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
+        elif self._fusable():
             # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix
-            self._full_update_and_delete(x, k, ck, e_hat, gamma, r, q)
+            _fused_add_delete([self], x, y, k[None], ck[None], mean[None], np.array([latent]),
+                              e_hat[None], np.array([gamma]))
         else:
-            self._full_update(x, ck, e_hat, gamma, r, q)
-        # step 5: capacity, KL-optimal deletion while n > beta (Grollman's while loop)
+            self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
+        self._clean_up()  # steps 5 and 6
+
+    def _fusable(self) -> bool:
+        """Full and contiguous: the fused add-then-delete hot path applies."""
+        return (self.fused and self.capacity is not None and self.n == self.capacity
+                and self._C.shape[0] == self.n)
+
+    def _sparse_update(self, ck: FloatArray, e_hat: FloatArray, gamma: float, r: float,
+                       q: FloatArray) -> None:
+        """Step 4a: projection update, BV set unchanged; ``eta = 1/(1 + gamma r)``."""
+        n = self.n
+        eta = 1.0 / (1.0 + gamma * r)
+        s_hat = ck + e_hat
+        self._A[:n] += np.outer(s_hat, q) * eta
+        _add_lowrank(self._C, n, s_hat[:, None], np.array([r * eta]))
+
+    def _clean_up(self) -> None:
+        """Steps 5 and 6: ``while n > beta`` delete; geometric clean-up (Csató)."""
         if self.capacity is not None:
             while self.n > self.capacity:
                 self.delete(self._deletion_choice())
-        # step 6: geometric clean-up, 1/Q_ii < threshold / 1000 (Csató)
         floor = self.novelty_threshold * 1e-3
         while self.n > 1 and floor > 0.0:
             diag = np.diagonal(self._Q)[: self.n]
@@ -235,78 +249,6 @@ class SparseOnlineGP:
         _add_lowrank(self._C, n + 1, s[:, None], np.array([r]))
         _add_lowrank(self._Q, n + 1, e[:, None], np.array([1.0 / gamma]))
         self.n = n + 1
-
-    def _full_update_and_delete(self, x: FloatArray, k: FloatArray, ck: FloatArray,
-                                e_hat: FloatArray, gamma: float, r: float,
-                                q: FloatArray) -> None:
-        """Full update to n + 1 BVs followed by one KL-optimal deletion, never materialised.
-
-        With ``s = [Ck; 1]`` and ``e = [Q k; -1]`` the (n+1)-BV state is ``C1 = C (+) 0 +
-        r s s^T``, ``Q1 = Q (+) 0 + e e^T / gamma``, ``A1 = A (+) 0 + s q^T`` (§2.5 step 4b).
-        Deleting BV ``i`` (§2.7) needs only column ``i`` and the diagonals of ``C1``, ``Q1``,
-        which are O(n) from ``C``, ``Q``, ``s``, ``e``.  The new BV takes the place of ``i``, so
-        ``C2 = C_z + [s, q_v, w] diag(r, 1/q*, -1/(q*+c*)) [s, q_v, w]^T`` (``C_z``: ``C`` with
-        row and column ``i`` zeroed, vectors permuted accordingly) and ``Q2 = Q_z +
-        [e, q_v] diag(1/gamma, -1/q*) [e, q_v]^T``: one rank-3 and one rank-2 in-place update
-        instead of five passes.  Equal to :meth:`_full_update` then :meth:`delete` up to
-        round-off (tested).
-        """
-        n = self.n
-        c_mat = self._C[:n, :n]
-        q_mat = self._Q[:n, :n]
-        s = np.empty(n + 1)
-        s[:n] = ck
-        s[n] = 1.0
-        e = np.empty(n + 1)
-        e[:n] = e_hat
-        e[n] = -1.0
-        a1 = np.zeros((n + 1, self.d_y))
-        a1[:n] = self._A[:n]
-        a1 += np.outer(s, q)
-        c1_diag = np.zeros(n + 1)
-        c1_diag[:n] = np.diagonal(c_mat)
-        c1_diag += r * s * s
-        q1_diag = np.zeros(n + 1)
-        q1_diag[:n] = np.diagonal(q_mat)
-        q1_diag += e * e / gamma
-        # deletion score |A1_i|^2 / (Q1_ii + C1_ii) (Csató ogpbvmin.m)
-        den_all = np.maximum(q1_diag + c1_diag, 1e-300)
-        i = int(np.argmin(np.einsum("ij,ij->i", a1, a1) / den_all))
-        a_star = a1[i].copy()
-        c_star = float(c1_diag[i])
-        q_star = float(q1_diag[i])
-        col_c = s * (r * s[i])  # column i of C1 = C(+)0 [:, i] + r s s_i
-        col_q = e * (e[i] / gamma)
-        if i < n:
-            col_c[:n] += c_mat[:, i]
-            col_q[:n] += q_mat[:, i]
-        # permutation: the new BV (index n) moves into position i
-        def perm(v: FloatArray) -> FloatArray:
-            out = v[:n].copy()
-            if i < n:
-                out[i] = v[n]
-            return out
-
-        c_v, q_v = perm(col_c), perm(col_q)
-        s_p, e_p = perm(s), perm(e)
-        w = q_v + c_v
-        den = q_star + c_star
-        inv_den = 1.0 / den if den > 0.0 else 0.0  # broken: Q-only (marginal) removal
-        a2 = a1[:n] if i == n else np.concatenate([a1[:i], a1[n:], a1[i + 1:n]])
-        a2 = a2 - np.outer(w, a_star) * inv_den
-        if i < n:
-            for mat in (c_mat, q_mat):
-                mat[i, :] = 0.0
-                mat[:, i] = 0.0
-            self._B[i] = x
-        self._A[:n] = a2
-        cols = np.empty((n, 3), order="F")
-        cols[:, 0] = s_p
-        cols[:, 1] = q_v
-        cols[:, 2] = w
-        _add_lowrank(self._C, n, cols, np.array([r, 1.0 / q_star, -inv_den]))
-        cols[:, 0] = e_p
-        _add_lowrank(self._Q, n, cols[:, :2], np.array([1.0 / gamma, -1.0 / q_star]))
 
     def _deletion_choice(self) -> int:
         """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
@@ -402,3 +344,137 @@ class SparseOnlineGP:
         self._Q[:n, :n] = Q
         self.n = n
         self.n_points = int(n_points)
+
+
+Terms = tuple[FloatArray, FloatArray, FloatArray, float]
+
+
+def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
+                terms: Sequence[Terms | None]) -> None:
+    """Learn the same pair in several distinct experts (one ROGER step's chosen experts).
+
+    Equivalent to ``gp.update(x, y, t)`` for each, but the experts on the hot path (full,
+    contiguous, ``x`` novel) share one batched evaluation of the fused add-then-delete step,
+    so the per-expert Python work is a handful of in-place BLAS calls.
+    """
+    full: list[SparseOnlineGP] = []
+    full_terms: list[Terms] = []
+    for gp, t in zip(gps, terms, strict=True):
+        if gp._fusable():
+            full.append(gp)
+            full_terms.append(t if t is not None else gp.terms(x))
+        else:
+            gp.update(x, y, t)
+    if not full:
+        return
+    kstar = full[0].kernel.k_star
+    ks = np.stack([t[0] for t in full_terms])
+    cks = np.stack([t[1] for t in full_terms])
+    means = np.stack([t[2] for t in full_terms])
+    latents = np.array([t[3] for t in full_terms])
+    e_hat = np.stack([gp._Q @ k for gp, k in zip(full, ks, strict=True)])  # step 3: Q k
+    gamma = kstar - np.einsum("un,un->u", ks, e_hat)
+    gamma[gamma < _GAMMA_FLOOR] = 0.0
+    novel = (gamma >= np.array([g.novelty_threshold for g in full]) * kstar) & (gamma > 0.0)
+    if not np.all(novel):
+        for j in np.flatnonzero(~novel).tolist():  # step 4a for the non-novel few
+            gp = full[j]
+            gp.n_points += 1
+            s0 = gp.noise
+            gp._sparse_update(cks[j], e_hat[j], float(gamma[j]), -1.0 / (s0 + latents[j]),
+                              (y - means[j]) / (s0 + latents[j]))
+            gp._clean_up()
+        keep = np.flatnonzero(novel)
+        full = [full[j] for j in keep.tolist()]
+        if not full:
+            return
+        ks, cks, means, latents = ks[keep], cks[keep], means[keep], latents[keep]
+        e_hat, gamma = e_hat[keep], gamma[keep]
+    for gp in full:
+        gp.n_points += 1
+    _fused_add_delete(full, x, y, ks, cks, means, latents, e_hat, gamma)
+    for gp in full:
+        gp._clean_up()
+
+
+def _fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
+                      ks: FloatArray, cks: FloatArray, means: FloatArray, latents: FloatArray,
+                      e_hat: FloatArray, gamma: FloatArray) -> None:
+    """Full update to n + 1 BVs then one KL-optimal deletion, for u full experts at once.
+
+    With ``s = [Ck; 1]`` and ``e = [Q k; -1]`` the (n+1)-BV state would be
+    ``C1 = C (+) 0 + r s s^T``, ``Q1 = Q (+) 0 + e e^T / gamma``, ``A1 = A (+) 0 + s q^T``
+    (roger-math.md §2.5 step 4b).  Deleting BV ``i`` (§2.7) needs only column ``i`` and the
+    diagonals of ``C1`` and ``Q1``, which are O(n) from ``C``, ``Q``, ``s`` and ``e``.  The new
+    BV takes the place of ``i``, so with ``q_v``, ``c_v`` the columns of ``Q1``, ``C1`` at
+    ``i`` and ``w = q_v + c_v`` (all permuted so that index n sits at i)::
+
+        C2 = C_z + [s, q_v, w] diag(r, 1/q*, -1/(q* + c*)) [s, q_v, w]^T
+        Q2 = Q_z + [e, q_v] diag(1/gamma, -1/q*) [e, q_v]^T
+        A2 = A1 - w a*^T / (q* + c*)
+
+    (``C_z``: ``C`` with row and column ``i`` zeroed): one rank-3 and one rank-2 in-place
+    BLAS update per expert instead of five passes, and all O(n) vector work batched over the
+    experts.  Equal to :meth:`SparseOnlineGP._full_update` then
+    :meth:`SparseOnlineGP.delete` up to round-off (tested).  ``n_points`` is not touched.
+    """
+    u = len(gps)
+    n = gps[0].n
+    rows = np.arange(u)
+    s0 = np.array([g.noise for g in gps])
+    r = -1.0 / (s0 + latents)  # Csató's K2
+    q = (y - means) / (s0 + latents)[:, None]  # Csató's K1
+    a_stack = np.stack([g._A for g in gps])  # (u, n, d_y)
+    s = np.ones((u, n + 1))
+    s[:, :n] = cks
+    e = np.full((u, n + 1), -1.0)
+    e[:, :n] = e_hat
+    # deletion scores |A1_i|^2 / (Q1_ii + C1_ii) (Csató ogpbvmin.m), A1_i = A_i + s_i q
+    aq = np.einsum("und,ud->un", a_stack, q)
+    qq = np.einsum("ud,ud->u", q, q)
+    num = np.empty((u, n + 1))
+    num[:, :n] = np.einsum("und,und->un", a_stack, a_stack) + cks * (2.0 * aq + cks * qq[:, None])
+    num[:, n] = qq
+    diag_cq = np.stack([np.diagonal(g._C) + np.diagonal(g._Q) for g in gps])
+    den_all = np.empty((u, n + 1))
+    den_all[:, :n] = diag_cq + r[:, None] * cks * cks + e_hat * e_hat / gamma[:, None]
+    den_all[:, n] = r + 1.0 / gamma
+    idx = np.argmin(num / np.maximum(den_all, 1e-300), axis=1)
+    old = idx < n  # an old BV goes (the new one takes its place); else the new one goes
+    s_i = s[rows, idx]
+    e_i = e[rows, idx]
+    col_c = s * (r * s_i)[:, None]  # column i of C1 and Q1
+    col_q = e * (e_i / gamma)[:, None]
+    for j in np.flatnonzero(old).tolist():  # row i == column i (symmetric)
+        col_c[j, :n] += gps[j]._C[idx[j]]
+        col_q[j, :n] += gps[j]._Q[idx[j]]
+    c_star = col_c[rows, idx]
+    q_star = col_q[rows, idx]
+    a_star = q * s_i[:, None]
+    a_star[old] += a_stack[rows[old], idx[old]]
+    den = q_star + c_star
+    inv_den = np.where(den > 0.0, 1.0 / np.where(den > 0.0, den, 1.0), 0.0)  # broken: Q-only
+    # permute: index n moves to position i (for the rows where an old BV goes)
+    vecs = np.stack([s, e, col_c, col_q], axis=1)  # (u, 4, n + 1)
+    perm = vecs[:, :, :n].copy()
+    j_old = rows[old]
+    perm[j_old, :, idx[old]] = vecs[j_old, :, n]
+    s_p, e_p, c_v, q_v = perm[:, 0], perm[:, 1], perm[:, 2], perm[:, 3]
+    w = q_v + c_v
+    a_stack[j_old, idx[old]] = 0.0  # A1 permuted: the new BV's row (at i) is 0 + 1 * q
+    a2 = a_stack + s_p[:, :, None] * q[:, None, :]
+    a2 -= w[:, :, None] * (a_star * inv_den[:, None])[:, None, :]
+    cols_c = np.stack([s_p, q_v, w], axis=1)  # (u, 3, n): cols_c[j].T is Fortran-ordered
+    coef_c = np.stack([r, 1.0 / q_star, -inv_den], axis=1)
+    cols_q = np.stack([e_p, q_v], axis=1)
+    coef_q = np.stack([1.0 / gamma, -1.0 / q_star], axis=1)
+    for j, gp in enumerate(gps):
+        if old[j]:
+            i = int(idx[j])
+            for mat in (gp._C, gp._Q):
+                mat[i, :] = 0.0
+                mat[:, i] = 0.0
+            gp._B[i] = x
+        gp._A[:n] = a2[j]
+        _add_lowrank(gp._C, n, cols_c[j].T, coef_c[j])
+        _add_lowrank(gp._Q, n, cols_q[j].T, coef_q[j])
