@@ -125,8 +125,12 @@ def _recorders(
             robot=robot.id, config_text=config_text, learner_params=robot.params,
             dims=rt.dims, seed=robot.seed, model=robot.model, mode=rt.mode,
             start_updates=rt.updates, checkpoint=resumed.get(robot.id, ""),
+            pair_window=cfg.pair_window, queue_size=cfg.queue_size,
             extra={"daemon": cfg.id, "clock": cfg.clock, "rate_hz": repr(cfg.rate_hz),
-                   "schema_version": str(SCHEMA_VERSION)},
+                   "schema_version": str(SCHEMA_VERSION),
+                   # pairs saved unlearned in the checkpoint: learned first, before any pair
+                   # of this session (they are in the checkpoint's daemon.queue_* arrays)
+                   "restored_queued_pairs": str(len(rt.queue))},
         )
         rec = SessionRecorder(cfg.recording.dir, robot=robot.id, metadata=meta)
         log.info("%s: recording to %s", robot.id, rec.path)
@@ -213,4 +217,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     finally:
         notifier.close()
+    if not service.final_checkpoints_ok:
+        log.error("the final checkpoint failed (see above): exit status 1")
+        return 1
     return 0

@@ -125,6 +125,7 @@ class RobotRuntime:
         self.dropped = 0
         self.unpaired = 0
         self.learn_errors = 0
+        self.predict_errors = 0
         self.invalid: Counter[str] = Counter()
         self.last_tick = 0
         self.last_t = 0.0

@@ -178,6 +178,7 @@ class Service:
         self._stop = False
         self._stopping = False
         self._answer: list[tuple[RobotRuntime, Perception, int]] = []
+        self.final_checkpoints_ok = True
         self._reported: set[str] = set()
         self._recorder_failed: set[str] = set()
 
@@ -388,32 +389,44 @@ class Service:
         self._record(rt.robot, key, payload, self.clock.time_ns(), msg.stamp_ns, msg.tick)
 
     def _publish_prediction(self, rt: RobotRuntime, perc: Perception, recv_ns: int) -> None:
-        pred = rt.predict(perc, recv_ns, self.clock.monotonic_ns)
+        try:
+            pred = rt.predict(perc, recv_ns, self.clock.monotonic_ns)
+        except Exception as exc:  # prediction only reads the model: skip it, keep serving
+            rt.predict_errors += 1
+            if rt.predict_errors == 1:
+                log.exception("%s: prediction for tick %d failed (%s); further failures are "
+                              "only counted", rt.robot, perc.tick, exc)
+            return
         self._publish(rt, self._pubs[rt.robot].prediction, keys.prediction(rt.robot), pred)
         self.stats.published += 1
 
     def _on_timer(self, now: int) -> None:
+        continuing = self._last_fire is not None  # the previous tick published too
         published = False
         for rt in self.robots.values():
             if rt.predicting and rt.newest is not None and not self._stopping:
                 perc, recv_ns = rt.newest
                 self._publish_prediction(rt, perc, recv_ns)
                 published = True
-        if published:
-            self.stats.lateness_ms.add((now - self._next_tick) / _MS)
-            if self._last_fire is not None:
-                self.stats.jitter_ms.add(abs((now - self._last_fire) - self._period_ns) / _MS)
-            self._last_fire = now
-        else:
-            self._last_fire = None
         self._learned_since_tick = False
+        if not published:
+            self._last_fire = None
+            self._next_tick = max(self._next_tick + self._period_ns, now)
+            return
+        if not continuing:
+            # First tick after an idle stretch: start a fresh schedule from now.
+            self._last_fire = now
+            self._next_tick = now + self._period_ns
+            return
+        assert self._last_fire is not None
+        self.stats.lateness_ms.add((now - self._next_tick) / _MS)
+        self.stats.jitter_ms.add(abs((now - self._last_fire) - self._period_ns) / _MS)
+        self._last_fire = now
         self._next_tick += self._period_ns
-        if self._next_tick <= now:
+        if self._next_tick <= now:  # overran whole periods: skip them, count them
             missed = (now - self._next_tick) // self._period_ns + 1
-            if published:
-                self.stats.missed_ticks += int(missed)
+            self.stats.missed_ticks += int(missed)
             self._next_tick += int(missed) * self._period_ns
-            self._last_fire = None  # the next period is not a nominal one
 
     # --- status ----------------------------------------------------------------------------
 
@@ -433,6 +446,7 @@ class Service:
             "predict_ms_p50": round(rt.predict_ms.pct(50), 4),
             "unpaired_actions": rt.unpaired,
             "learn_errors": rt.learn_errors,
+            "predict_errors": rt.predict_errors,
             "inbox_overflow": self.inbox.overflow,
             "labels": len(rt.vocab),
             "checkpoint": ck.path,
@@ -526,6 +540,8 @@ class Service:
 
     def _checkpoint_failed(self, robot: str, exc: BaseException) -> None:
         self._ckpt[robot].errors += 1
+        if self._stopping:
+            self.final_checkpoints_ok = False
         log.error("%s: checkpoint failed: %s", robot, exc)
 
     def _collect_checkpoints(self, wait: bool = False) -> None:

@@ -37,7 +37,7 @@ class FakeClock:
         return self.wall + self.mono
 
     def advance(self, seconds: float) -> None:
-        self.mono += int(seconds * 1e9)
+        self.mono += round(seconds * 1e9)
 
 
 class FakeRecorder:
@@ -162,21 +162,32 @@ def test_prediction_updates_field_matches_model_state(tmp_path: Path) -> None:
 
 def test_realtime_timer_publishes_for_newest_perception(tmp_path: Path) -> None:
     h = Harness(make_config(tmp_path, clock="realtime", rate_hz=30.0))
+    for _ in range(10):  # idle: nothing to publish, no deadline is "missed"
+        h.clock.advance(0.1)
+        h.service.step(0)
     h.send("perception", encode(Perception("aibo", 0, 0.0, x=STREAM.x[0])))
     h.send("perception", encode(Perception("aibo", 1, 0.03, x=STREAM.x[1])))
+    h.service.step(0)  # first tick after idling: at once, and the schedule starts from here
+    assert [p.tick for p in h.predictions()] == [1]
+    h.clock.advance(0.5 / 30)
     h.service.step(0)
-    assert h.predictions() == []  # no answer before the timer fires
+    assert h.predictions() == []  # nothing between two ticks
+    h.clock.advance(0.5 / 30)
     for _ in range(10):
-        h.clock.advance(1 / 30)
         h.service.step(0)
+        h.clock.advance(1 / 30)
     preds = h.predictions()
     assert len(preds) == 10
     assert {p.tick for p in preds} == {1}  # always the newest perception
     # latency grows with the age of that perception
     assert preds[-1].latency_ms > preds[0].latency_ms
     assert h.service.stats.missed_ticks == 0
+    assert len(h.service.stats.jitter_ms.values) == 10
     assert h.service.stats.jitter_ms.pct(99) == pytest.approx(0.0, abs=0.01)
-    assert len(h.service.stats.jitter_ms.values) == 9
+    # a stall of 3.5 periods: the late tick publishes, the skipped ones are counted
+    h.clock.advance(3.5 / 30)
+    h.service.step(0)
+    assert len(h.predictions()) == 1 and h.service.stats.missed_ticks == 3
 
 
 def test_modes_and_reset_and_checkpoint_controls(tmp_path: Path) -> None:
