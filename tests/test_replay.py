@@ -376,3 +376,33 @@ def test_log_tail_after_a_restored_queue_and_from_session(crash) -> None:  # typ
     assert [p.tick for p in again.pairs][: len(ticks)] == ticks
     with pytest.raises(CatchUpError, match="not among"):
         log_tail(crash["logs"], learned=60, robot="sim", from_session="roger-sim-nope")
+
+
+def test_replay_of_a_session_resumed_from_a_daemon_checkpoint_with_a_queue(
+    crash, tmp_path: Path  # type: ignore[no-untyped-def]
+) -> None:
+    """A daemon checkpoint (model at 60 updates + 8 queued pairs) and the session that resumed
+    from it: ``roger replay --checkpoint`` learns the queue first and reproduces everything."""
+    from roger_daemon.checkpoint import write_checkpoint
+
+    a = crash["a"]
+    queued = a.pairs[60:68]
+    ck_path, _ = write_checkpoint(
+        tmp_path / "ck", "sim", a.checkpoints[60],
+        {"label_vocab": np.array(["seek", "trap"]),
+         "label_codes": np.zeros(60, dtype=np.int32),
+         "queue_x": np.array([q[1] for q in queued]), "queue_y": np.array([q[2] for q in queued]),
+         "queue_labels": np.array([0 if q[3] == "seek" else 1 for q in queued], dtype=np.int32),
+         "queue_ticks": np.array([q[0] for q in queued], dtype=np.int64)},
+        {"updates": 60},
+    )
+    b = record_synthetic_session(tmp_path / "b", n_ticks=40, tick0=300,
+                                 initial_model=load_model(a.checkpoints[60]),
+                                 pre_learn=tuple((q[1], q[2], q[3]) for q in queued))
+    assert roger(["replay", str(b.paths[0]), "--checkpoint", str(ck_path), "--check",
+                  "--no-progress"]) == 0
+    plain = tmp_path / "model.npz"
+    np.savez(plain, **a.checkpoints[60])  # the model alone: the queue is missing
+    assert roger(["replay", str(b.paths[0]), "--checkpoint", str(plain), "--check",
+                  "--no-progress"]) == 1
+    assert roger(["replay", str(b.paths[0]), "--check", "--no-progress"]) == 1

@@ -29,7 +29,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", help="robot to replay (default: the recorded one)")
     parser.add_argument("--model", choices=("roger", "unimap"), help="default: the recorded one")
     parser.add_argument("--checkpoint", type=Path, metavar="FILE.npz",
-                        help="model the session resumed from (state_dict arrays, no pickle)")
+                        help="the checkpoint the session resumed from (daemon checkpoint with "
+                             "its queued pairs, or a plain state_dict .npz)")
     parser.add_argument("--check", action="store_true",
                         help="exit 1 unless every recorded prediction is reproduced")
     parser.add_argument("--tolerance", type=float, default=1e-9,
@@ -81,16 +82,6 @@ def _config(path: Path, robot: str) -> tuple[dict[str, Any] | None, int | None, 
     return (dict(table) if isinstance(table, dict) else None), int(cfg.seed), None
 
 
-def _load_checkpoint(path: Path) -> Any:
-    import numpy as np
-
-    from roger_daemon import learner
-
-    with np.load(path, allow_pickle=False) as z:
-        state = {k: z[k] for k in z.files}
-    return learner.load_model(state)
-
-
 def run(args: argparse.Namespace) -> int:
     """Replay (or re-publish) and report."""
     files = _session_files(list(args.files))
@@ -107,7 +98,7 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-    from roger_daemon.recording.replay import ReplayError, replay_timeline
+    from roger_daemon.recording.replay import ReplayError, load_checkpoint, replay_timeline
     from roger_daemon.recording.timeline import read_timeline
 
     err = Console(stderr=True)
@@ -121,7 +112,10 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
             kind = kind or cfg_kind
         if args.seed is not None:
             seed = args.seed
-        initial = _load_checkpoint(args.checkpoint) if args.checkpoint else None
+        initial: Any = None
+        queued: list[Any] = []
+        if args.checkpoint:
+            initial, queued, _ = load_checkpoint(args.checkpoint)
         total = sum(len(s.pairs) for s in tl.segments)
         with Progress(
             "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
@@ -131,6 +125,7 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
             task = prog.add_task("replaying", total=total)
             res = replay_timeline(
                 tl, params=params, seed=seed, model_kind=kind, initial_model=initial,
+                initial_pairs=queued,
                 progress=lambda n: prog.advance(task, n),
             )
     except (ReplayError, ValueError) as exc:

@@ -11,7 +11,7 @@ are evaluated in ``updates`` order, then file order, calling ``predict_one`` the
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -35,6 +35,7 @@ __all__ = [
     "ReplayError",
     "ReplayResult",
     "default_model_factory",
+    "load_checkpoint",
     "majority_labels",
     "replay_session",
     "replay_timeline",
@@ -359,6 +360,7 @@ def replay_timeline(
     seed: int | None = None,
     model_kind: str | None = None,
     initial_model: Model | None = None,
+    initial_pairs: Sequence[LearnedPair] = (),
     model_factory: ModelFactory | None = None,
     compare_labels: bool = True,
     progress: Callable[[int], None] | None = None,
@@ -395,6 +397,9 @@ def replay_timeline(
                     f"started at {seg.start_updates}"
                 )
             model = initial_model
+            if initial_pairs:  # the checkpoint's queue: learned before this session's pairs
+                seg = Segment(seg.start_updates, seg.after_reset,
+                              [*initial_pairs, *seg.pairs], seg.predictions)
         else:
             model = factory(kind, tl.dims.x, tl.dims.y, use_params, use_seed)
         lost, errs = _replay_segment(
@@ -450,6 +455,7 @@ def replay_session(
     robot: str | None = None,
     model_kind: str | None = None,
     initial_model: Model | None = None,
+    initial_pairs: Sequence[LearnedPair] = (),
     model_factory: ModelFactory | None = None,
     compare_labels: bool = True,
     progress: Callable[[int], None] | None = None,
@@ -472,7 +478,9 @@ def replay_session(
         ``"roger"`` or ``"unimap"``; default: the recorded one.
     initial_model
         The model the session started from, when it resumed from a checkpoint
-        (metadata ``start_updates`` > 0).
+        (metadata ``start_updates`` > 0); see :func:`load_checkpoint`.
+    initial_pairs
+        Pairs queued in that checkpoint (learned before the session's own pairs).
     model_factory
         Builds the model (default: :func:`default_model_factory`).
     compare_labels
@@ -488,7 +496,42 @@ def replay_session(
         seed=seed,
         model_kind=model_kind,
         initial_model=initial_model,
+        initial_pairs=initial_pairs,
         model_factory=model_factory,
         compare_labels=compare_labels,
         progress=progress,
     )
+
+
+def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[str, Any]]:
+    """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.checkpoint``),
+    or from a plain ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles."""
+    from roger_daemon.learner import load_model
+
+    try:
+        from roger_daemon.checkpoint import CheckpointError, read_checkpoint
+    except ImportError:  # pragma: no cover - daemon package absent
+        read_checkpoint = None  # type: ignore[assignment]
+        CheckpointError = Exception  # type: ignore[assignment,misc]  # noqa: N806
+    if read_checkpoint is not None:
+        try:
+            ck = read_checkpoint(Path(path))
+        except CheckpointError:
+            ck = None
+        if ck is not None:
+            model: Model = load_model(ck.model)
+            d = ck.daemon
+            pairs: list[LearnedPair] = []
+            if "queue_ticks" in d:
+                vocab = [str(v) for v in d.get("label_vocab", np.zeros(0, "<U1")).tolist()]
+                start = int(model.n_learned)
+                for i, (x, y, code, tick) in enumerate(zip(
+                        d["queue_x"], d["queue_y"], d["queue_labels"], d["queue_ticks"],
+                        strict=True)):
+                    label = vocab[int(code)] if 0 <= int(code) < len(vocab) else ""
+                    pairs.append(LearnedPair(start + i, int(tick), np.array(x, dtype=float),
+                                             np.array(y, dtype=float), label, 0))
+            return model, pairs, dict(ck.meta)
+    with np.load(path, allow_pickle=False) as z:
+        state = {k: z[k] for k in z.files}
+    return load_model(state), [], {}

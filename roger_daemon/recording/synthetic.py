@@ -100,6 +100,7 @@ def record_synthetic_session(
     tick0: int = 0,
     start_ns: int = START_NS,
     checkpoint_at: tuple[int, ...] = (),
+    pre_learn: tuple[tuple[Any, Any, str], ...] = (),
 ) -> SyntheticSession:
     """Record a session of ``n_ticks`` ticks, as the daemon would; see the module doc.
 
@@ -110,7 +111,9 @@ def record_synthetic_session(
 
     ``initial_model`` continues a model (as a daemon resumed from a checkpoint: the metadata's
     ``start_updates`` is its ``n_learned``); ``tick0`` starts ticks (and the stream) later;
-    ``checkpoint_at`` takes ``state_dict()`` snapshots when ``n_learned`` reaches those counts.
+    ``checkpoint_at`` takes ``state_dict()`` snapshots when ``n_learned`` reaches those counts;
+    ``pre_learn`` pairs ``(x, y, label)`` are learned first without being recorded (a daemon's
+    restored training queue).
     """
     x, y, labels = synthetic_stream(stream, tick0 + n_ticks, seed=0)
     dims = Dims(int(x.shape[1]), int(y.shape[1]))
@@ -133,6 +136,9 @@ def record_synthetic_session(
         initial_model)
     out = SyntheticSession(paths=[], dims=dims, model=model, recorder=rec)
     learned_labels: list[str] = []
+    for px, py, plabel in pre_learn:
+        model.learn_one(px, py)
+        learned_labels.append(plabel)
     k_perc, k_act, k_pred = keys.perception(robot), keys.action(robot), keys.prediction(robot)
     k_ctl, k_status = keys.control(robot), keys.status(robot)
 
