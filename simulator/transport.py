@@ -11,6 +11,12 @@
 * :func:`publisher`: a msgpack publisher with ``express=True`` and the default DROP congestion
   control (a stalled peer never blocks the loop).
 
+Topology: Zenoh peers do not route for each other (a peer that only *connects* to the
+simulator never hears a third peer). Every ROGER process therefore also listens, by default
+on an ephemeral loopback port (:data:`EPHEMERAL`); with gossip on, peers learn each other's
+locators through the first connection and mesh up by themselves (measured: A listens, B and C
+listen on ``tcp/127.0.0.1:0`` and connect to A; C receives B's samples).
+
 Sessions must be opened after any fork; processes are started with ``subprocess``.
 """
 
@@ -32,6 +38,7 @@ from protocols import Dims, ProtocolError, decode, encode, keys
 from protocols.messages import Message
 
 __all__ = [
+    "EPHEMERAL",
     "MSGPACK",
     "Inbox",
     "InvalidCounter",
@@ -48,6 +55,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 MSGPACK = zenoh.Encoding("application/msgpack")
+
+#: Listen on an ephemeral port, loopback only.
+EPHEMERAL = "tcp/127.0.0.1:0"
 
 
 def loopback_config(
