@@ -102,9 +102,9 @@ def test_bad_input_is_counted_and_leaves_the_model_unchanged(
     try:
         client.wait_daemon()
         feed_lockstep(client, range(12))
+        client.wait_status(lambda s: s.updates == 12 and s.queue_depth == 0)
         client.control("checkpoint")
-        before = client.wait_status(lambda s: s.info["checkpoints_written"] == 1
-                                    and s.queue_depth == 0)
+        before = client.wait_status(lambda s: s.info["checkpoints_written"] == 1)
         bad: list[tuple[str, bytes, str]] = [
             ("perception", b"\xc1\x00garbage", "not_msgpack"),
             ("action", msgpack.packb(["not", "a", "map"]), "not_a_map"),
