@@ -406,3 +406,10 @@ def test_replay_of_a_session_resumed_from_a_daemon_checkpoint_with_a_queue(
     assert roger(["replay", str(b.paths[0]), "--checkpoint", str(plain), "--check",
                   "--no-progress"]) == 1
     assert roger(["replay", str(b.paths[0]), "--check", "--no-progress"]) == 1
+
+
+def test_replay_refuses_files_of_different_sessions(crash) -> None:  # type: ignore[no-untyped-def]
+    files = sorted(crash["logs"].glob("*.mcap"))
+    assert len(files) == 2
+    with pytest.raises(ValueError, match="2 sessions"):
+        replay_session(files)

@@ -226,6 +226,11 @@ def read_timeline(
 
     meta = read_metadata(files[0])
     info = SessionInfo.from_metadata(meta)
+    if len(files) > 1:
+        ids = {read_metadata(p).get("session_id", "") for p in files}
+        if len(ids) > 1:
+            raise ValueError(f"these files belong to {len(ids)} sessions; replay one at a time "
+                             "(its parts in order)")
     topics: set[str] = set()
     if not robot and not (info.robot and info.robot not in ("*", "all")):
         for r in readers:
