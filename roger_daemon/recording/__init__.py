@@ -5,11 +5,21 @@ The daemon's seam::
     from roger_daemon.recording import SessionRecorder, session_metadata
 
     meta = session_metadata(robot="aibo", config_text=text, learner_params=params,
-                            dims=DIMS, seed=seed, mode=mode, start_updates=model.n_learned)
+                            dims=DIMS, seed=seed, mode=mode, start_updates=model.n_learned,
+                            pair_window=cfg.pair_window, queue_size=cfg.queue_size)
     rec = SessionRecorder(log_dir, robot="aibo", metadata=meta)      # flush_interval_s=1.0
     rec.write(key, payload, log_time_ns=t_recv, publish_time_ns=msg.stamp_ns, sequence=msg.tick)
     rec.poll(time.monotonic_ns())     # every loop cycle: flushes/rotates when due, else ~free
     rec.close()                       # on shutdown: summary, indexes, footer, fsync
+
+Start-up self-recovery after a crash (phase 2), before opening the new recorder::
+
+    recover_directory(log_dir)                               # footer-less files -> indexed
+    ck = <newest checkpoint>: model (n_learned U) + queued pairs Q
+    tail = log_tail(log_dir, learned=U, robot=r, from_session=ck.meta.get("session_id"))
+    for p in tail.after_queue(Q.ticks): enqueue(p)           # the logged pairs after Q
+    # learn Q + tail, write a checkpoint, then start the session with
+    # session_metadata(..., start_updates=model.n_learned, checkpoint=<that file>)
 
 Nothing here imports Zenoh (only ``cli_record``, ``zenoh_net`` and ``publish`` do).
 """
