@@ -82,7 +82,17 @@ def run_processes(
     )
     try:
         sim = subprocess.run(
-            [*_roger(), "sim", "--listen", ep, "--clock", "lockstep", *sim_args],
+            [
+                *_roger(),
+                "sim",
+                "--listen",
+                ep,
+                "--connect",
+                "none",
+                "--clock",
+                "lockstep",
+                *sim_args,
+            ],
             capture_output=True,
             text=True,
             timeout=timeout,

@@ -41,7 +41,7 @@ from protocols import Action, Command, EpisodeEvent, ExpertOutput, Perception, P
 from protocols.aibo import DIMS
 from simulator.config import load_config
 from simulator.hcc import HCC, HCCParams, HeadModel
-from simulator.sim_node import DEFAULT_LISTEN
+from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
 from simulator.transport import (
     EPHEMERAL,
     Inbox,
@@ -95,7 +95,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="exit after this many seconds without perception (0: never)",
     )
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
-    add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN,))
+    add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
 
 
 def choose_expert(

@@ -52,11 +52,14 @@ from simulator.transport import (
     wait_for,
 )
 
-__all__ = ["DEFAULT_LISTEN", "configure", "run"]
+__all__ = ["DAEMON_ENDPOINT", "DEFAULT_LISTEN", "configure", "run"]
 
 log = logging.getLogger("roger.sim")
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7450"
+#: The daemon's default listen endpoint (``configs/roger.toml``); unreachable is fine (peers
+#: keep retrying in the background).
+DAEMON_ENDPOINT = "tcp/127.0.0.1:7447"
 RESEND_S = 0.25
 
 
@@ -97,7 +100,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--results", default=None, help="write the results JSON here")
     parser.add_argument("--truth", action="store_true", help="publish a 'truth' event every tick")
-    add_zenoh_args(parser, listen=(DEFAULT_LISTEN,))
+    add_zenoh_args(parser, listen=(DEFAULT_LISTEN,), connect=(DAEMON_ENDPOINT,))
 
 
 def _config(args: argparse.Namespace) -> SimConfig:

@@ -31,8 +31,10 @@ ROGER = [sys.executable, "-m", "roger_daemon"]
 
 
 def _start(*args: str) -> subprocess.Popen[str]:
+    """``roger sim``/``roger hcc`` on this test's endpoint only (never the default 7447)."""
+    extra = ["--connect", "none"] if args[0] == "sim" else []
     return subprocess.Popen(
-        [*ROGER, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [*ROGER, *args, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
 
 
