@@ -131,10 +131,13 @@ class RogerParams:
     predict_empty_expert : bool, default False
         Whether the empty "+1" expert (prior mean, prior variance) takes part in prediction,
         as in the paper's Algorithm 2 (``k = 1 : K + 1``).
-    prune_log_margin : float, default 60.0
-        Putatives whose *upper bound* on the log weight lies more than this below the best
-        putative (relative weight < exp(-60) ~ 1e-26) are given weight zero without evaluating
-        their GP.  ``inf`` evaluates every putative.
+    prune_log_margin : float, default inf
+        Opt-in speed-up, off by default.  Putatives whose *upper bound* on the log weight lies
+        more than this below the best putative are given weight zero without evaluating their
+        GP (e.g. 60: relative weight < exp(-60) ~ 1e-26).  This never changes the surviving
+        putatives that carry weight, but it does change which negligible-weight putatives
+        fill the remaining particle slots (and can leave fewer than ``particles``), so
+        Algorithm 1 is only reproduced exactly with ``inf``.
     x_offset, x_scale, y_offset, y_scale : tuple of float or None
         Fixed affine scaling applied before learning: ``(x - x_offset) / x_scale`` and likewise
         for ``y``; predictions are mapped back.  Not learned from data.  The priors (``mu0 = 0``,
@@ -155,7 +158,7 @@ class RogerParams:
     novelty_threshold: float = 1e-6
     expert_choice: str = "argmax"
     predict_empty_expert: bool = False
-    prune_log_margin: float = 60.0
+    prune_log_margin: float = math.inf
     x_offset: tuple[float, ...] | None = None
     x_scale: tuple[float, ...] | None = None
     y_offset: tuple[float, ...] | None = None

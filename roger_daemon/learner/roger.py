@@ -16,10 +16,11 @@ Algorithm 1 (``learn_one``), roger-math.md §4:
 Performance design (pitfalls 13-15): experts live in integer *slots* shared by all particles
 that contain them (a particle is an int array of slots); a slot is copied only when a survivor
 updates an expert that another survivor keeps unchanged (copy-on-write), and survivors that
-choose the same slot share one updated copy.  Per step each *unique* expert is evaluated once:
-all gates in one batched product, then the GP only for experts whose putatives can matter (an
-upper bound on the GP factor prunes putatives more than ``prune_log_margin`` below the best),
-so the cost is bounded by (unique experts) x ``beta^2``, never by the data seen.  The
+choose the same slot share one updated copy.  Per step each *unique* expert is evaluated once
+(all gates in one batched product, then each GP once, whatever the number of particles that
+share it), and the chosen experts are updated together (:func:`.sogp.update_many`), so the
+cost is bounded by (unique experts) x ``beta^2``, never by the data seen.  An opt-in bound
+(``prune_log_margin``) skips the GP of experts whose putatives cannot carry weight.  The
 segmentation history costs O(P) per step: survivors' ancestor index and chosen expert id,
 traced back by :meth:`Roger.assignments`.
 """
@@ -464,7 +465,10 @@ class Roger:
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata; see :mod:`.state`.  No object arrays."""
-        live = np.flatnonzero(self._ref > 0)
+        # canonical order: slots by first appearance in the particles (not by slot number)
+        flat = np.concatenate(self._particles)
+        _, first = np.unique(flat, return_index=True)
+        live = flat[np.sort(first)]
         compact = np.full(len(self._gps), -1, dtype=np.int64)
         compact[live] = np.arange(live.size)
         gps = [self._gps[s] for s in live.tolist()]
@@ -478,8 +482,7 @@ class Roger:
         sizes = np.array([a.size for a in self._particles], dtype=np.int64)
         out["particle_log_weights"] = self._logw.copy()
         out["particle_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-        out["particle_experts"] = (compact[np.concatenate(self._particles)]
-                                   if self._particles else np.zeros(0, dtype=np.int64))
+        out["particle_experts"] = compact[flat]
         out["history_ancestor"] = self._hist_anc[: self.n_learned].copy()
         out["history_expert"] = self._hist_eid[: self.n_learned].copy()
         out["meta"] = pack_meta({
