@@ -69,7 +69,7 @@ def measure_aliasing(
     eps: float = 0.05,
     conflict: float = 0.5,
     min_gap: int = 15,
-    max_points: int = 4000,
+    max_points: int = 12000,
     rng: np.random.Generator | None = None,
     attack: str = "blue",
 ) -> dict[str, Any]:

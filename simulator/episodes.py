@@ -57,15 +57,19 @@ class StartLocation:
 #: ball at once, others must seek it first (ball beside or behind the robot).
 START_LOCATIONS: tuple[StartLocation, ...] = (
     StartLocation(0, "near-centre", (1.0, 0.0, 0.0), (1.5, 0.0), "ball ahead, 1.2 m from goal"),
-    StartLocation(1, "near-left", (2.0, 1.2, -90.0), (2.0, 0.6), "ball ahead, goal to the right"),
-    StartLocation(2, "near-right", (2.0, -1.2, 90.0), (2.0, -0.6), "ball ahead, goal to the left"),
+    StartLocation(1, "near-left", (2.0, 1.2, -90.0), (2.0, 0.6), "ball ahead, goal to the left"),
+    StartLocation(2, "near-right", (2.0, -1.2, 90.0), (2.0, -0.6), "ball ahead, goal to the right"),
     StartLocation(3, "goal-mouth", (2.0, 0.0, 180.0), (2.2, 0.3), "back to the goal, ball behind"),
     StartLocation(4, "mid-left", (1.0, 0.6, 0.0), (1.4, 1.1), "ball ahead-left, off camera"),
     StartLocation(5, "mid-right", (1.0, -0.6, 0.0), (1.4, -1.1), "ball ahead-right, off camera"),
     StartLocation(6, "centre", (0.0, 0.0, 0.0), (0.6, 0.0), "ball ahead, 2.1 m from goal"),
     StartLocation(7, "centre-left", (0.0, 1.2, 0.0), (0.5, 0.8), "ball ahead-right"),
     StartLocation(
-        8, "centre-right", (0.0, -1.2, 90.0), (0.5, -0.8), "facing the sideline, ball behind"
+        8,
+        "centre-right",
+        (0.0, -1.2, 90.0),
+        (0.5, -0.8),
+        "facing across the field, ball right, off camera",
     ),
     StartLocation(9, "own-left", (-1.0, 0.6, 0.0), (-0.4, 0.6), "own half, ball ahead"),
     StartLocation(

@@ -87,7 +87,9 @@ def plot_episodes(
     n = len(episodes)
     cols = min(3, max(1, n))
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 4.1 * rows + 0.8), squeeze=False)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(5.2 * cols, 3.9 * rows + 0.9), squeeze=False, layout="constrained"
+    )
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     for ax, (res, tr) in zip(axes.ravel(), episodes, strict=False):
@@ -102,12 +104,27 @@ def plot_episodes(
             ax.add_collection(LineCollection(list(segs), colors=cols_, linewidths=2.2))
             ax.plot(bx, by, color="#ff7f0e", lw=1.2, ls="--")
             labels = np.array(tr.labels)
-            # subtasks done in place (aim turns, kicks) are dots/stars on the path
-            for lab, marker, size in (("aim", "o", 18), ("seek", ".", 10)):
-                m = labels == lab
-                ax.scatter(
-                    rx[m], ry[m], s=size, marker=marker, color=SUBTASK_COLOURS[lab], zorder=3
-                )
+            # subtasks done turning in place: seek as grey rings, aim as large purple rings
+            m = labels == "seek"
+            ax.scatter(
+                rx[m],
+                ry[m],
+                s=90,
+                facecolors="none",
+                edgecolors=SUBTASK_COLOURS["seek"],
+                linewidths=1.2,
+                zorder=3,
+            )
+            m = labels == "aim"
+            ax.scatter(
+                rx[m],
+                ry[m],
+                s=260,
+                facecolors="none",
+                edgecolors=SUBTASK_COLOURS["aim"],
+                linewidths=1.6,
+                zorder=3,
+            )
             prev = np.concatenate([np.array([""], dtype=object), labels[:-1]])
             starts = np.flatnonzero((labels == "kick") & (prev != "kick"))
             ax.scatter(
@@ -137,7 +154,27 @@ def plot_episodes(
         )
     handles = [Line2D([], [], color=c, lw=3, label=s) for s, c in SUBTASK_COLOURS.items()]
     handles += [
-        Line2D([], [], marker="o", color=SUBTASK_COLOURS["aim"], ls="", label="aiming (in place)"),
+        Line2D(
+            [],
+            [],
+            marker="o",
+            mfc="none",
+            mec=SUBTASK_COLOURS["seek"],
+            ms=9,
+            ls="",
+            label="seeking (in place)",
+        ),
+        Line2D(
+            [],
+            [],
+            marker="o",
+            mfc="none",
+            mec=SUBTASK_COLOURS["aim"],
+            ms=12,
+            mew=1.6,
+            ls="",
+            label="aiming (in place)",
+        ),
         Line2D(
             [], [], marker="*", color=SUBTASK_COLOURS["kick"], mec="k", ms=12, ls="", label="kick"
         ),
@@ -147,12 +184,15 @@ def plot_episodes(
         Line2D([], [], marker="X", color="#ff7f0e", mec="k", ls="", label="ball end"),
     ]
     fig.legend(
-        handles=handles, loc="lower center", ncol=(len(handles) + 1) // 2, fontsize=9, frameon=False
+        handles=handles,
+        loc="outside lower center",
+        ncol=(len(handles) + 1) // 2,
+        fontsize=9,
+        frameon=False,
     )
     fig.suptitle(
         f"HCC episodes, attacking the {f.attack} goal (+x); robot path coloured by subtask"
     )
-    fig.tight_layout(rect=(0, 0.08, 1, 0.96), h_pad=2.0)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
