@@ -114,10 +114,11 @@ class DaemonProcess:
     def wait_ready(self, timeout: float = 30.0) -> None:
         self.wait_for_log(" ready: ", timeout)
 
-    def terminate(self, timeout: float = 10.0) -> tuple[int, float]:
-        """SIGTERM; return (exit code, seconds until exit)."""
+    def terminate(self, timeout: float = 10.0,
+                  sig: signal.Signals = signal.SIGTERM) -> tuple[int, float]:
+        """SIGTERM (or ``sig``); return (exit code, seconds until exit)."""
         t0 = time.monotonic()
-        self.proc.send_signal(signal.SIGTERM)
+        self.proc.send_signal(sig)
         code = self.proc.wait(timeout)
         self._log.close()
         return code, time.monotonic() - t0

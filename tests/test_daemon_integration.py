@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import socket
 import time
 from collections.abc import Iterator
@@ -233,9 +234,10 @@ def test_systemd_notify_protocol(tmp_path: Path, procs: list[DaemonProcess]) -> 
         n_before = sum("WATCHDOG=1" in m for m in got)
         receive_until("STATUS=aibo: learn+predict")  # the 1 Hz status line
         assert sum("WATCHDOG=1" in m for m in got) > n_before  # it keeps pinging
-        code, _ = d.terminate()
+        code, _ = d.terminate(sig=signal.SIGINT)  # Ctrl-C shuts down as cleanly as SIGTERM
         assert code == 0
         receive_until("STOPPING=1")
+        assert "received SIGINT" in d.log()
         assert os.getpid() != d.proc.pid
     finally:
         sock.close()

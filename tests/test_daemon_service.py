@@ -57,11 +57,13 @@ class FakeRecorder:
         self.closed = True
 
 
-def make_config(tmp_path: Path, **daemon: Any) -> DaemonConfig:
+def make_config(tmp_path: Path, checkpoint: dict[str, Any] | None = None,
+                **daemon: Any) -> DaemonConfig:
     raw: dict[str, Any] = {
         "daemon": {"clock": "lockstep", **daemon},
         "robots": [{"id": "aibo"}],
-        "checkpoint": {"dir": str(tmp_path / "ckpt"), "every_updates": 0, "every_s": 0},
+        "checkpoint": {"dir": str(tmp_path / "ckpt"), "every_updates": 0, "every_s": 0,
+                       **(checkpoint or {})},
         "recording": {"enabled": False},
     }
     return parse_config(raw)
@@ -309,6 +311,26 @@ def test_shutdown_checkpoint_and_resume_identical(tmp_path: Path) -> None:
     assert rt.ticks == 31
     fresh, none = build_robot(cfg, cfg.robots[0], fresh=True)
     assert fresh.updates == 0 and none == ""
+
+
+def test_periodic_checkpoints_by_updates_and_by_time(tmp_path: Path) -> None:
+    h = Harness(make_config(tmp_path, checkpoint={"every_updates": 4, "every_s": 10.0}))
+    for t in range(9):
+        h.pair(t)
+        h.settle()
+    files = list_checkpoints(tmp_path / "ckpt", "aibo")
+    assert [read_checkpoint(f).meta["updates"] for f in reversed(files)] == [4, 8]
+    h.clock.advance(5.0)
+    h.service.step(0)
+    assert len(list_checkpoints(tmp_path / "ckpt", "aibo")) == 2  # 1 change, 5 s: not yet
+    h.clock.advance(5.0)
+    h.service.step(0)
+    files = list_checkpoints(tmp_path / "ckpt", "aibo")
+    assert read_checkpoint(files[0]).meta["updates"] == 9
+    assert read_checkpoint(files[0]).meta["reason"] == "periodic"
+    h.clock.advance(20.0)
+    h.service.step(0)
+    assert len(list_checkpoints(tmp_path / "ckpt", "aibo")) == 3  # nothing changed: none
 
 
 def test_corrupt_newest_checkpoint_is_skipped(

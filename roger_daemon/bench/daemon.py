@@ -180,6 +180,23 @@ def _saturate(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
     }
 
 
+def _phase(name: str, fn: Any, workdir: Path, args: argparse.Namespace,
+           stream: Any) -> dict[str, Any]:
+    """Run one phase; if it fails, say so with the end of that daemon's log."""
+    try:
+        result: dict[str, Any] = fn(workdir, args, stream)
+    except Exception as exc:
+        log = workdir / f"{name}.log"
+        tail = log.read_text(errors="replace")[-3000:] if log.exists() else "(no log)"
+        raise RuntimeError(f"{name} phase failed: {exc}\n--- daemon log (end) ---\n{tail}") \
+            from exc
+    if result.get("exit_code") not in (0, None):
+        tail = (workdir / f"{name}.log").read_text(errors="replace")[-3000:]
+        raise RuntimeError(f"{name} phase: the daemon exited with {result['exit_code']}\n"
+                           f"--- daemon log (end) ---\n{tail}")
+    return result
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the phases and print a table or one JSON object."""
     stream = subtask_stream(4000)
@@ -187,9 +204,10 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="roger-bench-daemon-") as tmp:
         workdir = args.keep or Path(tmp)
         workdir.mkdir(parents=True, exist_ok=True)
-        lock = _lockstep(workdir, args, stream)
-        real = _realtime(workdir, args, stream)
-        sat = _saturate(workdir, args, stream) if args.saturate_seconds > 0 else {}
+        lock = _phase("lockstep", _lockstep, workdir, args, stream)
+        real = _phase("realtime", _realtime, workdir, args, stream)
+        sat = _phase("saturate", _saturate, workdir, args, stream) if (
+            args.saturate_seconds > 0) else {}
     result: dict[str, Any] = {
         "latency_p50_ms": lock["latency_p50_ms"],
         "latency_p99_ms": lock["latency_p99_ms"],
