@@ -7,7 +7,10 @@ subtask labels). Three phases, each with a fresh daemon and model:
 
 1. **lockstep** (``--seconds``): at ``--rate`` Hz the client publishes perception(t), waits
    for prediction(t), then publishes action(t). ``latency_*`` is perception published ->
-   prediction received, measured in this process (same clock at both ends).
+   prediction received, measured in this process (same clock at both ends). It includes the
+   time a perception waits while the loop finishes a ``learn_one`` (reported as
+   ``learn_ms_*``); then a few seconds in mode ``predict`` give the latency without learning
+   (``predict_only_latency_*``: transport and daemon overhead only).
 2. **realtime** (``--seconds``): the client publishes perception/action pairs at ``--rate``
    Hz; the daemon publishes on its own 30 Hz timer. ``period_jitter_p99_ms`` is the daemon's
    own measurement of its publisher (|actual period - 1/rate|, from its status);
@@ -105,10 +108,28 @@ def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
             tick += 1
             time.sleep(max(0.0, t0 + tick * period - time.monotonic()))
         st = c.wait_status(lambda s: s.ticks >= tick)
+        # Reference: the same loop with learning switched off (mode "predict"), to separate
+        # the transport + daemon overhead from the time a perception waits for learn_one.
+        c.control("mode", "predict")
+        c.wait_status(lambda s: s.mode == "predict")
+        lat_predict: list[float] = []
+        t1 = time.monotonic()
+        while time.monotonic() - t1 < min(args.seconds, 5.0):
+            i = tick % len(stream.x)
+            sent = c.perception(tick, stream.x[i])
+            try:
+                got = c.wait_prediction(tick, timeout=1.0)
+                lat_predict.append((got.recv_ns - sent) / 1e6)
+            except TimeoutError:
+                lost += 1
+            tick += 1
+            time.sleep(max(0.0, t1 + (len(lat_predict) + 1) * period - time.monotonic()))
     finally:
         code = ph.close()
     return {
         "latency_p50_ms": _pct(lat, 50), "latency_p99_ms": _pct(lat, 99),
+        "predict_only_latency_p50_ms": _pct(lat_predict, 50),
+        "predict_only_latency_p99_ms": _pct(lat_predict, 99),
         "latency_max_ms": max(lat) if lat else float("nan"), "predictions": len(lat),
         "lost_predictions": lost, "updates": st.updates, "experts": st.experts,
         "daemon_latency_p99_ms": st.latency_ms_p99, "learn_ms_p50": st.info["learn_ms_p50"],
@@ -232,6 +253,10 @@ def run(args: argparse.Namespace) -> int:
     rows = [
         ("latency p50 (perception -> prediction, lockstep)", lock["latency_p50_ms"], "ms"),
         ("latency p99", lock["latency_p99_ms"], f"ms (target <= {TARGETS['latency_p99_ms']})"),
+        ("learn_one p50 / p99 in the daemon (lockstep)", lock["learn_ms_p50"], "ms"),
+        ("", lock["learn_ms_p99"], "ms"),
+        ("latency p99 with learning off (mode predict)", lock["predict_only_latency_p99_ms"],
+         "ms"),
         ("30 Hz publisher period jitter p99 (daemon)", real["period_jitter_p99_ms"],
          f"ms (target <= {TARGETS['period_jitter_p99_ms']})"),
         ("period jitter p99 seen by the client", real["client_period_jitter_p99_ms"], "ms"),
