@@ -148,29 +148,28 @@ class GatePool:
         """
         kappa = self.kappa[slots]
         u = x - self.mu[slots]
-        w = kappa / (kappa + 1.0)
-        self.lam[slots] += np.einsum("si,sj->sij", u, u * w[:, None])
-        self.mu[slots] += u / (kappa + 1.0)[:, None]  # (kappa mu + x) / (kappa + 1)
-        self.kappa[slots] = kappa + 1.0
-        self.nu[slots] += 1.0
+        kp1 = kappa + 1.0
+        uw = u * (kappa / kp1)[:, None]  # w u
+        self.lam[slots] += u[:, :, None] * uw[:, None, :]
+        self.mu[slots] += u / kp1[:, None]  # (kappa mu + x) / (kappa + 1)
+        self.kappa[slots] = kp1
+        nu = self.nu[slots] + 1.0
+        self.nu[slots] = nu
         count = self.count[slots] + 1
         self.count[slots] = count
-        refresh = count % _REFRESH == 0
-        if np.any(refresh):
-            for slot in slots[refresh].tolist():
-                self.prec[slot], self.logdet[slot] = _precision(self.lam[slot])
-        inc = ~refresh
-        if np.any(inc):
-            sl, ui, wi = slots[inc], u[inc], w[inc]
-            prec = self.prec[sl]
-            pu = np.einsum("sij,sj->si", prec, ui)
-            t = wi * np.einsum("si,si->s", ui, pu)
-            coef = (wi / (1.0 + t))[:, None]
-            self.prec[sl] = prec - np.einsum("si,sj->sij", pu, pu * coef)
-            self.logdet[sl] += np.log1p(t)
-        nu_t = self.nu[slots] - self.d + 1.0
-        kap = self.kappa[slots]
-        c = (kap + 1.0) / (kap * nu_t)
+        # Sherman-Morrison and the determinant lemma: t = w u^T P u,
+        # P' = P - w (P u)(P u)^T / (1 + t), log|Lambda'| = log|Lambda| + log(1 + t)
+        prec = self.prec[slots]
+        pu = np.matmul(prec, u[:, :, None])[:, :, 0]
+        t = np.einsum("si,si->s", uw, pu)
+        prec -= pu[:, :, None] * (pu * ((kappa / kp1) / (1.0 + t))[:, None])[:, None, :]
+        self.prec[slots] = prec
+        self.logdet[slots] += np.log1p(t)
+        for slot in slots[count % _REFRESH == 0].tolist():  # bound the round-off
+            self.prec[slot], self.logdet[slot] = _precision(self.lam[slot])
+        # Student-t constants (§3.3)
+        nu_t = nu - self.d + 1.0
+        c = (kp1 + 1.0) / (kp1 * nu_t)
         logdet_sigma = self.d * np.log(c) + self.logdet[slots]
         self.lognorm[slots] = (gammaln((nu_t + self.d) / 2.0) - gammaln(nu_t / 2.0)
                                - 0.5 * self.d * np.log(nu_t * np.pi) - 0.5 * logdet_sigma)

@@ -43,6 +43,7 @@ class RBFKernel:
         scale = float(d_x) if dim_scaling == "grollman" else 1.0
         # exp(-gamma * |a - b|^2), gamma = 1 / (2 w^2 s)
         self.gamma = 1.0 / (2.0 * self.width**2 * scale)
+        self._ones_cache: FloatArray = np.ones(self.d_x)
 
     def __call__(self, basis: FloatArray, x: FloatArray) -> FloatArray:
         """Kernel vector ``[k(b_1, x), ..., k(b_n, x)]`` for rows ``b_i`` of ``basis`` (n, d_x).
@@ -51,8 +52,18 @@ class RBFKernel:
         accurate near 1, where the novelty residual ``gamma = k* - k^T Q k`` is decided.
         """
         diff = basis - x
-        sq = np.einsum("...ij,...ij->...i", diff, diff)
-        return np.exp(-self.gamma * sq)
+        if diff.ndim != 2:
+            return np.exp(-self.gamma * np.einsum("...ij,...ij->...i", diff, diff))
+        np.square(diff, out=diff)
+        out: FloatArray = diff @ self._ones(diff.shape[1])  # row sums by BLAS gemv
+        out *= -self.gamma
+        return np.exp(out, out=out)
+
+    def _ones(self, d: int) -> FloatArray:
+        ones = self._ones_cache
+        if ones.shape[0] != d:
+            ones = self._ones_cache = np.ones(d)
+        return ones
 
     def gram(self, a: FloatArray, b: FloatArray) -> FloatArray:
         """Kernel matrix ``K[i, j] = k(a_i, b_j)`` for (n, d_x) and (m, d_x) inputs."""

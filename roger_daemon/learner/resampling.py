@@ -18,6 +18,8 @@ are returned in log space so that tiny survivors do not underflow.  ``M <= P`` k
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -39,10 +41,13 @@ def fearnhead_threshold(weights: FloatArray, n_keep: int) -> tuple[float, int]:
     first ``L`` (in descending order of weight) with ``w_(L+1) <= R_L / (P - L)``, where ``R_L``
     is the mass outside the top ``L`` (roger-math.md §5 step 1).
     """
-    ws = np.sort(weights)[::-1]
+    return _threshold(np.sort(weights)[::-1], n_keep)
+
+
+def _threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
+    """:func:`fearnhead_threshold` for weights already sorted in descending order."""
     suffix = np.cumsum(ws[::-1])[::-1]  # suffix[L] = sum_{j >= L} ws[j] = R_L
-    ells = np.arange(n_keep)
-    tau = suffix[:n_keep] / (n_keep - ells)
+    tau = suffix[:n_keep] / np.arange(n_keep, 0, -1)
     # L = P - 1 always qualifies (tau = R_{P-1} >= ws[P-1]); argmax finds the first True
     first = int(np.argmax(ws[:n_keep] <= tau))
     return float(tau[first]), first
@@ -62,29 +67,38 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int,
         If no log weight is finite, or one is ``+inf``.
     """
     lw = np.asarray(log_weights, dtype=np.float64)
-    if np.any(np.isposinf(lw)):
-        raise ValueError("a putative log weight is +inf")
-    valid = np.flatnonzero(np.isfinite(lw))  # drop NaN and -inf (CHAMP)
-    if valid.size == 0:
-        raise ValueError("no putative has a finite log weight")
-    if valid.size <= n_keep:
-        out = lw[valid]
-        return valid.astype(np.int64), out - _logsumexp(out)
-    lv = lw[valid]
-    lse = _logsumexp(lv)
-    w = np.exp(lv - lse)
-    inv_c, n_top = fearnhead_threshold(w, n_keep)
-    # keep the top L outright (stable order: ties broken by index)
-    order = np.argsort(-w, kind="stable")
-    keep = np.zeros(valid.size, dtype=bool)
-    keep[order[:n_top]] = True
+    finite = np.isfinite(lw)
+    if finite.all():
+        valid = None
+        lv = lw
+    else:  # drop NaN and -inf (CHAMP)
+        if np.any(lw == np.inf):
+            raise ValueError("a putative log weight is +inf")
+        valid = np.flatnonzero(finite)
+        if valid.size == 0:
+            raise ValueError("no putative has a finite log weight")
+        lv = lw[valid]
+    top = float(lv.max())
+    expw = np.exp(lv - top)
+    total = float(expw.sum())
+    lse = top + math.log(total)
+    if lv.size <= n_keep:  # M <= P: keep them all
+        keep_all = np.arange(lv.size) if valid is None else valid
+        return keep_all, lv - lse
+    w = expw / total
+    order = np.argsort(-w, kind="stable")  # ties broken by index
+    inv_c, n_top = _threshold(w[order], n_keep)
+    keep = np.zeros(lv.size, dtype=bool)
+    keep[order[:n_top]] = True  # kept outright, weight unchanged
     rest = np.flatnonzero(~keep)  # fixed (original) order
     need = n_keep - n_top
     # stratified pass: with U0 ~ U(0, 1/c), i is picked when cum_{i-1} <= U0 + j/c < cum_i
     u0 = float(rng.uniform(0.0, inv_c))
-    cum = np.cumsum(w[rest])
-    crossings = np.maximum(np.ceil((cum - u0) / inv_c), 0.0)
-    picked = np.diff(crossings, prepend=0.0) > 0
+    crossings = np.ceil((np.cumsum(w[rest]) - u0) / inv_c)
+    np.maximum(crossings, 0.0, out=crossings)
+    picked = np.empty(rest.size, dtype=bool)
+    picked[0] = crossings[0] > 0.0
+    np.greater(crossings[1:], crossings[:-1], out=picked[1:])
     chosen = rest[picked]
     if chosen.size > need:  # round-off surplus: drop the last picks
         chosen = chosen[:need]
@@ -92,10 +106,11 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int,
         left = rest[~picked]
         extra = left[np.argsort(-w[left], kind="stable")[: need - chosen.size]]
         chosen = np.concatenate([chosen, extra])
-    new_lw = np.empty(valid.size)
-    new_lw[:] = -np.inf
+    new_lw = np.full(lv.size, -np.inf)
     new_lw[keep] = lv[keep] - lse
-    new_lw[chosen] = np.log(inv_c)
-    sel = np.sort(np.concatenate([np.flatnonzero(keep), chosen]))
+    new_lw[chosen] = math.log(inv_c)
+    keep[chosen] = True
+    sel = np.flatnonzero(keep)
     out = new_lw[sel]
-    return valid[sel].astype(np.int64), out - _logsumexp(out)
+    out -= _logsumexp(out)
+    return (sel if valid is None else valid[sel]), out

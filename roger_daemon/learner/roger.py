@@ -173,6 +173,18 @@ class Roger:
         """
         xs = self._scaling.x_in(as_vector("x", x, self.d_x))
         ys = self._scaling.y_in(as_vector("y", y, self.d_y))
+        lw, flat_part, flat_slots, offsets, terms = self._putatives(xs, ys)
+        # resample to P (Fearnhead), then incorporate the point (Algorithm 1, last two lines)
+        keep, new_logw = fearnhead_resample(lw, self.params.particles, self._learn_rng)
+        self._instantiate(keep, new_logw, flat_part, flat_slots, offsets, xs, ys, terms)
+
+    def _putatives(self, xs: FloatArray, ys: FloatArray
+                   ) -> tuple[FloatArray, IntArray, IntArray, IntArray, dict[int, Terms]]:
+        """Log weights of all putatives (Algorithm 1, inner loops), touching no expert.
+
+        Putative ``j`` assigns the point to expert slot ``flat_slots[j]`` (``-1``: a new one)
+        of particle ``flat_part[j]``; particle ``p``'s putatives start at ``offsets[p]``.
+        """
         p = self.params
         parts = self._particles
         sizes = np.fromiter((a.size + 1 for a in parts), dtype=np.int64, count=len(parts))
@@ -197,10 +209,7 @@ class Roger:
                                                p.likelihood_normaliser))
         slot_ll, terms = self._gp_factors(xs, ys, live, base, is_new, old_slots, ll_new, cap)
         lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])
-
-        # resample to P (Fearnhead), then incorporate the point (Algorithm 1, last two lines)
-        keep, new_logw = fearnhead_resample(lw, p.particles, self._learn_rng)
-        self._instantiate(keep, new_logw, flat_part, flat_slots, offsets, xs, ys, terms)
+        return lw, flat_part, flat_slots, offsets, terms
 
     def _gp_factors(self, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
                     is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
@@ -545,6 +554,9 @@ def _pack_gps(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.nda
         "expert_A": np.concatenate([g.A for g in gps]) if gps else np.zeros((0, d_y)),
         "expert_C": np.concatenate([g.C.ravel() for g in gps]) if gps else np.zeros(0),
         "expert_Q": np.concatenate([g.Q.ravel() for g in gps]) if gps else np.zeros(0),
+        # the hot path's cached diag(C) + diag(Q) (NaN where none): restores bit-exactly
+        "expert_diag_cache": (np.concatenate([np.full(g.n, np.nan) if g._dg is None else g._dg
+                                              for g in gps]) if gps else np.zeros(0)),
     }
 
 
@@ -555,14 +567,16 @@ def _unpack_gps(state: dict[str, np.ndarray], factory: Any) -> list[SparseOnline
     allocs = np.asarray(state["expert_alloc"], dtype=np.int64)
     b_all, a_all = state["expert_B"], state["expert_A"]
     c_all, q_all = state["expert_C"], state["expert_Q"]
+    dg_all = state["expert_diag_cache"]
     out = []
     row = 0
     flat = 0
     for n, cnt, alloc in zip(ns.tolist(), counts.tolist(), allocs.tolist(), strict=True):
         gp: SparseOnlineGP = factory()
+        dg = dg_all[row:row + n]
         gp.load(b_all[row:row + n], a_all[row:row + n],
                 c_all[flat:flat + n * n].reshape(n, n), q_all[flat:flat + n * n].reshape(n, n),
-                cnt, alloc=alloc)
+                cnt, alloc=alloc, diag_cache=None if np.isnan(dg).any() else dg)
         row += n
         flat += n * n
         out.append(gp)

@@ -89,12 +89,12 @@ class SparseOnlineGP:
     >>> for x in np.linspace(0, 1, 30):
     ...     gp.update(np.array([x]), np.array([np.sin(3 * x)]))
     >>> mean, var = gp.predict(np.array([0.5]))
-    >>> abs(mean[0] - np.sin(1.5)) < 0.05, gp.n <= 20
+    >>> bool(abs(mean[0] - np.sin(1.5)) < 0.05), gp.n <= 20
     (True, True)
     """
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q")
+                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_dg")
 
     def __init__(self, d_x: int, d_y: int, kernel: RBFKernel, noise: float,
                  capacity: int | None, novelty_threshold: float = 1e-6,
@@ -114,6 +114,7 @@ class SparseOnlineGP:
         self._A: FloatArray = np.zeros((alloc, d_y))
         self._C: FloatArray = np.zeros((alloc, alloc))
         self._Q: FloatArray = np.zeros((alloc, alloc))
+        self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
 
     def _initial_alloc(self) -> int:
         return 8 if self.capacity is None else min(8, self.capacity)
@@ -176,6 +177,7 @@ class SparseOnlineGP:
         n = self.n
         kstar = self.kernel.k_star
         s0 = self.noise
+        self._dg = None  # the fused path below recomputes it
         if n == 0:  # first point, §2.5
             self._B[0] = x
             self._A[0] = y / (kstar + s0)
@@ -202,6 +204,13 @@ class SparseOnlineGP:
             self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6
 
+    def _diag_cq(self) -> FloatArray:
+        """``diag(C) + diag(Q)`` (cached by the fused hot path, else read off the matrices)."""
+        if self._dg is not None:
+            return self._dg
+        n = self.n
+        return np.diagonal(self._C)[:n] + np.diagonal(self._Q)[:n]
+
     def _fusable(self) -> bool:
         """Full and contiguous: the fused add-then-delete hot path applies."""
         return (self.fused and self.capacity is not None and self.n == self.capacity
@@ -211,6 +220,7 @@ class SparseOnlineGP:
                        q: FloatArray) -> None:
         """Step 4a: projection update, BV set unchanged; ``eta = 1/(1 + gamma r)``."""
         n = self.n
+        self._dg = None
         eta = 1.0 / (1.0 + gamma * r)
         s_hat = ck + e_hat
         self._A[:n] += np.outer(s_hat, q) * eta
@@ -233,6 +243,7 @@ class SparseOnlineGP:
                      r: float, q: FloatArray) -> None:
         """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
         n = self.n
+        self._dg = None
         self._grow(n + 1)
         self._B[n] = x
         s = np.empty(n + 1)
@@ -262,6 +273,7 @@ class SparseOnlineGP:
     def delete(self, i: int) -> None:
         """Remove basis vector ``i`` with the rank-1 corrections of thesis App. G(g) (§2.7)."""
         n = self.n
+        self._dg = None
         j = n - 1
         if i != j:  # permute i to the end
             idx = [i, j]
@@ -311,20 +323,22 @@ class SparseOnlineGP:
 
     def copy(self) -> SparseOnlineGP:
         """An independent copy (used for copy-on-write in :class:`~.roger.Roger`)."""
-        alloc = self._C.shape[0]
         out = SparseOnlineGP(self.d_x, self.d_y, self.kernel, self.noise, self.capacity,
-                             self.novelty_threshold, self.normaliser, _alloc=alloc)
-        n = self.n
-        out.n = n
+                             self.novelty_threshold, self.normaliser, _alloc=0)
+        out.fused = self.fused
+        out.n = self.n
         out.n_points = self.n_points
-        out._B[:n] = self._B[:n]
-        out._A[:n] = self._A[:n]
-        out._C[:n, :n] = self._C[:n, :n]
-        out._Q[:n, :n] = self._Q[:n, :n]
+        # whole buffers: one memcpy each (the padding is never read)
+        out._B = self._B.copy()
+        out._A = self._A.copy()
+        out._C = self._C.copy()
+        out._Q = self._Q.copy()
+        out._dg = None if self._dg is None else self._dg.copy()
         return out
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,  # noqa: N803
-             n_points: int, alloc: int | None = None) -> None:
+             n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None
+             ) -> None:
         """Set the state from arrays (inverse of reading :attr:`B`, :attr:`A`, :attr:`C`, ...).
 
         ``alloc`` restores the buffer size too, so that a restored expert computes with the
@@ -332,6 +346,7 @@ class SparseOnlineGP:
         """
         n = B.shape[0]
         self.n = 0
+        self._dg = None
         size = max(n, self._C.shape[0] if alloc is None else int(alloc))
         if size != self._C.shape[0]:
             self._B = np.zeros((size, self.d_x))
@@ -344,6 +359,7 @@ class SparseOnlineGP:
         self._Q[:n, :n] = Q
         self.n = n
         self.n_points = int(n_points)
+        self._dg = None if diag_cache is None else np.array(diag_cache, dtype=np.float64)
 
 
 Terms = tuple[FloatArray, FloatArray, FloatArray, float]
@@ -420,54 +436,72 @@ def _fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArra
     """
     u = len(gps)
     n = gps[0].n
+    d_y = gps[0].d_y
     rows = np.arange(u)
     s0 = np.array([g.noise for g in gps])
     r = -1.0 / (s0 + latents)  # Csató's K2
     q = (y - means) / (s0 + latents)[:, None]  # Csató's K1
     a_stack = np.stack([g._A for g in gps])  # (u, n, d_y)
-    s = np.ones((u, n + 1))
-    s[:, :n] = cks
-    e = np.full((u, n + 1), -1.0)
-    e[:, :n] = e_hat
+    a_flat = a_stack.reshape(u * n, d_y)
     # deletion scores |A1_i|^2 / (Q1_ii + C1_ii) (Csató ogpbvmin.m), A1_i = A_i + s_i q
-    aq = np.einsum("und,ud->un", a_stack, q)
+    aq = np.matmul(a_stack, q[:, :, None])[:, :, 0]
+    aa = ((a_flat * a_flat) @ np.ones(d_y)).reshape(u, n)
     qq = np.einsum("ud,ud->u", q, q)
+    inv_gamma = 1.0 / gamma
     num = np.empty((u, n + 1))
-    num[:, :n] = np.einsum("und,und->un", a_stack, a_stack) + cks * (2.0 * aq + cks * qq[:, None])
+    num[:, :n] = aa + cks * (2.0 * aq + cks * qq[:, None])
     num[:, n] = qq
-    diag_cq = np.stack([np.diagonal(g._C) + np.diagonal(g._Q) for g in gps])
     den_all = np.empty((u, n + 1))
-    den_all[:, :n] = diag_cq + r[:, None] * cks * cks + e_hat * e_hat / gamma[:, None]
-    den_all[:, n] = r + 1.0 / gamma
+    dg0 = np.stack([g._diag_cq() for g in gps])  # diag(C) + diag(Q)
+    den_all[:, :n] = dg0
+    den_all[:, :n] += r[:, None] * (cks * cks) + (e_hat * e_hat) * inv_gamma[:, None]
+    den_all[:, n] = r + inv_gamma
     idx = np.argmin(num / np.maximum(den_all, 1e-300), axis=1)
     old = idx < n  # an old BV goes (the new one takes its place); else the new one goes
-    s_i = s[rows, idx]
-    e_i = e[rows, idx]
-    col_c = s * (r * s_i)[:, None]  # column i of C1 and Q1
-    col_q = e * (e_i / gamma)[:, None]
-    for j in np.flatnonzero(old).tolist():  # row i == column i (symmetric)
-        col_c[j, :n] += gps[j]._C[idx[j]]
-        col_q[j, :n] += gps[j]._Q[idx[j]]
-    c_star = col_c[rows, idx]
-    q_star = col_q[rows, idx]
-    a_star = q * s_i[:, None]
-    a_star[old] += a_stack[rows[old], idx[old]]
-    den = q_star + c_star
-    inv_den = np.where(den > 0.0, 1.0 / np.where(den > 0.0, den, 1.0), 0.0)  # broken: Q-only
-    # permute: index n moves to position i (for the rows where an old BV goes)
-    vecs = np.stack([s, e, col_c, col_q], axis=1)  # (u, 4, n + 1)
-    perm = vecs[:, :, :n].copy()
     j_old = rows[old]
-    perm[j_old, :, idx[old]] = vecs[j_old, :, n]
-    s_p, e_p, c_v, q_v = perm[:, 0], perm[:, 1], perm[:, 2], perm[:, 3]
-    w = q_v + c_v
-    a_stack[j_old, idx[old]] = 0.0  # A1 permuted: the new BV's row (at i) is 0 + 1 * q
-    a2 = a_stack + s_p[:, :, None] * q[:, None, :]
-    a2 -= w[:, :, None] * (a_star * inv_den[:, None])[:, None, :]
-    cols_c = np.stack([s_p, q_v, w], axis=1)  # (u, 3, n): cols_c[j].T is Fortran-ordered
+    i_old = idx[old]
+    # vectors (u, 4, n+1): s = [Ck; 1], e = [Qk; -1], then the columns i of C1 and Q1
+    vecs = np.empty((u, 4, n + 1))
+    vecs[:, 0, :n] = cks
+    vecs[:, 0, n] = 1.0
+    vecs[:, 1, :n] = e_hat
+    vecs[:, 1, n] = -1.0
+    s_i = vecs[rows, 0, idx]
+    e_i = vecs[rows, 1, idx]
+    vecs[:, 2] = vecs[:, 0] * (r * s_i)[:, None]  # C1[:, i] = C(+)0 [:, i] + r s s_i
+    vecs[:, 3] = vecs[:, 1] * (e_i * inv_gamma)[:, None]  # Q1[:, i] = Q(+)0 [:, i] + e e_i / g
+    for j, i in zip(j_old.tolist(), i_old.tolist(), strict=True):  # row i == column i
+        vecs[j, 2, :n] += gps[j]._C[i]
+        vecs[j, 3, :n] += gps[j]._Q[i]
+    c_star = vecs[rows, 2, idx]
+    q_star = vecs[rows, 3, idx]
+    a_star = q * s_i[:, None]
+    a_star[old] += a_stack[j_old, i_old]
+    den = q_star + c_star
+    ok = den > 0.0
+    inv_den = np.where(ok, 1.0 / np.where(ok, den, 1.0), 0.0)  # broken: Q-only removal
+    # permute: index n moves to position i (for the rows where an old BV goes)
+    perm = vecs[:, :, :n]  # a view; fix position i in place
+    perm[j_old, :, i_old] = vecs[j_old, :, n]
+    w = perm[:, 3] + perm[:, 2]
+    a_stack[j_old, i_old] = 0.0  # A1 permuted: the new BV's row (at i) is 0 + 1 * q
+    left = np.stack([perm[:, 0], -w], axis=2)  # (u, n, 2)
+    right = np.stack([q, a_star * inv_den[:, None]], axis=1)  # (u, 2, d_y)
+    a_stack += np.matmul(left, right)
+    cols_c = np.empty((u, 3, n))  # cols_c[j].T is Fortran-ordered (n, 3)
+    cols_c[:, 0] = perm[:, 0]
+    cols_c[:, 1] = perm[:, 3]
+    cols_c[:, 2] = w
     coef_c = np.stack([r, 1.0 / q_star, -inv_den], axis=1)
-    cols_q = np.stack([e_p, q_v], axis=1)
-    coef_q = np.stack([1.0 / gamma, -1.0 / q_star], axis=1)
+    cols_q = np.empty((u, 2, n))
+    cols_q[:, 0] = perm[:, 1]
+    cols_q[:, 1] = perm[:, 3]
+    coef_q = np.stack([inv_gamma, -1.0 / q_star], axis=1)
+    # the diagonals of the new C and Q, for the next step's deletion scores
+    diag = dg0
+    diag[j_old, i_old] = 0.0
+    diag += np.einsum("ukn,uk->un", cols_c * cols_c, coef_c)
+    diag += np.einsum("ukn,uk->un", cols_q * cols_q, coef_q)
     for j, gp in enumerate(gps):
         if old[j]:
             i = int(idx[j])
@@ -475,6 +509,7 @@ def _fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArra
                 mat[i, :] = 0.0
                 mat[:, i] = 0.0
             gp._B[i] = x
-        gp._A[:n] = a2[j]
+        gp._A[:n] = a_stack[j]
         _add_lowrank(gp._C, n, cols_c[j].T, coef_c[j])
         _add_lowrank(gp._Q, n, cols_q[j].T, coef_q[j])
+        gp._dg = diag[j].copy()

@@ -377,3 +377,27 @@ def test_params_mapping_round_trip_and_unknown_key() -> None:
         RogerParams.from_mapping({"P": 10})
     with pytest.raises(AttributeError):
         params.alpha = 1.0  # type: ignore[misc]
+
+
+def test_opt_in_pruning_only_drops_negligible_putatives(
+        stream23: tuple[np.ndarray, np.ndarray]) -> None:
+    x, y = stream23
+    exact = Roger(23, 9, small_params(), seed=21)
+    learn(exact, x[:250], y[:250])
+    state = exact.state_dict()
+    meta = json.loads(str(state["meta"]))
+    meta["params"]["prune_log_margin"] = 30.0
+    pruned = Roger.from_state_dict({**state, "meta": np.array(json.dumps(meta))})
+    dropped = 0
+    for xi, yi in zip(x[250:], y[250:], strict=True):
+        lw_exact = exact._putatives(xi, yi)[0]
+        lw_pruned = pruned._putatives(xi, yi)[0]
+        kept = np.isfinite(lw_pruned)
+        np.testing.assert_array_equal(lw_pruned[kept], lw_exact[kept])
+        assert np.all(lw_exact[~kept] < lw_exact.max() - 30.0)
+        dropped += int((~kept).sum())
+    assert dropped > 0
+    # the bound behind it: no expert's log-likelihood exceeds -(d_y/2) log(2 pi theta_n)
+    for gp in exact.unique_expert_slots():
+        for xi, yi in zip(x[:20], y[:20], strict=True):
+            assert gp.log_likelihood(xi, yi) <= exact._gp_bound

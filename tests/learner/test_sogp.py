@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from roger_daemon.learner.kernel import RBFKernel
-from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood
+from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
 
 
 def exact_gp(xtr: np.ndarray, ytr: np.ndarray, xte: np.ndarray, width: float, noise: float,
@@ -179,3 +179,39 @@ def test_log_likelihood_normalisers() -> None:
     from scipy.stats import multivariate_normal
     ref = multivariate_normal(np.zeros(3), 1.1 * np.eye(3)).logpdf(y)
     assert gp.log_likelihood(np.zeros(2), y) == pytest.approx(ref)
+
+
+def test_update_many_equals_one_by_one() -> None:
+    """The batched step == each expert's own update (full, growing and empty experts mixed)."""
+    rng = np.random.default_rng(6)
+    experts = []
+    for n_seed in (40, 40, 5, 0, 60):
+        gp = make_gp(3, 2, width=0.5, capacity=12, threshold=1e-6)
+        for _ in range(n_seed):
+            gp.update(rng.uniform(-1, 1, 3), rng.normal(size=2))
+        experts.append(gp)
+    twins = [g.copy() for g in experts]
+    for _ in range(30):
+        x, y = rng.uniform(-1, 1, 3), rng.normal(size=2)
+        update_many(experts, x, y, [g.terms(x) for g in experts])
+        for t in twins:
+            t.update(x, y)
+        for g, t in zip(experts, twins, strict=True):
+            assert g.n == t.n and g.n_points == t.n_points
+            np.testing.assert_array_equal(g.B, t.B)
+            np.testing.assert_allclose(g.A, t.A, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(g.C, t.C, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(g.Q, t.Q, rtol=1e-12, atol=1e-12)
+
+
+def test_hot_path_diagonal_cache_tracks_the_matrices() -> None:
+    rng = np.random.default_rng(7)
+    gp = make_gp(4, 2, width=0.5, capacity=15, threshold=1e-6)
+    for _ in range(300):
+        gp.update(rng.uniform(-1, 1, 4), rng.normal(size=2))
+    assert gp._dg is not None  # the fused path ran and left its cache
+    truth = np.diagonal(gp.C) + np.diagonal(gp.Q)
+    np.testing.assert_allclose(gp._dg, truth, rtol=1e-9, atol=1e-9 * np.abs(truth).max())
+    # Q stays the inverse Gram matrix of the basis (drift bounded)
+    gram = gp.kernel.gram(gp.B, gp.B)
+    np.testing.assert_allclose(gp.Q @ gram, np.eye(gp.n), atol=1e-6)

@@ -1,0 +1,53 @@
+"""``roger bench learner`` output contract, the shipped stream, and the modules' doctests."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+import json
+
+import numpy as np
+import pytest
+
+from roger_daemon.cli import main
+from roger_daemon.learner.synthetic import subtask_stream
+
+MODULES = ["kernel", "sogp", "gate", "resampling", "roger", "unimap", "params", "synthetic"]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_doctests(name: str) -> None:
+    module = importlib.import_module(f"roger_daemon.learner.{name}")
+    result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.failed == 0
+
+
+def test_bench_json_has_the_contract_keys(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "learner", "--json", "--points", "60", "--predict-every", "5"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    for key in ("updates_per_s", "update_p99_ms", "predict_multimap_p99_ms", "experts",
+                "unimap_updates_per_s", "machine", "params"):
+        assert key in res
+    assert res["points"] == 60 and res["d_x"] == 23 and res["d_y"] == 9
+    assert res["updates_per_s"] > 0 and res["experts"] >= 1
+    assert res["params"]["beta"] == 300 and res["params"]["alpha"] == 0.5
+
+
+def test_bench_table_and_param_override(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "learner", "--points", "30", "--no-unimap", "--param", "beta=20",
+                 "--param", "kernel_dim_scaling=grollman"]) == 0
+    out = capsys.readouterr().out
+    assert "updates/s (mean)" in out and "unimap" not in out
+
+
+def test_benchmark_stream_is_deterministic_and_shaped() -> None:
+    a, b = subtask_stream(), subtask_stream()
+    assert a.x.shape == (4000, 23) and a.y.shape == (4000, 9)
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.y, b.y)
+    assert np.bincount(a.labels).tolist() == [1000] * 4
+    # subtasks 0 and 2 share their input distribution (the multimap): same hidden objects
+    hidden0 = np.all(a.x[a.labels == 0, :18] < -0.9, axis=0)
+    hidden2 = np.all(a.x[a.labels == 2, :18] < -0.9, axis=0)
+    np.testing.assert_array_equal(hidden0, hidden2)
+    assert not np.array_equal(hidden0, np.all(a.x[a.labels == 1, :18] < -0.9, axis=0))
