@@ -28,6 +28,7 @@ traced back by :meth:`Roger.assignments`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -233,15 +234,22 @@ class Roger:
             order = cand[np.argsort(-best[cand], kind="stable")]
         gps = self._gps
 
+        p = self.params
+
         def evaluate(slots: IntArray) -> None:
+            if slots.size == 0:
+                return
+            batch = []
             for s in slots.tolist():
                 gp = gps[s]
                 assert gp is not None
                 t = gp.terms(xs)
                 terms[s] = t
-                diff = ys - t[2]
-                slot_ll[s] = gaussian_log_likelihood(float(diff @ diff),
-                                                     gp.noise + t[3], self.d_y, gp.normaliser)
+                batch.append(t)
+            diff = ys - np.stack([t[2] for t in batch])
+            var = p.theta_n + np.array([t[3] for t in batch])
+            slot_ll[slots] = gaussian_log_likelihood(np.einsum("ij,ij->i", diff, diff), var,
+                                                     self.d_y, p.likelihood_normaliser)
 
         if math.isinf(margin) or order.size <= _STAGE1:
             evaluate(order)
@@ -508,8 +516,12 @@ class Roger:
         return out
 
     @classmethod
-    def from_state_dict(cls, state: dict[str, np.ndarray]) -> Roger:
-        """Rebuild a model that continues exactly as the saved one would."""
+    def from_state_dict(cls, state: Mapping[str, np.ndarray]) -> Roger:
+        """Rebuild a model that continues exactly as the saved one would.
+
+        ``state`` is :meth:`state_dict` output or what ``np.load`` returns for it.
+        """
+        state = {k: np.asarray(state[k]) for k in state}
         meta = unpack_meta(state, cls.kind)
         params = RogerParams.from_mapping(meta["params"])
         model = cls(int(meta["d_x"]), int(meta["d_y"]), params)

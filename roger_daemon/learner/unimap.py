@@ -8,6 +8,8 @@ what ROGER is meant to avoid.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import numpy.typing as npt
 
@@ -135,8 +137,9 @@ class UnimapGP:
         return out
 
     @classmethod
-    def from_state_dict(cls, state: dict[str, np.ndarray]) -> UnimapGP:
-        """Rebuild the model from :meth:`state_dict` output."""
+    def from_state_dict(cls, state: Mapping[str, np.ndarray]) -> UnimapGP:
+        """Rebuild the model from :meth:`state_dict` output (or ``np.load`` of it)."""
+        state = {k: np.asarray(state[k]) for k in state}
         meta = unpack_meta(state, cls.kind)
         model = cls(int(meta["d_x"]), int(meta["d_y"]), RogerParams.from_mapping(meta["params"]))
         model._learn_rng = generator_from_state(meta["rng_learn"])
