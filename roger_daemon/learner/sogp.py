@@ -15,8 +15,8 @@ not needed; the tests check it).
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
 vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
 one rank-2 update of ``Q``, done in place by BLAS on the contiguous ``beta x beta`` buffer
-(:meth:`SparseOnlineGP._full_update_and_delete`).  Buffers double as an expert grows, up to
-``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
+(:meth:`SparseOnlineGP._full_update_and_delete`).  Buffers grow by 1.5x as an expert does, up
+to ``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
 """
 
 from __future__ import annotations
@@ -42,12 +42,18 @@ _LOG_2PI = math.log(2.0 * math.pi)
 def _add_lowrank(buf: FloatArray, n: int, cols: FloatArray, coefs: FloatArray) -> None:
     """``buf[:n, :n] += cols diag(coefs) cols^T`` (a symmetric rank-m update), in place.
 
-    When the live block fills the buffer it is contiguous, and one BLAS ``dgemm`` updates it
-    in place (``buf`` is symmetric, so its transpose is the same matrix in Fortran order);
-    otherwise numpy forms the product and adds it to the strided view.
+    One BLAS ``dgemm`` updates the whole contiguous buffer in place (``buf`` is symmetric, so
+    its transpose is the same matrix in Fortran order); when the live block is smaller than the
+    buffer the vectors are zero-padded, which leaves the padding unchanged.  Buffers grow by
+    1.5x, so at most ~2.25x the live block is touched; tiny blocks use numpy.
     """
-    if buf.shape[0] == n:
+    alloc = buf.shape[0]
+    if alloc == n:
         _dgemm(1.0, cols, cols * coefs, 1.0, buf.T, trans_b=True, overwrite_c=True)
+    elif n >= 32:
+        padded = np.zeros((alloc, cols.shape[1]), order="F")
+        padded[:n] = cols
+        _dgemm(1.0, padded, padded * coefs, 1.0, buf.T, trans_b=True, overwrite_c=True)
     else:
         buf[:n, :n] += (cols * coefs) @ cols.T
 
@@ -303,7 +309,7 @@ class SparseOnlineGP:
         alloc = self._C.shape[0]
         if need <= alloc:
             return
-        new = alloc * 2
+        new = max(8, (alloc * 3) // 2)
         if self.capacity is not None:
             new = min(new, self.capacity)
         new = max(new, need)
