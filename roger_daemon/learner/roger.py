@@ -464,14 +464,14 @@ class Roger:
         O(P) memory per step.
         """
         n = self.n_learned
-        out = np.empty(n, dtype=np.int64)
+        anc = self._hist_anc[:n].tolist()  # plain lists: the pointer chase stays in Python
+        eid = self._hist_eid[:n].tolist()
+        out = [0] * n
         j = int(np.argmax(self._logw))
-        anc = self._hist_anc
-        eid = self._hist_eid
         for t in range(n - 1, -1, -1):
-            out[t] = eid[t, j]
-            j = int(anc[t, j])
-        return out
+            out[t] = eid[t][j]
+            j = anc[t][j]
+        return np.array(out, dtype=np.int64)
 
     def unique_expert_slots(self) -> list[SparseOnlineGP]:
         """The distinct SOGPs held by the particles (for inspection and tests)."""
