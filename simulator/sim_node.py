@@ -61,6 +61,7 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7450"
 #: keep retrying in the background).
 DAEMON_ENDPOINT = "tcp/127.0.0.1:7447"
 RESEND_S = 0.25
+LINGER_S = 0.5
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -97,6 +98,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=30.0,
         help="seconds to wait for a perception subscriber before starting",
+    )
+    parser.add_argument(
+        "--wait-peers",
+        type=int,
+        default=0,
+        help="also wait until this many Zenoh peers are connected (e.g. 2: controller and "
+        "daemon) before the first episode",
     )
     parser.add_argument("--results", default=None, help="write the results JSON here")
     parser.add_argument("--truth", action="store_true", help="publish a 'truth' event every tick")
@@ -175,13 +183,18 @@ class SimNode:
         self.cmds = Inbox(session, self.robot, "command", DIMS, self.invalid, capacity=256)
         t_wait = time.monotonic()
         while not self.stop.stopped and time.monotonic() - t_wait < args.wait_subscribers:
-            if _matching(self.pub_x):
+            if _matching(self.pub_x) and len(list(session.info.peers_zid())) >= args.wait_peers:
+                if args.wait_peers > 0:
+                    time.sleep(0.3)  # let the peers' subscriber declarations arrive
                 break
             time.sleep(0.02)
         else:
             if not self.stop.stopped:
                 log.warning(
-                    "no perception subscriber after %.1f s; starting anyway", args.wait_subscribers
+                    "no perception subscriber (or fewer than %d peers) after %.1f s; "
+                    "starting anyway",
+                    args.wait_peers,
+                    args.wait_subscribers,
                 )
         results: list[EpisodeResult] = []
         t0 = time.monotonic()
@@ -215,6 +228,9 @@ class SimNode:
                 },
             ),
         )
+        # Linger so that the final event leaves before the session closes (closing drops what
+        # is still queued; a controller with --exit-when-done waits for this event).
+        time.sleep(LINGER_S)
         self.cmds.close()
         return {
             "schema": "roger.sim.results/1",

@@ -115,6 +115,8 @@ def test_episode_events_and_malformed_messages(tmp_path: Path) -> None:
         "4",
         "--wait-subscribers",
         "30",
+        "--wait-peers",
+        "2",
     )
     events: list[EpisodeEvent] = []
     session = zenoh.open(loopback_config(["tcp/127.0.0.1:0"], [ep]))
@@ -229,6 +231,8 @@ def test_transitioner_uses_the_expert_of_its_subtask() -> None:
         "3",
         "--wait-subscribers",
         "30",
+        "--wait-peers",
+        "2",
     )
     # experts for seek and trap only: aim and kick must fall back to the top expert
     means = {label: np.full(DIMS.y, 0.0) for label in ("seek", "trap")}
