@@ -51,8 +51,10 @@ from roger_daemon.learner.state import (
     Seed,
     generator_from_state,
     generator_state,
+    pack_experts,
     pack_meta,
     spawn_generators,
+    unpack_experts,
     unpack_meta,
 )
 
@@ -490,7 +492,7 @@ class Roger:
         compact[live] = np.arange(live.size)
         gps = [self._gps[s] for s in live.tolist()]
         assert all(g is not None for g in gps)
-        out = _pack_gps([g for g in gps if g is not None], self.d_x, self.d_y)
+        out = pack_experts([g for g in gps if g is not None], self.d_x, self.d_y)
         g = self._gates
         for name in g.FIELDS:
             out[f"gate_{name}"] = getattr(g, name)[live].copy()
@@ -531,7 +533,7 @@ class Roger:
     def _load(self, state: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
         self._learn_rng = generator_from_state(meta["rng_learn"])
         self._predict_rng = generator_from_state(meta["rng_predict"])
-        gps = _unpack_gps(state, self._new_gp)
+        gps = unpack_experts(state, self._new_gp)
         u = len(gps)
         for _ in range(u):
             self._alloc_slot()
@@ -554,42 +556,3 @@ class Roger:
         self._hist_anc = np.asarray(state["history_ancestor"], dtype=np.int32).reshape(-1, width)
         self._hist_eid = np.asarray(state["history_expert"], dtype=np.int64).reshape(-1, width)
 
-
-def _pack_gps(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.ndarray]:
-    """Concatenate the experts' live arrays (C and Q flattened) into flat named arrays."""
-    ns = np.array([g.n for g in gps], dtype=np.int64)
-    return {
-        "expert_n_bv": ns,
-        "expert_n_points": np.array([g.n_points for g in gps], dtype=np.int64),
-        "expert_alloc": np.array([g._C.shape[0] for g in gps], dtype=np.int64),
-        "expert_B": np.concatenate([g.B for g in gps]) if gps else np.zeros((0, d_x)),
-        "expert_A": np.concatenate([g.A for g in gps]) if gps else np.zeros((0, d_y)),
-        "expert_C": np.concatenate([g.C.ravel() for g in gps]) if gps else np.zeros(0),
-        "expert_Q": np.concatenate([g.Q.ravel() for g in gps]) if gps else np.zeros(0),
-        # the hot path's cached diag(C) + diag(Q) (NaN where none): restores bit-exactly
-        "expert_diag_cache": (np.concatenate([np.full(g.n, np.nan) if g._dg is None else g._dg
-                                              for g in gps]) if gps else np.zeros(0)),
-    }
-
-
-def _unpack_gps(state: dict[str, np.ndarray], factory: Any) -> list[SparseOnlineGP]:
-    """Inverse of :func:`_pack_gps`; ``factory()`` makes an empty expert."""
-    ns = np.asarray(state["expert_n_bv"], dtype=np.int64)
-    counts = np.asarray(state["expert_n_points"], dtype=np.int64)
-    allocs = np.asarray(state["expert_alloc"], dtype=np.int64)
-    b_all, a_all = state["expert_B"], state["expert_A"]
-    c_all, q_all = state["expert_C"], state["expert_Q"]
-    dg_all = state["expert_diag_cache"]
-    out = []
-    row = 0
-    flat = 0
-    for n, cnt, alloc in zip(ns.tolist(), counts.tolist(), allocs.tolist(), strict=True):
-        gp: SparseOnlineGP = factory()
-        dg = dg_all[row:row + n]
-        gp.load(b_all[row:row + n], a_all[row:row + n],
-                c_all[flat:flat + n * n].reshape(n, n), q_all[flat:flat + n * n].reshape(n, n),
-                cnt, alloc=alloc, diag_cache=None if np.isnan(dg).any() else dg)
-        row += n
-        flat += n * n
-        out.append(gp)
-    return out

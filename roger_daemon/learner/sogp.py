@@ -15,8 +15,8 @@ not needed; the tests check it).
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
 vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
 one rank-2 update of ``Q``, done in place by BLAS on the contiguous ``beta x beta`` buffer
-(:meth:`SparseOnlineGP._full_update_and_delete`).  Buffers grow by 1.5x as an expert does, up
-to ``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
+(:func:`_fused_add_delete`, batched over experts by :func:`update_many`).  Buffers grow by
+1.5x as an expert does, up to ``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
 """
 
 from __future__ import annotations

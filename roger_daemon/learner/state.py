@@ -3,24 +3,39 @@
 A state dict is ``dict[str, np.ndarray]`` with numeric arrays only, plus ``"meta"``: a 0-d
 unicode array holding a JSON object (schema version, model kind, dimensions, parameters,
 random-generator states, counters).  ``np.savez`` and ``np.load(allow_pickle=False)`` round-trip
-it unchanged.
+it unchanged.  Layout (schema 1):
+
+* ``expert_*``: the U distinct experts, concatenated: ``expert_n_bv`` (U,), ``expert_n_points``
+  (U,), ``expert_alloc`` (U,), ``expert_B`` (sum n, d_x), ``expert_A`` (sum n, d_y),
+  ``expert_C`` and ``expert_Q`` (sum n^2, row-major blocks), ``expert_diag_cache`` (sum n);
+* ROGER only: ``expert_id``, ``expert_count`` (CRP counts), ``gate_*`` (the NIW statistics and
+  cached predictive of each expert), ``particle_log_weights`` (P,), ``particle_offsets`` (P+1,)
+  and ``particle_experts`` (indices into the experts, per particle in order),
+  ``history_ancestor`` / ``history_expert`` (N, P) for :meth:`~.roger.Roger.assignments`.
+
+Everything that influences future results is stored (including caches), so a restored model
+continues bit-identically.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner.sogp import SparseOnlineGP
+
 __all__ = [
     "SCHEMA_VERSION",
     "generator_from_state",
     "generator_state",
+    "pack_experts",
     "pack_meta",
     "spawn_generators",
+    "unpack_experts",
     "unpack_meta",
 ]
 
@@ -97,3 +112,44 @@ def unpack_meta(state: Mapping[str, np.ndarray], kind: str | None = None) -> dic
     if kind is not None and meta.get("kind") != kind:
         raise ValueError(f"state dict holds a {meta.get('kind')!r} model, not {kind!r}")
     return meta
+
+
+def pack_experts(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.ndarray]:
+    """Concatenate the experts' live arrays (C and Q flattened) into flat named arrays."""
+    ns = np.array([g.n for g in gps], dtype=np.int64)
+    return {
+        "expert_n_bv": ns,
+        "expert_n_points": np.array([g.n_points for g in gps], dtype=np.int64),
+        "expert_alloc": np.array([g._C.shape[0] for g in gps], dtype=np.int64),
+        "expert_B": np.concatenate([g.B for g in gps]) if gps else np.zeros((0, d_x)),
+        "expert_A": np.concatenate([g.A for g in gps]) if gps else np.zeros((0, d_y)),
+        "expert_C": np.concatenate([g.C.ravel() for g in gps]) if gps else np.zeros(0),
+        "expert_Q": np.concatenate([g.Q.ravel() for g in gps]) if gps else np.zeros(0),
+        # the hot path's cached diag(C) + diag(Q) (NaN where none): restores bit-exactly
+        "expert_diag_cache": (np.concatenate([np.full(g.n, np.nan) if g._dg is None else g._dg
+                                              for g in gps]) if gps else np.zeros(0)),
+    }
+
+
+def unpack_experts(state: Mapping[str, np.ndarray],
+                   factory: Callable[[], SparseOnlineGP]) -> list[SparseOnlineGP]:
+    """Inverse of :func:`pack_experts`; ``factory()`` makes an empty expert."""
+    ns = np.asarray(state["expert_n_bv"], dtype=np.int64)
+    counts = np.asarray(state["expert_n_points"], dtype=np.int64)
+    allocs = np.asarray(state["expert_alloc"], dtype=np.int64)
+    b_all, a_all = state["expert_B"], state["expert_A"]
+    c_all, q_all = state["expert_C"], state["expert_Q"]
+    dg_all = state["expert_diag_cache"]
+    out = []
+    row = 0
+    flat = 0
+    for n, cnt, alloc in zip(ns.tolist(), counts.tolist(), allocs.tolist(), strict=True):
+        gp: SparseOnlineGP = factory()
+        dg = dg_all[row:row + n]
+        gp.load(b_all[row:row + n], a_all[row:row + n],
+                c_all[flat:flat + n * n].reshape(n, n), q_all[flat:flat + n * n].reshape(n, n),
+                cnt, alloc=alloc, diag_cache=None if np.isnan(dg).any() else dg)
+        row += n
+        flat += n * n
+        out.append(gp)
+    return out

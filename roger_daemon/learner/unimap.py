@@ -16,7 +16,7 @@ import numpy.typing as npt
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
-from roger_daemon.learner.roger import _pack_gps, _unpack_gps, check_dims
+from roger_daemon.learner.roger import check_dims
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
@@ -24,8 +24,10 @@ from roger_daemon.learner.state import (
     Seed,
     generator_from_state,
     generator_state,
+    pack_experts,
     pack_meta,
     spawn_generators,
+    unpack_experts,
     unpack_meta,
 )
 
@@ -124,7 +126,7 @@ class UnimapGP:
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata (no pickle)."""
-        out = _pack_gps([self._gp], self.d_x, self.d_y)
+        out = pack_experts([self._gp], self.d_x, self.d_y)
         out["meta"] = pack_meta({
             "schema": SCHEMA_VERSION,
             "kind": self.kind,
@@ -144,7 +146,7 @@ class UnimapGP:
         model = cls(int(meta["d_x"]), int(meta["d_y"]), RogerParams.from_mapping(meta["params"]))
         model._learn_rng = generator_from_state(meta["rng_learn"])
         model._predict_rng = generator_from_state(meta["rng_predict"])
-        (model._gp,) = _unpack_gps(state, lambda: SparseOnlineGP(
+        (model._gp,) = unpack_experts(state, lambda: SparseOnlineGP(
             model.d_x, model.d_y, model.kernel, model.params.theta_n, model.params.beta,
             model.params.novelty_threshold, model.params.likelihood_normaliser))
         return model
