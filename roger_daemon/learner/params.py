@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 __all__ = [
     "EXPERT_CHOICES",
@@ -37,7 +40,7 @@ class ParameterError(ValueError):
 
 
 def _is_real(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
 def _real(name: str, value: object, *, low: float | None = None, low_open: bool = True,
@@ -58,7 +61,7 @@ def _real(name: str, value: object, *, low: float | None = None, low_open: bool 
 
 
 def _integer(name: str, value: object, *, low: int) -> int:
-    ok = isinstance(value, int) and not isinstance(value, bool)
+    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool | np.bool_)
     if not ok and isinstance(value, float) and value.is_integer():
         ok, value = True, int(value)
     if not ok or int(value) < low:  # type: ignore[call-overload]
