@@ -120,7 +120,9 @@ class RogerParams:
     kernel_dim_scaling : {"textbook", "grollman"}, default "textbook"
         ``"textbook"``: ``k(a, b) = exp(-|a - b|^2 / (2 theta_w^2))``.  ``"grollman"``: the
         squared distance is also divided by ``d_x``, as in Grollman's SOGP library (fidelity
-        switch 1; effective length-scale ``theta_w * sqrt(d_x)``).
+        switch 1; effective length-scale ``theta_w * sqrt(d_x)``, 0.48 for the paper's 23-D).
+        With the textbook kernel and ``theta_w = 0.1`` nearly every 23-D point is novel, so
+        experts fill to ``beta`` and every update adds and deletes a basis vector.
     likelihood_normaliser : {"multivariate", "grollman"}, default "multivariate"
         Normaliser of an expert's Gaussian likelihood of ``y``: the correct
         ``-(d_y/2) log(2 pi s^2)`` or Grollman's 1-D ``-(1/2) log(2 pi s^2)`` (fidelity switch 2).
@@ -130,10 +132,18 @@ class RogerParams:
         whose residual ``1/Q_ii`` falls below ``threshold / 1000`` are removed (geometric clean-up).
     expert_choice : {"argmax", "sample"}, default "argmax"
         How :meth:`Roger.predict_one` picks the expert of the MAP particle: most probable under
-        the gate, or sampled from the gate probabilities as in the paper's Algorithm 2.
+        the gate, or sampled from the gate probabilities as in the paper's Algorithm 2.  The
+        default is deterministic: a 30 Hz controller does not chatter between branches where
+        gates overlap, and replays reproduce predictions without replaying prediction draws
+        (the paper itself replaces the draw by a transition model on the robot; the
+        transitioner uses ``predict_multimap``).  ``"sample"`` draws from a generator of its
+        own, so it never perturbs learning.
     predict_empty_expert : bool, default False
-        Whether the empty "+1" expert (prior mean, prior variance) takes part in prediction,
-        as in the paper's Algorithm 2 (``k = 1 : K + 1``).
+        Whether the empty "+1" expert takes part in prediction, as in the paper's Algorithm 2
+        (``k = 1 : K + 1``).  It has no data: it predicts the prior (mean 0, i.e. the output
+        offset, variance ``1 + theta_n``), which is no useful action, so by default only real
+        experts compete and their gate probabilities sum to 1.  When on, it appears in the
+        multimap with ``expert_id = -1``.
     prune_log_margin : float, default inf
         Opt-in speed-up, off by default.  Putatives whose *upper bound* on the log weight lies
         more than this below the best putative are given weight zero without evaluating their
