@@ -475,7 +475,7 @@ class Roger:
             j = anc[t][j]
         return np.array(out, dtype=np.int64)
 
-    def unique_expert_slots(self) -> list[SparseOnlineGP]:
+    def distinct_experts(self) -> list[SparseOnlineGP]:
         """The distinct SOGPs held by the particles (for inspection and tests)."""
         return [g for g, r in zip(self._gps, self._ref.tolist(), strict=True)
                 if r > 0 and g is not None]

@@ -283,7 +283,7 @@ def test_load_model_rejects_foreign_state() -> None:
 def check_bounded(model: Roger) -> None:
     p = model.params
     assert model.n_particles == p.particles
-    gps = model.unique_expert_slots()
+    gps = model.distinct_experts()
     assert gps and all(g.n <= p.beta for g in gps)
     assert all(g._C.shape[0] <= p.beta for g in gps)  # buffers too
     assert model.n_unique_experts == len(gps)
@@ -398,6 +398,6 @@ def test_opt_in_pruning_only_drops_negligible_putatives(
         dropped += int((~kept).sum())
     assert dropped > 0
     # the bound behind it: no expert's log-likelihood exceeds -(d_y/2) log(2 pi theta_n)
-    for gp in exact.unique_expert_slots():
+    for gp in exact.distinct_experts():
         for xi, yi in zip(x[:20], y[:20], strict=True):
             assert gp.log_likelihood(xi, yi) <= exact._gp_bound
