@@ -8,18 +8,26 @@ No I/O here.  The public API (``docs/learner-api.md``)::
 
 from __future__ import annotations
 
+from roger_daemon.learner.gate import NIWGate
+from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.load import load_model
 from roger_daemon.learner.params import ParameterError, RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.resampling import fearnhead_resample
 from roger_daemon.learner.roger import Roger
+from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.unimap import UnimapGP
 
 __all__ = [
     "ExpertPrediction",
+    "NIWGate",
     "ParameterError",
     "Prediction",
+    "RBFKernel",
     "Roger",
     "RogerParams",
+    "SparseOnlineGP",
     "UnimapGP",
+    "fearnhead_resample",
     "load_model",
 ]
