@@ -29,6 +29,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("roger_daemon.recording.cli_replay", "replay a log into the learner"),
     "sim": ("simulator.sim_node", "the AIBO soccer simulator (pybullet) as a Zenoh process"),
     "hcc": ("simulator.hcc_node", "the hand-coded FSM goal scorer: demonstrator or transitioner"),
+    "experiment": ("simulator.experiment.cli", "experiments: goal-scoring (paper section IV)"),
+    "demo": ("simulator.experiment.demo", "a short end-to-end session: demonstrate, learn, act"),
 }
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()

@@ -97,9 +97,16 @@ def plot_experts_histogram(assignments: Sequence[int], labels: Sequence[str], ou
 
 
 def plot_success(
-    per_location: Mapping[str, Sequence[float]], out: Path, *, title: str = ""
+    per_location: Mapping[str, Sequence[float]],
+    out: Path,
+    *,
+    title: str = "",
+    locations: Sequence[int] | None = None,
 ) -> Path:
-    """Success rate per start location, one bar group per location, one bar per controller."""
+    """Success rate per start location, one bar group per location, one bar per controller.
+
+    ``locations`` labels the groups (default 0, 1, ...).
+    """
     names = list(per_location)
     n_loc = max((len(v) for v in per_location.values()), default=0)
     fig, ax = plt.subplots(figsize=(max(7.0, 0.7 * n_loc + 3), 4))
@@ -108,7 +115,9 @@ def plot_success(
         vals = np.asarray(per_location[name], dtype=float)
         ax.bar(np.arange(len(vals)) + i * width, vals, width=width, label=name)
     ax.set_xticks(np.arange(n_loc) + 0.4 - width / 2)
-    ax.set_xticklabels([str(i) for i in range(n_loc)])
+    labels = [str(v) for v in locations] if locations is not None else []
+    labels += [str(i) for i in range(len(labels), n_loc)]
+    ax.set_xticklabels(labels[:n_loc])
     ax.set_xlabel("start location")
     ax.set_ylabel("success rate")
     ax.set_ylim(0, 1.05)

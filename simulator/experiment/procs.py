@@ -1,0 +1,345 @@
+"""Process plumbing of the experiment: one job = a few ``roger`` processes on private ports.
+
+A job is what deployment runs, in miniature: ``roger sim`` (lockstep), a controller (``roger
+hcc`` as demonstrator or transitioner, or ``roger experiment dpa``), and where needed ``roger
+daemon`` (predict mode, resumed from a checkpoint) or ``roger record``. Every job listens on
+its own free loopback ports, multicast scouting is off in every process, and nothing connects
+to the conventional port 7447 (another daemon may be running there). Each process writes its
+output to a log file in the job's directory; a job that fails raises :class:`JobError` with
+the tail of the logs.
+
+Topology (explicit endpoints, no gossip needed): the daemon or recorder listens on port A, the
+simulator listens on B and connects to A; the controller connects to A and B. The simulator
+starts its first episode once ``--wait-peers`` peers are connected.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from roger_daemon.harness import free_port as _free_port
+from roger_daemon.harness import write_config
+
+__all__ = [
+    "EpisodeJob",
+    "JobError",
+    "JobResult",
+    "ProcessGroup",
+    "count_episodes",
+    "free_port",
+    "roger_argv",
+    "run_job",
+]
+
+_PORT_LOCK = threading.Lock()
+_PORTS_USED: set[int] = set()
+_EPISODE_LINE = re.compile(r"roger\.sim: episode \d+ location")
+
+
+def free_port() -> int:
+    """A free loopback port not handed out before in this process."""
+    with _PORT_LOCK:
+        for _ in range(100):
+            p = _free_port()
+            if p not in _PORTS_USED:
+                _PORTS_USED.add(p)
+                return p
+    raise RuntimeError("no free loopback port found")
+
+
+def roger_argv(*args: str) -> list[str]:
+    """``roger ARGS`` with this interpreter (works without the console script on PATH)."""
+    return [sys.executable, "-m", "roger_daemon", *args]
+
+
+def child_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Environment of every child: INFO logs, quiet Zenoh, one BLAS thread per process."""
+    env = dict(os.environ)
+    env.update(
+        {
+            "ROGER_LOG_LEVEL": "INFO",
+            "RUST_LOG": "error",
+            "OPENBLAS_NUM_THREADS": "1",
+            "OMP_NUM_THREADS": "1",
+            "MKL_NUM_THREADS": "1",
+            "PYTHONUNBUFFERED": "1",
+        }
+    )
+    env.pop("JOURNAL_STREAM", None)
+    env.pop("INVOCATION_ID", None)
+    env.pop("NOTIFY_SOCKET", None)
+    env.update(extra or {})
+    return env
+
+
+class JobError(RuntimeError):
+    """A job's processes failed; the message carries the tails of their logs."""
+
+
+@dataclass
+class _Proc:
+    name: str
+    popen: subprocess.Popen[bytes]
+    log: Path
+    handle: IO[bytes]
+
+
+class ProcessGroup:
+    """Subprocesses of one job; :meth:`close` stops whatever still runs (SIGTERM, then KILL)."""
+
+    def __init__(self, workdir: Path, env: Mapping[str, str] | None = None) -> None:
+        self.workdir = workdir
+        self.env = child_env(env)
+        self.procs: dict[str, _Proc] = {}
+
+    def start(self, name: str, argv: Sequence[str]) -> _Proc:
+        log = self.workdir / f"{name}.log"
+        handle = open(log, "ab")  # noqa: SIM115 - closed in close()
+        popen = subprocess.Popen(
+            list(argv), stdout=handle, stderr=subprocess.STDOUT, env=self.env,
+            stdin=subprocess.DEVNULL,
+        )
+        proc = _Proc(name, popen, log, handle)
+        self.procs[name] = proc
+        return proc
+
+    def log_text(self, name: str) -> str:
+        try:
+            return self.procs[name].log.read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            return ""
+
+    def wait_for_log(self, name: str, text: str, timeout: float) -> None:
+        """Wait until ``text`` is in the log of ``name``; raise if it exits or time runs out."""
+        proc = self.procs[name]
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if text in self.log_text(name):
+                return
+            if proc.popen.poll() is not None:
+                raise JobError(f"{name} exited with {proc.popen.returncode}" + self.tails())
+            time.sleep(0.05)
+        raise JobError(f"{name}: {text!r} not logged within {timeout:.0f} s" + self.tails())
+
+    def wait(self, name: str, timeout: float) -> int:
+        """Wait for ``name`` to exit; raise :class:`JobError` on timeout."""
+        try:
+            return self.procs[name].popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            raise JobError(f"{name} still running after {timeout:.0f} s" + self.tails()) from None
+
+    def stop(self, name: str, timeout: float = 15.0) -> int:
+        """SIGTERM ``name`` (if still running) and wait; KILL after ``timeout``."""
+        p = self.procs[name].popen
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+            try:
+                return p.wait(timeout)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(10)
+                raise JobError(f"{name} did not stop on SIGTERM; killed" + self.tails()) from None
+        return int(p.returncode)
+
+    def tails(self, lines: int = 15) -> str:
+        out = []
+        for name in self.procs:
+            text = self.log_text(name).strip().splitlines()[-lines:]
+            out.append(f"\n--- {name} ({self.procs[name].log}) ---\n" + "\n".join(text))
+        return "".join(out)
+
+    def close(self) -> None:
+        for proc in self.procs.values():
+            if proc.popen.poll() is None:
+                proc.popen.send_signal(signal.SIGTERM)
+        for proc in self.procs.values():
+            try:
+                proc.popen.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.popen.kill()
+                proc.popen.wait(10)
+            proc.handle.close()
+
+
+def count_episodes(sim_log: Path) -> int:
+    """Episodes the simulator has finished so far, from its INFO log lines."""
+    try:
+        text = sim_log.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return 0
+    return len(_EPISODE_LINE.findall(text))
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    """Episodes of one controller from some locations, in one ``roger sim`` run.
+
+    ``controller``: ``demo`` (HCC demonstrator, recorded with ``roger record``), ``hcc`` (the
+    HCC itself), ``roger`` (daemon in predict mode + HCC transitioner) or ``dpa`` (daemon
+    serving the unimap model + ``roger experiment dpa``).
+    """
+
+    controller: str
+    locations: tuple[int, ...]
+    attempts: int
+    seed: int
+    time_limit: float
+    vision: str
+    workdir: Path
+    checkpoint_dir: Path | None = None  # roger/dpa: <dir>/aibo/ckpt-*.npz to resume from
+    learner: Mapping[str, Any] = field(default_factory=dict)
+    learner_seed: int = 0
+    task_config: str | None = None
+
+    @property
+    def episodes(self) -> int:
+        return len(self.locations) * self.attempts
+
+    @property
+    def sim_log(self) -> Path:
+        return self.workdir / "sim.log"
+
+    def timeout_s(self) -> float:
+        """Generous wall-clock bound for the simulator run (>= 20 ticks/s)."""
+        ticks = self.episodes * self.time_limit * 30.0
+        return 120.0 + ticks / 20.0
+
+
+@dataclass
+class JobResult:
+    """What one job produced."""
+
+    job: EpisodeJob
+    episodes: list[dict[str, Any]]
+    summary: dict[str, Any]
+    controller_stats: dict[str, Any]
+    mcap: list[Path]
+    wall_s: float
+
+
+def _sim_argv(job: EpisodeJob, listen: int, connect: int | None, peers: int) -> list[str]:
+    argv = roger_argv(
+        "sim",
+        "--clock", "lockstep",
+        "--listen", f"tcp/127.0.0.1:{listen}",
+        "--connect", f"tcp/127.0.0.1:{connect}" if connect else "none",
+        "--locations", ",".join(str(loc) for loc in job.locations),
+        "--episodes-per-location", str(job.attempts),
+        "--seed", str(job.seed),
+        "--time-limit", repr(float(job.time_limit)),
+        "--vision", job.vision,
+        "--results", str(job.workdir / "sim.json"),
+        "--wait-peers", str(peers),
+        "--wait-subscribers", "60",
+    )
+    if job.task_config:
+        argv += ["--config", job.task_config]
+    return argv
+
+
+def _link_checkpoints(src: Path, dst: Path) -> None:
+    """Give a job its own checkpoint directory (hard links, or copies across filesystems)."""
+    for f in sorted(src.rglob("ckpt-*.npz")):
+        target = dst / f.relative_to(src)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.link(f, target)
+        except OSError:
+            shutil.copy2(f, target)
+
+
+def run_job(job: EpisodeJob) -> JobResult:
+    """Run one job's processes to completion; return the simulator's and controller's JSON."""
+    job.workdir.mkdir(parents=True, exist_ok=True)
+    for stale in ("sim.json", "controller.json"):
+        (job.workdir / stale).unlink(missing_ok=True)
+    t0 = time.monotonic()
+    group = ProcessGroup(job.workdir)
+    sim_port = free_port()
+    aux_port: int | None = None
+    mcap: list[Path] = []
+    try:
+        stats = str(job.workdir / "controller.json")
+        if job.controller == "demo":
+            aux_port = free_port()
+            rec_dir = job.workdir / "mcap"
+            group.start("record", roger_argv(
+                "record", "--key", "roger/aibo/**", "--out", str(rec_dir),
+                "--listen", f"tcp/127.0.0.1:{aux_port}", "--connect", "none",
+            ))
+            group.wait_for_log("record", "recording ", 60)
+            controller = roger_argv("hcc", "--role", "demonstrator")
+            peers = 2
+        elif job.controller == "hcc":
+            controller = roger_argv("hcc", "--role", "demonstrator")
+            peers = 1
+        elif job.controller in ("roger", "dpa"):
+            if job.checkpoint_dir is None:
+                raise ValueError(f"controller {job.controller} needs a checkpoint_dir")
+            aux_port = free_port()
+            ck = job.workdir / "checkpoints"
+            if ck.exists():
+                shutil.rmtree(ck)
+            _link_checkpoints(job.checkpoint_dir, ck)
+            learner = {k: v for k, v in job.learner.items() if v is not None}
+            cfg = write_config(
+                job.workdir / "daemon.toml",
+                port=aux_port,
+                workdir=job.workdir,
+                daemon={"mode": "predict", "clock": "lockstep", "seed": job.learner_seed},
+                checkpoint={"dir": ck, "on_shutdown": False, "every_updates": 0,
+                            "every_s": 0.0},
+                recording={"enabled": False},
+                learner=learner,
+                robots=({"id": "aibo", "model": "unimap" if job.controller == "dpa"
+                         else "roger"},),
+            )
+            group.start("daemon", roger_argv("daemon", "--config", str(cfg)))
+            group.wait_for_log("daemon", " ready: ", 120)
+            if "resumed from" not in group.log_text("daemon"):
+                raise JobError("the daemon did not resume the trained model" + group.tails())
+            if job.controller == "roger":
+                controller = roger_argv("hcc", "--role", "transitioner")
+            else:
+                controller = roger_argv("experiment", "dpa")
+            peers = 2
+        else:
+            raise ValueError(f"unknown controller {job.controller!r}")
+        connect = ["--connect", f"tcp/127.0.0.1:{sim_port}"]
+        if aux_port:
+            connect += ["--connect", f"tcp/127.0.0.1:{aux_port}"]
+        extra = ["--config", job.task_config] if job.task_config and "hcc" in controller else []
+        group.start("controller", [*controller, *connect, "--exit-when-done", "--idle-exit",
+                                   "120", "--stats", stats, *extra])
+        group.start("sim", _sim_argv(job, sim_port, aux_port, peers))
+        code = group.wait("sim", job.timeout_s())
+        if code != 0:
+            raise JobError(f"sim exited with {code}" + group.tails())
+        group.wait("controller", 60)
+        if "record" in group.procs:
+            group.stop("record")
+            mcap = sorted((job.workdir / "mcap").glob("*.mcap"))
+            if not mcap:
+                raise JobError("the recorder wrote no MCAP file" + group.tails())
+        if "daemon" in group.procs:
+            group.stop("daemon")
+        sim = json.loads((job.workdir / "sim.json").read_text())
+        try:
+            ctl = json.loads(Path(stats).read_text())
+        except (OSError, ValueError):
+            ctl = {}
+    finally:
+        group.close()
+    return JobResult(job, sim["episodes"], sim["summary"], ctl, mcap, time.monotonic() - t0)

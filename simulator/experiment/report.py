@@ -1,0 +1,234 @@
+"""The experiment's report: ``results.json``, the terminal table, the figures.
+
+``results.json`` (schema ``roger.experiment.goal_scoring/1``) holds at least::
+
+    {"hcc": {"success_rate", "trials", ...}, "roger": {...}, "dpa": {...},
+     "experts", "ari", "nmi", "purity", "seed", "config", "per_location", "paper", ...}
+
+:func:`check_results` validates that shape (used by the tests and by ``--quick`` in CI).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from simulator.experiment.metrics import segmentation_scores, success_rate
+
+__all__ = ["SCHEMA", "build_results", "check_results", "print_report", "write_figures"]
+
+SCHEMA = "roger.experiment.goal_scoring/1"
+#: Above this success rate the unimap baseline is not failing the way the paper says it must.
+DPA_ALIASING_LIMIT = 0.15
+
+
+def _per_location(evals: Sequence[Any], controller: str,
+                  locations: Sequence[int]) -> list[dict[str, Any]]:
+    from simulator.episodes import START_LOCATIONS
+
+    rows = []
+    for loc in locations:
+        eps = [e for r in evals if r.job.controller == controller for e in r.episodes
+               if e["location"] == loc]
+        eps.sort(key=lambda e: e["repetition"])
+        rows.append({
+            "location": loc,
+            "name": START_LOCATIONS[loc].name,
+            "attempts": len(eps),
+            "successes": sum(bool(e["success"]) for e in eps),
+            "outcomes": [e["outcome"] for e in eps],
+            "sim_time_s": [e["sim_time_s"] for e in eps],
+        })
+    return rows
+
+
+def build_results(*, plan: Any, params: Any, demos: Sequence[Any], data: Any, stream: Any,
+                  model: Any, groups: dict[int, str], evals: Sequence[Any],
+                  check: dict[str, Any] | None, train_s: float,
+                  errors: Sequence[str]) -> dict[str, Any]:
+    """Everything the run measured, as a JSON-ready dict."""
+    from simulator.experiment.goal_scoring import PAPER
+    from simulator.experiment.training import expert_table
+
+    assignments = np.asarray(model.assignments())
+    seg = segmentation_scores(assignments.tolist(), stream.labels)
+    out: dict[str, Any] = {
+        "schema": SCHEMA,
+        "seed": plan.seed,
+        "seeds": dict(plan.seeds),
+        "quick": plan.quick,
+        "config": {
+            "learner": params.to_mapping(),
+            "config_file": plan.config,
+            "overrides": list(plan.overrides),
+            "experiment": plan.to_json(),
+        },
+    }
+    per_location: dict[str, list[dict[str, Any]]] = {}
+    for c in plan.controllers:
+        outcomes = [bool(e["success"]) for r in evals if r.job.controller == c
+                    for e in r.episodes]
+        out[c] = {**success_rate(outcomes).to_json(),
+                  "outcomes": dict(Counter(e["outcome"] for r in evals
+                                           if r.job.controller == c for e in r.episodes))}
+        per_location[c] = _per_location(evals, c, plan.locations)
+    hcc_rate = out.get("hcc", {}).get("success_rate")
+    roger_rate = out.get("roger", {}).get("success_rate")
+    ratio = None
+    if hcc_rate and roger_rate is not None and not math.isnan(roger_rate) and hcc_rate > 0:
+        ratio = roger_rate / hcc_rate
+    out["ratio_roger_to_hcc"] = ratio
+    dpa_rate = out.get("dpa", {}).get("success_rate")
+    out["dpa_above_aliasing_limit"] = (
+        None if dpa_rate is None or math.isnan(dpa_rate) else bool(dpa_rate > DPA_ALIASING_LIMIT)
+    )
+    out["experts"] = seg.experts
+    out["purity"] = seg.purity
+    out["ari"] = seg.ari
+    out["nmi"] = seg.nmi
+    out["segmentation"] = {
+        "largest_expert_share": seg.largest_share,
+        "top3_experts_share": seg.top3_share,
+        "experts_per_subtask": seg.experts_per_subtask,
+        "subtasks_without_expert": sorted(set(stream.labels) - set(groups.values())),
+        "experts_table": expert_table(assignments.tolist(), stream.labels, groups),
+    }
+    out["per_location"] = per_location
+    out["episodes"] = {c: [e for r in evals if r.job.controller == c for e in r.episodes]
+                       for c in plan.controllers}
+    demo_eps = [e for r in demos for e in r.episodes]
+    out["demonstrations"] = {
+        "episodes": demo_eps,
+        "hcc_success_rate": success_rate([bool(e["success"]) for e in demo_eps]).to_json(),
+        "pairs": len(data),
+        "pairs_per_subtask": dict(sorted(Counter(data.labels).items())),
+        "unpaired_in_logs": data.unpaired,
+        "mcap": [str(p) for r in demos for p in r.mcap],
+    }
+    out["training"] = {
+        "pairs": len(stream),
+        "pairs_per_subtask": dict(sorted(Counter(stream.labels).items())),
+        "wall_s": round(train_s, 2),
+        "ms_per_pair": round(1000 * train_s / max(1, len(stream)), 3),
+        "daemon_check": check,
+    }
+    out["paper"] = dict(PAPER)
+    out["errors"] = list(errors)
+    return out
+
+
+def check_results(results: dict[str, Any]) -> list[str]:
+    """Problems with the shape of ``results`` (empty when it has every required field)."""
+    problems = []
+    for c in ("hcc", "roger", "dpa"):
+        block = results.get(c)
+        if not isinstance(block, dict):
+            problems.append(f"missing controller block {c!r}")
+            continue
+        for k in ("success_rate", "trials", "successes", "ci95_low", "ci95_high"):
+            if k not in block:
+                problems.append(f"{c}.{k} missing")
+        if isinstance(block.get("trials"), int) and block["trials"] < 1:
+            problems.append(f"{c}.trials < 1")
+    for k in ("experts", "ari", "nmi", "purity", "seed", "config", "per_location", "paper",
+              "timings_s", "figures"):
+        if k not in results:
+            problems.append(f"{k} missing")
+    if isinstance(results.get("experts"), int) and results["experts"] < 1:
+        problems.append("experts < 1")
+    for k in ("purity", "nmi"):
+        v = results.get(k)
+        if isinstance(v, float) and not 0.0 <= v <= 1.0:
+            problems.append(f"{k} = {v} outside [0, 1]")
+    return problems
+
+
+def _pct(v: float | None) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    return f"{100 * v:.0f}%"
+
+
+def print_report(console: Any, results: dict[str, Any]) -> None:
+    """The results table (rich) beside the paper's numbers."""
+    from rich.table import Table
+
+    from simulator.experiment.goal_scoring import CONTROLLER_NAMES
+
+    paper = results["paper"]
+    t = Table(title="Goal scoring (paper section IV)", show_lines=False)
+    for col in ("controller", "goals / trials", "success", "95% CI (Wilson)", "paper"):
+        t.add_column(col, justify="left" if col == "controller" else "right")
+    for c in ("hcc", "roger", "dpa"):
+        b = results.get(c)
+        if not b:
+            continue
+        t.add_row(CONTROLLER_NAMES[c], f"{b['successes']} / {b['trials']}",
+                  _pct(b["success_rate"]),
+                  f"{_pct(b['ci95_low'])} - {_pct(b['ci95_high'])}", _pct(paper[c]))
+    ratio = results.get("ratio_roger_to_hcc")
+    t.add_row("ratio ROGER / HCC", "", "-" if ratio is None else f"{ratio:.2f}", "",
+              f"{paper['ratio']:.2f}")
+    console.print(t)
+
+    s = Table(title="Segmentation of the training stream (MAP particle)")
+    s.add_column("measure")
+    s.add_column("value", justify="right")
+    s.add_column("paper", justify="right")
+    s.add_row("training pairs", str(results["training"]["pairs"]), "<= 4000")
+    s.add_row("experts", str(results["experts"]), str(paper["experts"]))
+    s.add_row("purity", f"{results['purity']:.3f}", "-")
+    s.add_row("adjusted Rand index", f"{results['ari']:.3f}", "-")
+    s.add_row("normalised mutual information", f"{results['nmi']:.3f}", "-")
+    seg = results["segmentation"]
+    for label, share in seg["largest_expert_share"].items():
+        s.add_row(f"{label}: share in its largest expert / top 3",
+                  f"{share:.2f} / {seg['top3_experts_share'][label]:.2f}", "")
+    s.add_row("experts per majority subtask",
+              ", ".join(f"{k} {v}" for k, v in seg["experts_per_subtask"].items()), "")
+    if seg["subtasks_without_expert"]:
+        s.add_row("[red]subtasks with no expert of their own[/red]",
+                  ", ".join(seg["subtasks_without_expert"]), "")
+    check = results["training"].get("daemon_check")
+    if check is not None:
+        s.add_row("daemon = offline = replay", "yes" if check.get("ok") else "[red]NO[/red]", "")
+    console.print(s)
+
+    tm = Table(title="Timings (wall clock)")
+    tm.add_column("phase")
+    tm.add_column("seconds", justify="right")
+    for k, v in results.get("timings_s", {}).items():
+        tm.add_row(k, f"{v:.1f}")
+    console.print(tm)
+    if results.get("dpa_above_aliasing_limit"):
+        console.print("[bold red]The unimap baseline scores above 15 %: the task has lost the "
+                      "perceptual aliasing the paper is about.[/bold red]")
+
+
+def write_figures(out: Path, stream: Any, assignments: npt.NDArray[np.int64],
+                  results: dict[str, Any]) -> dict[str, str]:
+    """Fig. 7a-c, Fig. 8 and the per-location success rates, as PNG in ``out``."""
+    from simulator.experiment.figures import plot_experts_histogram, plot_pca, plot_success
+
+    figs = {
+        "fig7_pca": plot_pca(stream.x, stream.y, stream.labels, assignments.tolist(),
+                             out / "fig7_pca.png"),
+        "fig8_experts": plot_experts_histogram(assignments.tolist(), stream.labels,
+                                               out / "fig8_experts.png"),
+    }
+    per_loc = results["per_location"]
+    if per_loc:
+        locs = [row["location"] for row in next(iter(per_loc.values()))]
+        rates = {c: [row["successes"] / row["attempts"] if row["attempts"] else 0.0
+                     for row in rows] for c, rows in per_loc.items()}
+        figs["success_per_location"] = plot_success(
+            rates, out / "success_per_location.png", locations=locs,
+            title="Success per start location "
+            f"({next(iter(per_loc.values()))[0]['attempts']} attempts each)")
+    return {k: str(v) for k, v in figs.items()}

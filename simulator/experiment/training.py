@@ -1,0 +1,299 @@
+"""Phases 2-4 of the experiment: demonstration data from MCAP, downsampling, training, and the
+check that the daemon (and a replay of its log) learns exactly the same model.
+
+* :func:`load_demonstrations` reads the recorded sessions (``roger record`` files) with the
+  daemon's own pairing rules (:func:`roger_daemon.recording.read_timeline`).
+* :func:`train` learns the downsampled stream incrementally, one ``learn_one`` per pair, in
+  order, with the learner alone (no I/O).
+* :func:`daemon_check` feeds the same stream to a real ``roger daemon`` over Zenoh in lockstep
+  (action(t), then perception(t), then wait for prediction(t)), stops it (final checkpoint),
+  replays the daemon's own MCAP recording offline, and compares the three models: state
+  digests, assignments, expert counts, majority labels and predictions.
+* :func:`write_model_checkpoint` writes a trained model as a daemon checkpoint (with the
+  subtask labels of the learned pairs), which ``roger daemon`` resumes from.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.checkpoint import array_digest, write_checkpoint
+
+__all__ = [
+    "Demonstrations",
+    "daemon_check",
+    "label_arrays",
+    "learner_table",
+    "load_demonstrations",
+    "model_fingerprint",
+    "train",
+    "write_model_checkpoint",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass
+class Demonstrations:
+    """All demonstration pairs in learning order (location order, then tick order)."""
+
+    x: FloatArray  # (n, 23)
+    y: FloatArray  # (n, 9)
+    labels: list[str]
+    location: npt.NDArray[np.int64]  # start location of the episode of each pair
+    tick: npt.NDArray[np.int64]
+    unpaired: int  # perceptions/actions left without a partner in the logs
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def subset(self, idx: npt.NDArray[np.int64]) -> Demonstrations:
+        return Demonstrations(self.x[idx], self.y[idx], [self.labels[i] for i in idx],
+                              self.location[idx], self.tick[idx], self.unpaired)
+
+
+def load_demonstrations(sessions: Sequence[tuple[int, Sequence[Path]]]) -> Demonstrations:
+    """Pairs of each ``(location, mcap files)`` session, concatenated in the given order."""
+    from roger_daemon.recording import read_timeline
+
+    xs: list[FloatArray] = []
+    ys: list[FloatArray] = []
+    labels: list[str] = []
+    locs: list[int] = []
+    ticks: list[int] = []
+    unpaired = 0
+    for loc, files in sessions:
+        tl = read_timeline(files, robot="aibo")
+        unpaired += sum(tl.unpaired)
+        for p in tl.pairs:
+            xs.append(np.asarray(p.x, dtype=np.float64))
+            ys.append(np.asarray(p.y, dtype=np.float64))
+            labels.append(p.label)
+            locs.append(loc)
+            ticks.append(p.tick)
+    if not xs:
+        raise ValueError("the demonstration logs hold no training pairs")
+    return Demonstrations(np.array(xs), np.array(ys), labels, np.array(locs, dtype=np.int64),
+                          np.array(ticks, dtype=np.int64), unpaired)
+
+
+def learner_table(params: Any) -> dict[str, Any]:
+    """A ``[learner]`` TOML table for ``params`` (``None`` values left out)."""
+    return {k: v for k, v in params.to_mapping().items() if v is not None}
+
+
+def train(model: Any, x: FloatArray, y: FloatArray,
+          progress: Callable[[int], None] | None = None, every: int = 50) -> float:
+    """Learn the pairs in order; return the wall time in seconds."""
+    t0 = time.perf_counter()
+    for i in range(len(x)):
+        model.learn_one(x[i], y[i])
+        if progress is not None and (i + 1) % every == 0:
+            progress(every)
+    if progress is not None and len(x) % every:
+        progress(len(x) % every)
+    return time.perf_counter() - t0
+
+
+def model_fingerprint(model: Any) -> str:
+    """SHA-256 of the model's ``state_dict`` arrays (names, dtypes, shapes, bytes)."""
+    return array_digest(model.state_dict())
+
+
+def label_arrays(labels: Sequence[str]) -> dict[str, np.ndarray]:
+    """The daemon's label state: a sorted vocabulary and one code per learned pair.
+
+    Sorted, so that the daemon's tie rule (lowest code) equals
+    :func:`simulator.experiment.metrics.majority_labels` (alphabetical).
+    """
+    vocab = sorted(set(labels))
+    index = {s: i for i, s in enumerate(vocab)}
+    return {
+        "label_vocab": np.array(vocab, dtype=np.str_) if vocab else np.zeros(0, dtype="<U1"),
+        "label_codes": np.array([index[s] for s in labels], dtype=np.int32),
+    }
+
+
+def write_model_checkpoint(directory: Path, model: Any, labels: Sequence[str], *,
+                           model_kind: str, seed: int, params: Any,
+                           robot: str = "aibo") -> Path:
+    """Write ``model`` as the daemon's checkpoint of ``robot`` in ``directory``; return it."""
+    if len(labels) != int(model.n_learned):
+        raise ValueError(f"{len(labels)} labels for {model.n_learned} learned pairs")
+    d_x, d_y = int(model.d_x), int(model.d_y)
+    daemon = {
+        **label_arrays(labels),
+        "queue_x": np.zeros((0, d_x)),
+        "queue_y": np.zeros((0, d_y)),
+        "queue_labels": np.zeros(0, dtype=np.int32),
+        "queue_ticks": np.zeros(0, dtype=np.int64),
+    }
+    meta = {
+        "created_unix_ns": time.time_ns(),
+        "reason": "experiment",
+        "daemon": "experiment",
+        "updates": int(model.n_learned),
+        "x_dim": d_x,
+        "y_dim": d_y,
+        "counters": {},
+        "model": model_kind,
+        "seed": seed,
+        "params": params.to_mapping(),
+    }
+    path, _ = write_checkpoint(directory, robot, model.state_dict(), daemon, meta, keep=1)
+    return path
+
+
+def _probe_predictions(model: Any, x: FloatArray) -> tuple[FloatArray, list[tuple[Any, ...]]]:
+    means = []
+    multimaps = []
+    for q in x:
+        means.append(np.asarray(model.predict_one(q).mean))
+        multimaps.append(tuple(
+            (int(e.expert_id), float(e.gate_prob), *np.asarray(e.mean).tolist())
+            for e in model.predict_multimap(q)
+        ))
+    return np.array(means), multimaps
+
+
+def daemon_check(
+    x: FloatArray,
+    y: FloatArray,
+    labels: Sequence[str],
+    offline: Any,
+    *,
+    params: Any,
+    seed: int,
+    workdir: Path,
+    progress: Callable[[int], None] | None = None,
+    probes: int = 200,
+) -> dict[str, Any]:
+    """Feed the stream to a real daemon in lockstep and compare with ``offline`` (see module).
+
+    ``offline`` must not have predicted anything yet (its state digest is compared as is).
+    """
+    from roger_daemon.checkpoint import load_newest
+    from roger_daemon.harness import Client, DaemonProcess, write_config
+    from roger_daemon.learner import load_model
+    from roger_daemon.recording import list_session_files, replay_session
+    from roger_daemon.robot import majority_labels as daemon_majority
+    from simulator.experiment.metrics import majority_labels
+    from simulator.experiment.procs import child_env, free_port
+
+    workdir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    offline_digest = model_fingerprint(offline)
+    port = free_port()
+    cfg = write_config(
+        workdir / "daemon.toml",
+        port=port,
+        workdir=workdir,
+        daemon={"mode": "learn+predict", "clock": "lockstep", "seed": seed},
+        checkpoint={"on_shutdown": True, "every_updates": 0, "every_s": 0.0},
+        recording={"enabled": True},
+        learner=learner_table(params),
+        robots=({"id": "aibo", "model": "roger"},),
+    )
+    daemon = DaemonProcess(cfg, args=["--fresh"], log=workdir / "daemon.log", env=child_env())
+    client = None
+    try:
+        daemon.wait_ready(120)
+        client = Client(f"tcp/127.0.0.1:{port}")
+        client.wait_daemon(30)
+        for i in range(len(x)):
+            client.action(i, y[i], labels[i])
+            client.perception(i, x[i])
+            client.wait_prediction(i, 60)
+            if progress is not None and (i + 1) % 50 == 0:
+                progress(50)
+            if len(client.predictions) > 512:
+                with client._cond:
+                    del client.predictions[:256]
+        if progress is not None and len(x) % 50:
+            progress(len(x) % 50)
+        client.close()
+        client = None
+        code, _ = daemon.terminate(120)
+    finally:
+        if client is not None:
+            client.close()
+        daemon.kill()
+    feed_s = time.perf_counter() - t0
+    ck = load_newest(workdir / "checkpoints", "aibo")
+    if ck is None:
+        raise RuntimeError(f"the daemon wrote no checkpoint; see {workdir / 'daemon.log'}")
+    from_daemon = load_model(ck.model)
+    daemon_digest = array_digest(ck.model)
+    files = [sf.path for sf in list_session_files(workdir / "recordings", robot="aibo")]
+    replayed = replay_session(files) if files else None
+    replay_digest = model_fingerprint(replayed.model) if replayed and replayed.model else ""
+
+    assign = np.asarray(offline.assignments())
+    mine = majority_labels(assign.tolist(), list(labels))
+    vocab = [str(s) for s in ck.daemon["label_vocab"].tolist()]
+    theirs = daemon_majority(np.asarray(from_daemon.assignments()),
+                             np.asarray(ck.daemon["label_codes"]), vocab)
+    pick = np.linspace(0, len(x) - 1, min(probes, len(x))).astype(int)
+    m_off, mm_off = _probe_predictions(offline, x[pick])
+    m_dae, mm_dae = _probe_predictions(from_daemon, x[pick])
+    out: dict[str, Any] = {
+        "pairs_fed": len(x),
+        "daemon_exit_code": code,
+        "daemon_updates": int(from_daemon.n_learned),
+        "offline_digest": offline_digest,
+        "daemon_digest": daemon_digest,
+        "replay_digest": replay_digest,
+        "identical_state": offline_digest == daemon_digest,
+        "replay_identical_state": replay_digest == offline_digest,
+        "assignments_equal": bool(np.array_equal(assign, from_daemon.assignments())),
+        "experts_offline": int(offline.n_experts),
+        "experts_daemon": int(from_daemon.n_experts),
+        "expert_labels_equal": {int(k): str(v) for k, v in mine.items()} == theirs,
+        "probe_predictions": len(pick),
+        "probe_max_abs_diff": float(np.max(np.abs(m_off - m_dae))) if len(pick) else 0.0,
+        "probe_multimaps_equal": mm_off == mm_dae,
+        "replay": None,
+        "checkpoint": str(ck.path),
+        "mcap": [str(f) for f in files],
+        "wall_s": round(feed_s, 2),
+    }
+    if replayed is not None:
+        summ = replayed.summary(0.0)
+        out["replay"] = {k: summ[k] for k in (
+            "pairs_learned", "n_experts", "predictions_compared", "predictions_unreplayable",
+            "max_abs_diff_mean", "mismatches", "label_mismatches")}
+        out["replay"]["ok"] = bool(replayed.ok(0.0))
+    out["ok"] = bool(
+        out["identical_state"] and out["assignments_equal"]
+        and out["experts_offline"] == out["experts_daemon"] and out["expert_labels_equal"]
+        and out["probe_max_abs_diff"] == 0.0 and out["probe_multimaps_equal"]
+        and out["replay_identical_state"] and out["replay"] is not None
+        and out["replay"]["ok"] and out["daemon_updates"] == len(x)
+    )
+    (workdir / "check.json").write_text(json.dumps(out, indent=1))
+    return out
+
+
+def expert_table(assignments: Sequence[int], labels: Sequence[str],
+                 majority: Mapping[int, str]) -> list[dict[str, Any]]:
+    """Per expert (largest first): id, points, majority label, share of each subtask."""
+    a = np.asarray(assignments)
+    lab = np.asarray(labels)
+    rows = []
+    for e in sorted(set(a.tolist()), key=lambda e: (-int(np.sum(a == e)), e)):
+        m = a == e
+        rows.append({
+            "expert": int(e),
+            "points": int(m.sum()),
+            "label": majority.get(int(e), ""),
+            "by_subtask": {s: int(np.sum(lab[m] == s)) for s in sorted(set(lab.tolist()))},
+        })
+    return rows
