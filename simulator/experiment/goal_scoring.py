@@ -38,7 +38,14 @@ from typing import Any
 
 import numpy as np
 
-from simulator.experiment.procs import EpisodeJob, JobError, JobResult, count_episodes, run_job
+from simulator.experiment.procs import (
+    EpisodeJob,
+    JobError,
+    JobResult,
+    count_episodes,
+    load_finished,
+    run_job,
+)
 
 __all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "plan_from_args", "run"]
 
@@ -73,6 +80,7 @@ class Plan:
     overrides: tuple[str, ...]
     task_config: str | None
     retries: int = 1
+    resume: bool = False
     seeds: dict[str, int] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
@@ -116,6 +124,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="task TOML for roger sim / roger hcc (e.g. configs/aibo.toml)")
     parser.add_argument("--retries", type=int, default=1,
                         help="re-run a job whose processes failed this many times")
+    parser.add_argument("--resume", action="store_true",
+                        help="reuse the results of jobs already finished in OUT with the same "
+                        "settings and model (e.g. after an interruption)")
     parser.add_argument("--plan", action="store_true", help="print the resolved plan and exit")
 
 
@@ -152,7 +163,7 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         attempts=attempts, per_subtask=per_subtask, time_limit=float(time_limit),
         vision=vision, daemon_check=bool(args.daemon_check), controllers=controllers,
         config=args.config, overrides=tuple(args.overrides), task_config=args.task_config,
-        retries=max(0, int(args.retries)), seeds=seeds,
+        retries=max(0, int(args.retries)), resume=bool(args.resume), seeds=seeds,
     )
 
 
@@ -217,6 +228,10 @@ class _Runner:
         return results
 
     def _attempt(self, job: EpisodeJob) -> JobResult:
+        if self.plan.resume:
+            earlier = load_finished(job)
+            if earlier is not None:
+                return earlier
         last: Exception | None = None
         for k in range(self.plan.retries + 1):
             try:
@@ -262,7 +277,8 @@ def _demo_jobs(plan: Plan) -> list[EpisodeJob]:
     ]
 
 
-def _eval_jobs(plan: Plan, models: Path, params: Any) -> list[EpisodeJob]:
+def _eval_jobs(plan: Plan, models: Path, params: Any,
+               digests: dict[str, str]) -> list[EpisodeJob]:
     from simulator.experiment.training import learner_table
 
     jobs = []
@@ -275,7 +291,7 @@ def _eval_jobs(plan: Plan, models: Path, params: Any) -> list[EpisodeJob]:
                 plan.out / "work" / "eval" / c / f"loc-{loc:02d}",
                 checkpoint_dir=models / c if c in ("roger", "dpa") else None,
                 learner=learner_table(params), learner_seed=plan.seeds["learner"],
-                task_config=plan.task_config,
+                task_config=plan.task_config, model_digest=digests.get(c, ""),
             ))
     return jobs
 
@@ -418,10 +434,11 @@ class Experiment:
                 if d.is_dir():
                     for f in d.glob("ckpt-*.npz"):
                         f.unlink()
-            write_model_checkpoint(models / "roger", model, stream.labels, model_kind="roger",
-                                   seed=plan.seeds["learner"], params=params)
-            write_model_checkpoint(models / "dpa", unimap, stream.labels, model_kind="unimap",
-                                   seed=plan.seeds["learner"], params=params)
+            digests = {}
+            for sub, m, kind in (("roger", model, "roger"), ("dpa", unimap, "unimap")):
+                _, meta = write_model_checkpoint(models / sub, m, stream.labels, model_kind=kind,
+                                                 seed=plan.seeds["learner"], params=params)
+                digests[sub] = str(meta["model_digest"])
             np.savez_compressed(
                 plan.out / "training-data.npz", x=stream.x, y=stream.y,
                 labels=np.array(stream.labels, dtype=np.str_), location=stream.location,
@@ -432,7 +449,7 @@ class Experiment:
             t0 = time.monotonic()
             for task in eval_tasks.values():
                 progress.start_task(task)
-            ev = runner.run(_eval_jobs(plan, models, params), eval_tasks)
+            ev = runner.run(_eval_jobs(plan, models, params, digests), eval_tasks)
             self._phase("evaluation", t0)
             self.errors += runner.errors
         # 6. + 7. report and figures
@@ -445,6 +462,10 @@ class Experiment:
             check=check, train_s=train_s, errors=self.errors,
         )
         results["figures"] = write_figures(plan.out, stream, assignments, results)
+        results["models"] = {
+            sub: {"checkpoint_dir": str(models / sub), "model_digest": digests[sub]}
+            for sub in ("roger", "dpa")
+        }
         self._phase("report", t0)
         self.timings["total"] = round(time.monotonic() - t_all, 2)
         results["timings_s"] = dict(self.timings)

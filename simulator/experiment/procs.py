@@ -39,6 +39,7 @@ __all__ = [
     "ProcessGroup",
     "count_episodes",
     "free_port",
+    "load_finished",
     "roger_argv",
     "run_job",
 ]
@@ -106,7 +107,7 @@ class ProcessGroup:
 
     def start(self, name: str, argv: Sequence[str]) -> _Proc:
         log = self.workdir / f"{name}.log"
-        handle = open(log, "ab")  # noqa: SIM115 - closed in close()
+        handle = open(log, "wb")  # noqa: SIM115 - closed in close()
         popen = subprocess.Popen(
             list(argv), stdout=handle, stderr=subprocess.STDOUT, env=self.env,
             stdin=subprocess.DEVNULL,
@@ -202,6 +203,7 @@ class EpisodeJob:
     learner: Mapping[str, Any] = field(default_factory=dict)
     learner_seed: int = 0
     task_config: str | None = None
+    model_digest: str = ""  # of the checkpoint resumed from (part of the job's identity)
 
     @property
     def episodes(self) -> int:
@@ -210,6 +212,16 @@ class EpisodeJob:
     @property
     def sim_log(self) -> Path:
         return self.workdir / "sim.log"
+
+    def spec(self) -> dict[str, Any]:
+        """The job's identity as JSON (what ``--resume`` compares)."""
+        return {
+            "controller": self.controller, "locations": list(self.locations),
+            "attempts": self.attempts, "seed": self.seed, "time_limit": self.time_limit,
+            "vision": self.vision, "learner": dict(self.learner),
+            "learner_seed": self.learner_seed, "task_config": self.task_config,
+            "model_digest": self.model_digest,
+        }
 
     def timeout_s(self) -> float:
         """Generous wall-clock bound for the simulator run (>= 20 ticks/s)."""
@@ -260,11 +272,34 @@ def _link_checkpoints(src: Path, dst: Path) -> None:
             shutil.copy2(f, target)
 
 
+def load_finished(job: EpisodeJob) -> JobResult | None:
+    """The result of an earlier run of exactly this job in its directory, if complete."""
+    try:
+        done = json.loads((job.workdir / "job.json").read_text())
+        sim = json.loads((job.workdir / "sim.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if done.get("spec") != json.loads(json.dumps(job.spec())):
+        return None
+    if len(sim.get("episodes", [])) != job.episodes:
+        return None
+    mcap = [job.workdir / p for p in done.get("mcap", [])]
+    if not all(p.is_file() for p in mcap) or (job.controller == "demo" and not mcap):
+        return None
+    try:
+        ctl = json.loads((job.workdir / "controller.json").read_text())
+    except (OSError, ValueError):
+        ctl = {}
+    return JobResult(job, sim["episodes"], sim["summary"], ctl, mcap, float(done["wall_s"]))
+
+
 def run_job(job: EpisodeJob) -> JobResult:
     """Run one job's processes to completion; return the simulator's and controller's JSON."""
     job.workdir.mkdir(parents=True, exist_ok=True)
-    for stale in ("sim.json", "controller.json"):
+    for stale in ("job.json", "sim.json", "controller.json"):
         (job.workdir / stale).unlink(missing_ok=True)
+    if (job.workdir / "mcap").exists():
+        shutil.rmtree(job.workdir / "mcap")
     t0 = time.monotonic()
     group = ProcessGroup(job.workdir)
     sim_port = free_port()
@@ -342,4 +377,9 @@ def run_job(job: EpisodeJob) -> JobResult:
             ctl = {}
     finally:
         group.close()
-    return JobResult(job, sim["episodes"], sim["summary"], ctl, mcap, time.monotonic() - t0)
+    wall = time.monotonic() - t0
+    (job.workdir / "job.json").write_text(json.dumps({
+        "spec": job.spec(), "wall_s": round(wall, 3),
+        "mcap": [str(p.relative_to(job.workdir)) for p in mcap],
+    }, indent=1))
+    return JobResult(job, sim["episodes"], sim["summary"], ctl, mcap, wall)

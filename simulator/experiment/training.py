@@ -16,6 +16,7 @@ check that the daemon (and a replay of its log) learns exactly the same model.
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -124,8 +125,11 @@ def label_arrays(labels: Sequence[str]) -> dict[str, np.ndarray]:
 
 def write_model_checkpoint(directory: Path, model: Any, labels: Sequence[str], *,
                            model_kind: str, seed: int, params: Any,
-                           robot: str = "aibo") -> Path:
-    """Write ``model`` as the daemon's checkpoint of ``robot`` in ``directory``; return it."""
+                           robot: str = "aibo") -> tuple[Path, dict[str, Any]]:
+    """Write ``model`` as the daemon's checkpoint of ``robot`` in ``directory``.
+
+    Returns its path and metadata (``model_digest`` identifies the model).
+    """
     if len(labels) != int(model.n_learned):
         raise ValueError(f"{len(labels)} labels for {model.n_learned} learned pairs")
     d_x, d_y = int(model.d_x), int(model.d_y)
@@ -148,8 +152,7 @@ def write_model_checkpoint(directory: Path, model: Any, labels: Sequence[str], *
         "seed": seed,
         "params": params.to_mapping(),
     }
-    path, _ = write_checkpoint(directory, robot, model.state_dict(), daemon, meta, keep=1)
-    return path
+    return write_checkpoint(directory, robot, model.state_dict(), daemon, meta, keep=1)
 
 
 def _probe_predictions(model: Any, x: FloatArray) -> tuple[FloatArray, list[tuple[Any, ...]]]:
@@ -188,7 +191,9 @@ def daemon_check(
     from simulator.experiment.metrics import majority_labels
     from simulator.experiment.procs import child_env, free_port
 
-    workdir.mkdir(parents=True, exist_ok=True)
+    if workdir.exists():
+        shutil.rmtree(workdir)  # one session, one checkpoint: what this check produced
+    workdir.mkdir(parents=True)
     t0 = time.perf_counter()
     offline_digest = model_fingerprint(offline)
     port = free_port()
