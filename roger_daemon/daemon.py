@@ -1,8 +1,11 @@
 """``roger daemon``: the learner service over Zenoh (thin entry point).
 
 Start-up order: signal handlers, configuration (a bad one exits 2 naming the key), models
-(resumed from the newest valid checkpoint unless ``--fresh``), recorders, the Zenoh session
-(opened last, never forked after), then READY=1 and the loop. SIGTERM/SIGINT end the loop;
+(resumed from the newest valid checkpoint unless ``--fresh``), start-up self-recovery from the
+session logs when recording is on and not ``--fresh`` (:func:`recover_from_logs`: footer-less
+logs recovered, the pairs logged after the checkpoint re-learned, a ``recovered`` checkpoint
+written), recorders, the Zenoh session (opened last, never forked after), then READY=1 and the
+loop. SIGTERM/SIGINT end the loop;
 shutdown drains, checkpoints and closes within a few seconds, exit status 0.
 """
 
@@ -21,18 +24,35 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import logging  # noqa: E402
 import signal  # noqa: E402
+import time  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 from types import FrameType  # noqa: E402
 from typing import Any  # noqa: E402
 
 from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION, Dims  # noqa: E402
-from roger_daemon.checkpoint import Checkpoint, CheckpointError, load_newest  # noqa: E402
+from roger_daemon.checkpoint import (  # noqa: E402
+    Checkpoint,
+    CheckpointError,
+    load_newest,
+    write_checkpoint,
+)
 from roger_daemon.config import ConfigError, DaemonConfig, RobotConfig, load_config  # noqa: E402
 from roger_daemon.robot import RobotRuntime  # noqa: E402
 from roger_daemon.sdnotify import Notifier  # noqa: E402
-from roger_daemon.service import Recorder, Service  # noqa: E402
+from roger_daemon.service import Recorder, Service, checkpoint_snapshot  # noqa: E402
 
-__all__ = ["build_robot", "configure", "run"]
+__all__ = [
+    "Resumed",
+    "build_robot",
+    "configure",
+    "load_robot",
+    "model_meta",
+    "open_recorders",
+    "recover_from_logs",
+    "run",
+    "start_robots",
+]
 
 log = logging.getLogger(__name__)
 
@@ -58,12 +78,20 @@ def make_model(robot: RobotConfig) -> Any:
     return cls(d_x=robot.x_dim, d_y=robot.y_dim, params=robot.params, seed=robot.seed)
 
 
-def _model_meta(robot: RobotConfig) -> dict[str, Any]:
+def model_meta(robot: RobotConfig) -> dict[str, Any]:
     return {"model": robot.model, "seed": robot.seed, "params": robot.params.to_mapping()}
 
 
 def build_robot(cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool) -> tuple[RobotRuntime, str]:
     """The runtime of one robot, resumed from its newest valid checkpoint unless ``fresh``."""
+    rt, ckpt = load_robot(cfg, robot, fresh=fresh)
+    return rt, "" if ckpt is None else str(ckpt.path)
+
+
+def load_robot(
+    cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool
+) -> tuple[RobotRuntime, Checkpoint | None]:
+    """The runtime of one robot and the checkpoint it resumed from (None: fresh model)."""
     from roger_daemon.learner import load_model
 
     dims = Dims(robot.x_dim, robot.y_dim)
@@ -87,7 +115,7 @@ def build_robot(cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool) -> tuple[
     ckpt = None if fresh else load_newest(cfg.checkpoint.dir, robot.id, accept)
     if ckpt is None:
         rt.model = make_model(robot)
-        return rt, ""
+        return rt, None
     rt.model = loaded["model"]
     rt.restore(ckpt.daemon, ckpt.meta.get("counters", {}))
     saved = ckpt.meta.get("params")
@@ -97,11 +125,147 @@ def build_robot(cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool) -> tuple[
                     "config's)", robot.id)
     log.info("%s: resumed from %s (%d updates, %d queued pairs, model %s)", robot.id, ckpt.path,
              rt.updates, len(rt.queue), str(ckpt.meta.get("model_digest", ""))[:12])
-    return rt, str(ckpt.path)
+    return rt, ckpt
 
 
-def _recorders(
-    cfg: DaemonConfig, robots: dict[str, RobotRuntime], resumed: dict[str, str]
+@dataclass
+class Resumed:
+    """Where one robot's model stands in the history when its new session starts."""
+
+    checkpoint: str = ""  # the checkpoint file it resumed from ("" for a fresh model)
+    session: str | None = None  # that checkpoint's session ("" if it names none)
+    segment: int = 0
+    recovered_pairs: int = 0
+    recovered_from: tuple[str, ...] = ()
+
+
+def _position(ckpt: Checkpoint | None) -> Resumed:
+    if ckpt is None:
+        return Resumed("", "", 0)
+    return Resumed(str(ckpt.path), str(ckpt.meta.get("session_id", "") or ""),
+                   int(ckpt.meta.get("session_segment", 0) or 0))
+
+
+def _same_learner(robot: RobotConfig, info: Any) -> str:
+    """Why a logged fresh model differs from the config's ("" if it does not)."""
+    mine = json.loads(json.dumps(robot.params.to_mapping(), sort_keys=True))
+    if info.learner_params is not None and info.learner_params != mine:
+        return "its learner parameters differ from the config's"
+    if info.seed is not None and info.seed != robot.seed:
+        return f"its seed {info.seed} is not the config's {robot.seed}"
+    if info.model != robot.model:
+        return f"its model {info.model!r} is not the config's {robot.model!r}"
+    return ""
+
+
+def recover_from_logs(
+    cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime, ckpt: Checkpoint | None,
+    *, notifier: Notifier | None = None, model_meta: dict[str, Any] | None = None,
+) -> tuple[RobotRuntime, Resumed]:
+    """Start-up self-recovery of one robot, before its new session opens.
+
+    Recovers footer-less session logs, re-learns the pairs logged after the checkpoint's last
+    learned pair (after its queued pairs; see ``roger_daemon.recording.startup``), writes a
+    checkpoint (reason ``recovered``) and returns the runtime with where its model now stands.
+    Never raises: a bad log is reported and the checkpoint stands as it is.
+    """
+    from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
+    from roger_daemon.recording.timeline import LearnedPair
+
+    where = _position(ckpt)
+    pos = None
+    if ckpt is not None:
+        start = rt.updates
+        queue = tuple(LearnedPair(start + i, p.tick, p.x, p.y,
+                                  rt.vocab[p.label] if 0 <= p.label < len(rt.vocab) else "", 0)
+                      for i, p in enumerate(rt.queue))
+        pos = CheckpointPosition(
+            learned=start, session_id=where.session or "", segment=where.segment,
+            last_tick=rt.last_learned_tick, queue=queue, path=where.checkpoint)
+    plan = plan_recovery(cfg.recording.dir, robot.id, dims=rt.dims, checkpoint=pos)
+    for rep in plan.recovered:
+        if rep.output:
+            log.warning("%s: log %s had no footer (killed daemon): recovered in place, %d "
+                        "messages in %d chunks kept, %d bytes of unreadable tail dropped "
+                        "(original kept as %s.damaged)", robot.id, rep.source, rep.messages,
+                        rep.chunks, rep.bytes_dropped, Path(rep.source).name)
+    for note in plan.notes:
+        log.warning("%s: start-up recovery: %s", robot.id, note)
+    if not plan.newer:
+        log.info("%s: start-up recovery: %s", robot.id, plan.summary)
+        return rt, where
+    if plan.fresh:
+        why = _same_learner(robot, plan.fresh_info) if plan.fresh_info is not None else ""
+        if why:
+            log.warning("%s: start-up recovery: the logs restart from a fresh model (%s) but "
+                        "%s; logs not used", robot.id, plan.summary, why)
+            return rt, where
+    if notifier is not None:
+        notifier.status(f"recovering {robot.id}: re-learning {len(plan.pairs)} pairs from the "
+                        "session logs")
+    before = rt.updates + len(rt.queue)
+    try:
+        if plan.fresh:
+            rt.reset()
+        for p in plan.pairs:
+            rt.enqueue_recovered(p.x, p.y, p.label, p.tick)
+        while rt.queue:
+            rt.learn_one()
+    except Exception:
+        log.exception("%s: start-up recovery failed while re-learning; continuing from the "
+                      "checkpoint alone", robot.id)
+        again, ck2 = load_robot(cfg, robot, fresh=ckpt is None)
+        return again, _position(ck2)
+    rt.session_resets = 0
+    rt.recovered_pairs = len(plan.pairs)
+    rt.last_tick = max(rt.last_tick, plan.last_tick or 0)
+    files = sorted({Path(f).name for f in plan.files})
+    log.warning("%s: start-up recovery: %s; re-learned %d pairs (ticks %s..%s) from %s %s: "
+                "now %d updates, %d experts", robot.id, plan.summary, len(plan.pairs),
+                plan.pairs[0].tick if plan.pairs else "-", plan.last_tick
+                if plan.pairs else "-", "a fresh model and" if plan.fresh else
+                f"checkpoint {where.checkpoint or '(none)'} ({before} pairs incl. queue) and",
+                ", ".join(files) or "(no files)", rt.updates, int(rt.model.n_experts))
+    session, segment = plan.position
+    model, daemon, meta = checkpoint_snapshot(
+        rt, "recovered", daemon_id=cfg.id, created_unix_ns=time.time_ns(), session_id=session,
+        session_segment=segment, extra={**(model_meta or {}),
+                                        "recovered_pairs": len(plan.pairs),
+                                        "recovered_from": list(plan.sessions)})
+    c = cfg.checkpoint
+    try:
+        path, full = write_checkpoint(c.dir, robot.id, model, daemon, meta, keep=c.keep)
+    except Exception as exc:
+        log.error("%s: could not write the recovered checkpoint (%s); the new session "
+                  "records that it resumed from %s plus %d recovered pairs", robot.id, exc,
+                  where.checkpoint or "a fresh model", len(plan.pairs))
+        return rt, Resumed(where.checkpoint, session, segment, len(plan.pairs),
+                           tuple(plan.sessions))
+    log.info("%s: checkpoint %s written (recovered, %d updates, model %s)", robot.id, path,
+             rt.updates, str(full["model_digest"])[:12])
+    return rt, Resumed(str(path), session, segment, len(plan.pairs), tuple(plan.sessions))
+
+
+def start_robots(
+    cfg: DaemonConfig, *, fresh: bool, notifier: Notifier | None = None
+) -> tuple[dict[str, RobotRuntime], dict[str, Resumed]]:
+    """Every robot's runtime: newest checkpoint (unless ``fresh``), then start-up recovery
+    from the session logs (when recording is on and not ``fresh``)."""
+    robots: dict[str, RobotRuntime] = {}
+    where: dict[str, Resumed] = {}
+    for robot in cfg.robots:
+        robots[robot.id], ckpt = load_robot(cfg, robot, fresh=fresh)
+        where[robot.id] = _position(ckpt)
+        if cfg.recording.enabled and not fresh:
+            # Before the new session opens: an open session would cut the history it reads.
+            robots[robot.id], where[robot.id] = recover_from_logs(
+                cfg, robot, robots[robot.id], ckpt, notifier=notifier,
+                model_meta=model_meta(robot))
+    return robots, where
+
+
+def open_recorders(
+    cfg: DaemonConfig, robots: dict[str, RobotRuntime], resumed: dict[str, Resumed]
 ) -> dict[str, Recorder]:
     """One ``SessionRecorder`` per robot, or none (with a warning) if recording is missing."""
     if not cfg.recording.enabled:
@@ -121,16 +285,20 @@ def _recorders(
     out: dict[str, Recorder] = {}
     for robot in cfg.robots:
         rt = robots[robot.id]
+        where = resumed.get(robot.id, Resumed())
         meta = session_metadata(
             robot=robot.id, config_text=config_text, learner_params=robot.params,
             dims=rt.dims, seed=robot.seed, model=robot.model, mode=rt.mode,
-            start_updates=rt.updates, checkpoint=resumed.get(robot.id, ""),
+            start_updates=rt.updates, checkpoint=where.checkpoint,
             pair_window=cfg.pair_window, queue_size=cfg.queue_size,
+            # pairs saved unlearned in the checkpoint: learned first, before any pair of this
+            # session (they are in the checkpoint's daemon.queue_* arrays)
+            restored_queued_pairs=len(rt.queue),
+            resumed_session=where.session or "", resumed_segment=where.segment,
             extra={"daemon": cfg.id, "clock": cfg.clock, "rate_hz": repr(cfg.rate_hz),
                    "schema_version": str(SCHEMA_VERSION),
-                   # pairs saved unlearned in the checkpoint: learned first, before any pair
-                   # of this session (they are in the checkpoint's daemon.queue_* arrays)
-                   "restored_queued_pairs": str(len(rt.queue))},
+                   "recovered_pairs": str(where.recovered_pairs),
+                   "recovered_from": ",".join(where.recovered_from)},
         )
         rec = SessionRecorder(cfg.recording.dir, robot=robot.id, metadata=meta)
         log.info("%s: recording to %s", robot.id, rec.path)
@@ -182,11 +350,9 @@ def run(args: argparse.Namespace) -> int:
         logging.getLogger().addHandler(handler)
 
     notifier = Notifier.from_env()
-    robots: dict[str, RobotRuntime] = {}
-    resumed: dict[str, str] = {}
-    for robot in cfg.robots:
-        robots[robot.id], resumed[robot.id] = build_robot(cfg, robot, fresh=args.fresh)
-    recorders = _recorders(cfg, robots, resumed)
+    robots, where = start_robots(cfg, fresh=args.fresh, notifier=notifier)
+    resumed = {r: w.checkpoint for r, w in where.items()}
+    recorders = open_recorders(cfg, robots, where)
 
     from roger_daemon.transport import ZenohTransport
 
@@ -200,7 +366,7 @@ def run(args: argparse.Namespace) -> int:
     by_id = {r.id: r for r in cfg.robots}
     service = Service(
         cfg, transport, robots, notifier=notifier, recorders=recorders, resumed=resumed,
-        checkpoint_meta=lambda rt: _model_meta(by_id[rt.robot]),
+        checkpoint_meta=lambda rt: model_meta(by_id[rt.robot]),
     )
     stop.append(service)
     try:

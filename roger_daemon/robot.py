@@ -129,6 +129,9 @@ class RobotRuntime:
         self.invalid: Counter[str] = Counter()
         self.last_tick = 0
         self.last_t = 0.0
+        self.last_learned_tick: int | None = None  # tick of the newest learned pair
+        self.session_resets = 0  # resets in this session (the log's segment number)
+        self.recovered_pairs = 0  # pairs re-learned from the logs at start-up
         # windows and bookkeeping
         self.latency = _Window()
         self.learn_ms = _Window(200)
@@ -211,6 +214,11 @@ class RobotRuntime:
             return
         self.queue.append(Pair(perc.x, act.y, self._label_code(act.label), act.tick))
 
+    def enqueue_recovered(self, x: np.ndarray, y: np.ndarray, label: str, tick: int) -> None:
+        """Queue a pair read back from the session log (start-up recovery; no size limit)."""
+        self.queue.append(Pair(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64),
+                               self._label_code(label), int(tick)))
+
     def _warn_once(self, what: str, text: str) -> None:
         if what not in self._reported:
             self._reported.add(what)
@@ -235,6 +243,7 @@ class RobotRuntime:
             return (time.perf_counter_ns() - t0) / 1e6
         ms = (time.perf_counter_ns() - t0) / 1e6
         self._append_code(pair.label)
+        self.last_learned_tick = pair.tick
         self.generation += 1
         self.learn_ms.add(ms)
         return ms
@@ -297,6 +306,8 @@ class RobotRuntime:
         self.vocab, self._vocab_index = [], {}
         self.n_codes = 0
         self.generation += 1
+        self.session_resets += 1
+        self.last_learned_tick = None
         self._labels_cache = None
         self._status_updates = 0
 
@@ -332,6 +343,7 @@ class RobotRuntime:
             "ticks": self.ticks, "dropped": self.dropped, "unpaired_actions": self.unpaired,
             "learn_errors": self.learn_errors, "last_tick": self.last_tick,
             "last_t": self.last_t, "mode": self.mode,
+            "last_learned_tick": self.last_learned_tick,
             "invalid": {k: int(v) for k, v in self.invalid.items()},
         }
 
@@ -353,6 +365,8 @@ class RobotRuntime:
         self.learn_errors = int(counters.get("learn_errors", 0))
         self.last_tick = int(counters.get("last_tick", 0))
         self.last_t = float(counters.get("last_t", 0.0))
+        llt = counters.get("last_learned_tick")
+        self.last_learned_tick = int(llt) if isinstance(llt, int) and self.n_codes else None
         inv = counters.get("invalid", {})
         self.invalid = Counter({str(k): int(v) for k, v in inv.items() if k in REASONS})
         self._labels_cache = None

@@ -52,7 +52,7 @@ from roger_daemon.robot import RobotRuntime, _Window
 from roger_daemon.sdnotify import Notifier
 from roger_daemon.transport import Inbox, Incoming, Publisher, Transport
 
-__all__ = ["Clock", "Recorder", "Service"]
+__all__ = ["Clock", "Recorder", "Service", "checkpoint_snapshot"]
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +72,33 @@ class Clock(Protocol):
 class _RealClock:
     monotonic_ns = staticmethod(time.monotonic_ns)
     time_ns = staticmethod(time.time_ns)
+
+
+def checkpoint_snapshot(
+    rt: RobotRuntime, reason: str, *, daemon_id: str, created_unix_ns: int,
+    session_id: str, session_segment: int, extra: dict[str, Any] | None = None,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
+    """(model arrays, daemon arrays, metadata) of one robot, copied (safe to write later).
+
+    ``session_id``/``session_segment`` say where in the session logs the model stands (the
+    recorder's session and the number of resets in it; ``""`` without recording): start-up
+    recovery reads the log tail from there (with ``counters.last_learned_tick`` to check it).
+    """
+    model = {k: np.array(v, copy=True) for k, v in rt.model.state_dict().items()}
+    meta: dict[str, Any] = {
+        "created_unix_ns": created_unix_ns,
+        "reason": reason,
+        "daemon": daemon_id,
+        "updates": rt.updates,
+        "x_dim": rt.dims.x,
+        "y_dim": rt.dims.y,
+        "counters": rt.counters(),
+        "session_id": session_id,
+        "session_segment": session_segment,
+    }
+    if extra:
+        meta.update(extra)
+    return model, rt.daemon_arrays(), meta
 
 
 class Recorder(Protocol):
@@ -335,6 +362,7 @@ class Service:
             self._record(robot, item.key, item.payload, item.recv_wall_ns, item.recv_wall_ns, 0)
             return
         self._record(robot, item.key, item.payload, item.recv_wall_ns, msg.stamp_ns, msg.tick)
+        dropped = rt.dropped
         if kind == "perception":
             assert isinstance(msg, Perception)
             rt.on_perception(msg, item.recv_ns)
@@ -346,6 +374,16 @@ class Service:
         elif kind == "control":
             assert isinstance(msg, Control)
             self._control(rt, msg)
+        if rt.dropped != dropped and robot in self.recorders:
+            self._record_drop(rt, msg.tick, item.recv_wall_ns)
+
+    def _record_drop(self, rt: RobotRuntime, tick: int, wall_ns: int) -> None:
+        """Name the pair just dropped (queue full) in the log, so that replay stays exact."""
+        from roger_daemon.recording.events import dropped_topic, encode_dropped
+
+        payload = encode_dropped(rt.robot, tick, stamp_ns=wall_ns, queue_size=rt.queue_size,
+                                 dropped=rt.dropped)
+        self._record(rt.robot, dropped_topic(rt.robot), payload, wall_ns, wall_ns, tick)
 
     def _answer_lockstep(self) -> None:
         """Lockstep: learn every complete pair first, then answer the perceptions just drained.
@@ -455,6 +493,8 @@ class Service:
             "checkpoints_written": ck.written,
             "checkpoint_errors": ck.errors,
             "resumed_from": self.resumed.get(rt.robot, ""),
+            "recovered_pairs": rt.recovered_pairs,
+            "last_learned_tick": -1 if rt.last_learned_tick is None else rt.last_learned_tick,
             "recording": rt.robot in self.recorders,
             "recording_errors": self.stats.recording_errors,
         }
@@ -493,19 +533,13 @@ class Service:
                 self._checkpoint(rt, "periodic")
 
     def _snapshot(self, rt: RobotRuntime, reason: str) -> tuple[dict[str, Any], ...]:
-        model = {k: np.array(v, copy=True) for k, v in rt.model.state_dict().items()}
-        meta: dict[str, Any] = {
-            "created_unix_ns": self.clock.time_ns(),
-            "reason": reason,
-            "daemon": self.config.id,
-            "updates": rt.updates,
-            "x_dim": rt.dims.x,
-            "y_dim": rt.dims.y,
-            "counters": rt.counters(),
-        }
-        if self._checkpoint_meta is not None:
-            meta.update(self._checkpoint_meta(rt))
-        return model, rt.daemon_arrays(), meta
+        rec = self.recorders.get(rt.robot)
+        return checkpoint_snapshot(
+            rt, reason, daemon_id=self.config.id, created_unix_ns=self.clock.time_ns(),
+            session_id=str(getattr(rec, "session_id", "") or ""),
+            session_segment=rt.session_resets,
+            extra=self._checkpoint_meta(rt) if self._checkpoint_meta is not None else None,
+        )
 
     def _checkpoint(self, rt: RobotRuntime, reason: str, *, sync: bool = False) -> None:
         st = self._ckpt[rt.robot]

@@ -109,6 +109,9 @@ def session_metadata(
     checkpoint: str = "",
     pair_window: int | None = None,
     queue_size: int | None = None,
+    restored_queued_pairs: int = 0,
+    resumed_session: str | None = None,
+    resumed_segment: int = 0,
     created_by: str = "roger daemon",
     extra: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
@@ -138,6 +141,15 @@ def session_metadata(
     pair_window, queue_size
         The daemon's pairing window and training-queue size (replay pairs with the same window;
         default 64 when absent).
+    restored_queued_pairs
+        Pairs the checkpoint held unlearned (its training queue): the model learns them first,
+        before any pair of this session, so this session's pairs start at index
+        ``start_updates + restored_queued_pairs``.
+    resumed_session, resumed_segment
+        Where in the history the checkpoint was taken: the session id (and the segment, i.e.
+        the number of resets before it in that session) stored in the checkpoint's metadata.
+        ``""`` for a fresh model, or for a checkpoint that does not say; ``None`` leaves the
+        keys out. Log-tail catch-up follows this chain to tell which sessions continue which.
     created_by
         Which program wrote the file.
     extra
@@ -161,11 +173,15 @@ def session_metadata(
         "checkpoint": checkpoint,
         "pair_window": "" if pair_window is None else str(int(pair_window)),
         "queue_size": "" if queue_size is None else str(int(queue_size)),
+        "restored_queued_pairs": str(int(restored_queued_pairs)),
         "hostname": socket.gethostname(),
         "platform": platform.platform(),
         "git_commit": git_commit(),
         **package_versions(),
     }
+    if resumed_session is not None:
+        out["resumed_session"] = resumed_session
+        out["resumed_segment"] = str(int(resumed_segment))
     for k, v in (extra or {}).items():
         if k in out:
             raise ValueError(f"extra metadata key {k!r} collides with a standard key")
@@ -206,6 +222,15 @@ class SessionInfo:
     session_id: str
     part: int
     raw: dict[str, str]
+    restored_queued_pairs: int = 0
+    resumed_session: str | None = None  # None: the log predates the key
+    resumed_segment: int = 0
+    checkpoint: str = ""
+
+    @property
+    def fresh(self) -> bool:
+        """The session started from a fresh model (no checkpoint)."""
+        return self.start_updates == 0 and not self.checkpoint and not self.restored_queued_pairs
 
     @classmethod
     def from_metadata(cls, meta: Mapping[str, str]) -> SessionInfo:
@@ -233,4 +258,8 @@ class SessionInfo:
             session_id=meta.get("session_id", ""),
             part=int(meta.get("part", "") or 0),
             raw=dict(meta),
+            restored_queued_pairs=int(meta.get("restored_queued_pairs", "") or 0),
+            resumed_session=meta.get("resumed_session"),
+            resumed_segment=int(meta.get("resumed_segment", "") or 0),
+            checkpoint=meta.get("checkpoint", ""),
         )

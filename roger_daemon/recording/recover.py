@@ -193,6 +193,10 @@ def recover_directory(directory: str | Path, robot: str | None = None,
     For the daemon's start-up: after this every log is indexed and readable by any MCAP tool.
     Complete files are left alone (checked by reading their footer and summary only).
     Damaged originals are kept as ``X.mcap.damaged`` unless ``keep_original`` is false.
+
+    Never raises for one bad file: a file that is not MCAP at all is moved aside to
+    ``X.mcap.damaged`` (``output`` is then ``""``); a file that cannot be rewritten (an OS
+    error) is left as it is. Both are reported with their ``error``.
     """
     from roger_daemon.recording.files import list_session_files
     from roger_daemon.recording.mcapio import is_complete
@@ -202,12 +206,23 @@ def recover_directory(directory: str | Path, robot: str | None = None,
         if is_complete(sf.path):
             continue
         try:
-            reports.append(recover_in_place(sf.path, keep_original=keep_original))
-        except ValueError as exc:  # not even a header: move it out of the way
             size = sf.path.stat().st_size
-            os.replace(sf.path, _unused(sf.path.with_name(sf.path.name + ".damaged")))
-            reports.append(RecoverReport(
-                source=str(sf.path), output="", complete=False, messages=0, chunks=0,
-                channels=0, metadata=0, attachments=0, bytes_total=size, bytes_valid=0,
-                error=str(exc)))
+        except OSError:
+            size = 0
+        try:
+            reports.append(recover_in_place(sf.path, keep_original=keep_original))
+            continue
+        except ValueError as exc:  # not even a header: move it out of the way
+            error = str(exc)
+            try:
+                os.replace(sf.path, _unused(sf.path.with_name(sf.path.name + ".damaged")))
+                error += "; moved aside to .damaged"
+            except OSError as exc2:
+                error += f"; could not move it aside ({exc2})"
+        except Exception as exc:  # OSError (disk full, permissions), an mcap writer error
+            error = f"could not recover it ({type(exc).__name__}: {exc}); left as it is"
+        reports.append(RecoverReport(
+            source=str(sf.path), output="", complete=False, messages=0, chunks=0,
+            channels=0, metadata=0, attachments=0, bytes_total=size, bytes_valid=0,
+            error=error))
     return reports

@@ -204,6 +204,7 @@ class ReplayResult:
             "ignored_while_not_learning": tl.ignored_not_learning,
             "pair_window": tl.pair_window,
             "daemon_dropped_pairs": tl.daemon_dropped,
+            "dropped_pairs_recorded": tl.dropped_recorded,
             "learn_errors": self.learn_errors,
             "unpaired": {"perceptions": tl.unpaired[0], "actions": tl.unpaired[1]},
             "predictions_without_query": tl.predictions_without_query,
@@ -382,11 +383,12 @@ def replay_timeline(
     learn_errors = 0
     model: Model | None = None
     for i, seg in enumerate(tl.segments):
-        if i == 0 and seg.start_updates > 0:
+        if i == 0 and (seg.start_updates > 0 or seg.queued > 0):
             if initial_model is None:
                 warnings.append(
-                    f"session resumed from a checkpoint at {seg.start_updates} updates "
-                    f"({info.raw.get('checkpoint', '?')}); give the checkpoint to replay it"
+                    f"session resumed from a checkpoint at {seg.start_updates} updates"
+                    + (f" with {seg.queued} queued pairs" if seg.queued else "")
+                    + f" ({info.raw.get('checkpoint', '?')}); give the checkpoint to replay it"
                 )
                 unreplayable += len(seg.predictions)
                 model = None
@@ -397,6 +399,11 @@ def replay_timeline(
                     f"started at {seg.start_updates}"
                 )
             model = initial_model
+            if len(initial_pairs) != seg.queued:
+                warnings.append(
+                    f"the session learned {seg.queued} queued pairs from its checkpoint first; "
+                    f"the checkpoint given holds {len(initial_pairs)}"
+                )
             if initial_pairs:  # the checkpoint's queue: learned before this session's pairs
                 seg = Segment(seg.start_updates, seg.after_reset,
                               [*initial_pairs, *seg.pairs], seg.predictions)
@@ -420,10 +427,10 @@ def replay_timeline(
         expert_labels = {}
     if tl.incomplete_files:
         warnings.append(f"incomplete files (no footer): {tl.incomplete_files}")
-    if tl.daemon_dropped:
+    if tl.unexplained_drops:
         warnings.append(
-            f"the daemon dropped {tl.daemon_dropped} pairs (training queue full); the log cannot "
-            "say which, so predictions after the first drop may differ"
+            f"the daemon dropped {tl.unexplained_drops} pairs (training queue full) that the log "
+            "does not name, so predictions after the first drop may differ"
         )
     if learn_errors:
         warnings.append(f"the learner rejected {learn_errors} pairs (skipped, as the daemon does)")

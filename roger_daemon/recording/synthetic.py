@@ -101,6 +101,7 @@ def record_synthetic_session(
     start_ns: int = START_NS,
     checkpoint_at: tuple[int, ...] = (),
     pre_learn: tuple[tuple[Any, Any, str], ...] = (),
+    metadata_extra: Mapping[str, str] | None = None,
 ) -> SyntheticSession:
     """Record a session of ``n_ticks`` ticks, as the daemon would; see the module doc.
 
@@ -113,7 +114,7 @@ def record_synthetic_session(
     ``start_updates`` is its ``n_learned``); ``tick0`` starts ticks (and the stream) later;
     ``checkpoint_at`` takes ``state_dict()`` snapshots when ``n_learned`` reaches those counts;
     ``pre_learn`` pairs ``(x, y, label)`` are learned first without being recorded (a daemon's
-    restored training queue).
+    restored training queue); ``metadata_extra`` overrides or adds metadata keys.
     """
     x, y, labels = synthetic_stream(stream, tick0 + n_ticks, seed=0)
     dims = Dims(int(x.shape[1]), int(y.shape[1]))
@@ -130,6 +131,7 @@ def record_synthetic_session(
         start_updates=0 if initial_model is None else int(initial_model.n_learned),
         created_by="roger_daemon.recording.synthetic",
     )
+    meta.update(metadata_extra or {})
     rec = SessionRecorder(directory, robot=robot, metadata=meta, start_ns=start_ns,
                           **dict(recorder_kwargs or {}))
     model = factory("roger", dims.x, dims.y, pmap, seed) if initial_model is None else (

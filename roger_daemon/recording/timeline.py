@@ -11,9 +11,12 @@ routing it, and each prediction and status as it publishes it):
   the second to arrive forms a pair; the newest perception of a tick wins; a tick pairs once.
   In the other modes perceptions and actions are not buffered at all. Payloads that fail
   ``protocols.decode`` with the session's dims are skipped.
-* **Learning order** = pair formation order (the daemon's FIFO training queue). Pairs the
-  daemon dropped because its queue was full cannot be seen in the log: the ``dropped`` counter
-  of its status messages is watched and reported (:attr:`Timeline.daemon_dropped`).
+* **Learning order** = pair formation order (the daemon's FIFO training queue). A pair the
+  daemon dropped because its queue was full is named by a record on
+  ``roger/<robot>/daemon/dropped`` (:mod:`~roger_daemon.recording.events`) right after the
+  message that completed it, and is removed (:attr:`Timeline.dropped_recorded`). Logs from
+  daemons that did not write these records only show the ``dropped`` counter of the status
+  messages (:attr:`Timeline.daemon_dropped`); replay warns when that counter says more.
 * **Mode** starts as the metadata's ``mode`` and follows ``control`` messages ``op=mode``.
 * **Reset** (``control`` ``op=reset``) starts a new :class:`Segment` with a fresh model
   (``n_learned`` 0, same params and seed) and empties the pairing buffers.
@@ -21,15 +24,17 @@ routing it, and each prediction and status as it publishes it):
   query) and to its ``updates`` (the model's ``n_learned`` when it was computed).
 
 The first segment starts at the metadata's ``start_updates`` (non-zero when the daemon resumed
-from a checkpoint), so a pair's ``index`` is the model's ``n_learned`` just before learning it
-(assuming the learner rejected no pair).
+from a checkpoint); when that checkpoint held unlearned pairs (metadata
+``restored_queued_pairs``), the model learned those first, so the session's own pairs start at
+``start_updates + restored_queued_pairs``. A pair's ``index`` is the model's ``n_learned`` just
+before learning it (assuming the learner rejected no pair).
 """
 
 from __future__ import annotations
 
 from collections import Counter, OrderedDict
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +52,7 @@ from protocols.messages import (
     Status,
     decode,
 )
+from roger_daemon.recording.events import decode_dropped, dropped_topic
 from roger_daemon.recording.mcapio import LogReader
 from roger_daemon.recording.metadata import SessionInfo
 
@@ -103,11 +109,18 @@ class Segment:
     after_reset: bool
     pairs: list[LearnedPair] = field(default_factory=list)
     predictions: list[RecordedPrediction] = field(default_factory=list)
+    #: pairs restored from the checkpoint's queue, learned before ``pairs`` (not in this log)
+    queued: int = 0
+
+    @property
+    def first_index(self) -> int:
+        """``n_learned`` before this segment's first logged pair."""
+        return self.start_updates + self.queued
 
     @property
     def end_updates(self) -> int:
         """``n_learned`` of the model after the last pair."""
-        return self.start_updates + len(self.pairs)
+        return self.start_updates + self.queued + len(self.pairs)
 
 
 class PairTracker:
@@ -171,6 +184,13 @@ class Timeline:
     predictions_without_query: int = 0
     pair_window: int = DEFAULT_PAIR_WINDOW
     daemon_dropped: int = 0  # pairs the daemon dropped (queue full), from its status counter
+    dropped_recorded: int = 0  # drops named by drop records (those pairs are removed)
+    dropped_unmatched: int = 0  # drop records naming no formed pair (ignored)
+
+    @property
+    def unexplained_drops(self) -> int:
+        """Drops the status counter shows but no drop record names (replay cannot be exact)."""
+        return max(0, self.daemon_dropped - self.dropped_recorded)
 
     @property
     def pairs(self) -> list[LearnedPair]:
@@ -181,6 +201,23 @@ class Timeline:
     def resets(self) -> int:
         """Number of resets in the session."""
         return len(self.segments) - 1
+
+
+def _drop(tl: Timeline, seg: Segment, payload: bytes) -> None:
+    """Apply a drop record: the newest formed pair of its tick was never learned."""
+    try:
+        tick = decode_dropped(payload)
+    except ValueError:
+        tl.invalid["bad_drop_record"] += 1
+        return
+    for i in range(len(seg.pairs) - 1, -1, -1):
+        if seg.pairs[i].tick == tick:
+            del seg.pairs[i]
+            for j in range(i, len(seg.pairs)):  # renumber (normally nothing follows)
+                seg.pairs[j] = replace(seg.pairs[j], index=seg.first_index + j)
+            tl.dropped_recorded += 1
+            return
+    tl.dropped_unmatched += 1
 
 
 def _robot_for(info: SessionInfo, topics: Iterable[str], robot: str | None) -> str:
@@ -240,7 +277,8 @@ def read_timeline(
     dims = dims or info.dims
     mode_now = mode or info.mode
     start = info.start_updates if start_updates is None else start_updates
-    segments = [Segment(start_updates=start, after_reset=False)]
+    segments = [Segment(start_updates=start, after_reset=False,
+                        queued=info.restored_queued_pairs if start_updates is None else 0)]
     tl = Timeline(
         info=info,
         robot=who,
@@ -256,12 +294,15 @@ def read_timeline(
     last_dropped: int | None = None
     want = {keyexpr.key(who, k): k
             for k in ("perception", "action", "control", "prediction", "status")}
+    drop_topic = dropped_topic(who)
     dx = dims.x if dims else None
     dy = dims.y if dims else None
     for reader in readers:
         for lm in reader.messages():
             kind = want.get(lm.topic)
             if kind is None:
+                if lm.topic == drop_topic:
+                    _drop(tl, segments[-1], lm.message.data)
                 continue
             tl.messages += 1
             try:

@@ -31,6 +31,11 @@ from mcap.writer import CompressionType, Writer
 from protocols import keys as keyexpr
 from protocols.errors import ProtocolError
 from roger_daemon.recording import files
+from roger_daemon.recording.events import (
+    DROPPED_SCHEMA_NAME,
+    dropped_schema_bytes,
+    parse_event_topic,
+)
 from roger_daemon.recording.metadata import METADATA_NAME
 from roger_daemon.recording.schemas import SCHEMA_ENCODING, schema_bytes, schema_name
 
@@ -316,7 +321,16 @@ class SessionRecorder:
             robot, kind = keyexpr.parse(key)
         except ProtocolError:
             robot, kind = "", ""
-        if kind:
+        event = None if kind else parse_event_topic(key)
+        if event is not None and event[1] == "dropped":
+            meta = {"robot": event[0], "kind": "daemon.dropped"}
+            sid = self._schemas.get("daemon.dropped")
+            if sid is None:
+                sid = w.register_schema(name=DROPPED_SCHEMA_NAME, encoding=SCHEMA_ENCODING,
+                                        data=dropped_schema_bytes())
+                self._schemas["daemon.dropped"] = sid
+            schema_id = sid
+        elif kind:
             meta = {"robot": robot, "kind": kind}
             sid = self._schemas.get(kind)
             if sid is None:

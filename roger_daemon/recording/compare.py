@@ -1,0 +1,110 @@
+"""Compare models by behaviour: expert count and sizes, assignments, predictions on probes.
+
+Two models that learned the same pairs in the same order with the same params and seed behave
+identically, but their ``state_dict()`` arrays may not be byte-equal (slot layout, buffer
+growth), so recovery and regression tests compare :func:`behaviour` instead. The result is
+JSON-ready (lists and floats), so it also serves as the golden output of a replay.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["behaviour", "behaviour_differences", "probe_inputs"]
+
+
+def _floats(v: Any) -> list[float]:
+    return [float(a) for a in np.asarray(v, dtype=np.float64).reshape(-1)]
+
+
+def behaviour(model: Any, probes: Sequence[Any]) -> dict[str, Any]:
+    """What a model does: ``n_learned``, ``n_experts``, ``expert_sizes``, ``assignments`` and,
+    for every probe input, ``predict_one`` and ``predict_multimap``."""
+    out: dict[str, Any] = {
+        "n_learned": int(model.n_learned),
+        "n_experts": int(model.n_experts),
+        "expert_sizes": {str(k): int(v) for k, v in sorted(dict(model.expert_sizes()).items())},
+        "assignments": [int(a) for a in np.asarray(model.assignments()).reshape(-1)],
+        "probes": [],
+    }
+    for x in probes:
+        p = model.predict_one(np.asarray(x, dtype=np.float64))
+        mm = model.predict_multimap(np.asarray(x, dtype=np.float64))
+        out["probes"].append({
+            "x": _floats(x),
+            "mean": _floats(p.mean),
+            "var": _floats(p.var),
+            "expert": int(p.expert_id),
+            "multimap": [{"expert": int(e.expert_id), "p": float(e.gate_prob),
+                          "mean": _floats(e.mean), "var": _floats(e.var),
+                          "n": int(e.n_points)} for e in mm],
+        })
+    return out
+
+
+def _close(a: Sequence[float], b: Sequence[float], tol: float) -> float:
+    """Max abs difference (inf if the shapes differ or a value is not finite)."""
+    if len(a) != len(b):
+        return math.inf
+    d = max((abs(x - y) for x, y in zip(a, b, strict=True)), default=0.0)
+    return d if math.isfinite(d) else math.inf
+
+
+def behaviour_differences(a: Mapping[str, Any], b: Mapping[str, Any],
+                          tol: float = 1e-9) -> list[str]:
+    """What differs between two :func:`behaviour` results (empty: the same within ``tol``)."""
+    diffs: list[str] = []
+    for key in ("n_learned", "n_experts", "expert_sizes"):
+        if a[key] != b[key]:
+            diffs.append(f"{key}: {a[key]} != {b[key]}")
+    if a["assignments"] != b["assignments"]:
+        n = next((i for i, (x, y) in enumerate(zip(a["assignments"], b["assignments"],
+                                                   strict=False)) if x != y),
+                 min(len(a["assignments"]), len(b["assignments"])))
+        diffs.append(f"assignments differ from pair {n} on "
+                     f"({len(a['assignments'])} vs {len(b['assignments'])} pairs)")
+    if len(a["probes"]) != len(b["probes"]):
+        diffs.append(f"{len(a['probes'])} probes vs {len(b['probes'])}")
+        return diffs
+    for i, (p, q) in enumerate(zip(a["probes"], b["probes"], strict=True)):
+        if _close(p["x"], q["x"], tol) > 0:
+            diffs.append(f"probe {i}: different inputs")
+            continue
+        for key in ("mean", "var"):
+            d = _close(p[key], q[key], tol)
+            if d > tol:
+                diffs.append(f"probe {i}: {key} differs by {d:.3g}")
+        if p["expert"] != q["expert"]:
+            diffs.append(f"probe {i}: expert {p['expert']} != {q['expert']}")
+        ids_p = [e["expert"] for e in p["multimap"]]
+        ids_q = [e["expert"] for e in q["multimap"]]
+        if ids_p != ids_q:
+            diffs.append(f"probe {i}: multimap experts {ids_p} != {ids_q}")
+            continue
+        for e, f in zip(p["multimap"], q["multimap"], strict=True):
+            d = max(abs(e["p"] - f["p"]), _close(e["mean"], f["mean"], tol),
+                    _close(e["var"], f["var"], tol))
+            if d > tol or e["n"] != f["n"]:
+                diffs.append(f"probe {i}: expert {e['expert']} differs by {d:.3g} "
+                             f"(n {e['n']} vs {f['n']})")
+    return diffs
+
+
+def probe_inputs(xs: Sequence[Any], n: int = 12) -> list[list[float]]:
+    """About ``n`` probe inputs: rows of ``xs`` spread over the stream, plus midpoints of
+    neighbouring picks (inputs the model never saw); deterministic."""
+    arr = np.asarray(xs, dtype=np.float64)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if len(arr) == 0:
+        return []
+    k = max(1, (n + 1) // 2)
+    idx = np.unique(np.linspace(0, len(arr) - 1, k).round().astype(int))
+    picks = [arr[i] for i in idx]
+    mids = [(picks[i] + picks[i + 1]) / 2 for i in range(len(picks) - 1)]
+    out = [p for p in picks] + mids
+    return [[float(v) for v in r] for r in out[:n]]
