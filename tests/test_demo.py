@@ -1,0 +1,61 @@
+"""``roger demo`` (``make demo``): daemon, simulator, HCC demonstrator, then the HCC
+transitioner on the learned experts, as separate processes over Zenoh; a summary at the end."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from roger_daemon.recording import read_timeline
+
+pytestmark = pytest.mark.integration
+
+ROGER = [sys.executable, "-m", "roger_daemon"]
+
+
+def _demo(out: Path, *extra: str, timeout: float = 240.0) -> tuple[dict[str, Any], str, float]:
+    t0 = time.monotonic()
+    proc = subprocess.run([*ROGER, "demo", "--out", str(out), *extra], capture_output=True,
+                          text=True, timeout=timeout)
+    wall = time.monotonic() - t0
+    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
+    return json.loads((out / "summary.json").read_text()), proc.stdout, wall
+
+
+def _check(summary: dict[str, Any], stdout: str, locations: list[int]) -> None:
+    assert [e["location"] for e in summary["demonstrations"]] == locations
+    ticks = sum(e["ticks"] for e in summary["demonstrations"])
+    # the daemon learned every demonstrated tick, live, and the log holds the same pairs
+    assert summary["pairs"] == ticks
+    tl = read_timeline([Path(p) for p in summary["mcap"]])
+    assert len(tl.pairs) == ticks
+    assert summary["experts"] >= 1 and len(summary["expert_labels"]) == summary["experts"]
+    test = summary["test_episode"]
+    assert test["outcome"] in ("goal", "own_goal", "out", "timeout")
+    # the transitioner was served a prediction for every tick of its episode
+    tr = summary["transitioner"]
+    assert tr["no_prediction"] == 0 and tr["commands"] == test["ticks"]
+    assert Path(summary["checkpoint"]).is_file()
+    for f in summary["figures"].values():
+        assert Path(f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "roger demo: summary" in stdout and "experts found" in stdout
+
+
+def test_short_demo(tmp_path: Path) -> None:
+    summary, stdout, _ = _demo(tmp_path / "demo", "--locations", "0", "--vision", "fast",
+                               "--time-limit", "10")
+    _check(summary, stdout, [0])
+    assert summary["test_episode"]["sim_time_s"] <= 10.0 + 1e-6
+
+
+@pytest.mark.slow
+def test_default_demo_finishes_in_under_three_minutes(tmp_path: Path) -> None:
+    summary, stdout, wall = _demo(tmp_path / "demo")
+    _check(summary, stdout, [0, 1, 3, 6])
+    assert wall < 180.0, f"roger demo took {wall:.0f} s"
