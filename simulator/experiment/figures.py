@@ -49,7 +49,7 @@ def plot_pca(
     uniq = sorted(set(experts.tolist()))
     cmap = plt.get_cmap("tab20")
     expert_colour = {e: cmap(i % 20) for i, e in enumerate(uniq)}
-    fig = plt.figure(figsize=(16, 5.5))
+    fig = plt.figure(figsize=(16, 6))
     panels = [
         ("(a) by demonstrated subtask", [_colour(s) for s in labels]),
         (f"(b) by ROGER expert ({len(uniq)} experts)", [expert_colour[e] for e in experts]),
@@ -58,15 +58,18 @@ def plot_pca(
     for i, (title, colours) in enumerate(panels):
         ax = fig.add_subplot(1, 3, i + 1, projection="3d")
         ax.scatter(p[:, 0], p[:, 1], p[:, 2], c=colours, s=4, alpha=0.7, linewidths=0)
-        ax.set_title(title)
         ax.set_xlabel("PC1")
         ax.set_ylabel("PC2")
         ax.set_zlabel("PC3")
+        # 3-D axes put their own titles inside the (clipped) box: label the panel instead
+        fig.text((i + 0.5) / 3, 0.95, title, ha="center", va="top", fontsize=12)
     handles = [
         plt.Line2D([], [], marker="o", ls="", color=_colour(s), label=s) for s in SUBTASKS
     ]
     fig.legend(handles=handles, loc="lower center", ncol=len(SUBTASKS))
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.suptitle("Demonstration data, PCA of the joint (perception, action) space",
+                 fontsize=13, y=0.995)
+    fig.subplots_adjust(left=0.01, right=0.97, bottom=0.08, top=0.9, wspace=0.08)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
@@ -113,14 +116,15 @@ def plot_success(
     width = 0.8 / max(1, len(names))
     for i, name in enumerate(names):
         vals = np.asarray(per_location[name], dtype=float)
-        ax.bar(np.arange(len(vals)) + i * width, vals, width=width, label=name)
+        bars = ax.bar(np.arange(len(vals)) + i * width, vals, width=width, label=name)
+        ax.bar_label(bars, labels=[f"{100 * v:.0f}%" for v in vals], fontsize=7, padding=1)
     ax.set_xticks(np.arange(n_loc) + 0.4 - width / 2)
     labels = [str(v) for v in locations] if locations is not None else []
     labels += [str(i) for i in range(len(labels), n_loc)]
     ax.set_xticklabels(labels[:n_loc])
     ax.set_xlabel("start location")
     ax.set_ylabel("success rate")
-    ax.set_ylim(0, 1.05)
+    ax.set_ylim(0, 1.12)
     ax.set_title(title or "Success per start location")
     ax.legend()
     fig.tight_layout()

@@ -229,6 +229,6 @@ def write_figures(out: Path, stream: Any, assignments: npt.NDArray[np.int64],
                      for row in rows] for c, rows in per_loc.items()}
         figs["success_per_location"] = plot_success(
             rates, out / "success_per_location.png", locations=locs,
-            title="Success per start location "
-            f"({next(iter(per_loc.values()))[0]['attempts']} attempts each)")
+            title="Goals scored per start location "
+            f"({next(iter(per_loc.values()))[0]['attempts']} attempt(s) per controller)")
     return {k: str(v) for k, v in figs.items()}
