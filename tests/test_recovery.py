@@ -351,3 +351,35 @@ def test_recovery_never_raises(tmp_path: Path, caplog: pytest.LogCaptureFixture,
     c_robots, _ = start_robots(make_cfg(tmp_path, logs3), fresh=False)
     assert c_robots["sim"].updates == 20 and not c_robots["sim"].queue
     assert "start-up recovery failed while re-learning" in caplog.text
+
+
+def test_recovery_by_hand_with_log_recover_and_replay_checkpoint(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The README procedure: ``roger log recover --in-place``, then ``roger replay
+    --checkpoint <last checkpoint> --save-checkpoint <dir>``; the daemon resumes from that."""
+    from roger_daemon.cli import main as roger
+
+    a = Life(make_cfg(tmp_path, tmp_path / "logs1"))
+    a.pairs(range(50))  # checkpoints at 20 and 40
+    a.flush()
+    logs2 = a.crash(tmp_path / "logs2")
+    (sf,) = list_session_files(logs2)
+    last = list_checkpoints(tmp_path / "ckpt", "sim")[0]
+    assert read_checkpoint(last).meta["updates"] == 40
+    assert roger(["log", "recover", str(sf.path), "--in-place"]) == 3  # lossy: no footer
+    assert is_complete(sf.path)
+    capsys.readouterr()
+    assert roger(["replay", str(sf.path), "--checkpoint", str(last), "--check", "--no-progress",
+                  "--save-checkpoint", str(tmp_path / "ckpt")]) == 0
+    out = capsys.readouterr().out
+    assert "learned:      10 pairs" in out and "checkpoint:   " in out and "result:       OK" in out
+    saved = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
+    assert saved.meta["reason"] == "replay" and saved.meta["updates"] == 50
+
+    b = Life(make_cfg(tmp_path, logs2))  # resumes from the replayed checkpoint: nothing newer
+    assert b.where.checkpoint == str(saved.path) and b.rt.recovered_pairs == 0
+    assert b.rt.updates == 50 and b.rt.last_learned_tick == 49
+    assert_same(b.rt.model, reference(list(range(50))))
+    labels = majority_labels(b.rt.model.assignments(), [LABELS[t] for t in range(50)])
+    assert b.rt.expert_labels() == labels

@@ -12,14 +12,23 @@ The daemon's seam::
     rec.poll(time.monotonic_ns())     # every loop cycle: flushes/rotates when due, else ~free
     rec.close()                       # on shutdown: summary, indexes, footer, fsync
 
-Start-up self-recovery after a crash (phase 2), before opening the new recorder::
+Start-up self-recovery after a crash (``roger_daemon.daemon.recover_from_logs``), before the
+new recorder opens (an open session would cut the history)::
 
-    recover_directory(log_dir)                               # footer-less files -> indexed
-    ck = <newest checkpoint>: model (n_learned U) + queued pairs Q
-    tail = log_tail(log_dir, learned=U, robot=r, from_session=ck.meta.get("session_id"))
-    for p in tail.after_queue(Q.ticks): enqueue(p)           # the logged pairs after Q
-    # learn Q + tail, write a checkpoint, then start the session with
-    # session_metadata(..., start_updates=model.n_learned, checkpoint=<that file>)
+    pos = CheckpointPosition(learned=U, session_id=ck.meta["session_id"],
+                             segment=ck.meta["session_segment"],
+                             last_tick=ck.meta["counters"]["last_learned_tick"], queue=Q)
+    plan = plan_recovery(log_dir, robot, dims=DIMS, checkpoint=pos)   # never raises
+    # plan.recovered: footer-less files made whole; plan.notes: logs skipped and why
+    # learn Q, then plan.pairs (on a fresh model if plan.fresh), write a checkpoint at
+    # plan.position, then start the session with session_metadata(..., start_updates=
+    # model.n_learned, checkpoint=<that file>, resumed_session=..., resumed_segment=...)
+
+By hand: ``roger log recover FILE --in-place``, then ``roger replay FILE --checkpoint CK
+--save-checkpoint DIR`` (:func:`resume_timeline`, :func:`save_checkpoint`).
+
+Queue drops are named in the log (``roger/<robot>/daemon/dropped``, :mod:`.events`), so replay
+stays exact when the daemon's training queue overflows.
 
 Nothing here imports Zenoh (only ``cli_record``, ``zenoh_net`` and ``publish`` do).
 """
@@ -27,6 +36,8 @@ Nothing here imports Zenoh (only ``cli_record``, ``zenoh_net`` and ``publish`` d
 from __future__ import annotations
 
 from roger_daemon.recording.catchup import CatchUp, CatchUpError, log_tail
+from roger_daemon.recording.compare import behaviour, behaviour_differences, probe_inputs
+from roger_daemon.recording.events import dropped_topic
 from roger_daemon.recording.files import SessionFile, list_session_files, parse_name
 from roger_daemon.recording.mcapio import LogMessage, LogReader, is_complete, read_metadata
 from roger_daemon.recording.metadata import (
@@ -47,8 +58,11 @@ from roger_daemon.recording.replay import (
     ReplayResult,
     replay_session,
     replay_timeline,
+    resume_timeline,
+    save_checkpoint,
 )
 from roger_daemon.recording.schemas import schema, schema_bytes, schema_name
+from roger_daemon.recording.startup import CheckpointPosition, RecoveryPlan, plan_recovery
 from roger_daemon.recording.timeline import (
     LearnedPair,
     PairTracker,
@@ -62,6 +76,7 @@ __all__ = [
     "METADATA_NAME",
     "CatchUp",
     "CatchUpError",
+    "CheckpointPosition",
     "LearnedPair",
     "LogMessage",
     "LogReader",
@@ -70,18 +85,24 @@ __all__ = [
     "RecordedPrediction",
     "RecorderStats",
     "RecoverReport",
+    "RecoveryPlan",
     "ReplayError",
     "ReplayResult",
     "SessionFile",
     "SessionInfo",
     "SessionRecorder",
     "Timeline",
+    "behaviour",
+    "behaviour_differences",
+    "dropped_topic",
     "header_fields",
     "is_complete",
     "list_session_files",
     "log_tail",
     "package_versions",
     "parse_name",
+    "plan_recovery",
+    "probe_inputs",
     "read_metadata",
     "read_timeline",
     "recover",
@@ -89,6 +110,8 @@ __all__ = [
     "recover_in_place",
     "replay_session",
     "replay_timeline",
+    "resume_timeline",
+    "save_checkpoint",
     "schema",
     "schema_bytes",
     "schema_name",

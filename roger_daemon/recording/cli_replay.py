@@ -30,7 +30,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", choices=("roger", "unimap"), help="default: the recorded one")
     parser.add_argument("--checkpoint", type=Path, metavar="FILE.npz",
                         help="the checkpoint the session resumed from (daemon checkpoint with "
-                             "its queued pairs, or a plain state_dict .npz)")
+                             "its queued pairs, or a plain state_dict .npz); or a daemon "
+                             "checkpoint written during the session (e.g. the last one before "
+                             "a crash): then only what the log holds after it is replayed")
+    parser.add_argument("--save-checkpoint", type=Path, metavar="DIR",
+                        help="write the replayed model as a daemon checkpoint into DIR (the "
+                             "daemon's [checkpoint] dir), for the daemon to resume from")
     parser.add_argument("--check", action="store_true",
                         help="exit 1 unless every recorded prediction is reproduced")
     parser.add_argument("--tolerance", type=float, default=1e-9,
@@ -98,7 +103,13 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
-    from roger_daemon.recording.replay import ReplayError, load_checkpoint, replay_timeline
+    from roger_daemon.recording.catchup import CatchUpError
+    from roger_daemon.recording.replay import (
+        ReplayError,
+        load_checkpoint,
+        replay_timeline,
+        resume_timeline,
+    )
     from roger_daemon.recording.timeline import read_timeline
 
     err = Console(stderr=True)
@@ -114,8 +125,18 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
             seed = args.seed
         initial: Any = None
         queued: list[Any] = []
+        ck_meta: dict[str, Any] = {}
+        notes: list[str] = []
         if args.checkpoint:
-            initial, queued, _ = load_checkpoint(args.checkpoint)
+            initial, queued, ck_meta = load_checkpoint(args.checkpoint)
+            learned = int(initial.n_learned)
+            if ck_meta and learned != tl.segments[0].start_updates:
+                # a checkpoint taken during the session: checkpoint + the log's tail
+                tl2, notes = resume_timeline(tl, files, learned=learned, meta=ck_meta,
+                                             queued=queued)
+                if tl2 is tl:
+                    initial, queued = None, []
+                tl, queued = tl2, []
         total = sum(len(s.pairs) for s in tl.segments)
         with Progress(
             "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
@@ -128,10 +149,17 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
                 initial_pairs=queued,
                 progress=lambda n: prog.advance(task, n),
             )
-    except (ReplayError, ValueError) as exc:
+        res.warnings.extend(notes)
+        saved = ""
+        if args.save_checkpoint:
+            saved = str(_save(res, args.save_checkpoint, args.checkpoint if initial is not None
+                              else None, queued))
+    except (ReplayError, CatchUpError, ValueError) as exc:
         print(f"roger replay: {exc}", file=sys.stderr)
         return 2
     summary = res.summary(args.tolerance)
+    if saved:
+        summary["saved_checkpoint"] = saved
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
@@ -142,6 +170,25 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
         print("roger replay --check: the log has no predictions to compare", file=sys.stderr)
         return 1
     return 0 if res.ok(args.tolerance) else 1
+
+
+def _save(res: Any, directory: Path, checkpoint: Path | None, queued: list[Any]) -> Path:
+    """Write the replayed model as a daemon checkpoint (labels from the checkpoint, if any)."""
+    from roger_daemon.recording.replay import save_checkpoint
+
+    vocab: list[str] = []
+    codes: list[int] = []
+    if checkpoint is not None:
+        from roger_daemon.checkpoint import CheckpointError, read_checkpoint
+
+        try:
+            ck = read_checkpoint(checkpoint)
+            vocab = [str(v) for v in ck.daemon["label_vocab"].tolist()]
+            codes = [int(c) for c in ck.daemon["label_codes"].tolist()]
+        except (CheckpointError, KeyError):
+            pass  # a plain state_dict: the labels of its pairs are unknown
+    return save_checkpoint(res, directory, base_vocab=vocab, base_codes=codes,
+                           queued_labels=[q.label for q in queued])
 
 
 def _print_summary(s: dict[str, Any], res: Any) -> None:
@@ -166,6 +213,8 @@ def _print_summary(s: dict[str, Any], res: Any) -> None:
         print(f"invalid:      {s['invalid_messages']}")
     for w in s["warnings"]:
         print(f"warning:      {w}")
+    if s.get("saved_checkpoint"):
+        print(f"checkpoint:   {s['saved_checkpoint']} ({s['n_learned']} updates)")
     print("result:       " + ("OK" if s["ok"] else "MISMATCH"))
 
 
