@@ -219,7 +219,7 @@ def _walk(
         parts = sessions[i]
         sid = _session_id(parts[0])
         try:
-            tl = read_timeline(parts, robot=robot, dims=dims)
+            tl = read_timeline(parts, robot=robot, dims=dims, predictions=False)
         except Exception as exc:  # unreadable or unrelated file: report, go on without it
             w.notes.append(f"session {sid} skipped: cannot read it ({exc})")
             for p in parts:

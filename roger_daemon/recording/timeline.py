@@ -247,12 +247,14 @@ def read_timeline(
     dims: Dims | None = None,
     mode: str | None = None,
     start_updates: int | None = None,
+    predictions: bool = True,
 ) -> Timeline:
     """Read a session (its parts in order) into segments of learned pairs and predictions.
 
     ``robot``, ``dims``, ``mode`` and ``start_updates`` override the metadata (needed for files
     from ``roger record``, which has no learner metadata: dims then come from the first valid
-    perception and action).
+    perception and action). ``predictions=False`` skips the recorded predictions (log-tail
+    catch-up needs only the pairs; predictions are the costliest messages to decode).
     """
     files = [Path(p) for p in paths]
     if not files:
@@ -293,7 +295,8 @@ def read_timeline(
     recent: OrderedDict[int, Perception] = OrderedDict()  # newest perception per tick (queries)
     last_dropped: int | None = None
     want = {keyexpr.key(who, k): k
-            for k in ("perception", "action", "control", "prediction", "status")}
+            for k in ("perception", "action", "control", "prediction", "status")
+            if predictions or k != "prediction"}
     drop_topic = dropped_topic(who)
     dx = dims.x if dims else None
     dy = dims.y if dims else None
