@@ -203,7 +203,8 @@ def recover_from_logs(
     if notifier is not None:
         notifier.status(f"recovering {robot.id}: re-learning {len(plan.pairs)} pairs from the "
                         "session logs")
-    before = rt.updates + len(rt.queue)
+    base = ("a fresh model" if plan.fresh else
+            f"checkpoint {where.checkpoint} ({rt.updates} updates, {len(rt.queue)} queued pairs)")
     try:
         if plan.fresh:
             rt.reset()
@@ -220,12 +221,11 @@ def recover_from_logs(
     rt.recovered_pairs = len(plan.pairs)
     rt.last_tick = max(rt.last_tick, plan.last_tick or 0)
     files = sorted({Path(f).name for f in plan.files})
-    log.warning("%s: start-up recovery: %s; re-learned %d pairs (ticks %s..%s) from %s %s: "
-                "now %d updates, %d experts", robot.id, plan.summary, len(plan.pairs),
-                plan.pairs[0].tick if plan.pairs else "-", plan.last_tick
-                if plan.pairs else "-", "a fresh model and" if plan.fresh else
-                f"checkpoint {where.checkpoint or '(none)'} ({before} pairs incl. queue) and",
-                ", ".join(files) or "(no files)", rt.updates, int(rt.model.n_experts))
+    first = plan.pairs[0].tick if plan.pairs else "-"
+    log.warning("%s: start-up recovery: %s; re-learned %d pairs (ticks %s..%s) from %s on top "
+                "of %s: now %d updates, %d experts", robot.id, plan.summary, len(plan.pairs),
+                first, plan.last_tick if plan.pairs else "-", ", ".join(files) or "(no files)",
+                base, rt.updates, int(rt.model.n_experts))
     session, segment = plan.position
     model, daemon, meta = checkpoint_snapshot(
         rt, "recovered", daemon_id=cfg.id, created_unix_ns=time.time_ns(), session_id=session,
