@@ -383,3 +383,31 @@ def test_recovery_by_hand_with_log_recover_and_replay_checkpoint(
     assert_same(b.rt.model, reference(list(range(50))))
     labels = majority_labels(b.rt.model.assignments(), [LABELS[t] for t in range(50)])
     assert b.rt.expert_labels() == labels
+
+
+def test_a_session_that_started_with_queued_pairs_is_continued_exactly(tmp_path: Path) -> None:
+    """Life 1 is killed with pairs still queued (saved in its checkpoint, already logged);
+    life 2 learns them first (metadata ``restored_queued_pairs``), learns more, is killed
+    before any checkpoint; life 3 rebuilds checkpoint + queue + life 2's pairs."""
+    cfg1 = make_cfg(tmp_path, tmp_path / "logs1", every=0, mode="learn")
+    a = Life(cfg1)
+    a.pairs(range(12))
+    a.pairs(range(12, 20), settle=False)
+    a.send("control", Control("sim", 0, 0.0, op="checkpoint"))
+    a.service.step(0)  # 8 pairs formed, the checkpoint (12 learned + 8 queued), 1 learned
+    ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
+    assert ck.meta["updates"] == 12 and ck.daemon["queue_ticks"].tolist() == list(range(12, 20))
+    a.flush()
+    b = Life(make_cfg(tmp_path, a.crash(tmp_path / "logs2"), every=0, mode="learn"))
+    assert b.rt.recovered_pairs == 0 and len(b.rt.queue) == 8  # the log ends with the queue
+    b.settle()
+    b.pairs(range(20, 25))
+    b.flush()
+    logs3 = b.crash(tmp_path / "logs3")
+    b_id = b.recorders["sim"].session_id  # type: ignore[attr-defined]
+    (b_file,) = [sf.path for sf in list_session_files(logs3) if sf.session_id == b_id]
+    tl = read_timeline([b_file])
+    assert tl.segments[0].queued == 8 and [p.index for p in tl.pairs] == list(range(20, 25))
+    c = Life(make_cfg(tmp_path, logs3, every=0, mode="learn"))
+    assert c.rt.updates == 25 and c.rt.recovered_pairs == 5
+    assert_same(c.rt.model, reference(list(range(25))))
