@@ -15,7 +15,14 @@ import numpy.typing as npt  # noqa: E402
 from protocols.aibo import SUBTASKS  # noqa: E402
 from simulator.experiment.metrics import majority_labels  # noqa: E402
 
-__all__ = ["SUBTASK_COLOURS", "pca3", "plot_experts_histogram", "plot_pca", "plot_success"]
+__all__ = [
+    "SUBTASK_COLOURS",
+    "expert_colours",
+    "pca3",
+    "plot_experts_histogram",
+    "plot_pca",
+    "plot_success",
+]
 
 SUBTASK_COLOURS = {"seek": "tab:blue", "trap": "tab:orange", "aim": "tab:green", "kick": "tab:red"}
 
@@ -27,6 +34,21 @@ def pca3(data: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     z = z / np.where(sd > 0, sd, 1.0)
     _, _, vt = np.linalg.svd(z, full_matrices=False)
     out: npt.NDArray[np.float64] = z @ vt[:3].T
+    return out
+
+
+def expert_colours(assignments: npt.NDArray[np.int64]) -> dict[int, tuple[float, float, float]]:
+    """A colour per expert, largest expert first, hues spread by the golden ratio (so that
+    experts close in size differ in colour); independent of the subtask colours."""
+    from matplotlib.colors import hsv_to_rgb
+
+    ids, counts = np.unique(assignments, return_counts=True)
+    order = [int(e) for _, e in sorted(zip(-counts, ids, strict=True))]
+    out = {}
+    for i, e in enumerate(order):
+        hue = (0.12 + 0.618034 * i) % 1.0
+        rgb = hsv_to_rgb((hue, 0.55 + 0.35 * (i % 2), 0.95 - 0.25 * ((i // 2) % 2)))
+        out[e] = (float(rgb[0]), float(rgb[1]), float(rgb[2]))
     return out
 
 
@@ -47,12 +69,12 @@ def plot_pca(
     experts = np.asarray(assignments)
     groups = majority_labels(experts.tolist(), list(labels))
     uniq = sorted(set(experts.tolist()))
-    cmap = plt.get_cmap("tab20")
-    expert_colour = {e: cmap(i % 20) for i, e in enumerate(uniq)}
+    expert_colour = expert_colours(experts)
     fig = plt.figure(figsize=(16, 6))
     panels = [
         ("(a) by demonstrated subtask", [_colour(s) for s in labels]),
-        (f"(b) by ROGER expert ({len(uniq)} experts)", [expert_colour[e] for e in experts]),
+        (f"(b) by ROGER expert ({len(uniq)} expert{'s' if len(uniq) != 1 else ''})",
+         [expert_colour[e] for e in experts]),
         ("(c) experts grouped by majority subtask", [_colour(groups[e]) for e in experts]),
     ]
     for i, (title, colours) in enumerate(panels):
