@@ -474,6 +474,12 @@ class Experiment:
             **{c: _controller_stats([r for r in ev if r is not None and r.job.controller == c])
                for c in plan.controllers},
         }
+        # process time of the jobs (kept from the original run when --resume reused them)
+        results["jobs_wall_s"] = {
+            "demo": round(sum(r.wall_s for r in demo_results), 1),
+            **{c: round(sum(r.wall_s for r in ev if r is not None and r.job.controller == c), 1)
+               for c in plan.controllers},
+        }
         results["machine"] = _machine()
         path = plan.out / "results.json"
         tmp = path.with_suffix(".json.tmp")
