@@ -186,6 +186,7 @@ class _Runner:
         self.console = console
         self.progress = progress
         self.errors: list[str] = []
+        self.reused = 0
 
     def run(self, jobs: Sequence[EpisodeJob], tasks: dict[str, Any],
             on_done: Callable[[JobResult], None] | None = None) -> list[JobResult | None]:
@@ -231,6 +232,7 @@ class _Runner:
         if self.plan.resume:
             earlier = load_finished(job)
             if earlier is not None:
+                self.reused += 1
                 return earlier
         last: Exception | None = None
         for k in range(self.plan.retries + 1):
@@ -475,6 +477,7 @@ class Experiment:
                for c in plan.controllers},
         }
         # process time of the jobs (kept from the original run when --resume reused them)
+        results["resumed_jobs"] = runner.reused
         results["jobs_wall_s"] = {
             "demo": round(sum(r.wall_s for r in demo_results), 1),
             **{c: round(sum(r.wall_s for r in ev if r is not None and r.job.controller == c), 1)
