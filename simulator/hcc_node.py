@@ -28,11 +28,9 @@ On exit it prints one JSON line of counters (also to ``--stats FILE``).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -48,10 +46,9 @@ from simulator.transport import (
     InvalidCounter,
     StopFlag,
     add_zenoh_args,
-    config_from_args,
-    open_session,
     publisher,
     put,
+    serve,
     wait_for,
 )
 
@@ -274,18 +271,5 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, OSError, TypeError) as exc:
         print(f"roger hcc: {exc}", file=sys.stderr)
         return 2
-    stop = StopFlag()
-    node = HCCNode(args, hcc, stop)
-    session = open_session(config_from_args(args))
-    try:
-        out = node.run(session)
-    finally:
-        try:
-            session.close()
-        except Exception as exc:
-            log.warning("closing the zenoh session: %s", exc)
-    if args.stats:
-        Path(args.stats).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.stats).write_text(json.dumps(out, indent=1))
-    print(json.dumps(out), flush=True)
+    serve(HCCNode(args, hcc, StopFlag()), args)
     return 0

@@ -29,6 +29,7 @@ import signal
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -49,6 +50,7 @@ __all__ = [
     "open_session",
     "publisher",
     "put",
+    "serve",
     "wait_for",
 ]
 
@@ -246,3 +248,30 @@ class StopFlag:
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         self.stopped = True
         self.signal = signum
+
+
+def serve(
+    node: Any, args: argparse.Namespace, *, cleanup: Callable[[], None] | None = None
+) -> dict[str, Any]:
+    """Open the session from ``args``, run ``node.run(session)`` to its end, close, report.
+
+    The one lifecycle of every ROGER node process: the session is closed whatever happens
+    (a close that times out is logged, nothing is left to save then), ``cleanup`` runs after
+    it, the node's counters go to ``--stats`` (if given) and, as one JSON line, to stdout.
+    """
+    session = open_session(config_from_args(args))
+    try:
+        out: dict[str, Any] = node.run(session)
+    finally:
+        try:
+            session.close()
+        except Exception as exc:  # zenoh may time out closing; nothing left to save
+            log.warning("closing the zenoh session: %s", exc)
+        if cleanup is not None:
+            cleanup()
+    stats = getattr(args, "stats", None)
+    if stats:
+        Path(stats).parent.mkdir(parents=True, exist_ok=True)
+        Path(stats).write_text(json.dumps(out, indent=1))
+    print(json.dumps(out), flush=True)
+    return out

@@ -17,11 +17,9 @@ the node exits on the simulator's final ``end`` event; it prints its counters as
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -35,10 +33,9 @@ from simulator.transport import (
     InvalidCounter,
     StopFlag,
     add_zenoh_args,
-    config_from_args,
-    open_session,
     publisher,
     put,
+    serve,
     wait_for,
 )
 
@@ -116,20 +113,7 @@ class DPANode:
 
 def run(args: argparse.Namespace) -> int:
     """Forward predictions as commands until stopped or the run is complete."""
-    stop = StopFlag()
-    node = DPANode(args, stop)
-    session = open_session(config_from_args(args))
-    try:
-        out = node.run(session)
-    finally:
-        try:
-            session.close()
-        except Exception as exc:  # zenoh may time out closing; nothing left to save
-            log.warning("closing the zenoh session: %s", exc)
-    if args.stats:
-        Path(args.stats).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.stats).write_text(json.dumps(out, indent=1))
-    print(json.dumps(out), flush=True)
+    serve(DPANode(args, StopFlag()), args)
     return 0
 
 
