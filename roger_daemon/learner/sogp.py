@@ -26,6 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
+from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.blas import dgemm as _dgemm
 
 from roger_daemon.learner.kernel import RBFKernel
@@ -37,6 +38,13 @@ FloatArray = npt.NDArray[np.float64]
 LATENT_FLOOR = 1e-12  # clamp of k* + k^T C k (Grollman, OTL, Csató)
 _GAMMA_FLOOR = 1e-12  # projection residuals below this count as 0 (roger-math.md §2.5 step 3)
 _LOG_2PI = math.log(2.0 * math.pi)
+# Q = K_B^-1 is kept by rank-1 updates and drifts when K_B is ill-conditioned (pitfall 6: a
+# broad kernel and a small novelty threshold admit near-duplicate basis vectors). Two O(n)
+# consistency checks that exact arithmetic guarantees trigger a re-inversion from the basis:
+# gamma = k* - k^T Q k >= 0 (a squared distance), and Q_ii >= 1/K_ii = 1/k*.
+_Q_DRIFT_TOL = 1e-6
+_NEAR_DEPENDENT = 1e-3  # a basis vector added with gamma below this (x k*) re-inverts Q
+_Q_JITTER = 1e-10  # times k*: first jitter tried if K_B's Cholesky factorisation fails
 
 
 def _add_lowrank(buf: FloatArray, n: int, cols: FloatArray, coefs: FloatArray) -> None:
@@ -100,7 +108,7 @@ class SparseOnlineGP:
     """
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_dg")
+                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_dg", "q_refreshes")
 
     def __init__(self, d_x: int, d_y: int, kernel: RBFKernel, noise: float,
                  capacity: int | None, novelty_threshold: float = 1e-6,
@@ -121,6 +129,7 @@ class SparseOnlineGP:
         self._C: FloatArray = np.zeros((alloc, alloc))
         self._Q: FloatArray = np.zeros((alloc, alloc))
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
+        self.q_refreshes = 0  # re-inversions of Q after detected drift
 
     def _initial_alloc(self) -> int:
         return 8 if self.capacity is None else min(8, self.capacity)
@@ -198,6 +207,10 @@ class SparseOnlineGP:
         # step 3: novelty, the projection residual gamma = k* - k^T Q k
         e_hat = self._Q[:n, :n] @ k
         gamma = kstar - float(k @ e_hat)
+        if self.q_inconsistent(gamma):
+            self.refresh_inverse_gram()
+            e_hat = self._Q[:n, :n] @ k
+            gamma = kstar - float(k @ e_hat)
         if gamma < _GAMMA_FLOOR:
             gamma = 0.0
         if gamma < self.novelty_threshold * kstar or gamma <= 0.0:
@@ -209,6 +222,37 @@ class SparseOnlineGP:
         else:
             self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6
+        if 0.0 < gamma < _NEAR_DEPENDENT * kstar and self.n > 1:
+            self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+
+    def q_inconsistent(self, gamma: float) -> bool:
+        """True when ``Q`` has visibly drifted from ``K_B^-1`` (see ``_Q_DRIFT_TOL``)."""
+        kstar = self.kernel.k_star
+        if gamma < -_Q_DRIFT_TOL * kstar:
+            return True
+        diag = np.diagonal(self._Q)[: self.n]
+        return bool(diag.size and float(diag.min()) * kstar < 1.0 - _Q_DRIFT_TOL)
+
+    def refresh_inverse_gram(self) -> None:
+        """Re-invert ``Q = K_B^-1`` from the basis vectors by Cholesky (roger-math.md pitfall 6).
+
+        Only ``Q`` is a function of the basis alone; ``A`` and ``C`` carry the data and are kept.
+        Counted in :attr:`q_refreshes`.
+        """
+        n = self.n
+        basis = self._B[:n]
+        gram = self.kernel.gram(basis, basis)
+        jitter = 0.0
+        while True:  # K_B is SPD in exact arithmetic; add jitter only if round-off says no
+            try:
+                factor = cho_factor(gram + jitter * np.eye(n), lower=True)
+                break
+            except np.linalg.LinAlgError:
+                jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
+        inv = cho_solve(factor, np.eye(n))
+        self._Q[:n, :n] = 0.5 * (inv + inv.T)
+        self._dg = None
+        self.q_refreshes += 1
 
     def _diag_cq(self) -> FloatArray:
         """``diag(C) + diag(Q)`` (cached by the fused hot path, else read off the matrices)."""
@@ -340,6 +384,7 @@ class SparseOnlineGP:
         out._C = self._C.copy()
         out._Q = self._Q.copy()
         out._dg = None if self._dg is None else self._dg.copy()
+        out.q_refreshes = self.q_refreshes
         return out
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,  # noqa: N803
@@ -396,6 +441,11 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     latents = np.array([t[3] for t in full_terms])
     e_hat = np.stack([gp._Q @ k for gp, k in zip(full, ks, strict=True)])  # step 3: Q k
     gamma = kstar - np.einsum("un,un->u", ks, e_hat)
+    for j, gp in enumerate(full):
+        if gp.q_inconsistent(float(gamma[j])):
+            gp.refresh_inverse_gram()
+            e_hat[j] = gp._Q @ ks[j]
+            gamma[j] = kstar - float(ks[j] @ e_hat[j])
     gamma[gamma < _GAMMA_FLOOR] = 0.0
     novel = (gamma >= np.array([g.novelty_threshold for g in full]) * kstar) & (gamma > 0.0)
     if not np.all(novel):
@@ -415,8 +465,10 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     for gp in full:
         gp.n_points += 1
     _fused_add_delete(full, x, y, ks, cks, means, latents, e_hat, gamma)
-    for gp in full:
+    for gp, g in zip(full, gamma.tolist(), strict=True):
         gp._clean_up()
+        if g < _NEAR_DEPENDENT * kstar and gp.n > 1:
+            gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
 
 
 def _fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
