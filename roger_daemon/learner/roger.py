@@ -76,6 +76,17 @@ def check_dims(d_x: object, d_y: object) -> tuple[int, int]:
     return int(d_x), int(d_y)  # type: ignore[call-overload]
 
 
+def resolve_model_args(d_x: object, d_y: object, params: RogerParams | None
+                       ) -> tuple[int, int, RogerParams]:
+    """Validated ``(d_x, d_y, params)`` of a model constructor (paper defaults for ``None``)."""
+    dx, dy = check_dims(d_x, d_y)
+    resolved = RogerParams() if params is None else params
+    if not isinstance(resolved, RogerParams):
+        raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
+    resolved.check_dims(dx, dy)
+    return dx, dy, resolved
+
+
 class Roger:
     """The ROGER multimap learner (paper Algorithms 1 and 2).
 
@@ -114,11 +125,7 @@ class Roger:
 
     def __init__(self, d_x: int, d_y: int, params: RogerParams | None = None,
                  seed: Seed = None) -> None:
-        self.d_x, self.d_y = check_dims(d_x, d_y)
-        self.params = RogerParams() if params is None else params
-        if not isinstance(self.params, RogerParams):
-            raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
-        self.params.check_dims(self.d_x, self.d_y)
+        self.d_x, self.d_y, self.params = resolve_model_args(d_x, d_y, params)
         self._learn_rng, self._predict_rng = spawn_generators(seed)
         self._setup()
 

@@ -16,7 +16,7 @@ import numpy.typing as npt
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
-from roger_daemon.learner.roger import check_dims
+from roger_daemon.learner.roger import resolve_model_args
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
@@ -62,11 +62,7 @@ class UnimapGP:
 
     def __init__(self, d_x: int, d_y: int, params: RogerParams | None = None,
                  seed: Seed = None) -> None:
-        self.d_x, self.d_y = check_dims(d_x, d_y)
-        self.params = RogerParams() if params is None else params
-        if not isinstance(self.params, RogerParams):
-            raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
-        self.params.check_dims(self.d_x, self.d_y)
+        self.d_x, self.d_y, self.params = resolve_model_args(d_x, d_y, params)
         self._learn_rng, self._predict_rng = spawn_generators(seed)
         p = self.params
         self._scaling = AffineScaling(p, self.d_x, self.d_y)
