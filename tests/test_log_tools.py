@@ -10,8 +10,7 @@ import jsonschema
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.records import Chunk
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap_testing import chunk_ends, messages
 
 from protocols import Action, Perception, Prediction, decode, encode, keys
 from roger_daemon.cli import main as roger
@@ -51,27 +50,6 @@ def _session(path: Path, *, ticks: int = 300, chunk_size: int = 1500,
     return rec.path
 
 
-def _chunk_ends(path: Path) -> list[tuple[int, int]]:
-    """(end offset, messages) of every chunk, from mcap's own chunk index."""
-    with open(path, "rb") as f:
-        summary = make_reader(f).get_summary()
-        assert summary is not None
-        out = []
-        for ci in summary.chunk_indexes:
-            f.seek(ci.chunk_start_offset)
-            rec = next(StreamReader(f, skip_magic=True, emit_chunks=True).records)
-            assert isinstance(rec, Chunk)
-            n = sum(type(r).__name__ == "Message" for r in breakup_chunk(rec))
-            out.append((ci.chunk_start_offset + ci.chunk_length, n))
-    return out
-
-
-def _messages(path: Path) -> list[tuple[str, int, int, int, bytes]]:
-    with open(path, "rb") as f:
-        return [(c.topic, m.log_time, m.publish_time, m.sequence, m.data)
-                for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
-
-
 # -- recover ---------------------------------------------------------------------------------
 
 
@@ -84,8 +62,8 @@ def test_recover_truncated_at_random_points_keeps_every_complete_chunk(
     session_file: Path, tmp_path: Path
 ) -> None:
     data = session_file.read_bytes()
-    full = _messages(session_file)
-    ends = _chunk_ends(session_file)
+    full = messages(session_file)
+    ends = chunk_ends(session_file)
     assert len(ends) > 20
     rnd = random.Random(1234)
     points = [rnd.randrange(200, len(data)) for _ in range(40)]
@@ -96,7 +74,7 @@ def test_recover_truncated_at_random_points_keeps_every_complete_chunk(
         rep = recover(cut, tmp_path / "rec.mcap")
         expected = sum(n for e, n in ends if e <= p)
         assert rep.messages == expected, p
-        assert _messages(Path(rep.output)) == full[:expected], p
+        assert messages(Path(rep.output)) == full[:expected], p
         assert is_complete(rep.output) and rep.metadata == 1
         assert not rep.complete
 
@@ -104,11 +82,11 @@ def test_recover_truncated_at_random_points_keeps_every_complete_chunk(
 def test_recover_complete_file_keeps_all(session_file: Path, tmp_path: Path) -> None:
     rep = recover(session_file, tmp_path / "same.mcap")
     assert rep.complete and rep.error == "" and rep.bytes_dropped == 0
-    assert _messages(Path(rep.output)) == _messages(session_file)
+    assert messages(Path(rep.output)) == messages(session_file)
 
 
 def test_recover_stops_at_a_corrupt_chunk(session_file: Path, tmp_path: Path) -> None:
-    ends = _chunk_ends(session_file)
+    ends = chunk_ends(session_file)
     data = bytearray(session_file.read_bytes())
     start_of_5th = ends[4][0]  # the 6th chunk starts here (message indexes first, then it)
     bad = ends[5][0] - 40  # inside the 6th chunk's compressed data
@@ -122,7 +100,7 @@ def test_recover_stops_at_a_corrupt_chunk(session_file: Path, tmp_path: Path) ->
 
 
 def test_recover_zero_filled_tail(session_file: Path, tmp_path: Path) -> None:
-    ends = _chunk_ends(session_file)
+    ends = chunk_ends(session_file)
     data = session_file.read_bytes()[: ends[9][0]] + bytes(4096)
     f = tmp_path / "zeros.mcap"
     f.write_bytes(data)
@@ -252,7 +230,7 @@ def test_log_info_on_a_footerless_file(session_file: Path, tmp_path: Path) -> No
 def test_export_is_json_with_schemas_that_validate(session_file: Path, tmp_path: Path) -> None:
     out = tmp_path / "session.json.mcap"
     assert roger(["log", "export", str(session_file), "--json", str(out)]) == 0
-    orig = _messages(session_file)
+    orig = messages(session_file)
     with open(out, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()

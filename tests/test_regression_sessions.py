@@ -14,9 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mcap.reader import make_reader
-from mcap.records import Chunk
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap_testing import chunk_ends, messages
 
 from roger_daemon.cli import main as roger
 from roger_daemon.recording import (
@@ -97,35 +95,14 @@ def test_log_info_is_stable(name: str, monkeypatch: pytest.MonkeyPatch,
     assert capsys.readouterr().out == (ROOT / DATA / f"{name}.info.txt").read_text()
 
 
-def _chunk_ends(path: Path) -> list[tuple[int, int]]:
-    """(end offset, messages) of every chunk, from mcap's own chunk index."""
-    with open(path, "rb") as f:
-        summary = make_reader(f).get_summary()
-        assert summary is not None
-        out = []
-        for ci in summary.chunk_indexes:
-            f.seek(ci.chunk_start_offset)
-            rec = next(StreamReader(f, skip_magic=True, emit_chunks=True).records)
-            assert isinstance(rec, Chunk)
-            n = sum(type(r).__name__ == "Message" for r in breakup_chunk(rec))
-            out.append((ci.chunk_start_offset + ci.chunk_length, n))
-    return out
-
-
-def _messages(path: Path) -> list[tuple[str, int, int, int, bytes]]:
-    with open(path, "rb") as f:
-        return [(c.topic, m.log_time, m.publish_time, m.sequence, m.data)
-                for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
-
-
 @pytest.mark.parametrize("name", NAMES)
 def test_truncated_copies_are_recovered_with_every_complete_chunk(
     name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     src = ROOT / DATA / f"{name}.mcap"
     data = src.read_bytes()
-    full = _messages(src)
-    ends = _chunk_ends(src)
+    full = messages(src)
+    ends = chunk_ends(src)
     assert len(ends) >= 3 and sum(n for _, n in ends) == len(full)
     rnd = random.Random(f"truncate-{name}")
     points = sorted({rnd.randrange(64, len(data)) for _ in range(30)}
@@ -136,7 +113,7 @@ def test_truncated_copies_are_recovered_with_every_complete_chunk(
         rep = recover(cut, tmp_path / "rec.mcap")
         kept = sum(n for e, n in ends if e <= p)
         assert rep.messages == kept, p
-        assert _messages(Path(rep.output)) == full[:kept], p
+        assert messages(Path(rep.output)) == full[:kept], p
         assert is_complete(rep.output) and rep.metadata == 1 and not rep.complete
     # the command line says the same: lossy (exit 3), how much was kept
     middle = ends[len(ends) // 2][0] + 10
