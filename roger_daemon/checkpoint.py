@@ -10,9 +10,10 @@ highest valid one is the newest). Each file is an ``np.savez`` archive of named 
   (:data:`CHECKPOINT_VERSION`), ``robot``, ``created_unix_ns``, ``updates``, counters,
   ``model_digest`` (SHA-256 of the model arrays) and ``digest`` (of every array).
 
-Writes are atomic: a temporary file in the same directory, ``fsync``, ``os.replace``, then
-``fsync`` of the directory. Reads use ``allow_pickle=False`` and verify the digest, so a
-truncated, garbled or tampered file raises :class:`CheckpointError` and is skipped by
+Writes are atomic and durable (:func:`roger_daemon.atomic.atomic_write`: a temporary file in
+the same directory, ``fsync``, rename, ``fsync`` of the directory). Reads use
+``allow_pickle=False`` and verify the digest, so a truncated, garbled or tampered file raises
+:class:`CheckpointError` and is skipped by
 :func:`load_newest`. Older versions are upgraded by the functions in ``MIGRATIONS``.
 """
 
@@ -21,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -29,6 +29,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from roger_daemon.atomic import atomic_write
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -133,21 +135,8 @@ def write_checkpoint(
         "digest": array_digest(arrays),
     }
     arrays["meta"] = np.array(json.dumps(full_meta, sort_keys=True))
-    tmp = d / f".{final.name}.tmp-{os.getpid()}"
-    try:
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)  # type: ignore[arg-type]
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    fd = os.open(d, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    with atomic_write(final) as f:
+        np.savez(f, **arrays)  # type: ignore[arg-type]
     for old in list_checkpoints(directory, robot)[keep:]:
         try:
             old.unlink()

@@ -38,6 +38,7 @@ import numpy as np
 
 from protocols import Command, EpisodeEvent, Perception, keys
 from protocols.aibo import DIMS
+from roger_daemon.atomic import write_json
 from simulator.config import CameraConfig, SimConfig, load_config
 from simulator.episodes import START_LOCATIONS, EpisodeResult, SoccerSim, parse_locations
 from simulator.transport import (
@@ -413,8 +414,6 @@ def run(args: argparse.Namespace) -> int:
     if args.results:
         path = Path(args.results)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(json.dumps(out, indent=1))
-        tmp.replace(path)
+        write_json(path, out)
     print(text, flush=True)
     return 0

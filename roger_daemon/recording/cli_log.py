@@ -1,7 +1,10 @@
 """``roger log info|recover|export``: inspect, salvage and convert session logs.
 
-Exit codes: 0 ok; 1 recover kept nothing or the file is not MCAP; 3 recover was lossy (the
-source had no footer or an unreadable tail; same meaning as ``mcap recover``).
+Exit codes: 0 ok; 1 the input is not an MCAP file (missing, a directory, wrong magic) or
+recover kept nothing; 2 bad arguments, or the output exists and ``--force`` was not given;
+3 recover was lossy (bytes of the source could not be read and were dropped).
+An output file is never overwritten without ``--force``; outputs are written atomically
+(complete or absent).
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 __all__ = ["configure", "run"]
 
@@ -28,10 +32,35 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--in-place", action="store_true",
                    help="replace FILE atomically (keeps the damaged one as FILE.damaged)")
     p.add_argument("--json", action="store_true", help="report as JSON")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     p = sub.add_parser("export", help="the session as json + jsonschema MCAP (opens in Foxglove)")
     p.add_argument("file", type=Path)
     p.add_argument("--json", dest="out", type=Path, required=True, metavar="OUT",
                    help="output MCAP with json message encoding")
+    p.add_argument("--force", action="store_true", help="overwrite an existing OUT file")
+
+
+def _bad_input(command: str, path: Path) -> bool:
+    """Print why ``path`` is not a readable log (the shared check) and return True if so."""
+    from roger_daemon.recording.mcapio import not_an_mcap_file
+
+    why = not_an_mcap_file(path)
+    if why:
+        print(f"roger log {command}: {why}", file=sys.stderr)
+    return bool(why)
+
+
+def _exists(command: str, out: Path, force: bool) -> bool:
+    """True (with a message) if ``out`` exists and may not be overwritten."""
+    if out.is_dir():
+        print(f"roger log {command}: output {out} is a directory; expected a file name",
+              file=sys.stderr)
+        return True
+    if out.exists() and not force:
+        print(f"roger log {command}: output {out} exists; pass --force to overwrite it",
+              file=sys.stderr)
+        return True
+    return False
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,9 +75,8 @@ def run(args: argparse.Namespace) -> int:
 def _info(args: argparse.Namespace) -> int:
     from roger_daemon.recording.info import format_info, log_info
 
-    if not args.file.is_file():
-        print(f"roger log info: no such file {args.file}", file=sys.stderr)
-        return 2
+    if _bad_input("info", args.file):
+        return 1
     info = log_info(args.file)
     text = json.dumps(info, indent=2, sort_keys=True) if args.json else format_info(info)
     try:
@@ -60,10 +88,15 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _recover(args: argparse.Namespace) -> int:
-    from roger_daemon.recording.recover import recover, recover_in_place
+    from roger_daemon.recording.recover import default_output, recover, recover_in_place
 
     if args.in_place and args.out:
         print("roger log recover: --out and --in-place exclude each other", file=sys.stderr)
+        return 2
+    if _bad_input("recover", args.file):
+        return 1
+    if not args.in_place and _exists("recover", args.out or default_output(args.file),
+                                     args.force):
         return 2
     try:
         rep = (recover_in_place(args.file, keep_original=True) if args.in_place
@@ -74,21 +107,32 @@ def _recover(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(rep.to_dict(), indent=2, sort_keys=True))
     else:
-        state = "complete (had its footer)" if rep.complete and not rep.error else (
-            f"salvaged; reading stopped: {rep.error or 'no footer'}")
-        print(f"{rep.source}: {state}")
+        print(f"{rep.source}: {_state(rep)}")
         print(f"kept {rep.messages} messages in {rep.chunks} chunks, {rep.channels} channels, "
               f"{rep.metadata} metadata records; dropped {rep.bytes_dropped} of "
               f"{rep.bytes_total} bytes")
         print(f"wrote {rep.output}")
     if rep.messages == 0 and rep.metadata == 0:
         return 1
-    return 0 if rep.complete and not rep.error else 3
+    return 3 if rep.bytes_dropped else 0
+
+
+def _state(rep: Any) -> str:
+    if rep.complete and not rep.error:
+        return "complete (had its footer)"
+    if not rep.bytes_dropped:
+        return ("no footer (the writer was killed); every byte on disk was readable: nothing "
+                "dropped")
+    return f"salvaged; reading stopped: {rep.error or 'no footer'}"
 
 
 def _export(args: argparse.Namespace) -> int:
     from roger_daemon.recording.export import export_json
 
+    if _bad_input("export", args.file):
+        return 1
+    if _exists("export", args.out, args.force):
+        return 2
     try:
         rep = export_json(args.file, args.out)
     except (ValueError, OSError) as exc:

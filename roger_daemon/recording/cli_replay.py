@@ -89,10 +89,12 @@ def _config(path: Path, robot: str) -> tuple[dict[str, Any] | None, int | None, 
 
 def run(args: argparse.Namespace) -> int:
     """Replay (or re-publish) and report."""
+    from roger_daemon.recording.mcapio import not_an_mcap_file
+
     files = _session_files(list(args.files))
     for f in files:
-        if not f.is_file():
-            print(f"roger replay: no such file {f}", file=sys.stderr)
+        if why := not_an_mcap_file(f):
+            print(f"roger replay: {why}", file=sys.stderr)
             return 2
     if args.publish:
         return _publish(args, files)

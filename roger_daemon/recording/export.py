@@ -12,7 +12,6 @@ from __future__ import annotations
 import base64
 import json
 import math
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.well_known import MessageEncoding
 from mcap.writer import CompressionType, Writer
 
+from roger_daemon.atomic import atomic_write
 from roger_daemon.recording.mcapio import LogReader
 
 __all__ = ["ExportReport", "export_json", "to_json_value"]
@@ -68,61 +68,54 @@ def export_json(path: str | Path, out: str | Path) -> ExportReport:
     channel_map: dict[int, int] = {}
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    tmp = dst.with_name(dst.name + ".part")
-    try:
-        with open(tmp, "wb") as f:
-            w = Writer(f, compression=CompressionType.ZSTD)
-            w.start(profile="", library="roger log export")
-            for rec in reader.records():
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                elif isinstance(rec, Metadata):
-                    w.add_metadata(rec.name, dict(rec.metadata))
-                elif isinstance(rec, Message):
-                    ch = channels.get(rec.channel_id)
-                    if ch is None:
-                        continue
-                    try:
-                        value = msgpack.unpackb(rec.data, raw=False, strict_map_key=False)
-                    except Exception:
-                        rep.skipped[ch.topic] = rep.skipped.get(ch.topic, 0) + 1
-                        continue
-                    cid = channel_map.get(ch.id)
-                    if cid is None:
-                        sid = 0
-                        s = schemas.get(ch.schema_id) if ch.schema_id else None
-                        if s is not None and s.encoding == "jsonschema":
-                            if s.id not in schema_map:
-                                schema_map[s.id] = w.register_schema(
-                                    name=s.name, encoding="jsonschema", data=s.data
-                                )
-                            sid = schema_map[s.id]
-                        cid = w.register_channel(
-                            topic=ch.topic,
-                            message_encoding=MessageEncoding.JSON,
-                            schema_id=sid,
-                            metadata=dict(ch.metadata),
-                        )
-                        channel_map[ch.id] = cid
-                    data = json.dumps(
-                        to_json_value(value), separators=(",", ":"), allow_nan=False
-                    ).encode()
-                    w.add_message(
-                        cid,
-                        log_time=rec.log_time,
-                        data=data,
-                        publish_time=rec.publish_time,
-                        sequence=rec.sequence,
+    with atomic_write(dst) as f:
+        w = Writer(f, compression=CompressionType.ZSTD)
+        w.start(profile="", library="roger log export")
+        for rec in reader.records():
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Message):
+                ch = channels.get(rec.channel_id)
+                if ch is None:
+                    continue
+                try:
+                    value = msgpack.unpackb(rec.data, raw=False, strict_map_key=False)
+                except Exception:
+                    rep.skipped[ch.topic] = rep.skipped.get(ch.topic, 0) + 1
+                    continue
+                cid = channel_map.get(ch.id)
+                if cid is None:
+                    sid = 0
+                    s = schemas.get(ch.schema_id) if ch.schema_id else None
+                    if s is not None and s.encoding == "jsonschema":
+                        if s.id not in schema_map:
+                            schema_map[s.id] = w.register_schema(
+                                name=s.name, encoding="jsonschema", data=s.data
+                            )
+                        sid = schema_map[s.id]
+                    cid = w.register_channel(
+                        topic=ch.topic,
+                        message_encoding=MessageEncoding.JSON,
+                        schema_id=sid,
+                        metadata=dict(ch.metadata),
                     )
-                    rep.messages += 1
-            w.finish()
-            f.flush()
-        os.replace(tmp, dst)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+                    channel_map[ch.id] = cid
+                data = json.dumps(
+                    to_json_value(value), separators=(",", ":"), allow_nan=False
+                ).encode()
+                w.add_message(
+                    cid,
+                    log_time=rec.log_time,
+                    data=data,
+                    publish_time=rec.publish_time,
+                    sequence=rec.sequence,
+                )
+                rep.messages += 1
+        w.finish()
     rep.channels = len(channel_map)
     rep.source_complete = reader.complete
     rep.source_error = reader.error

@@ -31,7 +31,41 @@ from mcap.records import (
 )
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-__all__ = ["LogMessage", "LogReader", "is_complete", "iter_files", "read_metadata", "topics_of"]
+__all__ = [
+    "MCAP_MAGIC",
+    "LogMessage",
+    "LogReader",
+    "is_complete",
+    "iter_files",
+    "not_an_mcap_file",
+    "read_metadata",
+    "topics_of",
+]
+
+#: The first 8 bytes of every MCAP file (and the last 8 of a finished one).
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def not_an_mcap_file(path: str | Path) -> str:
+    """Why ``path`` cannot be read as an MCAP log ("" if it starts like one).
+
+    The one input check of every command that reads a log (``log info|recover|export``,
+    ``replay``): a missing path, a directory, an empty file or one without the MCAP magic.
+    """
+    p = Path(path)
+    if not p.exists():
+        return f"{p}: no such file"
+    if p.is_dir():
+        return f"{p} is a directory; expected an MCAP file (roger-<robot>-<start>.mcap)"
+    try:
+        with open(p, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError as exc:
+        return f"{p}: cannot read ({exc.strerror or exc})"
+    if head != MCAP_MAGIC:
+        what = "an empty file" if not head else f"starts with {head[:8]!r}"
+        return f"{p} is not an MCAP file ({what}; an MCAP file starts with {MCAP_MAGIC!r})"
+    return ""
 
 
 @dataclass(frozen=True)

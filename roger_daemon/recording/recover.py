@@ -16,6 +16,7 @@ from pathlib import Path
 from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
+from roger_daemon.atomic import atomic_write, fsync_dir
 from roger_daemon.recording.mcapio import LogReader
 
 __all__ = [
@@ -85,64 +86,56 @@ def recover(
     channel_map: dict[int, int] = {}
     pending_schemas: dict[int, Schema] = {}
     n_msg = n_meta = n_att = 0
-    tmp = dst.with_name(dst.name + ".part")
-    try:
-        with open(tmp, "wb") as f:
-            w = Writer(f, chunk_size=chunk_size, compression=compression)
-            w.start(profile=first.profile, library=first.library)
-            for rec in records:
-                if isinstance(rec, Schema):
-                    pending_schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    if rec.id in channel_map:
-                        continue
-                    sid = 0
-                    if rec.schema_id:
-                        if rec.schema_id not in schema_map:
-                            s = pending_schemas.get(rec.schema_id)
-                            if s is None:
-                                continue  # channel without its schema: its messages are dropped
-                            schema_map[rec.schema_id] = w.register_schema(
-                                name=s.name, encoding=s.encoding, data=s.data
-                            )
-                        sid = schema_map[rec.schema_id]
-                    channel_map[rec.id] = w.register_channel(
-                        topic=rec.topic,
-                        message_encoding=rec.message_encoding,
-                        schema_id=sid,
-                        metadata=dict(rec.metadata),
-                    )
-                elif isinstance(rec, Message):
-                    cid = channel_map.get(rec.channel_id)
-                    if cid is None:
-                        continue
-                    w.add_message(
-                        cid,
-                        log_time=rec.log_time,
-                        data=rec.data,
-                        publish_time=rec.publish_time,
-                        sequence=rec.sequence,
-                    )
-                    n_msg += 1
-                elif isinstance(rec, Metadata):
-                    w.add_metadata(rec.name, dict(rec.metadata))
-                    n_meta += 1
-                elif isinstance(rec, Attachment):
-                    w.add_attachment(
-                        create_time=rec.create_time,
-                        log_time=rec.log_time,
-                        name=rec.name,
-                        media_type=rec.media_type,
-                        data=rec.data,
-                    )
-                    n_att += 1
-            w.finish()
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, dst)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_write(dst) as f:
+        w = Writer(f, chunk_size=chunk_size, compression=compression)
+        w.start(profile=first.profile, library=first.library)
+        for rec in records:
+            if isinstance(rec, Schema):
+                pending_schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                if rec.id in channel_map:
+                    continue
+                sid = 0
+                if rec.schema_id:
+                    if rec.schema_id not in schema_map:
+                        s = pending_schemas.get(rec.schema_id)
+                        if s is None:
+                            continue  # channel without its schema: its messages are dropped
+                        schema_map[rec.schema_id] = w.register_schema(
+                            name=s.name, encoding=s.encoding, data=s.data
+                        )
+                    sid = schema_map[rec.schema_id]
+                channel_map[rec.id] = w.register_channel(
+                    topic=rec.topic,
+                    message_encoding=rec.message_encoding,
+                    schema_id=sid,
+                    metadata=dict(rec.metadata),
+                )
+            elif isinstance(rec, Message):
+                cid = channel_map.get(rec.channel_id)
+                if cid is None:
+                    continue
+                w.add_message(
+                    cid,
+                    log_time=rec.log_time,
+                    data=rec.data,
+                    publish_time=rec.publish_time,
+                    sequence=rec.sequence,
+                )
+                n_msg += 1
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+                n_meta += 1
+            elif isinstance(rec, Attachment):
+                w.add_attachment(
+                    create_time=rec.create_time,
+                    log_time=rec.log_time,
+                    name=rec.name,
+                    media_type=rec.media_type,
+                    data=rec.data,
+                )
+                n_att += 1
+        w.finish()
     return RecoverReport(
         source=str(src),
         output=str(dst),
@@ -172,14 +165,15 @@ def recover_in_place(path: str | Path, *, keep_original: bool = False) -> Recove
     catch-up keep working). With ``keep_original`` the damaged file stays as ``X.mcap.damaged``.
     """
     src = Path(path)
-    fd, tmpname = tempfile.mkstemp(prefix=src.name + ".", suffix=".recovering", dir=src.parent)
+    fd, tmpname = tempfile.mkstemp(prefix=f".{src.name}.", suffix=".recovering", dir=src.parent)
     os.close(fd)
     tmp = Path(tmpname)
     try:
-        rep = recover(src, tmp)
+        rep = recover(src, tmp)  # written durably (atomic_write) under a temporary name
         if keep_original:  # a second name for the damaged bytes; src itself is swapped atomically
             os.link(src, _unused(src.with_name(src.name + ".damaged")))
         os.replace(tmp, src)
+        fsync_dir(src.parent)
     finally:
         if tmp.exists():
             tmp.unlink()

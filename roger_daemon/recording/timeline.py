@@ -53,7 +53,7 @@ from protocols.messages import (
     decode,
 )
 from roger_daemon.recording.events import decode_dropped, dropped_topic
-from roger_daemon.recording.mcapio import LogReader
+from roger_daemon.recording.mcapio import LogReader, topics_of
 from roger_daemon.recording.metadata import SessionInfo
 
 __all__ = [
@@ -388,4 +388,19 @@ def read_timeline(
     if tl.dims is None and dx is not None and dy is not None:
         tl.dims = Dims(dx, dy)
     tl.unpaired = tracker.pending
+    if robot and tl.messages == 0 and not tl.file_errors:
+        _absent(files, robot)
     return tl
+
+
+def _absent(files: list[Path], robot: str) -> None:
+    """Raise ``ValueError`` naming the robots a log has when ``robot`` has no message in it."""
+    robots = set()
+    for f in files:
+        for t in topics_of(f):
+            try:
+                robots.add(keyexpr.parse(t)[0])
+            except ProtocolError:
+                continue
+    raise ValueError(f"robot {robot!r} has no message in {', '.join(map(str, files))}; "
+                     f"the log has robot(s) {sorted(robots) or 'none'} (--robot ID)")

@@ -12,7 +12,13 @@ from collections.abc import Sequence
 
 import zenoh
 
-__all__ = ["DEFAULT_CONNECT", "DEFAULT_LISTEN", "add_arguments", "make_config"]
+__all__ = [
+    "DEFAULT_CONNECT",
+    "DEFAULT_LISTEN",
+    "add_arguments",
+    "connect_endpoints",
+    "make_config",
+]
 
 #: The conventional port of the daemon or router on this machine.
 DEFAULT_CONNECT = ("tcp/127.0.0.1:7447",)
@@ -59,6 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"{DEFAULT_LISTEN[0]})",
     )
     parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config to start from")
+
+
+def connect_endpoints(args: argparse.Namespace) -> list[str]:
+    """The ``--connect`` endpoints of parsed :func:`add_arguments` options (default applied)."""
+    return _endpoints(args.connect if args.connect is not None else DEFAULT_CONNECT)
 
 
 def config_from_args(args: argparse.Namespace) -> zenoh.Config:

@@ -27,7 +27,11 @@ __all__ = ["configure", "run"]
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger demo``."""
     parser.add_argument("--out", type=Path, default=Path("runs/demo"),
-                        help="output directory (default runs/demo; emptied first)")
+                        help="output directory (default runs/demo); what an earlier demo "
+                             "wrote there is replaced, anything else is kept")
+    parser.add_argument("--force", action="store_true",
+                        help="use --out even if it holds files not written by roger demo "
+                             "(they are deleted)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every process")
     parser.add_argument("--locations", default="0,1,3,6",
                         help="demonstration start locations (default 0,1,3,6)")
@@ -49,8 +53,12 @@ class _Demo:
         return self.client.wait_status(predicate, timeout)
 
     def run(self) -> int:
-        import shutil
+        from roger_daemon.atomic import owned_output_dir
 
+        with owned_output_dir(self.out, "demo", force=self.args.force):
+            return self._run()
+
+    def _run(self) -> int:
         from roger_daemon.harness import Client, DaemonProcess, write_config
         from simulator.episodes import START_LOCATIONS, parse_locations
         from simulator.experiment.procs import ProcessGroup, child_env, free_port, roger_argv
@@ -59,9 +67,6 @@ class _Demo:
         locations = parse_locations(args.locations)
         if not 0 <= args.test_location < len(START_LOCATIONS):
             raise ValueError(f"--test-location must be in 0..{len(START_LOCATIONS) - 1}")
-        if out.exists():
-            shutil.rmtree(out)
-        out.mkdir(parents=True)
         t_all = time.monotonic()
         port = free_port()
         daemon_ep = f"tcp/127.0.0.1:{port}"
@@ -241,9 +246,14 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when every process did its part (whatever the episode's outcome)."""
     from rich.console import Console
 
+    from roger_daemon.atomic import OutputDirError
+
     console = Console()
     try:
         return _Demo(args, console).run()
+    except OutputDirError as exc:
+        print(f"roger demo: {exc}", file=sys.stderr)
+        return 2
     except (RuntimeError, TimeoutError, ValueError, OSError) as exc:
         console.print(f"[red]roger demo failed:[/red] {exc}")
         print(f"roger demo: {exc}", file=sys.stderr)

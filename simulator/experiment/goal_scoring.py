@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from roger_daemon.atomic import write_json
 from simulator.experiment.procs import (
     EpisodeJob,
     JobError,
@@ -485,9 +486,7 @@ class Experiment:
         }
         results["machine"] = _machine()
         path = plan.out / "results.json"
-        tmp = path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(results, indent=1, default=_json_default))
-        tmp.replace(path)
+        write_json(path, results, default=_json_default)
         print_report(console, results)
         console.print(f"results: {path}")
         for name, f in results["figures"].items():
@@ -499,10 +498,9 @@ class Experiment:
 
     def _write_failure(self) -> None:
         path = self.plan.out / "results.json"
-        path.write_text(json.dumps({"schema": "roger.experiment.goal_scoring/1",
-                                    "seed": self.plan.seed, "errors": self.errors,
-                                    "plan": self.plan.to_json(),
-                                    "timings_s": self.timings}, indent=1))
+        write_json(path, {"schema": "roger.experiment.goal_scoring/1",
+                          "seed": self.plan.seed, "errors": self.errors,
+                          "plan": self.plan.to_json(), "timings_s": self.timings})
 
 
 def _json_default(o: Any) -> Any:
