@@ -111,6 +111,14 @@ class CheckpointConfig:
     keep: int = 5
     on_shutdown: bool = True
     shutdown_learn_s: float = 1.0
+    #: write-ahead log of learned pairs (roger_daemon.wal); committed before every
+    #: prediction/status that reports them, and at least every ``wal_commit_ms``
+    wal: bool = True
+    wal_commit_ms: float = 50.0
+    #: retention: delete the oldest checkpoints beyond these (0: no limit); ``keep`` still
+    #: bounds the count and the newest checkpoint is never deleted
+    max_bytes: int = 0
+    max_age_days: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -119,6 +127,10 @@ class RecordingConfig:
 
     enabled: bool = True
     dir: Path = Path("runs/recordings")
+    #: retention of finished session files per robot (0: no limit); checked at start-up and
+    #: on every rotation; the session being written is never deleted
+    max_bytes: int = 0
+    max_age_days: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -393,7 +405,14 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
         keep=c.integer("keep", CheckpointConfig.keep, lo=1),
         on_shutdown=c.boolean("on_shutdown", True),
         shutdown_learn_s=c.number("shutdown_learn_s", 1.0, lo=0.0, lo_open=False),
+        wal=c.boolean("wal", True),
+        wal_commit_ms=c.number("wal_commit_ms", 50.0),
+        max_bytes=c.integer("max_bytes", 0, lo=0),
+        max_age_days=c.number("max_age_days", 0.0, lo=0.0, lo_open=False),
     )
+    if ckpt.wal_commit_ms > 50.0:
+        raise _bad("checkpoint.wal_commit_ms", "a number in (0, 50] (milliseconds)",
+                   ckpt.wal_commit_ms)
     if ckpt.shutdown_learn_s > 3.0:
         raise _bad("checkpoint.shutdown_learn_s", "a number in [0, 3] (seconds)",
                    ckpt.shutdown_learn_s)
@@ -403,6 +422,8 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
     recording = RecordingConfig(
         enabled=rec.boolean("enabled", True),
         dir=rec.path("dir", RecordingConfig.dir) or RecordingConfig.dir,
+        max_bytes=rec.integer("max_bytes", 0, lo=0),
+        max_age_days=rec.number("max_age_days", 0.0, lo=0.0, lo_open=False),
     )
     rec.done()
     top.done()

@@ -161,6 +161,7 @@ def _same_learner(robot: RobotConfig, info: Any) -> str:
 def recover_from_logs(
     cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime, ckpt: Checkpoint | None,
     *, notifier: Notifier | None = None, model_meta: dict[str, Any] | None = None,
+    relearn: bool = True,
 ) -> tuple[RobotRuntime, Resumed]:
     """Start-up self-recovery of one robot, before its new session opens.
 
@@ -168,6 +169,8 @@ def recover_from_logs(
     learned pair (after its queued pairs; see ``roger_daemon.recording.startup``), writes a
     checkpoint (reason ``recovered``) and returns the runtime with where its model now stands.
     Never raises: a bad log is reported and the checkpoint stands as it is.
+    With ``relearn=False`` (the write-ahead log already restored what was learned) only the
+    logs are repaired and checked.
     """
     from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
     from roger_daemon.recording.timeline import LearnedPair
@@ -191,8 +194,10 @@ def recover_from_logs(
                         rep.chunks, rep.bytes_dropped, Path(rep.source).name)
     for note in plan.notes:
         log.warning("%s: start-up recovery: %s", robot.id, note)
-    if not plan.newer:
-        log.info("%s: start-up recovery: %s", robot.id, plan.summary)
+    if not plan.newer or not relearn:
+        log.info("%s: start-up recovery: %s%s", robot.id, plan.summary,
+                 "" if relearn else " (not re-learned: the write-ahead log is the record of "
+                 "what was learned)")
         return rt, where
     if plan.fresh:
         why = _same_learner(robot, plan.fresh_info) if plan.fresh_info is not None else ""
@@ -256,12 +261,35 @@ def start_robots(
     for robot in cfg.robots:
         robots[robot.id], ckpt = load_robot(cfg, robot, fresh=fresh)
         where[robot.id] = _position(ckpt)
+        by_wal = cfg.checkpoint.wal and _start_wal(cfg, robots[robot.id], ckpt, fresh=fresh)
         if cfg.recording.enabled and not fresh:
             # Before the new session opens: an open session would cut the history it reads.
             robots[robot.id], where[robot.id] = recover_from_logs(
                 cfg, robot, robots[robot.id], ckpt, notifier=notifier,
-                model_meta=model_meta(robot))
+                model_meta=model_meta(robot), relearn=not by_wal)
     return robots, where
+
+
+def _start_wal(cfg: DaemonConfig, rt: RobotRuntime, ckpt: Checkpoint | None, *,
+               fresh: bool) -> bool:
+    """Replay the write-ahead log after the checkpoint and attach it to ``rt``; True if the
+    log is the authority on what was learned (then the session logs are not re-learned)."""
+    from roger_daemon import wal
+
+    d = wal.wal_dir(cfg.checkpoint.dir, rt.robot)
+    seq = None if ckpt is None else ckpt.meta.get("wal_seq")
+    has_log = bool(wal.read_records(d)) if seq is None else True
+    rep = wal.start(rt, d, checkpoint_seq=seq if isinstance(seq, int) else None,
+                    replay=has_log and not fresh, fresh_model=ckpt is None or fresh)
+    if rep.pairs or rep.fresh:
+        rt.recovered_pairs = rep.pairs
+        log.warning("%s: start-up recovery: re-learned %d pairs (ticks %s..%s) and %d resets "
+                    "from the write-ahead log %s after %s: now %d updates", rt.robot,
+                    rep.pairs, rep.first_tick, rep.last_tick, rep.fresh, d,
+                    ckpt.path if ckpt is not None else "a fresh model", rt.updates)
+    if rep.stopped:
+        log.error("%s: write-ahead log %s: %s", rt.robot, d, rep.stopped)
+    return has_log and not fresh
 
 
 def open_recorders(
@@ -317,7 +345,8 @@ def _describe(cfg: DaemonConfig) -> dict[str, Any]:
                   for k, v in vars(cfg.zenoh).items()},
         "checkpoint": {k: (str(v) if isinstance(v, Path) else v)
                        for k, v in vars(cfg.checkpoint).items()},
-        "recording": {"enabled": cfg.recording.enabled, "dir": str(cfg.recording.dir)},
+        "recording": {k: (str(v) if isinstance(v, Path) else v)
+                      for k, v in vars(cfg.recording).items()},
     }
 
 

@@ -141,6 +141,10 @@ class RobotRuntime:
         self._status_updates = 0
         self._status_ns: int | None = None
         self._reported: set[str] = set()
+        # durability (roger_daemon.wal): every learned pair and fresh model is appended
+        self.wal: Any = None
+        self.resent = 0  # re-sent copies of the last recovered pair, not learned twice
+        self._resend_guard: tuple[int, bytes, bytes] | None = None
 
     # --- modes ---------------------------------------------------------------------------
 
@@ -207,6 +211,14 @@ class RobotRuntime:
         return code
 
     def _enqueue(self, perc: Perception, act: Action) -> None:
+        guard, self._resend_guard = self._resend_guard, None
+        if guard is not None and guard == (act.tick, perc.x.tobytes(), act.y.tobytes()):
+            # The sender re-sent the pair it got no answer for, and the daemon had learned
+            # (and logged) it before it died: learning it again would count it twice.
+            self.resent += 1
+            log.info("%s: pair of tick %d re-sent after a restart; already learned",
+                     self.robot, act.tick)
+            return
         if len(self.queue) >= self.queue_size:
             self.dropped += 1
             self._warn_once("overflow", f"{self.robot}: training queue full ({self.queue_size}); "
@@ -243,10 +255,29 @@ class RobotRuntime:
             return (time.perf_counter_ns() - t0) / 1e6
         ms = (time.perf_counter_ns() - t0) / 1e6
         self._append_code(pair.label)
+        if self.wal is not None:
+            self.wal.append_pair(self.updates - 1, pair.tick, pair.x, pair.y,
+                                 self.vocab[pair.label])
         self.last_learned_tick = pair.tick
         self.generation += 1
         self.learn_ms.add(ms)
         return ms
+
+    def relearn(self, x: np.ndarray, y: np.ndarray, label: str, tick: int) -> None:
+        """Learn a pair read back from the write-ahead log (start-up recovery).
+
+        The queue restored from the checkpoint held this pair if it was queued then: it is
+        taken off the queue's front. Not logged again; afterwards a re-sent copy of the newest
+        such pair is recognised and not learned twice.
+        """
+        if self.queue and self.queue[0].tick == tick and np.array_equal(self.queue[0].x, x):
+            self.queue.popleft()
+        self.model.learn_one(x, y)
+        self._append_code(self._label_code(label))
+        self.last_learned_tick = tick
+        self.generation += 1
+        self._resend_guard = (int(tick), np.asarray(x, dtype=np.float64).tobytes(),
+                              np.asarray(y, dtype=np.float64).tobytes())
 
     def _append_code(self, code: int) -> None:
         if self.n_codes == len(self._codes):
@@ -300,6 +331,8 @@ class RobotRuntime:
     def reset(self) -> None:
         """Forget everything learned: a fresh model, no labels, empty queue and buffers."""
         self.model = self.make_model()
+        if self.wal is not None:
+            self.wal.append_fresh()
         self.queue.clear()
         self._perceptions.clear()
         self._actions.clear()
@@ -344,7 +377,7 @@ class RobotRuntime:
             "learn_errors": self.learn_errors, "last_tick": self.last_tick,
             "last_t": self.last_t, "mode": self.mode,
             "last_learned_tick": self.last_learned_tick,
-            "invalid": {k: int(v) for k, v in self.invalid.items()},
+            "invalid": {k: int(v) for k, v in sorted(self.invalid.items())},
         }
 
     def restore(self, arrays: dict[str, np.ndarray], counters: dict[str, Any]) -> None:

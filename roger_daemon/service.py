@@ -95,6 +95,8 @@ def checkpoint_snapshot(
         "counters": rt.counters(),
         "session_id": session_id,
         "session_segment": session_segment,
+        # the write-ahead log's last record reflected in this snapshot (None: no log)
+        "wal_seq": None if rt.wal is None else rt.wal.last_seq,
     }
     if extra:
         meta.update(extra)
@@ -124,6 +126,7 @@ class _CheckpointState:
     errors: int = 0
     in_flight: Future[tuple[Path, dict[str, Any]]] | None = None
     in_flight_gen: int = 0
+    wal_seq: int | None = None  # of the newest checkpoint written in this life
 
 
 @dataclass
@@ -193,6 +196,7 @@ class Service:
         self._ckpt = {r: _CheckpointState() for r in self.robots}
         self._pubs: dict[str, _Publishers] = {}
         self._period_ns = int(round(1e9 / config.rate_hz))
+        self._commit_ns = int(config.checkpoint.wal_commit_ms * _MS)
         self._status_period_ns = int(round(1e9 / config.status_hz))
         self._realtime = config.clock == "realtime"
         self._next_tick = 0
@@ -262,6 +266,7 @@ class Service:
         self.notifier.stopping("aborting after an error")
         if self._writer is not None:
             self._writer.shutdown(wait=True)
+        self._close_wals()
         for robot, rec in self.recorders.items():
             try:
                 rec.close()
@@ -298,6 +303,9 @@ class Service:
             self._next_status += self._status_period_ns
             if self._next_status <= now:
                 self._next_status = now + self._status_period_ns
+        for rt in self.robots.values():
+            if rt.wal is not None and rt.wal.due(now, self._commit_ns):
+                self._commit(rt)
         self._periodic_checkpoints(now)
         self._collect_checkpoints()
         self._poll_recorders()
@@ -427,6 +435,7 @@ class Service:
         self._record(rt.robot, key, payload, self.clock.time_ns(), msg.stamp_ns, msg.tick)
 
     def _publish_prediction(self, rt: RobotRuntime, perc: Perception, recv_ns: int) -> None:
+        self._commit(rt)  # acknowledged means durable: the updates it reports are on disk
         try:
             pred = rt.predict(perc, recv_ns, self.clock.monotonic_ns)
         except Exception as exc:  # prediction only reads the model: skip it, keep serving
@@ -497,6 +506,10 @@ class Service:
             "last_learned_tick": -1 if rt.last_learned_tick is None else rt.last_learned_tick,
             "recording": rt.robot in self.recorders,
             "recording_errors": self.stats.recording_errors,
+            "wal": rt.wal is not None,
+            "wal_commits": 0 if rt.wal is None else rt.wal.commits,
+            "wal_commit_ms_max": 0.0 if rt.wal is None else round(rt.wal.commit_ms_max, 3),
+            "resent_pairs": rt.resent,
         }
         return Status(
             rt.robot, rt.last_tick, rt.last_t, daemon=self.config.id, mode=rt.mode,
@@ -510,6 +523,7 @@ class Service:
     def _publish_status(self, now: int) -> None:
         lines = []
         for rt in self.robots.values():
+            self._commit(rt)
             st = self.status_of(rt, now)
             self._publish(rt, self._pubs[rt.robot].status, keys.status(rt.robot), st)
             lines.append(
@@ -564,8 +578,30 @@ class Service:
         )
         st.in_flight_gen = gen
 
+    def _commit(self, rt: RobotRuntime) -> None:
+        """Group commit of the robot's write-ahead log (a no-op when nothing is pending).
+
+        A failed commit stops the daemon: it may no longer acknowledge anything.
+        """
+        if rt.wal is None or not rt.wal.dirty:
+            return
+        rt.wal.commit()
+
+    def _rotate_wal(self, robot: str, meta: dict[str, Any]) -> None:
+        """After a durable checkpoint: new log segment; drop the segments the previous
+        checkpoint covers (one checkpoint's worth of log is kept in case the newest fails)."""
+        rt = self.robots[robot]
+        st = self._ckpt[robot]
+        if rt.wal is None or not isinstance(meta.get("wal_seq"), int):
+            return
+        rt.wal.rotate()
+        if st.wal_seq is not None:
+            rt.wal.prune(st.wal_seq)
+        st.wal_seq = int(meta["wal_seq"])
+
     def _checkpoint_done(self, robot: str, gen: int, path: Path, meta: dict[str, Any]) -> None:
         st = self._ckpt[robot]
+        self._rotate_wal(robot, meta)
         st.generation, st.path, st.updates = gen, str(path), int(meta["updates"])
         st.digest = str(meta["model_digest"])
         st.written += 1
@@ -622,6 +658,14 @@ class Service:
 
     # --- shutdown --------------------------------------------------------------------------
 
+    def _close_wals(self) -> None:
+        for rt in self.robots.values():
+            if rt.wal is not None:
+                try:
+                    rt.wal.close()
+                except OSError as exc:
+                    log.error("%s: closing the write-ahead log failed: %s", rt.robot, exc)
+
     def shutdown(self) -> None:
         """Stop intake, drain, learn what fits, checkpoint, close recorders and transport."""
         if self._stopping:
@@ -657,6 +701,7 @@ class Service:
         finally:
             if self._writer is not None:
                 self._writer.shutdown(wait=True)
+            self._close_wals()
             for robot, rec in self.recorders.items():
                 try:
                     rec.close()

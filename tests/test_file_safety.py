@@ -171,8 +171,9 @@ def test_recover_exit_code_says_whether_bytes_were_dropped(
                   log_time_ns=t + 1, publish_time_ns=t + 1, sequence=t)
     rec.flush()
     killed = rec.path  # never closed
-    assert roger(["log", "recover", str(killed), "--out", str(tmp_path / "a.mcap")]) == 0
-    assert "nothing dropped" in capsys.readouterr().out
+    assert roger(["log", "recover", str(killed), "--out", str(tmp_path / "a.mcap")]) == 3
+    out = capsys.readouterr().out
+    assert "no footer (its writer was killed" in out and "every byte on disk" in out
     torn = tmp_path / "torn.mcap"
     torn.write_bytes(killed.read_bytes() + b"\x05" + bytes(40))  # a torn record at the end
     assert roger(["log", "recover", str(torn), "--out", str(tmp_path / "b.mcap")]) == 3

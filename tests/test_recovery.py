@@ -49,11 +49,15 @@ class FakeClock:
         return 1_795_000_000_000_000_000 + self.mono
 
 
-def make_cfg(root: Path, logs: Path, *, every: int = 20, **daemon: Any) -> DaemonConfig:
+def make_cfg(root: Path, logs: Path, *, every: int = 20, wal: bool = False,
+             **daemon: Any) -> DaemonConfig:
+    """Recovery from the session logs alone (``wal=False``: a deployment without the
+    write-ahead log; tests/test_durability.py covers recovery from the write-ahead log)."""
     return parse_config({
         "daemon": {"clock": "lockstep", "seed": 3, **daemon},
         "robots": [{"id": "sim", "x_dim": 1, "y_dim": 1}],
-        "checkpoint": {"dir": str(root / "ckpt"), "every_updates": every, "every_s": 0},
+        "checkpoint": {"dir": str(root / "ckpt"), "every_updates": every, "every_s": 0,
+                       "wal": wal},
         "recording": {"enabled": True, "dir": str(logs)},
     })
 

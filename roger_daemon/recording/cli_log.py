@@ -2,7 +2,8 @@
 
 Exit codes: 0 ok; 1 the input is not an MCAP file (missing, a directory, wrong magic) or
 recover kept nothing; 2 bad arguments, or the output exists and ``--force`` was not given;
-3 recover was lossy (bytes of the source could not be read and were dropped).
+3 the source was incomplete (no footer: its writer was killed, so what the writer had not
+flushed is not in it; and/or an unreadable tail was dropped; the report says which).
 An output file is never overwritten without ``--force``; outputs are written atomically
 (complete or absent).
 """
@@ -114,16 +115,17 @@ def _recover(args: argparse.Namespace) -> int:
         print(f"wrote {rep.output}")
     if rep.messages == 0 and rep.metadata == 0:
         return 1
-    return 3 if rep.bytes_dropped else 0
+    return 0 if rep.complete and not rep.error else 3
 
 
 def _state(rep: Any) -> str:
     if rep.complete and not rep.error:
         return "complete (had its footer)"
     if not rep.bytes_dropped:
-        return ("no footer (the writer was killed); every byte on disk was readable: nothing "
-                "dropped")
-    return f"salvaged; reading stopped: {rep.error or 'no footer'}"
+        return ("incomplete: no footer (its writer was killed; what it had not flushed is not "
+                "in the file); every byte on disk was readable and kept")
+    return (f"incomplete: reading stopped at an unreadable tail ({rep.error or 'no footer'}); "
+            "it is dropped")
 
 
 def _export(args: argparse.Namespace) -> int:

@@ -1,0 +1,298 @@
+"""Write-ahead log of the daemon's learning decisions: acknowledged means durable.
+
+Every pair the daemon learns is appended here (one record: its index in the model, tick,
+perception ``x``, action ``y`` and label), and so is every replacement of the model by a fresh
+one (``reset`` control, a start without checkpoint, ``--fresh``). The service loop commits the
+log (``fdatasync``) before it publishes anything that reports ``updates`` (a prediction or a
+status) and at least every ``durability.commit_ms``; so every pair a sender has seen counted in
+``updates`` is on disk, and survives kill -9 and power loss. Start-up recovery loads the newest
+checkpoint and re-learns the records written after it (``wal_seq`` in the checkpoint's meta).
+
+File layout: ``<checkpoint dir>/<robot>/wal/wal-<first seq>.log``, one segment per daemon
+life and per checkpoint (a new segment starts when a checkpoint is written, so that old
+segments can be deleted whole). A segment is a sequence of frames::
+
+    u32 length | u32 crc32(payload) | payload (msgpack map)
+
+Payload maps carry ``k`` (``"pair"`` or ``"fresh"``) and ``s`` (the record's sequence number,
+increasing by one over the robot's whole history); pair records add ``i`` (the model's
+``n_learned`` before learning it), ``tick``, ``x``/``y`` (float64 little-endian bytes) and
+``label``. A frame that is short or fails its CRC ends the segment (a torn write of a killed
+daemon: never acknowledged, since its commit had not returned). Segments are never appended
+to after the life that wrote them; each start opens a new one.
+
+The record is the daemon's decision, not its input, so it is also what a session log needs to
+replay the daemon without re-deriving its pairing (see ``docs/durability.md``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import struct
+import time
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from roger_daemon.atomic import fsync_dir
+
+__all__ = ["WalRecord", "WriteAheadLog", "read_records", "segments", "wal_dir"]
+
+log = logging.getLogger(__name__)
+
+_FRAME = struct.Struct("<II")
+_NAME = re.compile(r"^wal-(\d{12})\.log$")
+_MAX_RECORD = 1 << 20
+
+
+@dataclass(frozen=True)
+class WalRecord:
+    """One decision read back: a learned pair (``kind == "pair"``) or a fresh model."""
+
+    kind: str
+    seq: int
+    index: int = -1
+    tick: int = -1
+    x: np.ndarray | None = None
+    y: np.ndarray | None = None
+    label: str = ""
+
+
+def wal_dir(checkpoint_dir: Path, robot: str) -> Path:
+    """Where one robot's write-ahead log lives (next to its checkpoints)."""
+    return Path(checkpoint_dir) / robot / "wal"
+
+
+def segments(directory: Path) -> list[tuple[int, Path]]:
+    """``(first seq, path)`` of every segment, oldest first."""
+    if not directory.is_dir():
+        return []
+    out = []
+    for p in directory.iterdir():
+        m = _NAME.match(p.name)
+        if m and p.is_file():
+            out.append((int(m.group(1)), p))
+    return sorted(out)
+
+
+def _decode(payload: bytes) -> WalRecord | None:
+    try:
+        m: Any = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        return None
+    if not isinstance(m, dict) or not isinstance(m.get("s"), int):
+        return None
+    if m.get("k") == "fresh":
+        return WalRecord("fresh", m["s"])
+    if m.get("k") != "pair":
+        return None
+    try:
+        x = np.frombuffer(m["x"], dtype="<f8").copy()
+        y = np.frombuffer(m["y"], dtype="<f8").copy()
+        return WalRecord("pair", m["s"], int(m["i"]), int(m["tick"]), x, y, str(m["label"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _read_segment(path: Path) -> Iterator[WalRecord]:
+    data = path.read_bytes()
+    pos = 0
+    while pos + _FRAME.size <= len(data):
+        length, crc = _FRAME.unpack_from(data, pos)
+        end = pos + _FRAME.size + length
+        if length > _MAX_RECORD or end > len(data):
+            return
+        payload = data[pos + _FRAME.size: end]
+        if zlib.crc32(payload) != crc:
+            return
+        rec = _decode(payload)
+        if rec is None:
+            return
+        yield rec
+        pos = end
+
+
+def read_records(directory: Path, after_seq: int = -1) -> list[WalRecord]:
+    """Every readable record with ``seq > after_seq``, in order (torn tails skipped)."""
+    out: list[WalRecord] = []
+    for _, path in segments(directory):
+        out.extend(r for r in _read_segment(path) if r.seq > after_seq)
+    return out
+
+
+class WriteAheadLog:
+    """The appending side: one open segment, group commit by :meth:`commit`.
+
+    Parameters
+    ----------
+    directory
+        The robot's ``wal`` directory (created if missing).
+    next_seq
+        Sequence number of the next record (one past the last readable one on disk).
+    sync
+        ``False`` skips ``fdatasync`` (records still reach the OS: they survive kill -9 but
+        not power loss). For benchmarks of the cost only.
+    """
+
+    def __init__(self, directory: Path, next_seq: int, *, sync: bool = True) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.sync = sync
+        self.next_seq = next_seq
+        self.durable_seq = next_seq - 1  # every record <= this is on disk
+        self.commits = 0
+        self.commit_ms_max = 0.0
+        self._fd = -1
+        self._dirty_since: int | None = None
+        self._open(next_seq)
+
+    @property
+    def last_seq(self) -> int:
+        """Sequence number of the newest record appended (-1 if none ever)."""
+        return self.next_seq - 1
+
+    def _open(self, seq: int) -> None:
+        path = self.directory / f"wal-{seq:012d}.log"
+        # A segment of this name exists only if the previous life wrote no readable record
+        # into it (else next_seq would be past it): whatever it holds is a torn write.
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
+        fsync_dir(self.directory)
+
+    def _append(self, rec: dict[str, Any]) -> int:
+        seq = self.next_seq
+        payload = msgpack.packb({**rec, "s": seq}, use_bin_type=True)
+        os.write(self._fd, _FRAME.pack(len(payload), zlib.crc32(payload)) + payload)
+        self.next_seq += 1
+        if self._dirty_since is None:
+            self._dirty_since = time.monotonic_ns()
+        return seq
+
+    def append_pair(self, index: int, tick: int, x: np.ndarray, y: np.ndarray,
+                    label: str) -> int:
+        """Record that the pair ``(x, y)`` of ``tick`` became the model's pair ``index``."""
+        return self._append({
+            "k": "pair", "i": int(index), "tick": int(tick), "label": label,
+            "x": np.ascontiguousarray(x, dtype="<f8").tobytes(),
+            "y": np.ascontiguousarray(y, dtype="<f8").tobytes(),
+        })
+
+    def append_fresh(self) -> int:
+        """Record that the model was replaced by a fresh one."""
+        return self._append({"k": "fresh"})
+
+    @property
+    def dirty(self) -> bool:
+        """True if records were appended since the last commit."""
+        return self._dirty_since is not None
+
+    def due(self, now_ns: int, max_delay_ns: int) -> bool:
+        """True if the oldest uncommitted record is at least ``max_delay_ns`` old."""
+        return self._dirty_since is not None and now_ns - self._dirty_since >= max_delay_ns
+
+    def commit(self) -> None:
+        """Make every appended record durable (one ``fdatasync`` for the whole group)."""
+        if self._dirty_since is None:
+            return
+        t0 = time.perf_counter_ns()
+        if self.sync:
+            os.fdatasync(self._fd)
+        self.commit_ms_max = max(self.commit_ms_max, (time.perf_counter_ns() - t0) / 1e6)
+        self.commits += 1
+        self.durable_seq = self.next_seq - 1
+        self._dirty_since = None
+
+    def rotate(self) -> None:
+        """Commit, then continue in a new segment (called after a checkpoint is taken)."""
+        self.commit()
+        os.close(self._fd)
+        self._open(self.next_seq)
+
+    def prune(self, covered_seq: int) -> int:
+        """Delete whole segments whose records all have ``seq <= covered_seq`` (a durable
+        checkpoint holds them); never the open one. Returns the number deleted."""
+        segs = segments(self.directory)
+        gone = 0
+        for (_first, path), (nxt, _) in zip(segs, segs[1:], strict=False):
+            if nxt - 1 <= covered_seq:
+                path.unlink()
+                gone += 1
+        return gone
+
+    def close(self) -> None:
+        """Commit and close (idempotent)."""
+        if self._fd < 0:
+            return
+        self.commit()
+        os.close(self._fd)
+        self._fd = -1
+
+
+@dataclass
+class Replayed:
+    """What :func:`replay_into` did."""
+
+    pairs: int = 0
+    fresh: int = 0
+    first_tick: int | None = None
+    last_tick: int | None = None
+    stopped: str = ""  # why replay stopped before the end ("" if it did not)
+    next_seq: int = 0  # sequence number for the next record
+
+
+def replay_into(rt: Any, directory: Path, after_seq: int) -> Replayed:
+    """Re-learn into ``rt`` (a RobotRuntime, WAL not attached) every decision after
+    ``after_seq``: ``fresh`` records reset the model, pair records are learned in order.
+
+    A pair whose index is not the model's ``n_learned`` (a gap: e.g. the segments after a
+    lost checkpoint were pruned) stops the replay; the rest is reported, not guessed.
+    """
+    out = Replayed()
+    records = read_records(directory)
+    out.next_seq = records[-1].seq + 1 if records else 0
+    for r in records:
+        if r.seq <= after_seq:
+            continue
+        if r.kind == "fresh":
+            rt.reset()
+            out.fresh += 1
+            continue
+        if r.index != rt.updates:
+            out.stopped = (f"record {r.seq} is pair {r.index} but the model has {rt.updates} "
+                           "pairs (a gap in the log); the rest is not used")
+            break
+        assert r.x is not None and r.y is not None
+        rt.relearn(r.x, r.y, r.label, r.tick)
+        out.pairs += 1
+        out.first_tick = r.tick if out.first_tick is None else out.first_tick
+        out.last_tick = r.tick
+    return out
+
+
+def start(rt: Any, directory: Path, *, checkpoint_seq: int | None, replay: bool,
+          fresh_model: bool) -> Replayed:
+    """Start-up of one robot's log: replay what follows the checkpoint (``replay``), then
+    attach a new segment to ``rt`` (``rt.wal``); a fresh model is recorded as such.
+
+    ``checkpoint_seq`` is the checkpoint's ``wal_seq`` (None: no checkpoint, or one written
+    without the log; then every record is replayed).
+    """
+    rep = (replay_into(rt, directory, -1 if checkpoint_seq is None else checkpoint_seq)
+           if replay else Replayed(next_seq=_next_seq(directory)))
+    rt.session_resets = 0
+    rt.wal = WriteAheadLog(directory, rep.next_seq)
+    if fresh_model:
+        rt.wal.append_fresh()
+        rt.wal.commit()
+    return rep
+
+
+def _next_seq(directory: Path) -> int:
+    records = read_records(directory)
+    return records[-1].seq + 1 if records else 0
