@@ -328,14 +328,20 @@ def _float(m: Mapping[str, Any], name: str, kind: str, *, finite: bool = True) -
     return f
 
 
+def _no_ext(code: int, data: bytes) -> Any:
+    """msgpack ext_hook: extension types are not part of the protocol (even empty ones)."""
+    raise ValueError(f"extension type {code} ({len(data)} bytes) is not allowed")
+
+
 def _str(m: Mapping[str, Any], name: str, kind: str, *, choices: tuple[str, ...] = ()) -> str:
     v = _get(m, name, kind)
     if not isinstance(v, str):
         raise ProtocolError(
             "wrong_type", f"{kind}: {name!r} must be a string, got {type(v).__name__}"
         )
-    if len(v) > MAX_STR:
-        raise ProtocolError("oversized", f"{kind}: {name!r} longer than {MAX_STR} characters")
+    # (a string of at most MAX_STR // 4 characters cannot exceed MAX_STR UTF-8 bytes)
+    if len(v) > MAX_STR // 4 and len(v.encode("utf-8")) > MAX_STR:
+        raise ProtocolError("oversized", f"{kind}: {name!r} longer than {MAX_STR} bytes (UTF-8)")
     if choices and v not in choices:
         raise ProtocolError("bad_value", f"{kind}: {name!r} must be one of {choices}, got {v!r}")
     return v
@@ -431,6 +437,7 @@ def decode(
             max_array_len=max(MAX_VECTOR, MAX_MULTIMAP),
             max_map_len=MAX_MAP_ENTRIES,
             max_ext_len=0,
+            ext_hook=_no_ext,
         )
     except Exception as exc:  # msgpack raises several unrelated types for bad bytes
         raise ProtocolError("not_msgpack", f"{kind}: payload is not msgpack ({exc})") from None
@@ -513,7 +520,7 @@ def decode(
         )
     # control
     op = _str(m, "op", kind, choices=CONTROL_OPS)
-    mode = _str(m, "mode", kind)
+    mode = _str(m, "mode", kind) if op == "mode" or "mode" in m else ""
     if op == "mode" and mode not in MODES:
         raise ProtocolError("bad_value", f"{kind}: op 'mode' needs 'mode' in {MODES}, got {mode!r}")
     return Control(**head, op=op, mode=mode)

@@ -261,7 +261,8 @@ def start_robots(
     for robot in cfg.robots:
         robots[robot.id], ckpt = load_robot(cfg, robot, fresh=fresh)
         where[robot.id] = _position(ckpt)
-        by_wal = cfg.checkpoint.wal and _start_wal(cfg, robots[robot.id], ckpt, fresh=fresh)
+        by_wal = cfg.checkpoint.wal and _start_wal(cfg, robot, robots[robot.id], ckpt,
+                                                   fresh=fresh)
         if cfg.recording.enabled and not fresh:
             # Before the new session opens: an open session would cut the history it reads.
             robots[robot.id], where[robot.id] = recover_from_logs(
@@ -270,8 +271,8 @@ def start_robots(
     return robots, where
 
 
-def _start_wal(cfg: DaemonConfig, rt: RobotRuntime, ckpt: Checkpoint | None, *,
-               fresh: bool) -> bool:
+def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
+               ckpt: Checkpoint | None, *, fresh: bool) -> bool:
     """Replay the write-ahead log after the checkpoint and attach it to ``rt``; True if the
     log is the authority on what was learned (then the session logs are not re-learned)."""
     from roger_daemon import wal
@@ -280,7 +281,8 @@ def _start_wal(cfg: DaemonConfig, rt: RobotRuntime, ckpt: Checkpoint | None, *,
     seq = None if ckpt is None else ckpt.meta.get("wal_seq")
     has_log = bool(wal.read_records(d)) if seq is None else True
     rep = wal.start(rt, d, checkpoint_seq=seq if isinstance(seq, int) else None,
-                    replay=has_log and not fresh, fresh_model=ckpt is None or fresh)
+                    replay=has_log and not fresh,
+                    fresh=fresh or (ckpt is None and not has_log))
     if rep.pairs or rep.fresh:
         rt.recovered_pairs = rep.pairs
         log.warning("%s: start-up recovery: re-learned %d pairs (ticks %s..%s) and %d resets "
@@ -289,6 +291,20 @@ def _start_wal(cfg: DaemonConfig, rt: RobotRuntime, ckpt: Checkpoint | None, *,
                     ckpt.path if ckpt is not None else "a fresh model", rt.updates)
     if rep.stopped:
         log.error("%s: write-ahead log %s: %s", rt.robot, d, rep.stopped)
+    if rep.pairs or rep.fresh or rep.stopped:  # the recovered state, durable at once
+        where = _position(ckpt)
+        model, daemon, meta = checkpoint_snapshot(
+            rt, "recovered", daemon_id=cfg.id, created_unix_ns=time.time_ns(),
+            session_id=where.session or "", session_segment=where.segment,
+            extra={**model_meta(robot), "recovered_pairs": rep.pairs})
+        try:
+            path, _ = write_checkpoint(cfg.checkpoint.dir, rt.robot, model, daemon, meta,
+                                       keep=cfg.checkpoint.keep)
+            log.info("%s: checkpoint %s written (recovered, %d updates)", rt.robot, path,
+                     rt.updates)
+        except OSError as exc:
+            log.error("%s: could not write the recovered checkpoint (%s); the write-ahead "
+                      "log still holds the pairs", rt.robot, exc)
     return has_log and not fresh
 
 

@@ -143,8 +143,8 @@ class RobotRuntime:
         self._reported: set[str] = set()
         # durability (roger_daemon.wal): every learned pair and fresh model is appended
         self.wal: Any = None
-        self.resent = 0  # re-sent copies of the last recovered pair, not learned twice
-        self._resend_guard: tuple[int, bytes, bytes] | None = None
+        self.resent = 0  # re-sent copies of the newest pair, not learned twice
+        self._newest_pair: tuple[int, bytes, bytes] | None = None  # (tick, x, y) bytes
 
     # --- modes ---------------------------------------------------------------------------
 
@@ -211,14 +211,15 @@ class RobotRuntime:
         return code
 
     def _enqueue(self, perc: Perception, act: Action) -> None:
-        guard, self._resend_guard = self._resend_guard, None
-        if guard is not None and guard == (act.tick, perc.x.tobytes(), act.y.tobytes()):
-            # The sender re-sent the pair it got no answer for, and the daemon had learned
-            # (and logged) it before it died: learning it again would count it twice.
+        key = (act.tick, perc.x.tobytes(), act.y.tobytes())
+        if key == self._newest_pair:
+            # The sender re-sent the tick it got no answer for (its prediction was lost, or
+            # the daemon died after learning the pair): the same pair again is not a new one.
             self.resent += 1
-            log.info("%s: pair of tick %d re-sent after a restart; already learned",
-                     self.robot, act.tick)
+            self._warn_once("resent", f"{self.robot}: pair of tick {act.tick} received again "
+                            "(re-sent); not learned twice (counted as info.resent_pairs)")
             return
+        self._newest_pair = key
         if len(self.queue) >= self.queue_size:
             self.dropped += 1
             self._warn_once("overflow", f"{self.robot}: training queue full ({self.queue_size}); "
@@ -267,8 +268,8 @@ class RobotRuntime:
         """Learn a pair read back from the write-ahead log (start-up recovery).
 
         The queue restored from the checkpoint held this pair if it was queued then: it is
-        taken off the queue's front. Not logged again; afterwards a re-sent copy of the newest
-        such pair is recognised and not learned twice.
+        taken off the queue's front. Not logged again; a re-sent copy of the newest pair is
+        recognised afterwards and not learned twice.
         """
         if self.queue and self.queue[0].tick == tick and np.array_equal(self.queue[0].x, x):
             self.queue.popleft()
@@ -276,8 +277,8 @@ class RobotRuntime:
         self._append_code(self._label_code(label))
         self.last_learned_tick = tick
         self.generation += 1
-        self._resend_guard = (int(tick), np.asarray(x, dtype=np.float64).tobytes(),
-                              np.asarray(y, dtype=np.float64).tobytes())
+        self._newest_pair = (int(tick), np.asarray(x, dtype=np.float64).tobytes(),
+                             np.asarray(y, dtype=np.float64).tobytes())
 
     def _append_code(self, code: int) -> None:
         if self.n_codes == len(self._codes):
@@ -343,6 +344,7 @@ class RobotRuntime:
         self.last_learned_tick = None
         self._labels_cache = None
         self._status_updates = 0
+        self._newest_pair = None
 
     # --- status ----------------------------------------------------------------------------
 

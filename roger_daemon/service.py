@@ -356,21 +356,20 @@ class Service:
                 self._invalid(None, "unknown_robot",
                               f"message on {item.key}: robot {served_robot!r} is not served")
             return
-        if kind not in INPUT_KINDS and not (kind in RECORD_ONLY_KINDS and robot in self.recorders):
-            return  # e.g. predictions and status of other daemons
+        if kind not in INPUT_KINDS and kind not in RECORD_ONLY_KINDS:
+            return  # predictions and status: daemons' outputs (ours included), not decoded
         if item.payload is None:
             self._invalid(rt, "oversized",
                           f"{kind}: payload of {item.size} bytes > {MAX_PAYLOAD_BYTES}")
             return
         try:
             msg = decode(kind, item.payload, dims=rt.dims, robot=robot)
-        except ProtocolError as exc:
-            if kind in INPUT_KINDS:
-                self._invalid(rt, exc.reason, exc.detail)
+        except ProtocolError as exc:  # garbage on command/episode is counted too
+            self._invalid(rt, exc.reason, exc.detail)
             self._record(robot, item.key, item.payload, item.recv_wall_ns, item.recv_wall_ns, 0)
             return
         self._record(robot, item.key, item.payload, item.recv_wall_ns, msg.stamp_ns, msg.tick)
-        dropped = rt.dropped
+        dropped = rt.dropped + rt.resent
         if kind == "perception":
             assert isinstance(msg, Perception)
             rt.on_perception(msg, item.recv_ns)
@@ -382,7 +381,7 @@ class Service:
         elif kind == "control":
             assert isinstance(msg, Control)
             self._control(rt, msg)
-        if rt.dropped != dropped and robot in self.recorders:
+        if rt.dropped + rt.resent != dropped and robot in self.recorders:
             self._record_drop(rt, msg.tick, item.recv_wall_ns)
 
     def _record_drop(self, rt: RobotRuntime, tick: int, wall_ns: int) -> None:
@@ -479,8 +478,7 @@ class Service:
 
     def status_of(self, rt: RobotRuntime, now: int) -> Status:
         ck = self._ckpt[rt.robot]
-        invalid = Counter(rt.invalid)
-        invalid.update(self.unserved)
+        invalid = self.invalid_counts(rt)
         info: dict[str, Any] = {
             "clock": self.config.clock,
             "rate_hz": self.config.rate_hz,
@@ -520,6 +518,13 @@ class Service:
             info=info,
         )
 
+    def invalid_counts(self, rt: RobotRuntime) -> dict[str, int]:
+        """Rejected messages by reason as status and checkpoints report them: the robot's
+        own plus those no served robot can be blamed for (bad keys, unserved robots)."""
+        invalid = Counter(rt.invalid)
+        invalid.update(self.unserved)
+        return {k: int(v) for k, v in sorted(invalid.items())}
+
     def _publish_status(self, now: int) -> None:
         lines = []
         for rt in self.robots.values():
@@ -548,12 +553,15 @@ class Service:
 
     def _snapshot(self, rt: RobotRuntime, reason: str) -> tuple[dict[str, Any], ...]:
         rec = self.recorders.get(rt.robot)
-        return checkpoint_snapshot(
+        model, daemon, meta = checkpoint_snapshot(
             rt, reason, daemon_id=self.config.id, created_unix_ns=self.clock.time_ns(),
             session_id=str(getattr(rec, "session_id", "") or ""),
             session_segment=rt.session_resets,
             extra=self._checkpoint_meta(rt) if self._checkpoint_meta is not None else None,
         )
+        # the same counts as status (restored into rt.invalid; self.unserved restarts at 0)
+        meta["counters"]["invalid"] = self.invalid_counts(rt)
+        return model, daemon, meta
 
     def _checkpoint(self, rt: RobotRuntime, reason: str, *, sync: bool = False) -> None:
         st = self._ckpt[rt.robot]

@@ -276,18 +276,21 @@ def replay_into(rt: Any, directory: Path, after_seq: int) -> Replayed:
 
 
 def start(rt: Any, directory: Path, *, checkpoint_seq: int | None, replay: bool,
-          fresh_model: bool) -> Replayed:
+          fresh: bool) -> Replayed:
     """Start-up of one robot's log: replay what follows the checkpoint (``replay``), then
-    attach a new segment to ``rt`` (``rt.wal``); a fresh model is recorded as such.
+    attach a new segment to ``rt`` (``rt.wal``).
 
     ``checkpoint_seq`` is the checkpoint's ``wal_seq`` (None: no checkpoint, or one written
-    without the log; then every record is replayed).
+    without the log; then every record is replayed, from the first ``fresh`` one). A model
+    the log cannot rebuild (``fresh``: ``--fresh``, or no checkpoint and no log) starts a new
+    history with a ``fresh`` record. After a replay the caller writes a checkpoint (its
+    ``wal_seq`` covers every record on disk, including any after a gap).
     """
     rep = (replay_into(rt, directory, -1 if checkpoint_seq is None else checkpoint_seq)
            if replay else Replayed(next_seq=_next_seq(directory)))
     rt.session_resets = 0
     rt.wal = WriteAheadLog(directory, rep.next_seq)
-    if fresh_model:
+    if fresh:
         rt.wal.append_fresh()
         rt.wal.commit()
     return rep

@@ -58,6 +58,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="feed rate of the saturation phase (Hz, default 300)")
     parser.add_argument("--recording", action="store_true",
                         help="let the daemon record MCAP as it does by default in production")
+    parser.add_argument("--no-wal", action="store_true",
+                        help="switch the write-ahead log off (checkpoint.wal = false), to "
+                             "measure what durable acknowledgements cost")
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep the daemon's logs, checkpoints and recordings here")
 
@@ -68,12 +71,13 @@ def _pct(values: list[float], q: float) -> float:
 
 class _Phase:
     def __init__(self, workdir: Path, name: str, clock: str, rate: float,
-                 recording: bool) -> None:
+                 recording: bool, *, wal: bool = True) -> None:
         self.port = free_port()
         cfg = write_config(
             workdir / f"{name}.toml", port=self.port, workdir=workdir / name,
             daemon={"clock": clock, "rate_hz": rate, "queue_size": 256},
             recording={"enabled": recording},
+            checkpoint={"wal": wal},
         )
         self.daemon = DaemonProcess(cfg, args=["--fresh"])
         self.daemon.wait_ready()
@@ -87,7 +91,8 @@ class _Phase:
 
 
 def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str, Any]:
-    ph = _Phase(workdir, "lockstep", "lockstep", args.rate, args.recording)
+    ph = _Phase(workdir, "lockstep", "lockstep", args.rate, args.recording,
+                wal=not args.no_wal)
     c = ph.client
     period = 1.0 / args.rate
     lat: list[float] = []
@@ -134,6 +139,8 @@ def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
         "lost_predictions": lost, "updates": st.updates, "experts": st.experts,
         "daemon_latency_p99_ms": st.latency_ms_p99, "learn_ms_p50": st.info["learn_ms_p50"],
         "learn_ms_p99": st.info["learn_ms_p99"], "dropped": st.dropped, "exit_code": code,
+        "wal_commits": st.info.get("wal_commits", 0),
+        "wal_commit_ms_max": st.info.get("wal_commit_ms_max", 0.0),
     }
 
 
@@ -155,7 +162,8 @@ def _feed(c: Client, stream: Any, rate: float, seconds: float) -> tuple[int, int
 
 
 def _realtime(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str, Any]:
-    ph = _Phase(workdir, "realtime", "realtime", args.rate, args.recording)
+    ph = _Phase(workdir, "realtime", "realtime", args.rate, args.recording,
+                wal=not args.no_wal)
     c = ph.client
     try:
         c.wait_status()
@@ -184,7 +192,8 @@ def _realtime(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
 
 
 def _saturate(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str, Any]:
-    ph = _Phase(workdir, "saturate", "realtime", args.rate, args.recording)
+    ph = _Phase(workdir, "saturate", "realtime", args.rate, args.recording,
+                wal=not args.no_wal)
     c = ph.client
     try:
         start = c.wait_status()
@@ -242,7 +251,8 @@ def run(args: argparse.Namespace) -> int:
         "phases": {"lockstep": lock, "realtime": real, "saturate": sat},
         "settings": {"seconds": args.seconds, "rate_hz": args.rate,
                      "saturate_seconds": args.saturate_seconds,
-                     "saturate_rate_hz": args.saturate_rate, "recording": args.recording},
+                     "saturate_rate_hz": args.saturate_rate, "recording": args.recording,
+                     "wal": not args.no_wal},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "platform": platform.platform(), "loadavg_before": load_before,
                     "loadavg_after": os.getloadavg()},
