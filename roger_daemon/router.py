@@ -1,9 +1,10 @@
 """``roger router``: a Zenoh router as a Python session in router mode.
 
 For several hosts: run one router, and start daemons, simulators and controllers as Zenoh
-clients that ``connect`` to it (``configs/zenoh/client.json5``); nothing else changes. The
-router's JSON5 file (default ``configs/zenoh/router.json5``) may carry an ``access_control``
-block (``configs/zenoh/router-acl.json5``). Stops cleanly on SIGTERM/SIGINT.
+clients that ``connect`` to it; nothing else changes. The default config listens on loopback
+only; a router that listens where other hosts reach it without an ``access_control`` block is
+warned about. The secure deployment (user/password authentication and an ACL by role) is
+``configs/zenoh/secure/`` (``docs/security.md``). Stops cleanly on SIGTERM/SIGINT.
 """
 
 from __future__ import annotations
@@ -34,6 +35,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "e.g. tcp/0.0.0.0:7447")
     parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                         help="another router to connect to (repeatable)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=JSON5",
+                        help="override one Zenoh config key after the file and the flags, "
+                             "e.g. transport/auth/usrpwd/dictionary_file='\"/etc/roger/creds\"'")
+
+
+def exposed(listen: list[str]) -> list[str]:
+    """The listen endpoints reachable from other hosts (not loopback, not a unix socket)."""
+    out = []
+    for ep in listen:
+        proto, _, addr = ep.partition("/")
+        if proto.startswith("unix"):
+            continue
+        host = addr.rsplit(":", 1)[0].strip("[]").lower()
+        if not (host == "localhost" or host == "::1" or host.startswith("127.")):
+            out.append(ep)
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,6 +76,16 @@ def run(args: argparse.Namespace) -> int:
         cfg.insert_json5("listen/endpoints", json.dumps(args.listen))
     if args.connect:
         cfg.insert_json5("connect/endpoints", json.dumps(args.connect))
+    for item in args.overrides:
+        key, sep, value = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError("expected KEY=JSON5")
+            cfg.insert_json5(key.strip(), value)
+        except Exception as exc:  # ZError: unknown key or bad JSON5
+            log.error("--set %r: must be KEY=JSON5 with a Zenoh config key, e.g. "
+                      "listen/endpoints='[\"tcp/127.0.0.1:7447\"]' (%s)", item, exc)
+            return 2
     try:
         session = zenoh.open(cfg)
     except Exception as exc:
@@ -69,6 +97,11 @@ def run(args: argparse.Namespace) -> int:
         acl = json.loads(cfg.get_json("access_control/enabled"))
         log.info("router %s listening on %s (access control %s)", session.zid(), listen,
                  "on" if acl else "off")
+        if exposed(listen) and not acl:
+            log.warning("the router listens on %s, reachable from other hosts, WITHOUT access "
+                        "control: anyone there can publish control (reset) or impersonate a "
+                        "daemon. Use configs/zenoh/secure/router.json5 (docs/security.md)",
+                        ", ".join(exposed(listen)))
         notifier.ready(f"router listening on {listen}")
         while not stop["flag"]:
             time.sleep(0.1)
