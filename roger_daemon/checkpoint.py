@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.atomic import atomic_write
+from roger_daemon.retention import prune_checkpoints
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -117,8 +118,11 @@ def write_checkpoint(
     meta: Mapping[str, Any],
     *,
     keep: int = 5,
+    max_bytes: int = 0,
+    max_age_s: float = 0.0,
 ) -> tuple[Path, dict[str, Any]]:
-    """Write one checkpoint atomically, prune old ones; return its path and final metadata."""
+    """Write one checkpoint atomically, prune old ones (``keep``, then the byte and age
+    limits of :mod:`roger_daemon.retention`); return its path and final metadata."""
     d = robot_dir(directory, robot)
     d.mkdir(parents=True, exist_ok=True)
     existing = list_checkpoints(directory, robot)
@@ -137,11 +141,8 @@ def write_checkpoint(
     arrays["meta"] = np.array(json.dumps(full_meta, sort_keys=True))
     with atomic_write(final) as f:
         np.savez(f, **arrays)  # type: ignore[arg-type]
-    for old in list_checkpoints(directory, robot)[keep:]:
-        try:
-            old.unlink()
-        except OSError as exc:
-            log.warning("could not remove old checkpoint %s: %s", old, exc)
+    prune_checkpoints(list_checkpoints(directory, robot), keep=keep, max_bytes=max_bytes,
+                      max_age_s=max_age_s)
     return final, full_meta
 
 

@@ -120,6 +120,11 @@ class CheckpointConfig:
     max_bytes: int = 0
     max_age_days: float = 0.0
 
+    def limits(self) -> dict[str, Any]:
+        """Retention arguments of :func:`roger_daemon.checkpoint.write_checkpoint`."""
+        return {"keep": self.keep, "max_bytes": self.max_bytes,
+                "max_age_s": self.max_age_days * 86400.0}
+
 
 @dataclass(frozen=True)
 class RecordingConfig:

@@ -239,7 +239,7 @@ def recover_from_logs(
                                         "recovered_from": list(plan.sessions)})
     c = cfg.checkpoint
     try:
-        path, full = write_checkpoint(c.dir, robot.id, model, daemon, meta, keep=c.keep)
+        path, full = write_checkpoint(c.dir, robot.id, model, daemon, meta, **c.limits())
     except Exception as exc:
         log.error("%s: could not write the recovered checkpoint (%s); the new session "
                   "records that it resumed from %s plus %d recovered pairs", robot.id, exc,
@@ -299,7 +299,7 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
             extra={**model_meta(robot), "recovered_pairs": rep.pairs})
         try:
             path, _ = write_checkpoint(cfg.checkpoint.dir, rt.robot, model, daemon, meta,
-                                       keep=cfg.checkpoint.keep)
+                                       **cfg.checkpoint.limits())
             log.info("%s: checkpoint %s written (recovered, %d updates)", rt.robot, path,
                      rt.updates)
         except OSError as exc:

@@ -197,6 +197,7 @@ class Service:
         self._pubs: dict[str, _Publishers] = {}
         self._period_ns = int(round(1e9 / config.rate_hz))
         self._commit_ns = int(config.checkpoint.wal_commit_ms * _MS)
+        self._next_retention = 0  # recording retention: at the first poll, then every minute
         self._status_period_ns = int(round(1e9 / config.status_hz))
         self._realtime = config.clock == "realtime"
         self._next_tick = 0
@@ -573,7 +574,7 @@ class Service:
             if st.in_flight is not None:
                 self._collect_checkpoints(wait=True)
             try:
-                path, full = write_checkpoint(c.dir, rt.robot, model, daemon, meta, keep=c.keep)
+                path, full = write_checkpoint(c.dir, rt.robot, model, daemon, meta, **c.limits())
             except Exception as exc:
                 self._checkpoint_failed(rt.robot, exc)
                 return
@@ -582,7 +583,7 @@ class Service:
         if st.in_flight is not None:
             return
         st.in_flight = self._writer.submit(
-            write_checkpoint, c.dir, rt.robot, model, daemon, meta, keep=c.keep
+            write_checkpoint, c.dir, rt.robot, model, daemon, meta, **c.limits()
         )
         st.in_flight_gen = gen
 
@@ -651,11 +652,25 @@ class Service:
         if not self.recorders:
             return
         now = self.clock.monotonic_ns()
+        if now >= self._next_retention:
+            self._next_retention = now + 60 * 1_000_000_000
+            self.prune_recordings()
         for robot, rec in self.recorders.items():
             try:
                 rec.poll(now)
             except Exception as exc:
                 self._recording_error(robot, "poll", exc)
+
+    def prune_recordings(self) -> None:
+        """Recording retention (``[recording] max_bytes``/``max_age_days``); the file being
+        written is kept."""
+        from roger_daemon.retention import prune_recordings
+
+        r = self.config.recording
+        for robot, rec in self.recorders.items():
+            prune_recordings(r.dir, robot, max_bytes=r.max_bytes,
+                             max_age_s=r.max_age_days * 86400.0,
+                             keep=[Path(p) for p in [getattr(rec, "path", None)] if p])
 
     def _recording_error(self, robot: str, what: str, exc: BaseException) -> None:
         self.stats.recording_errors += 1
