@@ -188,6 +188,15 @@ def test_replay_of_a_robot_absent_from_the_log_fails(files: dict[str, Path],
     assert "'spot' has no message" in err and "['aibo']" in err
 
 
+def test_record_into_a_file_is_an_argument_error(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "notes.txt"
+    out.write_text("mine")
+    assert roger(["record", "--out", str(out), "--connect", "none"]) == 2
+    assert "is not a directory" in capsys.readouterr().err
+    assert out.read_text() == "mine"
+
+
 @pytest.mark.integration
 def test_record_to_an_unreachable_endpoint_fails_and_writes_nothing(tmp_path: Path) -> None:
     port = free_port()  # nobody listens there

@@ -60,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
 
     from roger_daemon.recording import zenoh_net
 
+    if args.out.exists() and not args.out.is_dir():
+        print(f"roger record: --out {args.out} exists and is not a directory; expected a "
+              "directory for the MCAP files", file=sys.stderr)
+        return 2
     robot = args.robot
     if robot is None:
         m = _ROBOT_KEY.match(args.key)

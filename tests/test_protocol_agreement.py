@@ -1,0 +1,42 @@
+"""The daemon counts what protocols/README.md says it counts, and reports the same numbers in
+status and in checkpoints; a re-sent pair is not learned twice."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from test_daemon_service import STREAM, Harness, make_config
+
+from protocols import Action, Control, Perception, encode
+from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
+
+
+def test_garbage_on_every_kind_it_decodes_is_counted_alike_in_status_and_checkpoint(
+        tmp_path: Path) -> None:
+    h = Harness(make_config(tmp_path))
+    h.send("command", b"\xc1garbage")
+    h.send("episode", b"\xc1garbage")
+    h.send("perception", b"\xc1garbage")
+    h.transport.inject("roger/aibo", b"x")  # two chunks: a bad key, no robot to blame
+    h.transport.inject("roger/aibo/nonsense", b"x")  # a bad key of a served robot
+    h.settle()
+    st = h.status()
+    assert st.invalid == {"not_msgpack": 3, "bad_key": 2}
+    h.send("control", encode(Control("aibo", 0, 0.0, op="checkpoint")))
+    h.settle()
+    ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "aibo")[0])
+    assert ck.meta["counters"]["invalid"] == st.invalid
+    # after a restart from that checkpoint the counts go on from there, not doubled
+    h2 = Harness(make_config(tmp_path), fresh=False)
+    assert h2.status().invalid == st.invalid
+
+
+def test_a_re_sent_pair_is_counted_once(tmp_path: Path) -> None:
+    h = Harness(make_config(tmp_path))
+    for t in (0, 1, 1, 2):  # tick 1 re-sent (its prediction was lost)
+        h.send("action", encode(Action("aibo", t, t / 30, y=STREAM.y[t])))
+        h.send("perception", encode(Perception("aibo", t, t / 30, x=STREAM.x[t])))
+        h.settle()
+    assert [p.updates for p in h.predictions()] == [1, 2, 2, 3]
+    st = h.status()
+    assert st.updates == 3 and st.info["resent_pairs"] == 1
