@@ -40,3 +40,31 @@ def test_a_re_sent_pair_is_counted_once(tmp_path: Path) -> None:
     assert [p.updates for p in h.predictions()] == [1, 2, 2, 3]
     st = h.status()
     assert st.updates == 3 and st.info["resent_pairs"] == 1
+
+
+def _header(**fields: object) -> dict[str, object]:
+    return {"v": 1, "robot": "aibo", "tick": 0, "t": 0.0, "stamp_ns": 0, **fields}
+
+
+def test_decoder_rules_match_the_document() -> None:
+    import msgpack
+    import pytest
+
+    from protocols import decode
+    from protocols.errors import ProtocolError
+
+    def reason(kind: str, m: dict[str, object]) -> str:
+        with pytest.raises(ProtocolError) as err:
+            decode(kind, msgpack.packb(m))
+        return err.value.reason
+
+    # extension types are rejected, the zero-length ones too
+    assert reason("control", _header(op="reset", z=msgpack.ExtType(1, b""))) == "not_msgpack"
+    # string limits are UTF-8 bytes: 256 bytes pass, 257 are oversized, > 1024 not msgpack
+    assert decode("action", msgpack.packb(_header(y=[0.0] * 9, label="é" * 128))).label
+    assert reason("action", _header(y=[0.0] * 9, label="é" * 129)) == "oversized"
+    assert reason("action", _header(y=[0.0] * 9, label="x" * 1025)) == "not_msgpack"
+    # control: mode optional except with op = "mode"
+    assert decode("control", msgpack.packb(_header(op="reset"))).op == "reset"
+    assert reason("control", _header(op="mode")) == "missing_field"
+    assert reason("control", _header(op="mode", mode="fly")) == "bad_value"
