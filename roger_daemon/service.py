@@ -370,7 +370,7 @@ class Service:
             self._record(robot, item.key, item.payload, item.recv_wall_ns, item.recv_wall_ns, 0)
             return
         self._record(robot, item.key, item.payload, item.recv_wall_ns, msg.stamp_ns, msg.tick)
-        dropped = rt.dropped + rt.resent
+        dropped, resent = rt.dropped, rt.resent
         if kind == "perception":
             assert isinstance(msg, Perception)
             rt.on_perception(msg, item.recv_ns)
@@ -382,15 +382,17 @@ class Service:
         elif kind == "control":
             assert isinstance(msg, Control)
             self._control(rt, msg)
-        if rt.dropped + rt.resent != dropped and robot in self.recorders:
-            self._record_drop(rt, msg.tick, item.recv_wall_ns)
+        if (rt.dropped, rt.resent) != (dropped, resent) and robot in self.recorders:
+            self._record_drop(rt, msg.tick, item.recv_wall_ns,
+                              "queue_full" if rt.dropped != dropped else "resent")
 
-    def _record_drop(self, rt: RobotRuntime, tick: int, wall_ns: int) -> None:
-        """Name the pair just dropped (queue full) in the log, so that replay stays exact."""
+    def _record_drop(self, rt: RobotRuntime, tick: int, wall_ns: int, reason: str) -> None:
+        """Name the pair just not learned (queue full, or a re-send of the newest pair) in
+        the log, so that replay stays exact."""
         from roger_daemon.recording.events import dropped_topic, encode_dropped
 
         payload = encode_dropped(rt.robot, tick, stamp_ns=wall_ns, queue_size=rt.queue_size,
-                                 dropped=rt.dropped)
+                                 dropped=rt.dropped, reason=reason)
         self._record(rt.robot, dropped_topic(rt.robot), payload, wall_ns, wall_ns, tick)
 
     def _answer_lockstep(self) -> None:
