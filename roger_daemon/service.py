@@ -61,6 +61,10 @@ RECORD_ONLY_KINDS = ("command", "episode")
 _MS = 1_000_000
 
 
+def _pct(values: Any, q: float) -> float:
+    return round(float(np.percentile(np.fromiter(values, float), q)), 4) if values else 0.0
+
+
 class Clock(Protocol):
     """Time sources: ``monotonic_ns`` for deadlines and latency, ``time_ns`` for stamps."""
 
@@ -509,6 +513,8 @@ class Service:
             "recording_errors": self.stats.recording_errors,
             "wal": rt.wal is not None,
             "wal_commits": 0 if rt.wal is None else rt.wal.commits,
+            "wal_commit_ms_p50": _pct(rt.wal.commit_ms, 50) if rt.wal is not None else 0.0,
+            "wal_commit_ms_p99": _pct(rt.wal.commit_ms, 99) if rt.wal is not None else 0.0,
             "wal_commit_ms_max": 0.0 if rt.wal is None else round(rt.wal.commit_ms_max, 3),
             "resent_pairs": rt.resent,
         }

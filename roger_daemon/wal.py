@@ -35,6 +35,7 @@ import re
 import struct
 import time
 import zlib
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -155,6 +156,7 @@ class WriteAheadLog:
         self.durable_seq = next_seq - 1  # every record <= this is on disk
         self.commits = 0
         self.commit_ms_max = 0.0
+        self.commit_ms: deque[float] = deque(maxlen=1000)  # the latest commits' durations
         self._fd = -1
         self._pos = self._end = 0
         self._dirty_since: int | None = None
@@ -224,7 +226,9 @@ class WriteAheadLog:
         t0 = time.perf_counter_ns()
         if self.sync:
             os.fdatasync(self._fd)
-        self.commit_ms_max = max(self.commit_ms_max, (time.perf_counter_ns() - t0) / 1e6)
+        ms = (time.perf_counter_ns() - t0) / 1e6
+        self.commit_ms.append(ms)
+        self.commit_ms_max = max(self.commit_ms_max, ms)
         self.commits += 1
         self.durable_seq = self.next_seq - 1
         self._dirty_since = None
