@@ -6,9 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from protocols.messages import Dims
-from roger_daemon.checkpoint import array_digest
+from roger_daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
 from roger_daemon.config import parse_config
 from roger_daemon.daemon import make_model
 from roger_daemon.robot import Pair, RobotRuntime
@@ -103,3 +104,34 @@ def test_replay_relearns_in_order_and_stops_at_a_gap(tmp_path: Path) -> None:
     wrong = runtime()
     rep = replay_into(wrong, tmp_path, after_seq=3)
     assert rep.pairs == 0 and "gap" in rep.stopped
+
+
+def test_a_session_after_a_wal_recovery_replays_exactly(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """Life 1 learns 50 pairs (checkpoint at 40) and dies; life 2 re-learns 10 from the log,
+    names the recovered checkpoint as its start, learns 15 more; its session replays from
+    that checkpoint with every prediction reproduced."""
+    from test_recovery import Life, assert_same, make_cfg, reference
+
+    from roger_daemon.cli import main as roger
+    from roger_daemon.recording import list_session_files
+    from roger_daemon.recording.mcapio import read_metadata
+
+    a = Life(make_cfg(tmp_path, tmp_path / "logs1", wal=True))
+    a.pairs(range(50))
+    a.flush()
+    logs2 = a.crash(tmp_path / "logs2")  # the WAL is where a kill leaves it: not closed
+    b = Life(make_cfg(tmp_path, logs2, wal=True))
+    assert b.rt.updates == 50 and b.rt.recovered_pairs == 10
+    ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
+    assert ck.meta["reason"] == "recovered" and b.where.checkpoint == str(ck.path)
+    assert_same(b.rt.model, reference(list(range(50))))
+    b.pairs(range(50, 65))
+    b.stop()
+    session = [sf.path for sf in list_session_files(logs2)][-1]
+    assert read_metadata(session)["checkpoint"] == str(ck.path)
+    capsys.readouterr()
+    assert roger(["replay", str(session), "--checkpoint", str(ck.path), "--check",
+                  "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "learned:      15 pairs" in out and "result:       OK" in out
