@@ -183,9 +183,10 @@ def test_recover_exit_code_says_whether_bytes_were_dropped(
 
 def test_replay_of_a_robot_absent_from_the_log_fails(files: dict[str, Path],
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    assert roger(["replay", str(files["log"]), "--robot", "spot"]) == 2
-    err = capsys.readouterr().err
-    assert "'spot' has no message" in err and "['aibo']" in err
+    for extra in ([], ["--publish", "--connect", "none", "--listen", "none"]):
+        assert roger(["replay", str(files["log"]), "--robot", "spot", *extra]) == 2
+        err = capsys.readouterr().err
+        assert "'spot' has no message" in err and "['aibo']" in err
 
 
 def test_record_into_a_file_is_an_argument_error(tmp_path: Path,

@@ -101,6 +101,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"roger replay: {why}", file=sys.stderr)
             return 2
     if args.publish:
+        if args.robot:
+            from roger_daemon.recording.timeline import robot_absent
+
+            if why := robot_absent(files, args.robot):
+                print(f"roger replay: {why}", file=sys.stderr)
+                return 2
         return _publish(args, files)
     return _replay(args, files)
 
