@@ -68,3 +68,61 @@ def test_decoder_rules_match_the_document() -> None:
     assert decode("control", msgpack.packb(_header(op="reset"))).op == "reset"
     assert reason("control", _header(op="mode")) == "missing_field"
     assert reason("control", _header(op="mode", mode="fly")) == "bad_value"
+
+
+class _CountingWal:
+    """A real write-ahead log that also counts pairs appended and pairs committed."""
+
+    def __init__(self, directory: Path) -> None:
+        from roger_daemon.wal import WriteAheadLog
+
+        self.wal = WriteAheadLog(directory, 0)
+        self.appended = 0
+        self.durable = 0
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.wal, name)
+
+    def append_pair(self, *args: object) -> int:
+        self.appended += 1
+        return int(self.wal.append_pair(*args))  # type: ignore[arg-type]
+
+    def commit(self) -> None:
+        self.wal.commit()
+        self.durable = self.appended
+
+
+def _watch(h: Harness, wal: _CountingWal) -> list[tuple[str, int, int]]:
+    """Wrap the daemon's publishers: (kind, updates reported, pairs durable) per publish."""
+    from protocols import decode
+
+    seen: list[tuple[str, int, int]] = []
+    pubs = h.service._pubs["aibo"]
+    for kind in ("prediction", "status"):
+        inner = getattr(pubs, kind)
+
+        def put(payload: bytes, inner: object = inner, kind: str = kind) -> None:
+            msg = decode(kind, payload)
+            seen.append((kind, int(msg.updates), wal.durable))  # type: ignore[attr-defined]
+            inner.put(payload)  # type: ignore[attr-defined]
+
+        setattr(pubs, kind, type("P", (), {"put": staticmethod(put)})())
+    return seen
+
+
+def test_nothing_is_reported_learned_before_it_is_durable(tmp_path: Path) -> None:
+    for clock in ("lockstep", "realtime"):
+        h = Harness(make_config(tmp_path / clock, clock=clock))
+        wal = _CountingWal(tmp_path / clock / "wal")
+        h.rt.wal = wal
+        seen = _watch(h, wal)
+        for t in range(25):
+            h.send("perception", encode(Perception("aibo", t, t / 30, x=STREAM.x[t])))
+            h.send("action", encode(Action("aibo", t, t / 30, y=STREAM.y[t])))
+            for _ in range(3):
+                h.clock.advance(1 / 90)
+                h.service.step(0)
+        h.status()
+        assert seen and max(u for _, u, _ in seen) >= 20, (clock, seen[-3:])
+        assert [s for s in seen if s[1] > s[2]] == [], clock
+        assert {k for k, _, _ in seen} == {"prediction", "status"}
