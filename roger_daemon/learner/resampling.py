@@ -1,4 +1,4 @@
-"""Fearnhead & Clifford's optimal resampling without duplicates (roger-math.md §5).
+"""Fearnhead & Clifford's optimal resampling without duplicates (docs/learner-math.md §5).
 
 Given ``M`` putative particles with log weights and a target ``P < M``:
 
@@ -39,7 +39,7 @@ def fearnhead_threshold(weights: FloatArray, n_keep: int) -> tuple[float, int]:
 
     ``weights`` are normalised and ``len(weights) > n_keep``.  ``1/c = R_L / (P - L)`` for the
     first ``L`` (in descending order of weight) with ``w_(L+1) <= R_L / (P - L)``, where ``R_L``
-    is the mass outside the top ``L`` (roger-math.md §5 step 1).
+    is the mass outside the top ``L`` (docs/learner-math.md §5 step 1).
     """
     return _threshold(np.sort(weights)[::-1], n_keep)
 
