@@ -365,3 +365,34 @@ def test_kept_gram_matrix_tracks_the_basis(prior_mean: bool) -> None:
     n = model.n
     np.testing.assert_allclose(model.Q @ model._K[:n, :n], np.eye(n), atol=1e-6)
     np.testing.assert_array_equal(model.Q, model.Q.T)
+
+
+# -- e. kernel width from the data (offline helper) ------------------------------------------
+
+
+def test_log_evidence_is_the_gaussian_marginal_likelihood() -> None:
+    from scipy.stats import multivariate_normal
+
+    from roger_daemon.learner.evidence import log_evidence
+
+    x, y = data(25, 2, 3, seed=9)
+    m = y.mean(axis=0)
+    cov = RBFKernel(0.8, 2).gram(x, x) + 0.05 * np.eye(25)
+    ref = sum(multivariate_normal(np.full(25, m[j]), cov).logpdf(y[:, j]) for j in range(3))
+    assert log_evidence(x, y, 0.8, 0.05, prior_mean=m) == pytest.approx(ref, rel=1e-10)
+
+
+def test_select_width_recovers_the_width_of_a_gp_sample() -> None:
+    from roger_daemon.learner.evidence import select_width
+
+    rng = np.random.default_rng(11)
+    x = rng.uniform(-2, 2, (150, 2))
+    cov = RBFKernel(0.5, 2).gram(x, x) + 1e-3 * np.eye(150)
+    y = np.linalg.cholesky(cov) @ rng.normal(size=(150, 2))
+    best, scores = select_width(x, y, [0.05, 0.5, 5.0], 1e-3)
+    assert best == 0.5 and scores.shape == (3,) and np.argmax(scores) == 1
+    best_w, _ = select_width(np.vstack([x, x]), np.vstack([y, y]), [0.05, 0.5, 5.0], 1e-3,
+                             window=150, center=True)
+    assert best_w == 0.5
+    with pytest.raises(ValueError, match="widths must be a non-empty"):
+        select_width(x, y, [], 1e-3)
