@@ -28,7 +28,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -48,6 +48,7 @@ from protocols.messages import (
 )
 from roger_daemon.checkpoint import write_checkpoint
 from roger_daemon.config import DaemonConfig
+from roger_daemon.health import Health
 from roger_daemon.robot import RobotRuntime, _Window
 from roger_daemon.sdnotify import Notifier
 from roger_daemon.transport import Inbox, Incoming, Publisher, Transport
@@ -208,6 +209,9 @@ class Service:
         self.final_checkpoints_ok = True
         self._reported: set[str] = set()
         self._recorder_failed: set[str] = set()
+        self._health = {r: Health() for r in self.robots}
+        # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
+        self._acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
 
     # --- life cycle ----------------------------------------------------------------------
 
@@ -231,6 +235,8 @@ class Service:
             self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roger-ckpt")
         self._next_tick = now + self._period_ns
         self._next_status = now + self._status_period_ns
+        for rt in self.robots.values():  # the baseline that health changes are judged from
+            self._health[rt.robot].assess(self.status_of(rt, now).to_map(), now)
         summary = ", ".join(
             f"{r.robot} ({r.mode}, {r.updates} updates)" for r in self.robots.values()
         )
@@ -418,6 +424,12 @@ class Service:
         elif msg.op == "checkpoint":
             log.info("%s: checkpoint requested", rt.robot)
             self._checkpoint(rt, "requested")
+        n = self._acks[rt.robot][0] + 1
+        self._acks[rt.robot] = (n, msg.op, msg.stamp_ns)
+        # confirm at once: a status carrying this control's stamp (protocols/README.md, control)
+        now = self.clock.monotonic_ns()
+        st = self.status_of(rt, now)
+        self._publish(rt, self._pubs[rt.robot].status, keys.status(rt.robot), st)
 
     # --- output ----------------------------------------------------------------------------
 
@@ -497,6 +509,11 @@ class Service:
             "last_learned_tick": -1 if rt.last_learned_tick is None else rt.last_learned_tick,
             "recording": rt.robot in self.recorders,
             "recording_errors": self.stats.recording_errors,
+            "controls": self._acks[rt.robot][0],
+            "control_op": self._acks[rt.robot][1],
+            "control_stamp_ns": self._acks[rt.robot][2],
+            "level": self._health[rt.robot].last[0],
+            "level_reasons": self._health[rt.robot].last[1],
         }
         return Status(
             rt.robot, rt.last_tick, rt.last_t, daemon=self.config.id, mode=rt.mode,
@@ -511,11 +528,13 @@ class Service:
         lines = []
         for rt in self.robots.values():
             st = self.status_of(rt, now)
+            level, reasons = self._health[rt.robot].assess(st.to_map(), now)
+            st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
             self._publish(rt, self._pubs[rt.robot].status, keys.status(rt.robot), st)
             lines.append(
                 f"{rt.robot}: {st.mode}, {st.updates} updates ({st.updates_per_s:.1f}/s), "
                 f"{st.experts} experts, queue {st.queue_depth}, dropped {st.dropped}, "
-                f"p99 {st.latency_ms_p99:.1f} ms"
+                f"p99 {st.latency_ms_p99:.1f} ms, {level}"
             )
         self.notifier.status("; ".join(lines))
 

@@ -35,7 +35,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="start location of the learned controller's episode (default 0)")
     parser.add_argument("--time-limit", type=float, default=150.0,
                         help="simulated seconds per episode (default 150, the paper's)")
-    parser.add_argument("--vision", choices=("rendered", "fast"), default="rendered")
+    parser.add_argument("--vision", choices=("rendered", "fast"), default="rendered",
+                        help="the simulator's vision: rendered segmentation (default) or the "
+                             "fast analytic projection")
 
 
 class _Demo:

@@ -1,0 +1,76 @@
+"""Command-line conventions: every option has help, --version, exit 2 for user errors."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from collections.abc import Iterator
+
+import pytest
+
+from roger_daemon import __version__
+from roger_daemon.cli import BENCHES, COMMANDS, build_parser, main
+
+
+def walk(parser: argparse.ArgumentParser, path: str) -> Iterator[tuple[str, argparse.Action]]:
+    """Every action of ``parser`` and of its subcommands, recursively, with the command path."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from walk(sub, f"{path} {name}")
+        else:
+            yield path, action
+
+
+def all_actions() -> Iterator[tuple[str, argparse.Action]]:
+    yield from walk(build_parser(COMMANDS, "roger", "*"), "roger")
+    yield from walk(build_parser(BENCHES, "roger bench", "*"), "roger bench")
+
+
+def test_every_option_and_argument_has_help() -> None:
+    missing = [f"{path} {'/'.join(a.option_strings) or a.dest}"
+               for path, a in all_actions()
+               if not isinstance(a, argparse._HelpAction)
+               and (a.help is None or not a.help.strip()) and a.help != argparse.SUPPRESS]
+    assert missing == [], "options without --help text: " + ", ".join(missing)
+
+
+def test_one_name_per_concept() -> None:
+    """The same concept is spelled the same in every command (robot id, JSON output)."""
+    for path, a in all_actions():
+        for opt in a.option_strings:
+            assert opt not in ("--robot-id", "--robot_id"), f"{path}: use --robot"
+        if "--json" in a.option_strings:
+            assert a.nargs == 0, f"{path}: --json is a flag everywhere (got a value option)"
+
+
+def test_every_command_accepts_log_level() -> None:
+    for path, _ in {(p, None) for p, _ in all_actions() if p.count(" ") == 1}:
+        if path == "roger bench":
+            continue
+        name = path.split()[1]
+        parser = build_parser(COMMANDS, "roger", name)
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        opts = {o for a in sub.choices[name]._actions for o in a.option_strings}
+        assert "--log-level" in opts, name
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"roger {__version__}"
+
+
+def test_bad_log_level_is_a_usage_error() -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["--log-level", "loud", "list"])
+    assert exc.value.code == 2
+
+
+def test_user_error_exits_2_with_a_message_and_no_traceback() -> None:
+    r = subprocess.run([sys.executable, "-m", "roger_daemon", "echo", "roger/a b/c//",
+                        "--timeout", "1"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and "KEY must be a key expression" in r.stderr
+    assert "'roger/a b/c//'" in r.stderr
