@@ -37,6 +37,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "echo": ("roger_daemon.tools.echo", "print the decoded messages on a key expression"),
     "hz": ("roger_daemon.tools.hz", "the rate of messages on a key expression"),
     "control": ("roger_daemon.tools.control", "mode, reset or checkpoint, confirmed by the daemon"),
+    "config": ("roger_daemon.tools.config_example", "print shipped config files (daemon, systemd)"),
+    "up": ("roger_daemon.launch", "start daemon, simulator and controller from one TOML file"),
 }
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()

@@ -66,7 +66,9 @@ def configure_logging(level: str | None = None) -> None:
 def guarded(prog: str, body: Callable[[], int]) -> int:
     """Run ``body`` and turn user errors, Ctrl-C and a closed stdout into exit statuses."""
     try:
-        return body()
+        code = body()
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's final flush
+        return code
     except UsageError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -74,3 +74,47 @@ def test_user_error_exits_2_with_a_message_and_no_traceback() -> None:
     assert r.returncode == 2
     assert "Traceback" not in r.stderr and "KEY must be a key expression" in r.stderr
     assert "'roger/a b/c//'" in r.stderr
+
+
+def test_closed_stdout_exits_quietly() -> None:
+    """`roger ... | head`: the reader went away before the output was written."""
+    p = subprocess.Popen([sys.executable, "-m", "roger_daemon", "config", "example", "daemon"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert p.stdout is not None and p.stderr is not None
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    assert p.wait(60) == 141
+    assert "Traceback" not in err and "BrokenPipe" not in err
+
+
+def test_ctrl_c_exits_130_without_a_traceback() -> None:
+    """SIGINT while `roger hz` waits for messages (nothing publishes: it waits forever)."""
+    import signal
+
+    from roger_daemon.harness import free_port
+
+    p = subprocess.Popen([sys.executable, "-m", "roger_daemon", "hz", "aibo/status",
+                          "--connect", f"tcp/127.0.0.1:{free_port()}"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout is not None
+        first = p.stdout.readline()  # the first report: it is inside its loop now
+        assert "waiting for messages" in first
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == 130, err
+    assert "Traceback" not in err and "interrupted" in err
+
+
+def test_config_example_prints_the_shipped_file(capsys: pytest.CaptureFixture[str]) -> None:
+    from pathlib import Path
+
+    assert main(["config", "example", "systemd"]) == 0
+    shipped = Path(__file__).parents[1] / "configs" / "systemd" / "roger-daemon.service"
+    assert capsys.readouterr().out == shipped.read_text(encoding="utf-8")
+    assert main(["config", "example", "nonsense"]) == 2
+    assert "must be one of daemon" in capsys.readouterr().err
