@@ -39,6 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "control": ("roger_daemon.tools.control", "mode, reset or checkpoint, confirmed by the daemon"),
     "config": ("roger_daemon.tools.config_example", "print shipped config files (daemon, systemd)"),
     "up": ("roger_daemon.launch", "start daemon, simulator and controller from one TOML file"),
+    "view": ("simulator.view.node", "live Foxglove view (WebSocket) of a session, or of a log"),
 }
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()

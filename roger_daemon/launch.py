@@ -16,7 +16,10 @@ annotated example; ``roger config example up``); everything else is derived so t
 - **Files**: every process runs in ``session.dir`` and logs to ``<name>.log`` there; the
   daemon's checkpoints and recordings go to ``checkpoints/`` and ``recordings/`` in it (a
   ``daemon.set`` entry may move them; relative paths in ``args`` are relative to it too).
-- **Order and stop**: daemon (until its liveliness token answers), controller, simulator.
+- **View**: with ``[view] enabled = true`` a ``roger view`` process serves the session on
+  Foxglove's WebSocket (``ports.view``, default 8765) and the simulator publishes its ground
+  truth (``--truth``) for the 3D scene; ``view.record`` also writes it to an MCAP file.
+- **Order and stop**: daemon (until its ``ready`` log line), controller, view, simulator.
   When the simulator has run its episodes (``session.exit_when_done``, default true), or on
   Ctrl-C / SIGTERM, the processes are stopped in reverse order with SIGTERM (the daemon writes
   its final checkpoint), each given ``session.stop_timeout_s`` before SIGKILL. Children run in
@@ -50,7 +53,7 @@ log = logging.getLogger("roger.up")
 TICK_HZ = 30.0
 N_LOCATIONS = 13  # the AIBO task's start locations (simulator.episodes.START_LOCATIONS)
 ROLES = ("demonstrator", "transitioner")
-SECTIONS = {"session", "ports", "daemon", "sim", "controller"}
+SECTIONS = {"session", "ports", "daemon", "sim", "controller", "view"}
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -129,6 +132,7 @@ def plan(data: dict[str, Any], base: Path) -> Plan:
         raise UsageError(f"unknown table(s) {sorted(unknown)}; expected {sorted(SECTIONS)}")
     session, ports = _table(data, "session"), _table(data, "ports")
     dmn, sim, ctl = _table(data, "daemon"), _table(data, "sim"), _table(data, "controller")
+    view = _table(data, "view")
     role = _get(ctl, "controller", "role", str, "demonstrator")
     if role not in ROLES:
         raise UsageError(f"controller.role must be one of {', '.join(ROLES)}, got {role!r}")
@@ -166,10 +170,17 @@ def plan(data: dict[str, Any], base: Path) -> Plan:
     p.argv["controller"] = [*exe, "hcc", "--role", role, "--clock", clock,
                             "--connect", sim_ep, "--connect", p.daemon_ep,
                             "--exit-when-done", *_strings(ctl, "controller", "args")]
+    viewing = _get(view, "view", "enabled", bool, False)
+    if viewing:  # before the simulator, so that it sees the first episode
+        p.argv["view"] = [*exe, "view", "--port", str(_port(ports, "view", 8765)),
+                          "--connect", p.daemon_ep, "--connect", sim_ep]
+        if "record" in view:
+            p.argv["view"] += ["--record", _get(view, "view", "record", str, "")]
     p.argv["sim"] = [*exe, "sim", "--clock", clock, "--listen", sim_ep,
                      "--connect", p.daemon_ep, "--locations", locations,
                      "--episodes-per-location", str(episodes),
                      "--time-limit", repr(time_limit), "--wait-peers", "2",
+                     *(["--truth"] if viewing or _get(sim, "sim", "truth", bool, False) else []),
                      *_strings(sim, "sim", "args")]
     return p
 
@@ -256,7 +267,7 @@ class _Supervisor:
     def _start_all(self) -> None:
         self._start("daemon")
         self._wait_daemon()
-        for name in ("controller", "sim"):
+        for name in [n for n in self.p.argv if n != "daemon"]:
             if self.stop_reason:
                 return
             self._start(name)
@@ -284,12 +295,15 @@ class _Supervisor:
                 for name, proc in self.procs.items():
                     if proc.poll() is None:
                         continue
-                    if name != "daemon" and proc.returncode == 0:
+                    if name == "sim" and proc.returncode == 0:
                         if self.p.exit_when_done:
-                            self.stop_reason = f"the session is over ({name} finished)"
-                        continue
-                    self.stop_reason = f"{name} exited with {proc.returncode}"
-                    break
+                            self.stop_reason = "the session is over (the simulator finished)"
+                            break
+                    elif name == "controller" and proc.returncode == 0:
+                        continue  # --exit-when-done: it saw the simulator's end
+                    else:
+                        self.stop_reason = f"{name} exited with {proc.returncode}"
+                        break
                 time.sleep(0.2)
         finally:
             watch.close()
