@@ -85,6 +85,9 @@ def dispatch(table: dict[str, tuple[str, str]], prog: str, argv: Sequence[str]) 
     args = build_parser(table, prog, wanted).parse_args(list(argv))
     if table is COMMANDS:
         configure_logging(getattr(args, "log_level", None))
+    from roger_daemon.blas import pin_blas_threads
+
+    pin_blas_threads(1)  # results never depend on the BLAS thread count (roger_daemon/blas.py)
     code: int = importlib.import_module(args._module).run(args)
     return code
 
