@@ -68,12 +68,16 @@ def test_bad_log_level_is_a_usage_error() -> None:
     assert exc.value.code == 2
 
 
-def test_user_error_exits_2_with_a_message_and_no_traceback() -> None:
-    r = subprocess.run([sys.executable, "-m", "roger_daemon", "echo", "roger/a b/c//",
-                        "--timeout", "1"], capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2
-    assert "Traceback" not in r.stderr and "KEY must be a key expression" in r.stderr
-    assert "'roger/a b/c//'" in r.stderr
+def test_user_error_exits_2_with_a_message_and_no_traceback(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["echo", "roger/a b/c//", "--timeout", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "KEY must be a key expression" in err
+    assert "'roger/a b/c//'" in err
+    assert main(["bench", "learner", "--param", "partcles=5"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown parameter(s) 'partcles'" in err and "particles" in err
 
 
 def test_closed_stdout_exits_quietly() -> None:

@@ -44,6 +44,7 @@ def test_plan_rejects_a_bad_file(tmp_path: Path, data: dict, message: str) -> No
         plan(data, tmp_path)
 
 
+@pytest.mark.slow  # ~12 s: three processes and a live session (make test-all)
 def test_up_runs_a_demonstration_and_stops_cleanly_on_ctrl_c(tmp_path: Path) -> None:
     port = free_port()
     launch = tmp_path / "up.toml"
