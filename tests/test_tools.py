@@ -187,3 +187,50 @@ def test_control_rejects_a_bad_request_with_exit_2(capsys: pytest.CaptureFixture
     with pytest.raises(SystemExit) as exc:
         main(["control", "aibo", "explode"])
     assert exc.value.code == 2
+
+
+@pytest.mark.slow  # ~6 s: waits for the 3 s staleness threshold (make test-all)
+def test_status_watch_reports_stale_when_statuses_stop() -> None:
+    import signal
+    import subprocess
+    import sys
+
+    from roger_daemon.config import ZenohSettings
+    from roger_daemon.transport import open_session
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    session = open_session(ZenohSettings(listen=(ep,)))
+    watch = subprocess.Popen([sys.executable, "-m", "roger_daemon", "status", "ghost", "--watch",
+                              "--json", "--connect", ep], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        assert watch.stdout is not None
+        st = Status("ghost", 0, 0.0, daemon="mute", mode="learn", ticks=0, updates=0,
+                    updates_per_s=0.0, experts=0, queue_depth=0, dropped=0,
+                    info={"level": "OK", "level_reasons": ""})
+        deadline = time.monotonic() + 60
+        first = None
+        while first is None and time.monotonic() < deadline:  # until the watcher hears one
+            session.put(keys.status("ghost"), encode(st))
+            time.sleep(0.3)
+            first = json.loads(watch.stdout.readline()) if _readable(watch.stdout) else None
+        assert first is not None and first["level"] == "OK"
+        # no more statuses: the next line must say STALE
+        line = json.loads(watch.stdout.readline())
+        while line["level"] != "STALE":
+            line = json.loads(watch.stdout.readline())
+        assert line["age_s"] > 3.0 and "no status for" in line["info"]["level_reasons"]
+        watch.send_signal(signal.SIGINT)
+        _, err = watch.communicate(timeout=30)
+    finally:
+        if watch.poll() is None:
+            watch.kill()
+            watch.communicate()
+        session.close()
+    assert watch.returncode == 130 and "Traceback" not in err
+
+
+def _readable(stream: object) -> bool:
+    import select
+
+    return bool(select.select([stream], [], [], 0.0)[0])
