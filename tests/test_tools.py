@@ -234,3 +234,9 @@ def _readable(stream: object) -> bool:
     import select
 
     return bool(select.select([stream], [], [], 0.0)[0])
+
+
+def test_list_without_a_daemon_exits_1(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = roger(capsys, "list", "--connect", f"tcp/127.0.0.1:{free_port()}",
+                           "--timeout", "1", "--wait", "0.2")
+    assert code == 1 and out == "" and "no daemon answered within 1 s" in err

@@ -16,6 +16,7 @@ import argparse
 import json
 import math
 import queue
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,6 +137,7 @@ class Listener:
     def __init__(self, session: Any, key_expr: str, capacity: int = 4096,
                  *, liveliness: bool = False) -> None:
         self._q: queue.Queue[Sample] = queue.Queue(maxsize=capacity)
+        self._lock = threading.Lock()
         self.overflow = 0
 
         def on_sample(sample: Any) -> None:
@@ -143,7 +145,8 @@ class Listener:
             try:
                 self._q.put_nowait(item)
             except queue.Full:
-                self.overflow += 1
+                with self._lock:
+                    self.overflow += 1
 
         src = session.liveliness() if liveliness else session
         self._sub = src.declare_subscriber(key_expr, on_sample)
