@@ -73,8 +73,7 @@ def build_parser(table: dict[str, tuple[str, str]], prog: str,
         p = sub.add_parser(name, help=help_text, description=help_text)
         if name == wanted or wanted == "*":
             importlib.import_module(module).configure(p)
-            if table is COMMANDS:
-                _add_log_level(p, None)
+            _add_log_level(p, None)
         p.set_defaults(_module=module)
     return parser
 
@@ -83,7 +82,7 @@ def dispatch(table: dict[str, tuple[str, str]], prog: str, argv: Sequence[str]) 
     """Parse ``argv`` against ``table`` and run the chosen module."""
     wanted = next((a for a in argv if a in table), None)
     args = build_parser(table, prog, wanted).parse_args(list(argv))
-    if table is COMMANDS:
+    if table is COMMANDS or getattr(args, "log_level", None):  # bench NAME --log-level too
         configure_logging(getattr(args, "log_level", None))
     from roger_daemon.blas import pin_blas_threads
 

@@ -46,14 +46,12 @@ def test_one_name_per_concept() -> None:
 
 
 def test_every_command_accepts_log_level() -> None:
-    for path, _ in {(p, None) for p, _ in all_actions() if p.count(" ") == 1}:
-        if path == "roger bench":
-            continue
-        name = path.split()[1]
-        parser = build_parser(COMMANDS, "roger", name)
-        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-        opts = {o for a in sub.choices[name]._actions for o in a.option_strings}
-        assert "--log-level" in opts, name
+    for table, prog in ((COMMANDS, "roger"), (BENCHES, "roger bench")):
+        for name in table:
+            parser = build_parser(table, prog, name)
+            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            opts = {o for a in sub.choices[name]._actions for o in a.option_strings}
+            assert "--log-level" in opts, f"{prog} {name}"
 
 
 def test_version(capsys: pytest.CaptureFixture[str]) -> None:
