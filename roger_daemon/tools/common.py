@@ -34,6 +34,7 @@ __all__ = [
     "UsageError",
     "add_connection_args",
     "count",
+    "port",
     "seconds",
     "decode_sample",
     "dumps",
@@ -64,6 +65,17 @@ def seconds(text: str) -> float:
         value = -1.0
     if not math.isfinite(value) or value < 0:
         raise argparse.ArgumentTypeError(f"expected a number of seconds >= 0, got {text!r}")
+    return value
+
+
+def port(text: str) -> int:
+    """argparse type: a TCP port, 0 (any free one) to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port 0-65535, got {text!r}")
     return value
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from roger_daemon.console import UsageError
-from roger_daemon.tools.common import add_connection_args
+from roger_daemon.tools.common import add_connection_args, port, seconds
 
 __all__ = ["Sinks", "configure", "convert_log", "run"]
 
@@ -50,7 +50,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default="aibo", help="robot id to show (default aibo)")
     parser.add_argument("--host", default="127.0.0.1",
                         help="address of the WebSocket server (default 127.0.0.1, this host only)")
-    parser.add_argument("--port", type=int, default=8765,
+    parser.add_argument("--port", type=port, default=8765,
                         help="port of the WebSocket server (default 8765, Foxglove's; 0: any)")
     parser.add_argument("--record", type=Path, default=None, metavar="OUT",
                         help="also write the live channels to this MCAP file")
@@ -59,7 +59,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "live; needs --out")
     parser.add_argument("--out", type=Path, default=None, metavar="OUT",
                         help="offline: the Foxglove MCAP to write from --log")
-    parser.add_argument("--duration", type=float, default=0.0, metavar="S",
+    parser.add_argument("--duration", type=seconds, default=0.0, metavar="S",
                         help="live: stop after S seconds (default: until Ctrl-C)")
     add_connection_args(parser, timeout=5.0)
 
@@ -158,14 +158,20 @@ def _live(args: argparse.Namespace) -> int:
     from roger_daemon.tools.common import Listener, open_from_args
     from simulator.view.scene import Converter
 
+    try:
+        keys.validate_robot_id(args.robot)
+    except ValueError as exc:
+        raise UsageError(f"--robot: {exc}") from None
     sinks = Sinks()
-    server = sinks.fg.start_server(name=f"roger view {args.robot}", host=args.host,
-                                   port=args.port, context=sinks.context)
+    try:
+        server = sinks.fg.start_server(name=f"roger view {args.robot}", host=args.host,
+                                       port=args.port, context=sinks.context)
+    except Exception as exc:  # the SDK raises its own error for a busy port or a bad host
+        raise UsageError(f"cannot serve the WebSocket on {args.host}:{args.port}: {exc}") from None
     writer = (sinks.fg.open_mcap(str(args.record), allow_overwrite=True, context=sinks.context)
               if args.record else None)
     session = open_from_args(args)
-    listener = Listener(session, f"{keys.ROOT}/{keys.validate_robot_id(args.robot)}/*",
-                        capacity=8192)
+    listener = Listener(session, f"{keys.ROOT}/{args.robot}/*", capacity=8192)
     log.info("serving the Foxglove WebSocket on ws://%s:%d (robot %s)%s", args.host,
              server.port, args.robot, f", recording to {args.record}" if args.record else "")
     print(f"roger view: ws://{args.host}:{server.port}", flush=True)
