@@ -1,7 +1,8 @@
 """One robot's health level from its status: OK, WARN, ERROR or STALE, computed here only.
 
 The daemon computes ``OK``/``WARN``/``ERROR`` for every status it publishes (``info.level``,
-with the reasons in ``info.level_reasons``); ``STALE`` is an observer's verdict (``roger
+with the reasons in ``info.level_reasons``) and logs every change of level (a warning or an
+error, so that ``journalctl -p warning`` shows it); ``STALE`` is an observer's verdict (``roger
 status``, ``roger list``): no status for :attr:`Thresholds.stale_periods` status periods.
 Counters are judged by their change since the previous status, so an old incident does not
 keep a robot in WARN forever; the latency percentile covers the last 1000 predictions.
@@ -25,13 +26,17 @@ no status for 3 status periods                        STALE
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["LEVELS", "Health", "Thresholds", "is_stale", "worst"]
+__all__ = ["LEVELS", "LOG_LEVEL_OF", "Health", "Thresholds", "is_stale", "worst"]
 
 LEVELS = ("OK", "WARN", "ERROR", "STALE")
+#: how the daemon logs a change of level (a WARN or ERROR reaches ``journalctl -p warning``)
+LOG_LEVEL_OF = {"OK": logging.INFO, "WARN": logging.WARNING, "ERROR": logging.ERROR,
+                "STALE": logging.ERROR}
 ERROR_COUNTERS = ("learn_errors", "predict_errors", "checkpoint_errors", "recording_errors")
 WARN_COUNTERS = {"inbox_overflow": "inbox overflow", "missed_ticks": "missed ticks"}
 MAX_REASONS_CHARS = 256  # a protocol string's limit

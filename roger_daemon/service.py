@@ -48,7 +48,7 @@ from protocols.messages import (
 )
 from roger_daemon.checkpoint import write_checkpoint
 from roger_daemon.config import DaemonConfig
-from roger_daemon.health import Health
+from roger_daemon.health import LOG_LEVEL_OF, Health
 from roger_daemon.robot import RobotRuntime, _Window
 from roger_daemon.sdnotify import Notifier
 from roger_daemon.transport import Inbox, Incoming, Publisher, Transport
@@ -528,7 +528,11 @@ class Service:
         lines = []
         for rt in self.robots.values():
             st = self.status_of(rt, now)
+            before = self._health[rt.robot].last[0]
             level, reasons = self._health[rt.robot].assess(st.to_map(), now)
+            if level != before:  # into the journal too: journalctl -p warning shows it
+                log.log(LOG_LEVEL_OF[level], "%s: status %s%s", rt.robot, level,
+                        f" ({reasons})" if reasons else "")
             st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
             self._publish(rt, self._pubs[rt.robot].status, keys.status(rt.robot), st)
             lines.append(

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
+import pytest
 from test_daemon_service import Harness, make_config
 
 from protocols import Control, Status, decode, encode
@@ -43,3 +45,15 @@ def test_periodic_status_carries_level_and_reasons(tmp_path: Path) -> None:
     for _ in range(6):  # no perception for 6 s
         st = h.status()
     assert st.info["level"] == "WARN" and "no perception for" in st.info["level_reasons"]
+
+
+def test_a_change_of_level_is_logged(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    h = Harness(make_config(tmp_path))
+    h.pair(0)
+    h.settle()
+    with caplog.at_level(logging.INFO, logger="roger_daemon.service"):
+        for _ in range(7):
+            h.status()
+    warned = [r for r in caplog.records if "status WARN" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].levelno == logging.WARNING
+    assert "no perception for" in warned[0].getMessage()
