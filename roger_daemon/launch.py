@@ -278,7 +278,8 @@ class _Supervisor:
         end = time.monotonic() + timeout
         while time.monotonic() < end and not self.stop_reason:
             if text in path.read_bytes():
-                log.info("daemon ready on %s", self.p.daemon_ep)
+                log.info("daemon ready on %s; watch it with: roger status --watch --connect %s",
+                         self.p.daemon_ep, self.p.daemon_ep)
                 return
             if self.procs["daemon"].poll() is not None:
                 raise RuntimeError(f"the daemon exited with {self.procs['daemon'].returncode}; "

@@ -56,6 +56,7 @@ def test_list_names_the_daemon_and_its_robot(daemon: tuple[str, Path],
     assert [d["id"] for d in listed] == ["tooltest"]
     assert [r["robot"] for r in listed[0]["robots"]] == ["aibo"]
     assert listed[0]["robots"][0]["level"] in ("OK", "WARN", "ERROR")
+    assert listed[0]["level"] == listed[0]["robots"][0]["level"]
 
 
 def test_status_prints_the_robot_with_a_level(daemon: tuple[str, Path],

@@ -17,6 +17,7 @@ from typing import Any
 
 from protocols import keys
 from protocols.errors import ProtocolError
+from roger_daemon.health import LEVELS, worst
 from roger_daemon.tools.common import (
     Listener,
     add_connection_args,
@@ -36,8 +37,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="listen this long for the daemons' status to see which robots "
                              "they serve (default: 1.5, a little over one status period)")
     parser.add_argument("--json", action="store_true",
-                        help="one JSON object: {daemons: [{id, robots: [{robot, level, mode, "
-                             "updates}]}]}")
+                        help="one JSON object: {daemons: [{id, level, robots: [{robot, level, "
+                             "mode, updates}]}]}")
     add_connection_args(parser, timeout=2.0)
 
 
@@ -81,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
     daemons: list[dict[str, Any]] = [{"id": d, "robots": [
         {"robot": r, "level": level_of(st), "mode": st["mode"], "updates": st["updates"]}
         for r, st in sorted(statuses.items()) if st["daemon"] == d]} for d in ids]
+    for d in daemons:  # alive (token) but silent: its loop may be stuck
+        d["level"] = "STALE" if not d["robots"] else worst([r["level"] for r in d["robots"]
+                                                             if r["level"] in LEVELS])
     if args.json:
         print(dumps({"daemons": daemons}))
     else:
