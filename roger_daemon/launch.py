@@ -16,6 +16,7 @@ annotated example; ``roger config example up``); everything else is derived so t
 - **Files**: every process runs in ``session.dir`` and logs to ``<name>.log`` there; the
   daemon's checkpoints and recordings go to ``checkpoints/`` and ``recordings/`` in it (a
   ``daemon.set`` entry may move them; relative paths in ``args`` are relative to it too).
+  ``session.dir`` and ``daemon.config`` are relative to the working directory.
 - **View**: with ``[view] enabled = true`` a ``roger view`` process serves the session on
   Foxglove's WebSocket (``ports.view``, default 8765) and the simulator publishes its ground
   truth (``--truth``) for the 3D scene; ``view.record`` also writes it to an MCAP file.
@@ -126,7 +127,8 @@ def _strings(table: dict[str, Any], section: str, key: str) -> list[str]:
 
 
 def plan(data: dict[str, Any], base: Path) -> Plan:
-    """The command lines for the launch file's ``data`` (relative paths against ``base``)."""
+    """The command lines for the launch file's ``data`` (relative paths against ``base``, the
+    working directory, as in the daemon's config)."""
     unknown = set(data) - SECTIONS
     if unknown:
         raise UsageError(f"unknown table(s) {sorted(unknown)}; expected {sorted(SECTIONS)}")
@@ -207,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot read the launch file {args.file}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise UsageError(f"{args.file} is not valid TOML: {exc}") from None
-    p = plan(data, args.file.parent if args.file.parent != Path("") else Path("."))
+    p = plan(data, Path.cwd())
     for w in p.warnings:
         log.warning("%s", w)
     if args.dry_run:

@@ -50,7 +50,7 @@ def test_up_runs_a_demonstration_and_stops_cleanly_on_ctrl_c(tmp_path: Path) -> 
     launch = tmp_path / "up.toml"
     launch.write_text(f"""
 [session]
-dir = "run"
+dir = "{tmp_path / 'run'}"
 [ports]
 daemon = {port}
 sim = 0
