@@ -35,6 +35,7 @@ import argparse
 import json
 import logging
 import math
+import shlex
 import signal
 import subprocess
 import sys
@@ -215,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
     if args.dry_run:
         print(f"daemon queue_size {p.queue_size} for up to {p.max_pairs} pairs")
         for name, argv in p.argv.items():
-            print(f"{name}: {subprocess.list2cmdline(argv)}")
+            print(f"{name}: {shlex.join(argv)}")
         return 0
     try:
         return _Supervisor(p).run()
@@ -264,7 +265,7 @@ class _Supervisor:
             stdin=subprocess.DEVNULL, env=child_env(), start_new_session=True,
             cwd=self.p.workdir)
         log.info("started %s (pid %d): %s", name, self.procs[name].pid,
-                 subprocess.list2cmdline(self.p.argv[name][2:]))
+                 shlex.join(self.p.argv[name][2:]))
 
     def _start_all(self) -> None:
         self._start("daemon")
