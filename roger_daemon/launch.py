@@ -22,8 +22,10 @@ annotated example; ``roger config example up``); everything else is derived so t
   truth (``--truth``) for the 3D scene; ``view.record`` also writes it to an MCAP file.
 - **Order and stop**: daemon (until its ``ready`` log line), controller, view, simulator.
   When the simulator has run its episodes (``session.exit_when_done``, default true), or on
-  Ctrl-C / SIGTERM, the processes are stopped in reverse order with SIGTERM (the daemon writes
-  its final checkpoint), each given ``session.stop_timeout_s`` before SIGKILL. Children run in
+  Ctrl-C / SIGTERM, the processes are stopped in reverse order with SIGTERM (the daemon
+  writes its final checkpoint; when the simulator finished, the daemon first gets up to
+  ``session.learn_timeout_s`` to learn the pairs still queued), each given
+  ``session.stop_timeout_s`` before SIGKILL. Children run in
   their own process groups, so a terminal's Ctrl-C reaches only this launcher, which stops
   them in order. Exit status 0 when every process stopped cleanly, 1 otherwise, 2 for a bad
   file.
@@ -78,6 +80,7 @@ class Plan:
     warnings: list[str] = field(default_factory=list)
     exit_when_done: bool = True
     stop_timeout_s: float = 30.0
+    learn_timeout_s: float = 600.0
 
 
 def _table(data: dict[str, Any], name: str) -> dict[str, Any]:
@@ -152,6 +155,7 @@ def plan(data: dict[str, Any], base: Path) -> Plan:
              daemon_ep="")
     p.exit_when_done = _get(session, "session", "exit_when_done", bool, True)
     p.stop_timeout_s = float(_get(session, "session", "stop_timeout_s", (int, float), 30.0))
+    p.learn_timeout_s = float(_get(session, "session", "learn_timeout_s", (int, float), 600.0))
     pd, ps = _port(ports, "daemon", 7447), _port(ports, "sim", 7450)
     p.daemon_ep, sim_ep = f"tcp/127.0.0.1:{pd}", f"tcp/127.0.0.1:{ps}"
     p.max_pairs = math.ceil(_count_locations(locations) * episodes * time_limit * TICK_HZ)
@@ -231,9 +235,10 @@ class _Supervisor:
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.logs: list[IO[bytes]] = []
         self.stop_reason = ""
+        self.signalled = ""
 
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
-        self.stop_reason = signal.Signals(signum).name
+        self.signalled = self.stop_reason = signal.Signals(signum).name
 
     def run(self) -> int:
         self.p.workdir.mkdir(parents=True, exist_ok=True)
@@ -292,7 +297,7 @@ class _Supervisor:
             raise RuntimeError(f"the daemon was not ready within {timeout:.0f} s; see {path}")
 
     def _supervise(self) -> None:
-        watch = _DropWatch(self.p.daemon_ep)
+        watch = _DaemonWatch(self.p.daemon_ep)
         try:
             while not self.stop_reason:
                 watch.poll()
@@ -309,9 +314,33 @@ class _Supervisor:
                         self.stop_reason = f"{name} exited with {proc.returncode}"
                         break
                 time.sleep(0.2)
+            if not self.signalled and self.procs["daemon"].poll() is None:
+                self._drain(watch)
         finally:
             watch.close()
         log.info("stopping: %s", self.stop_reason)
+
+    def _drain(self, watch: _DaemonWatch) -> None:
+        """Let the daemon learn the pairs still queued (lockstep runs ahead of learning)."""
+        end = time.monotonic() + self.p.learn_timeout_s
+        start, note = watch.received, time.monotonic()
+        while time.monotonic() < end and not self.signalled:
+            watch.poll()
+            if watch.received > start and not any(watch.queue.values()):
+                return
+            if self.procs["daemon"].poll() is not None:
+                return
+            if time.monotonic() >= note:
+                note = time.monotonic() + 10.0
+                log.info("waiting for the daemon to learn its queued pairs: %s (at most %.0f s "
+                         "more; Ctrl-C stops now, the checkpoint keeps them)",
+                         ", ".join(f"{r} {q} waiting, {watch.updates[r]} learned"
+                                   for r, q in watch.queue.items()) or "no status yet",
+                         end - time.monotonic())
+            time.sleep(0.2)
+        if not self.signalled:
+            log.warning("the daemon still had queued pairs after %.0f s (session.learn_timeout_s);"
+                        " they are saved in its final checkpoint", self.p.learn_timeout_s)
 
     def _stop_all(self) -> dict[str, int | None]:
         codes: dict[str, int | None] = {}
@@ -332,8 +361,8 @@ class _Supervisor:
         return codes
 
 
-class _DropWatch:
-    """Logs a warning when the daemon's status reports dropped pairs or inbox overflow."""
+class _DaemonWatch:
+    """Follows the daemon's status: warns about drops and inbox overflow, keeps queue depths."""
 
     def __init__(self, endpoint: str) -> None:
         from protocols import keys
@@ -344,6 +373,9 @@ class _DropWatch:
         self.session = open_session(ZenohSettings(listen=(), connect=(endpoint,)))
         self.listener = Listener(self.session, keys.all_of_kind("status"), capacity=64)
         self.seen: dict[str, tuple[int, int]] = {}
+        self.queue: dict[str, int] = {}
+        self.updates: dict[str, int] = {}
+        self.received = 0
 
     def poll(self) -> None:
         from protocols.errors import ProtocolError
@@ -360,6 +392,11 @@ class _DropWatch:
                 log.warning("%s: the daemon dropped %d pairs (inbox overflow %d) so far: its "
                             "queue is too small for this session", st["robot"], *now)
             self.seen[st["robot"]] = now
+            # pairs still to learn: queued, or not even paired yet (waiting in the inbox)
+            self.queue[st["robot"]] = int(st["queue_depth"]) + int(
+                st["info"].get("inbox_depth", 0))
+            self.updates[st["robot"]] = int(st["updates"])
+            self.received += 1
 
     def close(self) -> None:
         self.listener.close()

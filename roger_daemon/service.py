@@ -60,6 +60,7 @@ log = logging.getLogger(__name__)
 INPUT_KINDS = ("perception", "action", "control")
 RECORD_ONLY_KINDS = ("command", "episode")
 _MS = 1_000_000
+MAX_DRAIN_PER_STEP = 512  # inbox items handled per loop cycle
 
 
 class Clock(Protocol):
@@ -285,7 +286,9 @@ class Service:
         else:
             wait = max(0.0, min(max_wait_s, (self._next_deadline() - now) / 1e9))
         item = self.inbox.get(wait)
-        budget = self.inbox.capacity
+        # bounded, so that a backlog (lockstep runs ahead of learning) never starves status,
+        # checkpoints, the watchdog or a stop request: the rest waits for the next cycle
+        budget = min(self.inbox.capacity, MAX_DRAIN_PER_STEP)
         while item is not None and budget > 0:
             self._handle(item)
             budget -= 1
@@ -498,6 +501,7 @@ class Service:
             "learn_errors": rt.learn_errors,
             "predict_errors": rt.predict_errors,
             "inbox_overflow": self.inbox.overflow,
+            "inbox_depth": len(self.inbox),
             "labels": len(rt.vocab),
             "checkpoint": ck.path,
             "checkpoint_updates": ck.updates,
