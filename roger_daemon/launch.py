@@ -334,7 +334,7 @@ class _Supervisor:
                 note = time.monotonic() + 10.0
                 log.info("waiting for the daemon to learn its queued pairs: %s (at most %.0f s "
                          "more; Ctrl-C stops now, the checkpoint keeps them)",
-                         ", ".join(f"{r} {q} waiting, {watch.updates[r]} learned"
+                         ", ".join(f"{r}: {q} pairs or messages waiting, {watch.updates[r]} learned"
                                    for r, q in watch.queue.items()) or "no status yet",
                          end - time.monotonic())
             time.sleep(0.2)
