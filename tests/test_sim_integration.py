@@ -161,14 +161,23 @@ def test_sigterm_stops_both_processes_cleanly() -> None:
     sim = _start(
         "sim", "--listen", ep, "--clock", "realtime", "--vision", "fast", "--locations", "0-3"
     )
+    session = zenoh.open(loopback_config(["tcp/127.0.0.1:0"], [ep]))
     try:
-        time.sleep(5.0)
+        # SIGTERM once the simulator is running its episodes (its handlers are installed by
+        # then, however loaded the machine is): wait for the first command the HCC sends
+        sub = session.declare_subscriber(keys.command("aibo"), zenoh.handlers.RingChannel(64))
+        deadline = time.monotonic() + 180
+        while sub.try_recv() is None and time.monotonic() < deadline:
+            assert sim.poll() is None and hcc.poll() is None
+            time.sleep(0.05)
+        time.sleep(1.0)  # some realtime ticks
         assert sim.poll() is None and hcc.poll() is None
         sim.send_signal(signal.SIGTERM)
         out = _finish(sim, timeout=60)
         hcc.send_signal(signal.SIGTERM)
         stats = _finish(hcc, timeout=60)
     finally:
+        session.close()
         _kill(sim, hcc)
     assert out["summary"]["stopped"] is True
     assert out["episodes"][-1]["outcome"] in ("stopped", "goal", "out")
