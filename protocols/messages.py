@@ -399,6 +399,59 @@ def _expert(e: Any, dim: int | None) -> ExpertOutput:
     )
 
 
+def _unpack(kind: str, payload: bytes | bytearray | memoryview, max_bytes: int
+            ) -> dict[Any, Any]:
+    """Bounded msgpack parse of one payload; the top level must be a map."""
+    raw = bytes(payload)
+    if len(raw) > max_bytes:
+        raise ProtocolError("oversized", f"{kind}: payload of {len(raw)} bytes > {max_bytes}")
+    try:
+        m = msgpack.unpackb(
+            raw,
+            raw=False,
+            strict_map_key=True,
+            max_str_len=4 * MAX_STR,
+            max_bin_len=max_bytes,
+            max_array_len=max(MAX_VECTOR, MAX_MULTIMAP),
+            max_map_len=MAX_MAP_ENTRIES,
+            max_ext_len=0,
+            ext_hook=_no_ext,
+        )
+    except Exception as exc:  # msgpack raises several unrelated types for bad bytes
+        raise ProtocolError("not_msgpack", f"{kind}: payload is not msgpack ({exc})") from None
+    if not isinstance(m, dict):
+        raise ProtocolError("not_a_map", f"{kind}: top level must be a map, got {type(m).__name__}")
+    return m
+
+
+def _header(kind: str, m: dict[Any, Any], robot: str | None) -> dict[str, Any]:
+    """Schema version, robot id (against the key's), tick, sim time and stamp of a message."""
+    version = m.get("v")
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ProtocolError("bad_version", f"{kind}: schema version 'v' missing or not an integer")
+    if version != SCHEMA_VERSION:
+        raise ProtocolError(
+            "bad_version",
+            f"{kind}: schema version {version} not supported (this is {SCHEMA_VERSION})",
+        )
+    who = _str(m, "robot", kind)
+    try:
+        validate_robot_id(who)
+    except ProtocolError as exc:
+        raise ProtocolError("bad_value", f"{kind}: {exc.detail}") from None
+    if robot is not None and who != robot:
+        raise ProtocolError(
+            "unknown_robot", f"{kind}: payload robot {who!r} does not match key robot {robot!r}"
+        )
+    head: dict[str, Any] = {
+        "robot": who,
+        "tick": _int(m, "tick", kind, lo=0),
+        "t": _float(m, "t", kind),
+        "stamp_ns": _int(m, "stamp_ns", kind, lo=0),
+    }
+    return head
+
+
 def decode(
     kind: str,
     payload: bytes | bytearray | memoryview,
@@ -424,48 +477,8 @@ def decode(
     """
     if kind not in _TYPES:
         raise ProtocolError("bad_key", f"unknown message kind {kind!r}")
-    raw = bytes(payload)
-    if len(raw) > max_bytes:
-        raise ProtocolError("oversized", f"{kind}: payload of {len(raw)} bytes > {max_bytes}")
-    try:
-        m = msgpack.unpackb(
-            raw,
-            raw=False,
-            strict_map_key=True,
-            max_str_len=4 * MAX_STR,
-            max_bin_len=max_bytes,
-            max_array_len=max(MAX_VECTOR, MAX_MULTIMAP),
-            max_map_len=MAX_MAP_ENTRIES,
-            max_ext_len=0,
-            ext_hook=_no_ext,
-        )
-    except Exception as exc:  # msgpack raises several unrelated types for bad bytes
-        raise ProtocolError("not_msgpack", f"{kind}: payload is not msgpack ({exc})") from None
-    if not isinstance(m, dict):
-        raise ProtocolError("not_a_map", f"{kind}: top level must be a map, got {type(m).__name__}")
-    version = m.get("v")
-    if isinstance(version, bool) or not isinstance(version, int):
-        raise ProtocolError("bad_version", f"{kind}: schema version 'v' missing or not an integer")
-    if version != SCHEMA_VERSION:
-        raise ProtocolError(
-            "bad_version",
-            f"{kind}: schema version {version} not supported (this is {SCHEMA_VERSION})",
-        )
-    who = _str(m, "robot", kind)
-    try:
-        validate_robot_id(who)
-    except ProtocolError as exc:
-        raise ProtocolError("bad_value", f"{kind}: {exc.detail}") from None
-    if robot is not None and who != robot:
-        raise ProtocolError(
-            "unknown_robot", f"{kind}: payload robot {who!r} does not match key robot {robot!r}"
-        )
-    head: dict[str, Any] = {
-        "robot": who,
-        "tick": _int(m, "tick", kind, lo=0),
-        "t": _float(m, "t", kind),
-        "stamp_ns": _int(m, "stamp_ns", kind, lo=0),
-    }
+    m = _unpack(kind, payload, max_bytes)
+    head = _header(kind, m, robot)
     dx = dims.x if dims else None
     dy = dims.y if dims else None
     if kind == "perception":

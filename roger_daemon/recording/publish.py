@@ -38,6 +38,20 @@ class PublishStats:
     subscribers_matched: bool = False  # every publisher had a subscriber when sending began
 
 
+def _pace(due: float, st: PublishStats, should_stop: Callable[[], bool] | None) -> bool:
+    """Sleep until the monotonic time ``due`` (in slices, so that a stop request is seen
+    within 0.1 s); record lateness. False if a stop was requested meanwhile."""
+    wait = due - time.monotonic()
+    if wait <= 0:
+        st.max_late_s = max(st.max_late_s, -wait)
+    while wait > 0:
+        time.sleep(min(wait, 0.1))
+        if should_stop is not None and should_stop():
+            return False
+        wait = due - time.monotonic()
+    return True
+
+
 def publish_log(
     session: Any,
     paths: Iterable[str | Path],
@@ -96,16 +110,9 @@ def publish_log(
                 if t_log0 is None:
                     t_log0 = lt
                 last_log = max(last_log, lt)
-                if speed > 0:
-                    due = t_wall0 + (lt - t_log0) / 1e9 / speed
-                    wait = due - time.monotonic()
-                    if wait <= 0:
-                        st.max_late_s = max(st.max_late_s, -wait)
-                    while wait > 0:  # in slices, so that a stop request is seen within 0.1 s
-                        time.sleep(min(wait, 0.1))
-                        if should_stop is not None and should_stop():
-                            return st
-                        wait = due - time.monotonic()
+                if speed > 0 and not _pace(t_wall0 + (lt - t_log0) / 1e9 / speed, st,
+                                           should_stop):
+                    return st
                 pub.put(lm.message.data)
                 st.published += 1
                 st.by_topic[topic] = st.by_topic.get(topic, 0) + 1

@@ -143,17 +143,12 @@ def plan_recovery(
     return plan
 
 
-def _plan(plan: RecoveryPlan, d: Path, robot: str, dims: Dims | None,
-          ck: CheckpointPosition | None, crashed: set[str]) -> None:
-    sessions = _sessions(d, robot)
-    if not sessions:
-        plan.summary = "no session logs"
-        return
-    ids = [_session_id(parts[0]) for parts in sessions]
-    if ck is None:
-        _plan_without_checkpoint(plan, sessions, ids, robot, dims, crashed)
-        return
-    start = None
+def _locate_checkpoint(plan: RecoveryPlan, sessions: list[list[Path]], ids: list[str],
+                       ck: CheckpointPosition
+                       ) -> tuple[int, int, tuple[int, tuple[str, int]] | None] | None:
+    """Which session log (index), segment and start position continue the checkpoint; ``None``
+    (with ``plan.summary`` saying why) if no log does."""
+    start: tuple[int, tuple[str, int]] | None = None
     first = -1
     segment = ck.segment
     if ck.session_id and ck.session_id in ids:
@@ -164,7 +159,7 @@ def _plan(plan: RecoveryPlan, d: Path, robot: str, dims: Dims | None,
         later = [i for i, s in enumerate(ids) if key is not None and (_sort_key(s) or key) > key]
         if not later:
             plan.summary = f"the checkpoint's session {ck.session_id} is not among the logs"
-            return
+            return None
         first, start = later[0], (ck.learned, (ck.session_id, ck.segment))
         plan.notes.append(f"the checkpoint's session {ck.session_id} is not among the logs; "
                           "reading the sessions after it")
@@ -178,7 +173,24 @@ def _plan(plan: RecoveryPlan, d: Path, robot: str, dims: Dims | None,
                 first, segment = i, 0
         if first < 0:
             plan.summary = "the checkpoint does not name its session and no log resumed from it"
-            return
+            return None
+    return first, segment, start
+
+
+def _plan(plan: RecoveryPlan, d: Path, robot: str, dims: Dims | None,
+          ck: CheckpointPosition | None, crashed: set[str]) -> None:
+    sessions = _sessions(d, robot)
+    if not sessions:
+        plan.summary = "no session logs"
+        return
+    ids = [_session_id(parts[0]) for parts in sessions]
+    if ck is None:
+        _plan_without_checkpoint(plan, sessions, ids, robot, dims, crashed)
+        return
+    located = _locate_checkpoint(plan, sessions, ids, ck)
+    if located is None:
+        return
+    first, segment, start = located
     w = _walk(sessions, first, segment=segment, robot=robot, dims=dims, start=start,
               check_dims=True)
     plan.notes.extend(w.notes)
