@@ -64,6 +64,9 @@ def dispatch(table: dict[str, tuple[str, str]], prog: str, argv: Sequence[str]) 
             importlib.import_module(module).configure(p)
         p.set_defaults(_module=module)
     args = parser.parse_args(list(argv))
+    from roger_daemon.blas import pin_blas_threads
+
+    pin_blas_threads(1)  # results never depend on the BLAS thread count (roger_daemon/blas.py)
     code: int = importlib.import_module(args._module).run(args)
     return code
 

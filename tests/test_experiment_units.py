@@ -157,7 +157,7 @@ def test_dpa_node_executes_the_prediction_mean(tmp_path: Path) -> None:
         pub_p = session.declare_publisher(keys.prediction("aibo"))
         pub_e = session.declare_publisher(keys.episode("aibo"))
         mean = np.linspace(-0.5, 0.5, 9)
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + 120
         tick = 0
         while not got and time.monotonic() < deadline:  # until the node is connected
             pub_p.put(encode(Prediction("aibo", tick, 0.0, mean=mean, var=np.ones(9),
@@ -170,7 +170,7 @@ def test_dpa_node_executes_the_prediction_mean(tmp_path: Path) -> None:
         assert cmd.source == "dpa:unimap" and cmd.tick < tick
         pub_e.put(encode(EpisodeEvent("aibo", tick, 0.0, event="end", episode=1,
                                       data={"run_complete": True})))
-        out, err = proc.communicate(timeout=30)
+        out, err = proc.communicate(timeout=120)
         session.close()
     finally:
         if proc.poll() is None:

@@ -26,7 +26,7 @@ from roger_daemon.recording import (
     read_timeline,
     replay_session,
 )
-from roger_daemon.recording.compare import behaviour, behaviour_differences
+from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
 from roger_daemon.recording.replay import load_checkpoint, majority_labels
 from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
 from roger_daemon.recording.synthetic import START_NS, record_synthetic_session, synthetic_stream
@@ -35,7 +35,7 @@ from roger_daemon.transport import MemoryTransport
 
 X, Y, LABELS = synthetic_stream("sqrt", 400)
 PROBES = [[v] for v in np.linspace(0.0, 1.0, 9)]
-TOL = 1e-9
+TOL = REL_TOL
 
 
 class FakeClock:

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from roger_daemon.blas import blas_info
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
 from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
 
@@ -62,13 +63,6 @@ def _machine() -> dict[str, Any]:
                     break
     except OSError:
         pass
-    blas_threads: Any = os.environ.get("OPENBLAS_NUM_THREADS")
-    try:  # optional: report the BLAS pools numpy/scipy really use
-        from threadpoolctl import threadpool_info
-
-        blas_threads = sorted({int(p["num_threads"]) for p in threadpool_info()})
-    except Exception:  # noqa: BLE001 - threadpoolctl is optional
-        pass
     return {
         "cpu": cpu,
         "cores": os.cpu_count(),
@@ -76,7 +70,7 @@ def _machine() -> dict[str, Any]:
         "python": platform.python_version(),
         "numpy": np.__version__,
         "platform": platform.platform(),
-        "blas_threads": blas_threads,
+        "blas": blas_info(),
     }
 
 

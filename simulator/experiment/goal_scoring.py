@@ -518,6 +518,8 @@ def _json_default(o: Any) -> Any:
 def _machine() -> dict[str, Any]:
     from importlib.metadata import PackageNotFoundError, version
 
+    from roger_daemon.blas import blas_info
+
     versions: dict[str, str | None] = {}
     for pkg in ("numpy", "scipy", "pybullet", "eclipse-zenoh", "scikit-learn", "mcap"):
         try:
@@ -530,4 +532,5 @@ def _machine() -> dict[str, Any]:
         "python": platform.python_version(),
         "platform": platform.platform(),
         "versions": versions,
+        "blas": blas_info(),
     }
