@@ -38,6 +38,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "learner": ("roger_daemon.bench.learner", "learner updates/s and latency, synthetic stream"),
     "recorder": ("roger_daemon.recording.bench", "recorder write+poll cost, SIGKILL loss"),
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
+    "fleet": ("roger_daemon.bench.fleet", "N robots x 30 Hz against one daemon, per robot"),
     "sim": ("simulator.bench", "simulator lockstep ticks/s (rendered, fast) and HCC success"),
 }
 
