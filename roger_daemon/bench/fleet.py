@@ -44,7 +44,7 @@ from protocols.aibo import DIMS, SUBTASKS
 from roger_daemon.harness import DaemonProcess, free_port, write_config
 from roger_daemon.learner.synthetic import subtask_stream
 
-__all__ = ["configure", "proc_cpu_s", "run"]
+__all__ = ["FleetClient", "child_pids", "configure", "feed", "proc_cpu_s", "run"]
 
 TARGETS = {"dropped": 0, "updates_per_s_min": 29.5, "predictions_per_s_min": 29.5,
            "latency_p99_ms": 10.0, "jitter_p99_ms": 5.0}
@@ -76,7 +76,7 @@ def _pct(values: Any, q: float) -> float:
     return float(np.percentile(a, q)) if a.size else float("nan")
 
 
-def _children(pid: int) -> list[int]:
+def child_pids(pid: int) -> list[int]:
     out: list[int] = []
     try:
         for task in os.listdir(f"/proc/{pid}/task"):
@@ -91,7 +91,7 @@ def proc_cpu_s(pid: int, *, children: bool = True) -> float:
     """CPU seconds (user + system) used so far by ``pid`` and its live child processes."""
     total = 0.0
     tick = os.sysconf("SC_CLK_TCK")
-    for p in [pid, *(_children(pid) if children else [])]:
+    for p in [pid, *(child_pids(pid) if children else [])]:
         try:
             with open(f"/proc/{p}/stat", encoding="ascii") as f:
                 fields = f.read().rsplit(")", 1)[1].split()
@@ -101,7 +101,7 @@ def proc_cpu_s(pid: int, *, children: bool = True) -> float:
     return total
 
 
-class _Fleet:
+class FleetClient:
     """One Zenoh session playing every robot; collects predictions and status."""
 
     def __init__(self, connect: str, robots: list[str]) -> None:
@@ -181,7 +181,7 @@ def _stream_of(stream: Any, i: int, n: int, tick: int) -> tuple[np.ndarray, np.n
     return stream.x[k], stream.y[k], SUBTASKS[int(stream.labels[k]) % len(SUBTASKS)]
 
 
-def _feed(fleet: _Fleet, stream: Any, args: argparse.Namespace, lockstep: bool,
+def feed(fleet: FleetClient, stream: Any, args: argparse.Namespace, lockstep: bool,
           stop_at: float) -> int:
     """Publish at ``args.rate`` until ``stop_at``; in lockstep actions follow predictions."""
     n = len(fleet.robots)
@@ -214,7 +214,7 @@ def _feed(fleet: _Fleet, stream: Any, args: argparse.Namespace, lockstep: bool,
     return tick
 
 
-def _robot_result(fleet: _Fleet, r: str, w0: int, w1: int, st: tuple[Any, Any, Any],
+def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, Any, Any],
                   rate: float, lockstep: bool) -> dict[str, Any]:
     s0, s1, end = st
     preds = [(t, k) for t, k in fleet.preds[r] if w0 <= t < w1]
@@ -250,17 +250,17 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: Any) -> 
         robots=[{"id": r, "seed": i} for i, r in enumerate(robots)])
     daemon = DaemonProcess(cfg, args=["--fresh", *(a for o in args.overrides
                                                    for a in ("--set", o))])
-    fleet: _Fleet | None = None
+    fleet: FleetClient | None = None
     code = None
     try:
         daemon.wait_ready(120.0)
-        fleet = _Fleet(f"tcp/127.0.0.1:{port}", robots)
+        fleet = FleetClient(f"tcp/127.0.0.1:{port}", robots)
         fleet.lockstep = clock == "lockstep"
         time.sleep(1.0)  # let the link and the declarations settle
         start = time.monotonic()
         w0 = int((start + args.warmup) * 1e9)
         w1 = int((start + args.warmup + args.seconds) * 1e9)
-        feeder = threading.Thread(target=_feed, args=(fleet, stream, args, fleet.lockstep,
+        feeder = threading.Thread(target=feed, args=(fleet, stream, args, fleet.lockstep,
                                                       start + args.warmup + args.seconds))
         feeder.start()
         time.sleep(args.warmup)
