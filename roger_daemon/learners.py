@@ -88,6 +88,8 @@ class _Slot:
     predicts: int = 0
     snapshots: int = 0
     busy_ticks: int = 0
+    learn_est_ns: int = 0  # send -> reply of a learn request, decaying maximum
+    since_tick: bool = False  # a learn was sent since the last timer tick
     thread: threading.Thread | None = None
 
 
@@ -203,11 +205,10 @@ class ProcessLearners:
 
     # --- replies ---------------------------------------------------------------------------
 
-    def pump(self) -> None:
-        """Handle every reply that arrived, then keep each worker fed with learning.
-
-        Predictions of the batch are published together (``service.worker_predictions``:
-        one parallel write-ahead log commit for all of them)."""
+    def pump(self, deadline_ns: int | None = None) -> None:
+        """Handle every reply that arrived, then keep each worker fed with learning
+        (:meth:`feed`). Predictions of the batch are published together
+        (``service.worker_predictions``: one parallel write-ahead log commit for all)."""
         batch: list[tuple[Any, ...]] = []
         while True:
             try:
@@ -217,7 +218,7 @@ class ProcessLearners:
             self._dispatch(*item, batch=batch)
         if batch:
             self._service.worker_predictions(batch)
-        self.feed()
+        self.feed(deadline_ns)
 
     def _dispatch(self, robot: str, frame: dict[str, Any] | None,
                   batch: list[tuple[Any, ...]] | None = None) -> None:
@@ -229,7 +230,10 @@ class ProcessLearners:
         op, ctx = s.pending.popleft()
         if op == "learn":
             s.learns -= 1
-            self._learned(s, ctx, frame)
+            pair, sent_ns = ctx
+            took = time.monotonic_ns() - sent_ns
+            s.learn_est_ns = max(took, int(s.learn_est_ns * 0.95))
+            self._learned(s, pair, frame)
         elif op == "predict":
             s.predicts -= 1
             if batch is not None:
@@ -238,7 +242,7 @@ class ProcessLearners:
                 self._service.worker_predictions([(s.rt, frame, *ctx)])
         elif op == "snapshot":
             s.snapshots -= 1
-            ahead = [c for o, c in s.pending if o == "learn"]
+            ahead = [c[0] for o, c in s.pending if o == "learn"]
             reason, sync = ctx
             self._service.write_snapshot(s.rt, reason, unpack_arrays(frame["state"]),
                                          ahead=ahead, sync=sync)
@@ -260,14 +264,29 @@ class ProcessLearners:
     def _send_learn(self, s: _Slot) -> None:
         pair = s.rt.queue.popleft()
         self.send(s.rt.robot, {"op": "learn", "x": _vec(pair.x), "y": _vec(pair.y),
-                               "code": pair.label, "tick": pair.tick}, pair)
+                               "code": pair.label, "tick": pair.tick},
+                  (pair, time.monotonic_ns()))
         s.learns += 1
+        s.since_tick = True
 
-    def feed(self) -> None:
-        """Keep ``depth`` learn requests in flight per learning robot."""
+    def feed(self, deadline_ns: int | None = None) -> None:
+        """Keep ``depth`` learn requests in flight per learning robot.
+
+        ``deadline_ns`` (realtime: the next timer tick): once a robot has learned since the
+        last tick, its next pair is sent only if it is expected back before the tick, so the
+        tick's prediction does not wait behind it (as the inline loop schedules learning)."""
+        now = time.monotonic_ns()
         for s in self.slots.values():
             while s.rt.learning and s.rt.queue and s.learns < self.depth:
+                if deadline_ns is not None and s.since_tick and \
+                        now + s.learn_est_ns + 1_000_000 >= deadline_ns:
+                    break
                 self._send_learn(s)
+
+    def new_tick(self) -> None:
+        """The realtime timer fired: every robot may learn once more regardless."""
+        for s in self.slots.values():
+            s.since_tick = False
 
     def learn_all(self, rt: RobotRuntime) -> None:
         """Send every queued pair of ``rt`` (lockstep: before answering a perception)."""

@@ -310,7 +310,8 @@ class Service:
         if self._answer:
             self._answer_lockstep()
         if self.learners is not None:
-            self.learners.pump()
+            self.learners.pump(self._next_tick if self._realtime and self._timer_active()
+                               else None)
         now = self.clock.monotonic_ns()
         if self._realtime and now >= self._next_tick:
             self._on_timer(now)
@@ -513,6 +514,8 @@ class Service:
                 self._publish_prediction(rt, perc, recv_ns)
                 published = True
         self._learned_since_tick = False
+        if self.learners is not None:
+            self.learners.new_tick()
         if not published:
             self._last_fire = None
             self._next_tick = max(self._next_tick + self._period_ns, now)

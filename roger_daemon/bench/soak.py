@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import platform
+import sys
 import tempfile
 import threading
 import time
@@ -129,12 +130,11 @@ def _soak(workdir: Path, args: argparse.Namespace) -> dict[str, Any]:
         feeder.start()
         while time.monotonic() < end:
             samples.append(_sample(daemon, fleet, t0))
-            if not args.json:
-                s = samples[-1]
-                print(f"  {s['t_s']:8.0f} s  RSS {s['rss_total_mb']:7.1f} MB (loop "
-                      f"{s['rss_main_mb']:.1f}, workers {s['rss_workers_mb']:.1f})  updates "
-                      f"{s['updates']}  experts {s['experts']}  load {s['loadavg_1m']}",
-                      flush=True)
+            s = samples[-1]  # progress: on stdout, or on stderr under --json
+            print(f"  {s['t_s']:8.0f} s  RSS {s['rss_total_mb']:7.1f} MB (loop "
+                  f"{s['rss_main_mb']:.1f}, workers {s['rss_workers_mb']:.1f})  updates "
+                  f"{s['updates']}  experts {s['experts']}  load {s['loadavg_1m']}",
+                  flush=True, file=sys.stderr if args.json else sys.stdout)
             time.sleep(max(0.0, min(args.interval, end - time.monotonic())))
         feeder.join()
         samples.append(_sample(daemon, fleet, t0))
