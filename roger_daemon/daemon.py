@@ -398,6 +398,9 @@ def run(args: argparse.Namespace) -> int:
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         logging.getLogger().addHandler(handler)
 
+    from roger_daemon.memory import limit_heap_growth
+
+    limit_heap_growth()
     notifier = Notifier.from_env()
     robots, where = start_robots(cfg, fresh=args.fresh, notifier=notifier)
     resumed = {r: w.checkpoint for r, w in where.items()}

@@ -244,7 +244,7 @@ class ProcessLearners:
             s.snapshots -= 1
             ahead = [c[0] for o, c in s.pending if o == "learn"]
             reason, sync = ctx
-            self._service.write_snapshot(s.rt, reason, unpack_arrays(frame["state"]),
+            self._service.write_snapshot(s.rt, reason, unpack_arrays(frame["state"], copy=False),
                                          ahead=ahead, sync=sync)
         elif op in ("load", "fresh") and s.model is not None:
             s.model.n_learned, s.model.n_experts = int(frame["n"]), int(frame["experts"])

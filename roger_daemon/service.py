@@ -89,8 +89,10 @@ def checkpoint_snapshot(
     recorder's session and the number of resets in it; ``""`` without recording): start-up
     recovery reads the log tail from there (with ``counters.last_learned_tick`` to check it).
     """
-    state = rt.model.state_dict() if model_state is None else model_state
-    model = {k: np.array(v, copy=True) for k, v in state.items()}
+    if model_state is None:
+        model = {k: np.array(v, copy=True) for k, v in rt.model.state_dict().items()}
+    else:  # a worker's state: already this snapshot's own arrays
+        model = dict(model_state)
     meta: dict[str, Any] = {
         "created_unix_ns": created_unix_ns,
         "reason": reason,

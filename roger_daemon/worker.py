@@ -60,8 +60,11 @@ def pack_arrays(arrays: Mapping[str, np.ndarray]) -> dict[str, dict[str, Any]]:
     return out
 
 
-def unpack_arrays(packed: Any) -> dict[str, np.ndarray]:
-    """The inverse of :func:`pack_arrays`; raises ``ValueError`` on anything else."""
+def unpack_arrays(packed: Any, *, copy: bool = True) -> dict[str, np.ndarray]:
+    """The inverse of :func:`pack_arrays`; raises ``ValueError`` on anything else.
+
+    ``copy=False`` returns read-only views of the frame's bytes (one copy less of a model
+    state that is only written to disk)."""
     if not isinstance(packed, dict):
         raise ValueError("arrays must be a map")
     out = {}
@@ -76,7 +79,8 @@ def unpack_arrays(packed: Any) -> dict[str, np.ndarray]:
             raise ValueError(f"bad array {name}")
         if int(np.prod(shape, dtype=np.int64)) * dt.itemsize != len(data):
             raise ValueError(f"array {name}: {len(data)} bytes do not match {dt} {shape}")
-        out[name] = np.frombuffer(data, dtype=dt).reshape(shape).copy()
+        a = np.frombuffer(data, dtype=dt).reshape(shape)
+        out[name] = a.copy() if copy else a
     return out
 
 
@@ -87,15 +91,16 @@ def write_frame(f: IO[bytes], msg: Mapping[str, Any]) -> None:
     f.flush()
 
 
-def _read_exact(f: IO[bytes], n: int) -> bytes | None:
-    chunks = []
-    while n > 0:
-        b = f.read(n)
-        if not b:
+def _read_exact(f: IO[bytes], n: int) -> bytearray | None:
+    buf = bytearray(n)  # read in place: a model state is not held twice
+    view = memoryview(buf)
+    pos = 0
+    while pos < n:
+        got = f.readinto(view[pos:])  # type: ignore[attr-defined]
+        if not got:
             return None
-        chunks.append(b)
-        n -= len(b)
-    return b"".join(chunks)
+        pos += got
+    return buf
 
 
 def read_frame(f: IO[bytes]) -> dict[str, Any] | None:
@@ -203,8 +208,10 @@ def main() -> int:
     logging.basicConfig(level="INFO", stream=sys.stderr,
                         format="%(levelname)s %(name)s (worker): %(message)s")
     from roger_daemon.blas import pin_blas_threads
+    from roger_daemon.memory import limit_heap_growth
 
     pin_blas_threads(1)
+    limit_heap_growth()
     # The daemon's loop (Zenoh, the 30 Hz timer, the write-ahead log) must win the CPU over
     # the learning it schedules: on a busy machine a worker at the loop's priority starved it
     # (timer jitter p99 247 ms at load 15 on 2 cores). An idle core is still used in full.

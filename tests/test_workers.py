@@ -202,3 +202,50 @@ def test_worker_crash_is_detected_and_reported(tmp_path: Path) -> None:
     finally:
         proc.service.abort()
     assert all(s.proc.poll() is not None for s in proc.learners.slots.values())
+
+
+@pytest.mark.slow
+@pytest.mark.integration
+def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
+    tmp_path: Path,
+) -> None:
+    """A real daemon (worker processes, real Zenoh on loopback): SIGKILL one robot's worker;
+    the daemon reports it and exits 1 (not hung); a restart re-learns every acknowledged pair
+    from the write-ahead log."""
+    from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
+
+    port = free_port()
+    cfg = write_config(tmp_path / "d.toml", port=port, workdir=tmp_path,
+                       robots=({"id": "aibo"}, {"id": "b2"}))
+    daemon = DaemonProcess(cfg)
+    client = None
+    try:
+        daemon.wait_ready(DEADLINE_S)
+        client = Client(f"tcp/127.0.0.1:{port}")
+        client.wait_daemon(DEADLINE_S)
+        for t in range(12):
+            client.perception(t, STREAM.x[t])
+            client.wait_prediction(t, timeout=DEADLINE_S)
+            client.action(t, STREAM.y[t], LABELS[STREAM.labels[t]])
+        client.perception(12, STREAM.x[12])
+        acked = client.wait_prediction(12, timeout=DEADLINE_S).msg.updates
+        assert acked == 12
+        st = client.wait_status(lambda s: s.info.get("workers") == "process",
+                                timeout=DEADLINE_S)
+        os.kill(int(st.info["worker_pid"]), signal.SIGKILL)
+        assert daemon.proc.wait(DEADLINE_S) == 1
+        assert "learner worker pid" in daemon.log() and "failed" in daemon.log()
+    finally:
+        if client is not None:
+            client.close()
+        daemon.kill()
+    again = DaemonProcess(cfg, log=tmp_path / "again.log")
+    try:
+        again.wait_ready(DEADLINE_S)
+        assert "re-learned 12 pairs" in again.log()
+        code, _ = again.terminate(DEADLINE_S)
+        assert code == 0
+    finally:
+        again.kill()
+    assert read_checkpoint(list_checkpoints(tmp_path / "checkpoints", "aibo")[0]) \
+        .meta["updates"] == 12
