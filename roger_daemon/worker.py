@@ -28,7 +28,6 @@ input (the daemon died) ends the worker too. The daemon's side is
 from __future__ import annotations
 
 import logging
-import os
 import struct
 import sys
 import time
@@ -46,7 +45,6 @@ log = logging.getLogger(__name__)
 _LEN = struct.Struct("<I")
 _KINDS = frozenset("biufU")  # bool, int, uint, float, fixed-width unicode: nothing else
 MAX_FRAME = 1 << 30
-WORKER_NICE = 5  # niceness a worker adds to the daemon's
 
 
 def pack_arrays(arrays: Mapping[str, np.ndarray]) -> dict[str, dict[str, Any]]:
@@ -212,10 +210,6 @@ def main() -> int:
 
     pin_blas_threads(1)
     limit_heap_growth()
-    # The daemon's loop (Zenoh, the 30 Hz timer, the write-ahead log) must win the CPU over
-    # the learning it schedules: on a busy machine a worker at the loop's priority starved it
-    # (timer jitter p99 247 ms at load 15 on 2 cores). An idle core is still used in full.
-    os.nice(WORKER_NICE)
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     worker = _Worker()
     while True:
