@@ -249,27 +249,37 @@ def recover_from_logs(
 def start_robots(
     cfg: DaemonConfig, *, fresh: bool, notifier: Notifier | None = None
 ) -> tuple[dict[str, RobotRuntime], dict[str, Resumed]]:
-    """Every robot's runtime: newest checkpoint (unless ``fresh``), then start-up recovery
-    from the session logs (when recording is on and not ``fresh``)."""
+    """Every robot's runtime: newest checkpoint (unless ``fresh``), then the write-ahead log
+    after it (``checkpoint.wal``), then start-up recovery from the session logs (when
+    recording is on and not ``fresh``; re-learning from them only without the write-ahead
+    log)."""
     robots: dict[str, RobotRuntime] = {}
     where: dict[str, Resumed] = {}
     for robot in cfg.robots:
         robots[robot.id], ckpt = load_robot(cfg, robot, fresh=fresh)
         where[robot.id] = _position(ckpt)
-        by_wal = cfg.checkpoint.wal and _start_wal(cfg, robot, robots[robot.id], ckpt,
-                                                   fresh=fresh)
+        by_wal = False
+        if cfg.checkpoint.wal:
+            by_wal, where[robot.id] = _start_wal(cfg, robot, robots[robot.id], ckpt,
+                                                 fresh=fresh)
         if cfg.recording.enabled and not fresh:
             # Before the new session opens: an open session would cut the history it reads.
-            robots[robot.id], where[robot.id] = recover_from_logs(
+            robots[robot.id], logs = recover_from_logs(
                 cfg, robot, robots[robot.id], ckpt, notifier=notifier,
                 model_meta=model_meta(robot), relearn=not by_wal)
+            if not by_wal:
+                where[robot.id] = logs
     return robots, where
 
 
 def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
-               ckpt: Checkpoint | None, *, fresh: bool) -> bool:
-    """Replay the write-ahead log after the checkpoint and attach it to ``rt``; True if the
-    log is the authority on what was learned (then the session logs are not re-learned)."""
+               ckpt: Checkpoint | None, *, fresh: bool) -> tuple[bool, Resumed]:
+    """Replay the write-ahead log after the checkpoint and attach it to ``rt``.
+
+    Returns whether the log is the authority on what was learned (then the session logs are
+    not re-learned) and where the model now stands (the ``recovered`` checkpoint written
+    after a replay, which the new session names as its start).
+    """
     from roger_daemon import wal
 
     d = wal.wal_dir(cfg.checkpoint.dir, rt.robot)
@@ -286,8 +296,8 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
                     ckpt.path if ckpt is not None else "a fresh model", rt.updates)
     if rep.stopped:
         log.error("%s: write-ahead log %s: %s", rt.robot, d, rep.stopped)
+    where = _position(ckpt)
     if rep.pairs or rep.fresh or rep.stopped:  # the recovered state, durable at once
-        where = _position(ckpt)
         model, daemon, meta = checkpoint_snapshot(
             rt, "recovered", daemon_id=cfg.id, created_unix_ns=time.time_ns(),
             session_id=where.session or "", session_segment=where.segment,
@@ -297,10 +307,11 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
                                        **cfg.checkpoint.limits())
             log.info("%s: checkpoint %s written (recovered, %d updates)", rt.robot, path,
                      rt.updates)
+            where = Resumed(str(path), where.session, where.segment, rep.pairs)
         except OSError as exc:
             log.error("%s: could not write the recovered checkpoint (%s); the write-ahead "
                       "log still holds the pairs", rt.robot, exc)
-    return has_log and not fresh
+    return has_log and not fresh, where
 
 
 def open_recorders(

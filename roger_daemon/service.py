@@ -62,6 +62,10 @@ RECORD_ONLY_KINDS = ("command", "episode")
 _MS = 1_000_000
 
 
+def _pct(values: Any, q: float) -> float:
+    return round(float(np.percentile(np.fromiter(values, float), q)), 4) if values else 0.0
+
+
 class Clock(Protocol):
     """Time sources: ``monotonic_ns`` for deadlines and latency, ``time_ns`` for stamps."""
 
@@ -394,7 +398,7 @@ class Service:
             self._record(robot, item.key, item.payload, item.recv_wall_ns, item.recv_wall_ns, 0)
             return
         self._record(robot, item.key, item.payload, item.recv_wall_ns, msg.stamp_ns, msg.tick)
-        dropped = rt.dropped + rt.resent
+        dropped, resent = rt.dropped, rt.resent
         if kind == "perception":
             assert isinstance(msg, Perception)
             rt.on_perception(msg, item.recv_ns)
@@ -406,15 +410,17 @@ class Service:
         elif kind == "control":
             assert isinstance(msg, Control)
             self._control(rt, msg)
-        if rt.dropped + rt.resent != dropped and robot in self.recorders:
-            self._record_drop(rt, msg.tick, item.recv_wall_ns)
+        if (rt.dropped, rt.resent) != (dropped, resent) and robot in self.recorders:
+            self._record_drop(rt, msg.tick, item.recv_wall_ns,
+                              "queue_full" if rt.dropped != dropped else "resent")
 
-    def _record_drop(self, rt: RobotRuntime, tick: int, wall_ns: int) -> None:
-        """Name the pair just dropped (queue full) in the log, so that replay stays exact."""
+    def _record_drop(self, rt: RobotRuntime, tick: int, wall_ns: int, reason: str) -> None:
+        """Name the pair just not learned (queue full, or a re-send of the newest pair) in
+        the log, so that replay stays exact."""
         from roger_daemon.recording.events import dropped_topic, encode_dropped
 
         payload = encode_dropped(rt.robot, tick, stamp_ns=wall_ns, queue_size=rt.queue_size,
-                                 dropped=rt.dropped)
+                                 dropped=rt.dropped, reason=reason)
         self._record(rt.robot, dropped_topic(rt.robot), payload, wall_ns, wall_ns, tick)
 
     def _answer_lockstep(self) -> None:
@@ -569,6 +575,8 @@ class Service:
             "recording_errors": self.stats.recording_errors,
             "wal": rt.wal is not None,
             "wal_commits": 0 if rt.wal is None else rt.wal.commits,
+            "wal_commit_ms_p50": _pct(rt.wal.commit_ms, 50) if rt.wal is not None else 0.0,
+            "wal_commit_ms_p99": _pct(rt.wal.commit_ms, 99) if rt.wal is not None else 0.0,
             "wal_commit_ms_max": 0.0 if rt.wal is None else round(rt.wal.commit_ms_max, 3),
             "resent_pairs": rt.resent,
             "workers": "inline",

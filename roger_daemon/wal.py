@@ -14,6 +14,8 @@ segments can be deleted whole). A segment is a sequence of frames::
 
     u32 length | u32 crc32(payload) | payload (msgpack map)
 
+followed by zeros (segments are zero-filled ahead of the records; see ``PREALLOCATE``).
+
 Payload maps carry ``k`` (``"pair"`` or ``"fresh"``) and ``s`` (the record's sequence number,
 increasing by one over the robot's whole history); pair records add ``i`` (the model's
 ``n_learned`` before learning it), ``tick``, ``x``/``y`` (float64 little-endian bytes) and
@@ -33,6 +35,7 @@ import re
 import struct
 import time
 import zlib
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +51,10 @@ __all__ = ["WalRecord", "WriteAheadLog", "read_records", "segments", "wal_dir"]
 log = logging.getLogger(__name__)
 
 _FRAME = struct.Struct("<II")
+#: Segments are zero-filled ahead of the records, this much at a time: overwriting blocks
+#: that exist lets ``fdatasync`` flush data only, without a journal commit for a new file
+#: size (measured on ext4 under load: the sync's p99 13-18 ms instead of 17-95 ms).
+PREALLOCATE = 1 << 20
 _NAME = re.compile(r"^wal-(\d{12})\.log$")
 _MAX_RECORD = 1 << 20
 
@@ -107,7 +114,7 @@ def _read_segment(path: Path) -> Iterator[WalRecord]:
     while pos + _FRAME.size <= len(data):
         length, crc = _FRAME.unpack_from(data, pos)
         end = pos + _FRAME.size + length
-        if length > _MAX_RECORD or end > len(data):
+        if length == 0 or length > _MAX_RECORD or end > len(data):  # zeros: the end
             return
         payload = data[pos + _FRAME.size: end]
         if zlib.crc32(payload) != crc:
@@ -149,7 +156,9 @@ class WriteAheadLog:
         self.durable_seq = next_seq - 1  # every record <= this is on disk
         self.commits = 0
         self.commit_ms_max = 0.0
+        self.commit_ms: deque[float] = deque(maxlen=1000)  # the latest commits' durations
         self._fd = -1
+        self._pos = self._end = 0
         self._dirty_since: int | None = None
         self._open(next_seq)
 
@@ -162,13 +171,27 @@ class WriteAheadLog:
         path = self.directory / f"wal-{seq:012d}.log"
         # A segment of this name exists only if the previous life wrote no readable record
         # into it (else next_seq would be past it): whatever it holds is a torn write.
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._pos = 0
+        self._end = 0
+        self._extend(PREALLOCATE)
         fsync_dir(self.directory)
+
+    def _extend(self, at_least: int) -> None:
+        """Zero-fill the segment past ``_end`` (a frame of zeros reads as the end)."""
+        grow = max(PREALLOCATE, at_least)
+        os.pwrite(self._fd, bytes(grow), self._end)
+        os.fsync(self._fd)  # the new size is durable once, not at every commit
+        self._end += grow
 
     def _append(self, rec: dict[str, Any]) -> int:
         seq = self.next_seq
         payload = msgpack.packb({**rec, "s": seq}, use_bin_type=True)
-        os.write(self._fd, _FRAME.pack(len(payload), zlib.crc32(payload)) + payload)
+        frame = _FRAME.pack(len(payload), zlib.crc32(payload)) + payload
+        if self._pos + len(frame) + _FRAME.size > self._end:
+            self._extend(len(frame) + _FRAME.size)
+        os.pwrite(self._fd, frame, self._pos)
+        self._pos += len(frame)
         self.next_seq += 1
         if self._dirty_since is None:
             self._dirty_since = time.monotonic_ns()
@@ -203,7 +226,9 @@ class WriteAheadLog:
         t0 = time.perf_counter_ns()
         if self.sync:
             os.fdatasync(self._fd)
-        self.commit_ms_max = max(self.commit_ms_max, (time.perf_counter_ns() - t0) / 1e6)
+        ms = (time.perf_counter_ns() - t0) / 1e6
+        self.commit_ms.append(ms)
+        self.commit_ms_max = max(self.commit_ms_max, ms)
         self.commits += 1
         self.durable_seq = self.next_seq - 1
         self._dirty_since = None

@@ -183,9 +183,19 @@ def test_recover_exit_code_says_whether_bytes_were_dropped(
 
 def test_replay_of_a_robot_absent_from_the_log_fails(files: dict[str, Path],
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    assert roger(["replay", str(files["log"]), "--robot", "spot"]) == 2
-    err = capsys.readouterr().err
-    assert "'spot' has no message" in err and "['aibo']" in err
+    for extra in ([], ["--publish", "--connect", "none", "--listen", "none"]):
+        assert roger(["replay", str(files["log"]), "--robot", "spot", *extra]) == 2
+        err = capsys.readouterr().err
+        assert "'spot' has no message" in err and "['aibo']" in err
+
+
+def test_record_into_a_file_is_an_argument_error(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "notes.txt"
+    out.write_text("mine")
+    assert roger(["record", "--out", str(out), "--connect", "none"]) == 2
+    assert "is not a directory" in capsys.readouterr().err
+    assert out.read_text() == "mine"
 
 
 @pytest.mark.integration
@@ -197,6 +207,6 @@ def test_record_to_an_unreachable_endpoint_fails_and_writes_nothing(tmp_path: Pa
          f"tcp/127.0.0.1:{port}", "--listen", "none", "--connect-timeout", "1"],
         capture_output=True, text=True, timeout=60, env={**os.environ, "RUST_LOG": "error"})
     assert proc.returncode == 1, proc.stderr
-    assert f"cannot reach tcp/127.0.0.1:{port}" in proc.stderr
+    assert f"cannot reach tcp/127.0.0.1:{port}" in proc.stderr and "nothing done" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not out.exists()

@@ -129,9 +129,9 @@ def _arrives(sub: Session, key: str, payload: bytes, timeout: float = 5.0) -> bo
     return False
 
 
-@pytest.fixture
-def deployment(tmp_path: Path) -> Iterator[Deployment]:
-    d = Deployment(tmp_path)
+@pytest.fixture(scope="module")
+def deployment(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
+    d = Deployment(tmp_path_factory.mktemp("secure"))  # one router for the module's tests
     try:
         yield d
     finally:

@@ -140,6 +140,8 @@ def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
         "daemon_latency_p99_ms": st.latency_ms_p99, "learn_ms_p50": st.info["learn_ms_p50"],
         "learn_ms_p99": st.info["learn_ms_p99"], "dropped": st.dropped, "exit_code": code,
         "wal_commits": st.info.get("wal_commits", 0),
+        "wal_commit_ms_p50": st.info.get("wal_commit_ms_p50", 0.0),
+        "wal_commit_ms_p99": st.info.get("wal_commit_ms_p99", 0.0),
         "wal_commit_ms_max": st.info.get("wal_commit_ms_max", 0.0),
     }
 
@@ -267,6 +269,8 @@ def run(args: argparse.Namespace) -> int:
         ("", lock["learn_ms_p99"], "ms"),
         ("latency p99 with learning off (mode predict)", lock["predict_only_latency_p99_ms"],
          "ms"),
+        ("write-ahead log commit p50 / p99 (lockstep)", lock["wal_commit_ms_p50"], "ms"),
+        ("", lock["wal_commit_ms_p99"], "ms" + ("" if not args.no_wal else " (--no-wal)")),
         ("30 Hz publisher period jitter p99 (daemon)", real["period_jitter_p99_ms"],
          f"ms (target <= {TARGETS['period_jitter_p99_ms']})"),
         ("period jitter p99 seen by the client", real["client_period_jitter_p99_ms"], "ms"),

@@ -49,9 +49,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--queue", type=int, default=4096, help="subscriber FIFO capacity")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: until SIGINT/SIGTERM)")
-    parser.add_argument("--connect-timeout", type=float, default=5.0, metavar="S",
-                        help="exit 1 if no --connect endpoint is reached within S seconds "
-                             "(default 5; 0: record anyway, waiting for others to connect)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,6 +57,10 @@ def run(args: argparse.Namespace) -> int:
 
     from roger_daemon.recording import zenoh_net
 
+    if args.out.exists() and not args.out.is_dir():
+        print(f"roger record: --out {args.out} exists and is not a directory; expected a "
+              "directory for the MCAP files", file=sys.stderr)
+        return 2
     robot = args.robot
     if robot is None:
         m = _ROBOT_KEY.match(args.key)
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     )
     cfg = zenoh_net.config_from_args(args)
     session = zenoh.open(cfg)
-    if not _reached(session, args):
+    if not zenoh_net.reached(session, args, "roger record"):
         session.close()
         return 1
     rec = SessionRecorder(
@@ -117,29 +118,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"recorded {st.messages} messages in {st.parts} file(s): "
           + ", ".join(str(p) for p in rec.paths), file=sys.stderr, flush=True)
     return 0
-
-
-def _reached(session: object, args: argparse.Namespace) -> bool:
-    """True once the session is connected to a peer or router (or nothing is to be reached).
-
-    A peer whose ``--connect`` endpoint is down still opens (and retries in the background),
-    so without this check ``roger record`` would silently record nothing.
-    """
-    from roger_daemon.recording import zenoh_net
-
-    wanted = zenoh_net.connect_endpoints(args)
-    if not wanted or args.connect_timeout <= 0:
-        return True
-    info = session.info  # type: ignore[attr-defined]
-    end = time.monotonic() + args.connect_timeout
-    while time.monotonic() < end:
-        if list(info.peers_zid()) or list(info.routers_zid()):
-            return True
-        time.sleep(0.05)
-    print(f"roger record: cannot reach {', '.join(wanted)} within {args.connect_timeout:g} s "
-          "(is the daemon or router running there?); nothing recorded. Use "
-          "--connect-timeout 0 to record anyway", file=sys.stderr, flush=True)
-    return False
 
 
 def _drain(sub: object, rec: SessionRecorder, limit: int = 2000) -> int:

@@ -101,6 +101,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"roger replay: {why}", file=sys.stderr)
             return 2
     if args.publish:
+        if args.robot:
+            from roger_daemon.recording.timeline import robot_absent
+
+            if why := robot_absent(files, args.robot):
+                print(f"roger replay: {why}", file=sys.stderr)
+                return 2
         return _publish(args, files)
     return _replay(args, files)
 
@@ -256,6 +262,8 @@ def _publish(args: argparse.Namespace, files: list[Path]) -> int:
     kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
     try:
         with zenoh.open(zenoh_net.config_from_args(args)) as session:
+            if not zenoh_net.reached(session, args, "roger replay --publish"):
+                return 1
             st = publish_log(session, files, speed=args.speed, kinds=kinds, robot=args.robot,
                              should_stop=lambda: stop["flag"], wait_subscribers_s=args.wait)
     finally:

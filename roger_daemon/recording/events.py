@@ -51,11 +51,12 @@ def parse_event_topic(topic: str) -> tuple[str, str] | None:
 
 
 def encode_dropped(robot: str, tick: int, *, stamp_ns: int, queue_size: int,
-                   dropped: int) -> bytes:
-    """The payload of one drop record."""
+                   dropped: int, reason: str = "queue_full") -> bytes:
+    """The payload of one drop record (``reason``: ``queue_full`` or ``resent``, a re-sent
+    copy of the newest pair)."""
     out: bytes = msgpack.packb({
         "v": EVENT_VERSION, "robot": robot, "tick": int(tick), "stamp_ns": int(stamp_ns),
-        "reason": "queue_full", "queue_size": int(queue_size), "dropped": int(dropped),
+        "reason": reason, "queue_size": int(queue_size), "dropped": int(dropped),
     })
     return out
 
@@ -84,7 +85,7 @@ def dropped_schema() -> dict[str, Any]:
         "tick": num("integer", "tick of the pair the daemon dropped (its perception and "
                     "action are the messages just before this record)"),
         "stamp_ns": num("integer", "daemon wall clock, ns since the Unix epoch"),
-        "reason": {"type": "string", "enum": ["queue_full"],
+        "reason": {"type": "string", "enum": ["queue_full", "resent"],
                    "description": "why the pair was not learned"},
         "queue_size": num("integer", "the training queue's capacity"),
         "dropped": num("integer", "the robot's drop counter after this drop"),

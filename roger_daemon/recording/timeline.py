@@ -389,18 +389,22 @@ def read_timeline(
         tl.dims = Dims(dx, dy)
     tl.unpaired = tracker.pending
     if robot and tl.messages == 0 and not tl.file_errors:
-        _absent(files, robot)
+        raise ValueError(robot_absent(files, robot) or f"robot {robot!r}: nothing to replay")
     return tl
 
 
-def _absent(files: list[Path], robot: str) -> None:
-    """Raise ``ValueError`` naming the robots a log has when ``robot`` has no message in it."""
+def robot_absent(files: Iterable[Path], robot: str) -> str:
+    """Why ``robot`` cannot be replayed from ``files`` ("" if it has messages there): the
+    message names the robots the log does have."""
     robots = set()
+    files = list(files)
     for f in files:
         for t in topics_of(f):
             try:
                 robots.add(keyexpr.parse(t)[0])
             except ProtocolError:
                 continue
-    raise ValueError(f"robot {robot!r} has no message in {', '.join(map(str, files))}; "
-                     f"the log has robot(s) {sorted(robots) or 'none'} (--robot ID)")
+    if robot in robots:
+        return ""
+    return (f"robot {robot!r} has no message in {', '.join(map(str, files))}; "
+            f"the log has robot(s) {sorted(robots) or 'none'} (--robot ID)")

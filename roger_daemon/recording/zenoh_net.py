@@ -18,6 +18,7 @@ __all__ = [
     "add_arguments",
     "connect_endpoints",
     "make_config",
+    "reached",
 ]
 
 #: The conventional port of the daemon or router on this machine.
@@ -65,6 +66,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"{DEFAULT_LISTEN[0]})",
     )
     parser.add_argument("--zenoh-config", metavar="FILE", help="Zenoh JSON5 config to start from")
+    parser.add_argument("--connect-timeout", type=float, default=5.0, metavar="S",
+                        help="exit 1 if no --connect endpoint is reached within S seconds "
+                             "(default 5; 0: go on anyway, waiting for others to connect)")
+
+
+def reached(session: zenoh.Session, args: argparse.Namespace, command: str) -> bool:
+    """True once ``session`` is connected to a peer or router (or nothing is to be reached);
+    else False after ``--connect-timeout`` seconds, with a message on stderr.
+
+    A peer whose ``--connect`` endpoint is down still opens (and retries in the background),
+    so without this check a tool would silently record or publish nothing.
+    """
+    import sys
+    import time
+
+    wanted = connect_endpoints(args)
+    if not wanted or args.connect_timeout <= 0:
+        return True
+    end = time.monotonic() + args.connect_timeout
+    while time.monotonic() < end:
+        if list(session.info.peers_zid()) or list(session.info.routers_zid()):
+            return True
+        time.sleep(0.05)
+    print(f"{command}: cannot reach {', '.join(wanted)} within {args.connect_timeout:g} s "
+          "(is the daemon or router running there?); nothing done. Use --connect-timeout 0 "
+          "to go on anyway", file=sys.stderr, flush=True)
+    return False
 
 
 def connect_endpoints(args: argparse.Namespace) -> list[str]:
