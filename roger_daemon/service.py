@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -488,12 +488,15 @@ class Service:
         """Publish predictions learner workers computed: ``(rt, reply, perception,
         receipt ns)`` each. Every pair they count was bookkept before their replies arrived:
         commit the robots' logs (in parallel), then publish."""
-        dirty = [rt.wal for rt in {id(b[0]): b[0] for b in batch}.values()
-                 if rt.wal is not None and rt.wal.dirty]
-        if len(dirty) > 1 and self._committer is not None:
-            list(self._committer.map(lambda w: w.commit(), dirty))
+        self._commit_all({id(b[0]): b[0] for b in batch}.values())
         for rt, reply, perc, recv_ns in batch:
             self._worker_prediction(rt, reply, perc, recv_ns)
+
+    def _commit_all(self, robots: Iterable[RobotRuntime]) -> None:
+        """With worker processes: commit the dirty logs of ``robots`` side by side."""
+        dirty = [rt.wal for rt in robots if rt.wal is not None and rt.wal.dirty]
+        if len(dirty) > 1 and self._committer is not None:
+            list(self._committer.map(lambda w: w.commit(), dirty))
 
     def _worker_prediction(self, rt: RobotRuntime, reply: dict[str, Any], perc: Perception,
                            recv_ns: int) -> None:
@@ -601,6 +604,7 @@ class Service:
 
     def _publish_status(self, now: int) -> None:
         lines = []
+        self._commit_all(self.robots.values())
         for rt in self.robots.values():
             self._commit(rt)
             st = self.status_of(rt, now)
