@@ -778,6 +778,20 @@ class Service:
                 except OSError as exc:
                     log.error("%s: closing the write-ahead log failed: %s", rt.robot, exc)
 
+    def _learn_queued(self, until: float) -> None:
+        """Shutdown: learn queued pairs until ``until`` (``time.monotonic``); with workers,
+        then wait for every pair in flight (learned and logged) and every snapshot."""
+        while time.monotonic() < until and any(
+            rt.learning and rt.queue for rt in self.robots.values()
+        ):
+            if self.learners is None:
+                self._learn_once()
+            else:
+                self.learners.pump()
+                self.learners.wait_one(0.05)
+        if self.learners is not None:
+            self.learners.drain()
+
     def shutdown(self) -> None:
         """Stop intake, drain, learn what fits, checkpoint, close recorders and transport."""
         if self._stopping:
@@ -792,17 +806,7 @@ class Service:
             while item is not None:
                 self._handle(item)
                 item = self.inbox.get(0)
-            budget = self.config.checkpoint.shutdown_learn_s
-            while time.monotonic() - t0 < budget and any(
-                rt.learning and rt.queue for rt in self.robots.values()
-            ):
-                if self.learners is None:
-                    self._learn_once()
-                else:
-                    self.learners.pump()
-                    self.learners.wait_one(0.05)
-            if self.learners is not None:
-                self.learners.drain()  # in-flight pairs learned and logged, snapshots taken
+            self._learn_queued(t0 + self.config.checkpoint.shutdown_learn_s)
             self._collect_checkpoints(wait=True)
             if self.config.checkpoint.on_shutdown:
                 for rt in self.robots.values():
