@@ -36,6 +36,7 @@ __all__ = [
     "Publisher",
     "Transport",
     "ZenohTransport",
+    "open_session",
     "zenoh_config",
 ]
 
@@ -158,6 +159,13 @@ def zenoh_config(settings: ZenohSettings) -> Any:
     return cfg
 
 
+def open_session(settings: ZenohSettings) -> Any:
+    """Open one ``zenoh.Session`` from ``settings`` (the daemon's and the operator tools')."""
+    import zenoh
+
+    return zenoh.open(zenoh_config(settings))
+
+
 class _ZenohPublisher:
     def __init__(self, pub: Any) -> None:
         self._pub = pub
@@ -174,7 +182,7 @@ class ZenohTransport:
 
         self._zenoh = zenoh
         self._max = max_payload_bytes
-        self.session = zenoh.open(zenoh_config(settings))
+        self.session = open_session(settings)
         self._subs: list[Any] = []
         self._pubs: list[Any] = []
         self._tokens: list[Any] = []

@@ -158,9 +158,9 @@ class _Worker:
         from roger_daemon.learner import RogerParams, load_model
         from roger_daemon.robot import RobotRuntime
 
-        robot = RobotConfig(str(req["robot"]), int(req["x_dim"]), int(req["y_dim"]),
-                            str(req["model"]), int(req["seed"]),
-                            RogerParams.from_mapping(req["params"]))
+        robot = RobotConfig(id=str(req["robot"]), x_dim=int(req["x_dim"]),
+                            y_dim=int(req["y_dim"]), model=str(req["model"]),
+                            seed=int(req["seed"]), params=RogerParams.from_mapping(req["params"]))
         state = req.get("state")
         model = make_model(robot) if state is None else load_model(unpack_arrays(state))
         rt = RobotRuntime(robot.id, Dims(robot.x_dim, robot.y_dim), model,

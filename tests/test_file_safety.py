@@ -130,7 +130,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     ["log", "info", "{text}"],
     ["log", "info", "{empty}"],
     ["log", "info", "{dir}"],
-    ["log", "export", "{text}", "--json", "{out}"],
+    ["log", "export", "{text}", "--out", "{out}"],
     ["log", "recover", "{text}", "--out", "{out}"],
     ["replay", "{text}"],
     ["replay", "{dir}"],
@@ -151,10 +151,10 @@ def test_outputs_are_not_overwritten_without_force(files: dict[str, Path], tmp_p
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "exported.mcap"
     out.write_bytes(b"someone else's")
-    assert roger(["log", "export", str(files["log"]), "--json", str(out)]) == 2
+    assert roger(["log", "export", str(files["log"]), "--out", str(out)]) == 2
     assert "exists; pass --force" in capsys.readouterr().err
     assert out.read_bytes() == b"someone else's"
-    assert roger(["log", "export", str(files["log"]), "--json", str(out), "--force"]) == 0
+    assert roger(["log", "export", str(files["log"]), "--out", str(out), "--force"]) == 0
     assert out.read_bytes()[:5] == b"\x89MCAP"
     rec_out = tmp_path / "recovered.mcap"
     rec_out.write_bytes(b"precious")

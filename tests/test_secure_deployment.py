@@ -274,3 +274,13 @@ def test_router_warns_only_when_exposed_without_acl() -> None:
     assert exposed(["tcp/127.0.0.1:7447", "tcp/[::1]:7447", "tcp/localhost:7447"]) == []
     assert exposed(["tcp/0.0.0.0:7447", "tcp/127.0.0.1:1"]) == ["tcp/0.0.0.0:7447"]
     assert exposed(["tcp/[::]:7447"]) == ["tcp/[::]:7447"]
+
+
+def test_the_shipped_daemon_table_is_a_valid_client_config(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from roger_daemon.config import load_config
+
+    monkeypatch.chdir(ROOT)  # its paths are relative to the working directory
+    cfg = load_config(SECURE / "daemon.toml")
+    assert cfg.zenoh.mode == "client" and not cfg.zenoh.listen
+    assert cfg.zenoh.config_file == Path("configs/zenoh/secure/daemon.json5")

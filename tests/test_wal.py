@@ -135,3 +135,42 @@ def test_a_session_after_a_wal_recovery_replays_exactly(tmp_path: Path,
                   "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "learned:      15 pairs" in out and "result:       OK" in out
+
+
+def test_pairs_queued_in_the_checkpoint_are_not_learned_twice(tmp_path: Path) -> None:
+    """The checkpoint is taken while 10 pairs wait in the queue; they are learned (and
+    logged) after it. Recovery re-learns them from the log and takes them off the restored
+    queue, so each is learned once."""
+    from test_recovery import Life, assert_same, make_cfg, reference
+
+    from protocols import Control
+
+    a = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))
+    a.pairs(range(10), settle=False)
+    a.send("control", Control("sim", 0, 0.0, op="checkpoint"))
+    a.settle()  # one drain: pairs queued, checkpoint (with the queue), then learning
+    ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
+    assert ck.meta["updates"] == 0 and len(ck.daemon["queue_ticks"]) == 10
+    assert a.rt.updates == 10
+    b = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))  # a's kill -9
+    assert b.rt.updates == 10 and len(b.rt.queue) == 0 and b.rt.recovered_pairs == 10
+    assert_same(b.rt.model, reference(list(range(10))))
+
+
+def test_a_reset_after_the_checkpoint_is_replayed(tmp_path: Path) -> None:
+    from test_recovery import Life, assert_same, make_cfg, reference
+
+    from protocols import Control
+
+    a = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))
+    a.pairs(range(10))
+    a.send("control", Control("sim", 0, 0.0, op="checkpoint"))
+    a.settle()
+    a.pairs(range(10, 15))
+    a.send("control", Control("sim", 0, 0.0, op="reset"))
+    a.settle()
+    a.pairs(range(15, 21))
+    assert read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0]).meta["updates"] == 10
+    b = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))  # a's kill -9
+    assert b.rt.updates == 6 and b.rt.recovered_pairs == 11  # 5, the reset, then 6
+    assert_same(b.rt.model, reference(list(range(15, 21))))

@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.blas import blas_info
+from roger_daemon.console import UsageError
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
+from roger_daemon.learner.params import ParameterError
 from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
 
 __all__ = ["configure", "run"]
@@ -45,12 +47,15 @@ def _params(overrides: list[str]) -> RogerParams:
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
-            raise SystemExit(f"--param needs KEY=VALUE, got {item!r}")
+            raise UsageError(f"--param needs KEY=VALUE, got {item!r}")
         try:
             mapping[key] = json.loads(value)
         except json.JSONDecodeError:
             mapping[key] = value
-    return RogerParams.from_mapping({**RogerParams().to_mapping(), **mapping})
+    try:
+        return RogerParams.from_mapping({**RogerParams().to_mapping(), **mapping})
+    except ParameterError as exc:
+        raise UsageError(f"--param: {exc}") from None
 
 
 def _machine() -> dict[str, Any]:

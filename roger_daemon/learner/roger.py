@@ -5,7 +5,7 @@ Grollman & Jenkins (IROS 2010), section III: each expert is an NIW input gate
 into experts under a CRP prior; ``P`` particles are carried by Fearnhead's optimal resampling
 (:mod:`.resampling`).
 
-Algorithm 1 (``learn_one``), roger-math.md §4:
+Algorithm 1 (``learn_one``), docs/learner-math.md §4:
 
 1. for every particle ``p`` and every expert ``k`` of it, plus one new empty expert, the
    putative log weight is ``log w_p + log CRP(k) + log t_k(x) + log N(y; mu_k(x), s_k^2 I)``,
@@ -39,6 +39,7 @@ from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
+from roger_daemon.learner.roger_state import load_roger_state, roger_state_dict
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import (
     LATENT_FLOOR,
@@ -47,14 +48,8 @@ from roger_daemon.learner.sogp import (
     update_many,
 )
 from roger_daemon.learner.state import (
-    SCHEMA_VERSION,
     Seed,
-    generator_from_state,
-    generator_state,
-    pack_experts,
-    pack_meta,
     spawn_generators,
-    unpack_experts,
     unpack_meta,
 )
 
@@ -134,8 +129,9 @@ class Roger:
     def _setup(self) -> None:
         p = self.params
         self._scaling = AffineScaling(p, self.d_x, self.d_y)
-        self.kernel = RBFKernel(p.theta_w, self.d_x, p.kernel_dim_scaling)
-        self._gates = GatePool(self.d_x, p.mu0, p.kappa0, p.lambda0, p.nu0)
+        self._dm = self._scaling.d_model  # input dimensions after input_weights
+        self.kernel = RBFKernel(p.theta_w, self._dm, p.kernel_dim_scaling)
+        self._gates = GatePool(self._dm, p.mu0, p.kappa0, p.lambda0, p.nu0)
         cap = self._gates.capacity
         self._gps: list[SparseOnlineGP | None] = [None] * cap
         self._ids = np.full(cap, -1, dtype=np.int64)
@@ -159,8 +155,9 @@ class Roger:
 
     def _new_gp(self) -> SparseOnlineGP:
         p = self.params
-        return SparseOnlineGP(self.d_x, self.d_y, self.kernel, p.theta_n, p.beta,
-                              p.novelty_threshold, p.likelihood_normaliser)
+        return SparseOnlineGP(self._dm, self.d_y, self.kernel, p.theta_n, p.beta,
+                              p.novelty_threshold, p.likelihood_normaliser,
+                              prior_mean=p.gp_prior_mean == "expert")
 
     def _alloc_slot(self) -> int:
         if not self._free:
@@ -220,6 +217,8 @@ class Roger:
         base = self._logw[flat_part]
         base[is_new] += self._log_alpha + self._gates.prior_log_predictive(xs)
         base[~is_new] += slot_gate[old_slots]
+        if p.sticky_kappa > 0.0 and self.n_learned > 0:
+            self._add_stickiness(base, flat_part, flat_slots, is_new)
 
         # GP factor: the empty expert analytically, the others once per unique expert
         ll_new = float(gaussian_log_likelihood(float(ys @ ys), self._empty_var, self.d_y,
@@ -227,6 +226,21 @@ class Roger:
         slot_ll, terms = self._gp_factors(xs, ys, live, base, is_new, old_slots, ll_new, cap)
         lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])
         return lw, flat_part, flat_slots, offsets, terms
+
+    def _add_stickiness(self, base: FloatArray, flat_part: IntArray, flat_slots: IntArray,
+                        is_new: npt.NDArray[np.bool_]) -> None:
+        """Sticky CRP (Fox et al. 2008; paper section V): the expert of the previous point in
+        each particle weighs ``n_k + kappa`` instead of ``n_k``; with ``kappa = inf`` every
+        other putative of that particle gets weight 0.  The common normaliser
+        ``N + alpha + kappa`` is dropped like ``N + alpha`` (docs/learner-math.md)."""
+        kappa = self.params.sticky_kappa
+        prev_ids = self._hist_eid[self.n_learned - 1]  # chosen expert id of each particle
+        ids = np.where(is_new, -2, self._ids[np.where(is_new, 0, flat_slots)])
+        is_prev = ids == prev_ids[flat_part]
+        if math.isinf(kappa):
+            base[~is_prev] = -np.inf
+        else:
+            base[is_prev] += np.log1p(kappa / self._npts[flat_slots[is_prev]])
 
     def _gp_factors(self, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
                     is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
@@ -379,8 +393,13 @@ class Roger:
 
     def _gate_probs(self, slots: IntArray, xs: FloatArray) -> FloatArray:
         """``p(k | x) ∝ n_k t_k(x)`` over ``slots`` (+ ``alpha t_0(x)`` if the empty expert
-        takes part), normalised (paper Algorithm 2, roger-math.md §6)."""
+        takes part), normalised (paper Algorithm 2, docs/learner-math.md §6)."""
         lg = self._gates.log_predictive(slots, xs) + np.log(self._npts[slots])
+        support = self.params.min_support
+        if support > 1:  # too small to compete, unless no expert has the support
+            small = self._npts[slots] < support
+            if not small.all():
+                lg[small] = -np.inf
         if self.params.predict_empty_expert:
             lg = np.append(lg, self._log_alpha + self._gates.prior_log_predictive(xs))
         w = np.exp(lg - np.max(lg))
@@ -502,38 +521,7 @@ class Roger:
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata; see :mod:`.state`.  No object arrays."""
-        # canonical order: slots by first appearance in the particles (not by slot number)
-        flat = np.concatenate(self._particles)
-        _, first = np.unique(flat, return_index=True)
-        live = flat[np.sort(first)]
-        compact = np.full(len(self._gps), -1, dtype=np.int64)
-        compact[live] = np.arange(live.size)
-        gps = [self._gps[s] for s in live.tolist()]
-        assert all(g is not None for g in gps)
-        out = pack_experts([g for g in gps if g is not None], self.d_x, self.d_y)
-        g = self._gates
-        for name in g.FIELDS:
-            out[f"gate_{name}"] = getattr(g, name)[live].copy()
-        out["expert_id"] = self._ids[live].copy()
-        out["expert_count"] = self._npts[live].copy()
-        sizes = np.array([a.size for a in self._particles], dtype=np.int64)
-        out["particle_log_weights"] = self._logw.copy()
-        out["particle_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-        out["particle_experts"] = compact[flat]
-        out["history_ancestor"] = self._hist_anc[: self.n_learned].copy()
-        out["history_expert"] = self._hist_eid[: self.n_learned].copy()
-        out["meta"] = pack_meta({
-            "schema": SCHEMA_VERSION,
-            "kind": self.kind,
-            "d_x": self.d_x,
-            "d_y": self.d_y,
-            "params": self.params.to_mapping(),
-            "n_learned": self.n_learned,
-            "next_expert_id": self._next_id,
-            "rng_learn": generator_state(self._learn_rng),
-            "rng_predict": generator_state(self._predict_rng),
-        })
-        return out
+        return roger_state_dict(self)
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, np.ndarray]) -> Roger:
@@ -549,28 +537,4 @@ class Roger:
         return model
 
     def _load(self, state: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        self._learn_rng = generator_from_state(meta["rng_learn"])
-        self._predict_rng = generator_from_state(meta["rng_predict"])
-        gps = unpack_experts(state, self._new_gp)
-        u = len(gps)
-        for _ in range(u):
-            self._alloc_slot()
-        for s, gp in enumerate(gps):
-            self._gps[s] = gp
-        g = self._gates
-        for name in g.FIELDS:
-            getattr(g, name)[:u] = state[f"gate_{name}"]
-        self._ids[:u] = state["expert_id"]
-        self._npts[:u] = state["expert_count"]
-        offsets = np.asarray(state["particle_offsets"], dtype=np.int64)
-        flat = np.asarray(state["particle_experts"], dtype=np.int64)
-        self._particles = [flat[offsets[i]:offsets[i + 1]].copy()
-                           for i in range(offsets.size - 1)]
-        self._logw = np.asarray(state["particle_log_weights"], dtype=np.float64).copy()
-        self._ref = np.bincount(flat, minlength=len(self._gps)).astype(np.int64)
-        self.n_learned = int(meta["n_learned"])
-        self._next_id = int(meta["next_expert_id"])
-        width = self.params.particles
-        self._hist_anc = np.asarray(state["history_ancestor"], dtype=np.int32).reshape(-1, width)
-        self._hist_eid = np.asarray(state["history_expert"], dtype=np.int64).reshape(-1, width)
-
+        load_roger_state(self, state, meta)

@@ -21,7 +21,7 @@ __all__ = ["ABS_FLOOR", "REL_TOL", "behaviour", "behaviour_differences", "probe_
 #: this relative error on every float they publish; the structure (experts, ids, sizes,
 #: assignments, labels, chosen expert) is compared exactly. Measured margin and the rule:
 #: docs/reproducibility.md.
-REL_TOL = 1e-6
+REL_TOL = 1e-5
 #: Below this magnitude a float is compared absolutely (a relative error of ~0 means nothing).
 ABS_FLOOR = 1e-12
 
