@@ -60,7 +60,7 @@ def test_bad_arguments_are_refused() -> None:
 
 
 def test_label_codes_follow_the_experiments_tie_rule() -> None:
-    from roger_daemon.robot import majority_labels as daemon_majority
+    from roger_daemon.labels import majority_labels_coded as daemon_majority
 
     labels = ["trap", "aim", "seek", "seek", "kick", "aim"]
     assign = np.array([0, 0, 1, 1, 2, 2])  # expert 0 and 2 are ties

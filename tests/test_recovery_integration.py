@@ -22,11 +22,11 @@ from protocols.messages import Dims
 from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.config import load_config
 from roger_daemon.daemon import make_model
+from roger_daemon.labels import majority_labels_coded as majority_labels
 from roger_daemon.learner import load_model
 from roger_daemon.recording import LogReader, is_complete, list_session_files
 from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
 from roger_daemon.recording.synthetic import synthetic_stream
-from roger_daemon.robot import majority_labels
 
 harness = pytest.importorskip("roger_daemon.harness")
 

@@ -15,6 +15,7 @@ from mcap.writer import Writer
 
 from protocols import Action, Perception
 from roger_daemon.cli import main as roger
+from roger_daemon.labels import majority_labels
 from roger_daemon.learner import load_model
 from roger_daemon.recording import (
     CatchUpError,
@@ -26,7 +27,6 @@ from roger_daemon.recording import (
 )
 from roger_daemon.recording.compare import REL_TOL
 from roger_daemon.recording.mcapio import LogReader
-from roger_daemon.recording.replay import majority_labels
 from roger_daemon.recording.synthetic import START_NS, record_synthetic_session
 
 TOL = REL_TOL
@@ -291,9 +291,10 @@ def test_pair_tracker() -> None:
     assert tr.dropped_perceptions == 1
 
 
-def test_majority_labels_ties_go_to_the_first_seen() -> None:
+def test_majority_labels_ties_go_to_the_first_by_name() -> None:
+    """One rule everywhere (roger_daemon.labels): a tie does not depend on arrival order."""
     assert majority_labels([0, 0, 1, 1, 1, 0], ["b", "a", "x", "y", "y", "a"]) == {0: "a", 1: "y"}
-    assert majority_labels([2, 2], ["q", "p"]) == {2: "q"}
+    assert majority_labels([2, 2], ["q", "p"]) == majority_labels([2, 2], ["p", "q"]) == {2: "p"}
     assert majority_labels([1, 1, 1, 2], ["", "", "b", ""]) == {1: "b", 2: ""}
     assert majority_labels([], []) == {}
 

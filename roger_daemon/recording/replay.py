@@ -19,6 +19,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.labels import majority_labels
 from roger_daemon.recording.compare import rel_err
 from roger_daemon.recording.metadata import SessionInfo
 from roger_daemon.recording.timeline import (
@@ -310,31 +311,6 @@ def _where(d: PredictionDiff) -> dict[str, Any]:
     return {"tick": d.tick, "updates": d.updates, "segment": d.segment,
             "kind": "float" if d.structure_match else "structure", "what": d.what(),
             "rel_err": d.rel if math.isfinite(d.rel) else "inf"}
-
-
-def majority_labels(assignments: Iterable[int], labels: Iterable[str]) -> dict[int, str]:
-    """Majority non-empty label per expert ("" if none); ties go to the label seen first.
-
-    The daemon's rule (``roger_daemon.robot.majority_labels``).
-    """
-    a = np.asarray(list(assignments), dtype=np.int64)
-    labs = list(labels)
-    if a.size == 0:
-        return {}
-    if a.size != len(labs):
-        raise ValueError(f"{a.size} assignments but {len(labs)} labels")
-    order: dict[str, int] = {}
-    codes = np.fromiter((order.setdefault(s, len(order)) for s in labs), np.int64, len(labs))
-    names = list(order)
-    experts, inv = np.unique(a, return_inverse=True)
-    counts = np.zeros((experts.size, len(names)), dtype=np.int64)
-    np.add.at(counts, (inv, codes), 1)
-    if "" in order:
-        counts[:, order[""]] = 0
-    best = counts.argmax(axis=1)  # first maximum = the label seen first
-    has = counts.max(axis=1) > 0
-    return {int(e): (names[int(b)] if h else "")
-            for e, b, h in zip(experts, best, has, strict=True)}
 
 
 def _maxabs(a: Any, b: Any) -> float:

@@ -183,10 +183,11 @@ class _Demo:
         from rich.table import Table
 
         from roger_daemon.checkpoint import load_newest
+        from roger_daemon.labels import majority_labels
         from roger_daemon.learner import load_model
         from roger_daemon.recording import list_session_files, read_timeline
         from simulator.experiment.figures import plot_experts_histogram, plot_pca
-        from simulator.experiment.metrics import majority_labels, segmentation_scores
+        from simulator.experiment.metrics import segmentation_scores
 
         out = self.out
         ck = load_newest(out / "checkpoints", "aibo")

@@ -350,8 +350,9 @@ class Experiment:
         self.timings[name] = round(time.monotonic() - t0, 2)
 
     def run(self) -> int:
+        from roger_daemon.labels import majority_labels
         from roger_daemon.learner import Roger, UnimapGP
-        from simulator.experiment.metrics import downsample_per_label, majority_labels
+        from simulator.experiment.metrics import downsample_per_label
         from simulator.experiment.training import (
             daemon_check,
             load_demonstrations,

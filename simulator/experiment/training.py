@@ -207,10 +207,9 @@ def daemon_check(
     """
     from roger_daemon.checkpoint import load_newest
     from roger_daemon.harness import Client, DaemonProcess, write_config
+    from roger_daemon.labels import majority_labels, majority_labels_coded
     from roger_daemon.learner import load_model
     from roger_daemon.recording import list_session_files, replay_session
-    from roger_daemon.robot import majority_labels as daemon_majority
-    from simulator.experiment.metrics import majority_labels
     from simulator.experiment.procs import child_env, free_port
 
     if workdir.exists():
@@ -265,15 +264,10 @@ def daemon_check(
 
     assign = np.asarray(offline.assignments())
     vocab = [str(s) for s in ck.daemon["label_vocab"].tolist()]
-    theirs = daemon_majority(np.asarray(from_daemon.assignments()),
-                             np.asarray(ck.daemon["label_codes"]), vocab)
-    # What the daemon's rule gives for the offline model and the stream's labels (its vocabulary
-    # is in first-seen order, so a tie may resolve differently from the experiment's grouping,
-    # which is why the evaluation checkpoints are written with a sorted vocabulary).
-    index = {s: i for i, s in enumerate(vocab)}
-    expected = daemon_majority(assign, np.array([index[s] for s in labels]), vocab)
-    mine = majority_labels(assign.tolist(), list(labels))
-    ties = sum(1 for e, lab in mine.items() if expected.get(int(e)) != lab)
+    # the daemon's names (its checkpoint's codes) against the offline model's: one rule
+    theirs = majority_labels_coded(np.asarray(from_daemon.assignments()),
+                                   np.asarray(ck.daemon["label_codes"]), vocab)
+    expected = majority_labels(assign, list(labels))
     pick = np.linspace(0, len(x) - 1, min(probes, len(x))).astype(int)
     out: dict[str, Any] = {
         "pairs_fed": len(x),
@@ -288,7 +282,6 @@ def daemon_check(
         "experts_offline": int(offline.n_experts),
         "experts_daemon": int(from_daemon.n_experts),
         "expert_labels_equal": expected == theirs,
-        "majority_ties_resolved_differently": ties,
         **_probe_agreement(offline, from_daemon, x[pick]),
         "tolerance": REL_TOL,
         "replay": None,
