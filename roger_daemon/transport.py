@@ -5,7 +5,7 @@ thread and must only be enqueued), ``publisher`` (one per key, declared once), `
 (liveliness), ``stop_intake`` and ``close``. :class:`ZenohTransport` implements it with one
 Zenoh session; :class:`MemoryTransport` is the in-memory fake used by the unit tests.
 
-Zenoh rules followed here (``zenoh-mcap-systemd-notes.md`` sections 0 and 1):
+Zenoh rules followed here (docs/zenoh-notes.md §1, §3.1 and §4):
 
 - callbacks only copy the payload and push onto the :class:`Inbox`, never call Zenoh, never
   block (``put_nowait``; an overflow is counted);
