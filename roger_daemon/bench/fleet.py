@@ -226,6 +226,8 @@ def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, A
         "updates_per_s": (s1.updates - s0.updates) / dt if dt > 0 else float("nan"),
         "dropped": int(end.dropped),
         "predictions_per_s": len(preds) / ((w1 - w0) / 1e9),
+        # what this process managed to send: on a starved machine the feed itself lags
+        "fed_per_s": sum(w0 <= t < w1 for t in fleet.sent[r].values()) / ((w1 - w0) / 1e9),
         "jitter_p99_ms": _pct(jitter, 99),
         "queue_depth_end": int(end.queue_depth),
         "updates": int(end.updates), "experts": int(end.experts),
