@@ -47,6 +47,8 @@ BENCHES: dict[str, tuple[str, str]] = {
     "learner": ("roger_daemon.bench.learner", "learner updates/s and latency, synthetic stream"),
     "recorder": ("roger_daemon.recording.bench", "recorder write+poll cost, SIGKILL loss"),
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
+    "fleet": ("roger_daemon.bench.fleet", "N robots x 30 Hz against one daemon, per robot"),
+    "soak": ("roger_daemon.bench.soak", "daemon RSS over a 30 Hz run, checkpoint bytes/expert"),
     "sim": ("simulator.bench", "simulator lockstep ticks/s (rendered, fast) and HCC success"),
 }
 

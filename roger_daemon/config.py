@@ -38,6 +38,7 @@ from protocols.messages import MODES
 
 __all__ = [
     "CLOCKS",
+    "WORKERS",
     "MODELS",
     "PROFILES",
     "CheckpointConfig",
@@ -52,6 +53,7 @@ __all__ = [
 ]
 
 CLOCKS = ("realtime", "lockstep")
+WORKERS = ("process", "inline")
 MODELS = ("roger", "unimap")
 PROFILES = ("aibo", "none")
 DEFAULT_PRESET = "default"
@@ -164,6 +166,9 @@ class DaemonConfig:
     pair_window: int = 64
     seed: int = 0
     count_unserved: bool = True
+    #: "process": each robot's model in its own worker process (roger_daemon.learners);
+    #: "inline": every model in the service loop's thread
+    workers: str = "process"
     log_dir: Path | None = None
     robots: tuple[RobotConfig, ...] = ()
     learner: Mapping[str, Any] = field(default_factory=dict)
@@ -396,6 +401,7 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
     pair_window = d.integer("pair_window", 64, lo=1)
     seed = d.integer("seed", 0, lo=0)
     count_unserved = d.boolean("count_unserved", True)
+    workers = d.choice("workers", "process", WORKERS)
     log_dir = d.path("log_dir", None)
     d.done()
 
@@ -482,7 +488,7 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
     return DaemonConfig(
         id=cfg_id, clock=clock, rate_hz=rate_hz, status_hz=status_hz, mode=mode,
         queue_size=queue_size, pair_window=pair_window, seed=seed,
-        count_unserved=count_unserved, log_dir=log_dir, robots=tuple(robots),
+        count_unserved=count_unserved, workers=workers, log_dir=log_dir, robots=tuple(robots),
         learner=MappingProxyType(dict(learner_table)), zenoh=zenoh_settings, checkpoint=ckpt,
         recording=recording, source=source,
     )

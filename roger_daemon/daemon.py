@@ -356,11 +356,20 @@ def open_recorders(
     return out
 
 
+def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Any:
+    """``[daemon] workers = "process"``: hand every model to its own worker process."""
+    if cfg.workers != "process":
+        return None
+    from roger_daemon.learners import ProcessLearners
+
+    return ProcessLearners(robots, {r.id: r for r in cfg.robots})
+
+
 def _describe(cfg: DaemonConfig) -> dict[str, Any]:
     return {
         "id": cfg.id, "clock": cfg.clock, "rate_hz": cfg.rate_hz, "status_hz": cfg.status_hz,
         "mode": cfg.mode, "queue_size": cfg.queue_size, "pair_window": cfg.pair_window,
-        "seed": cfg.seed, "count_unserved": cfg.count_unserved,
+        "seed": cfg.seed, "count_unserved": cfg.count_unserved, "workers": cfg.workers,
         "robots": [{"id": r.id, "x_dim": r.x_dim, "y_dim": r.y_dim, "model": r.model,
                     "seed": r.seed, "profile": r.profile,
                     "learner": r.params.to_mapping()} for r in cfg.robots],
@@ -401,6 +410,9 @@ def run(args: argparse.Namespace) -> int:
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         logging.getLogger().addHandler(handler)
 
+    from roger_daemon.memory import limit_heap_growth
+
+    limit_heap_growth()
     notifier = Notifier.from_env()
     robots, where = start_robots(cfg, fresh=args.fresh, notifier=notifier)
     resumed = {r: w.checkpoint for r, w in where.items()}
@@ -408,23 +420,28 @@ def run(args: argparse.Namespace) -> int:
 
     from roger_daemon.transport import ZenohTransport
 
+    learners = _start_learners(cfg, robots)  # before Zenoh opens: never fork after that
     try:
         transport = ZenohTransport(cfg.zenoh, max_payload_bytes=MAX_PAYLOAD_BYTES)
     except Exception as exc:
         log.error("cannot open the Zenoh session (%s); check [zenoh] in the config", exc)
         for rec in recorders.values():
             rec.close()
+        if learners is not None:
+            learners.close()
         return 1
     by_id = {r.id: r for r in cfg.robots}
     service = Service(
         cfg, transport, robots, notifier=notifier, recorders=recorders, resumed=resumed,
-        checkpoint_meta=lambda rt: model_meta(by_id[rt.robot]),
+        checkpoint_meta=lambda rt: model_meta(by_id[rt.robot]), learners=learners,
     )
     stop.append(service)
     try:
         service.start()
     except Exception:
         transport.close()
+        if learners is not None:
+            learners.close()
         raise
     if requested["early"]:
         service.request_stop()

@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter, OrderedDict, deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -239,6 +239,12 @@ class RobotRuntime:
                       self.robot, pair.tick, exc)
             return (time.perf_counter_ns() - t0) / 1e6
         ms = (time.perf_counter_ns() - t0) / 1e6
+        self.learned(pair, ms)
+        return ms
+
+    def learned(self, pair: Pair, ms: float) -> None:
+        """Bookkeeping of a pair the model has just learned (here or in a worker process):
+        its label code, its write-ahead log record, the counters."""
         self._append_code(pair.label)
         if self.wal is not None:
             self.wal.append_pair(self.updates - 1, pair.tick, pair.x, pair.y,
@@ -246,7 +252,6 @@ class RobotRuntime:
         self.last_learned_tick = pair.tick
         self.generation += 1
         self.learn_ms.add(ms)
-        return ms
 
     def relearn(self, x: np.ndarray, y: np.ndarray, label: str, tick: int) -> None:
         """Learn a pair read back from the write-ahead log (start-up recovery).
@@ -343,9 +348,10 @@ class RobotRuntime:
 
     # --- checkpoint state ------------------------------------------------------------------
 
-    def daemon_arrays(self) -> dict[str, np.ndarray]:
-        """Daemon state that must survive a restart, as named arrays."""
-        q = list(self.queue)
+    def daemon_arrays(self, ahead: Sequence[Pair] = ()) -> dict[str, np.ndarray]:
+        """Daemon state that must survive a restart, as named arrays (``ahead``: pairs
+        taken off the queue but not yet learned, saved in front of it)."""
+        q = [*ahead, *self.queue]
         dx, dy = self.dims.x, self.dims.y
         return {
             "label_vocab": np.array(self.vocab, dtype=np.str_) if self.vocab

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -42,6 +42,7 @@ from protocols.messages import (
     Control,
     Message,
     Perception,
+    Prediction,
     Status,
     decode,
     encode,
@@ -49,7 +50,7 @@ from protocols.messages import (
 from roger_daemon.checkpoint import write_checkpoint
 from roger_daemon.config import DaemonConfig
 from roger_daemon.health import LOG_LEVEL_OF, Health
-from roger_daemon.robot import RobotRuntime, _Window
+from roger_daemon.robot import Pair, RobotRuntime, _Window
 from roger_daemon.sdnotify import Notifier
 from roger_daemon.transport import Inbox, Incoming, Publisher, Transport
 
@@ -83,14 +84,21 @@ class _RealClock:
 def checkpoint_snapshot(
     rt: RobotRuntime, reason: str, *, daemon_id: str, created_unix_ns: int,
     session_id: str, session_segment: int, extra: dict[str, Any] | None = None,
+    model_state: Mapping[str, np.ndarray] | None = None, ahead: Sequence[Pair] = (),
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """(model arrays, daemon arrays, metadata) of one robot, copied (safe to write later).
+
+    ``model_state``: the model's ``state_dict`` when a worker process sent it (else it is
+    taken from ``rt.model``); ``ahead``: pairs in flight to that worker, saved queued.
 
     ``session_id``/``session_segment`` say where in the session logs the model stands (the
     recorder's session and the number of resets in it; ``""`` without recording): start-up
     recovery reads the log tail from there (with ``counters.last_learned_tick`` to check it).
     """
-    model = {k: np.array(v, copy=True) for k, v in rt.model.state_dict().items()}
+    if model_state is None:
+        model = {k: np.array(v, copy=True) for k, v in rt.model.state_dict().items()}
+    else:  # a worker's state: already this snapshot's own arrays
+        model = dict(model_state)
     meta: dict[str, Any] = {
         "created_unix_ns": created_unix_ns,
         "reason": reason,
@@ -106,7 +114,7 @@ def checkpoint_snapshot(
     }
     if extra:
         meta.update(extra)
-    return model, rt.daemon_arrays(), meta
+    return model, rt.daemon_arrays(ahead), meta
 
 
 class Recorder(Protocol):
@@ -185,6 +193,7 @@ class Service:
         sync_checkpoints: bool = False,
         resumed: Mapping[str, str] | None = None,
         checkpoint_meta: Callable[[RobotRuntime], dict[str, Any]] | None = None,
+        learners: Any = None,
     ) -> None:
         self.config = config
         self.transport = transport
@@ -219,6 +228,9 @@ class Service:
         self.final_checkpoints_ok = True
         self._reported: set[str] = set()
         self._recorder_failed: set[str] = set()
+        # roger_daemon.learners.ProcessLearners: the models live in worker processes
+        self.learners = learners
+        self._committer: ThreadPoolExecutor | None = None
         self._health = {r: Health() for r in self.robots}
         # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
         self._acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
@@ -243,6 +255,11 @@ class Service:
         self.transport.declare_token(keys.daemon_liveliness(self.config.id))
         if not self._sync_ckpt:
             self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roger-ckpt")
+        if self.learners is not None:
+            self.learners.attach(self, self.inbox.wake)
+            # fdatasync releases the GIL: the robots' logs commit side by side
+            self._committer = ThreadPoolExecutor(max_workers=min(8, len(self.robots)),
+                                                 thread_name_prefix="roger-wal")
         self._next_tick = now + self._period_ns
         self._next_status = now + self._status_period_ns
         for rt in self.robots.values():  # the baseline that health changes are judged from
@@ -278,6 +295,8 @@ class Service:
         self.notifier.stopping("aborting after an error")
         if self._writer is not None:
             self._writer.shutdown(wait=True)
+        if self.learners is not None:
+            self.learners.close(kill=True)
         self._close_wals()
         for robot, rec in self.recorders.items():
             try:
@@ -305,6 +324,9 @@ class Service:
             item = self.inbox.get(0) if budget > 0 else None
         if self._answer:
             self._answer_lockstep()
+        if self.learners is not None:
+            self.learners.pump(self._next_tick if self._realtime and self._timer_active()
+                               else None)
         now = self.clock.monotonic_ns()
         if self._realtime and now >= self._next_tick:
             self._on_timer(now)
@@ -335,6 +357,8 @@ class Service:
         return any(rt.predicting and rt.newest is not None for rt in self.robots.values())
 
     def _can_learn(self, now: int) -> bool:
+        if self.learners is not None:
+            return False  # the workers learn; the loop only feeds them (learners.pump)
         if not any(rt.learning and rt.queue for rt in self.robots.values()):
             return False
         if not self._realtime or not self._timer_active() or not self._learned_since_tick:
@@ -416,6 +440,8 @@ class Service:
         """
         answer, self._answer = self._answer, []
         for rt in {id(a[0]): a[0] for a in answer}.values():
+            if self.learners is not None:
+                self.learners.learn_all(rt)
             while rt.learning and rt.queue:
                 rt.learn_one()
         for rt, msg, recv_ns in answer:
@@ -436,6 +462,8 @@ class Service:
                 log.info("%s: mode %s -> %s", rt.robot, rt.mode, msg.mode)
             rt.mode = msg.mode
         elif msg.op == "reset":
+            if self.learners is not None:
+                self.learners.drain(rt)  # what it learned before is logged before the reset
             log.info("%s: reset requested: forgetting %d learned pairs", rt.robot, rt.updates)
             rt.reset()
         elif msg.op == "checkpoint":
@@ -456,6 +484,9 @@ class Service:
         self._record(rt.robot, key, payload, self.clock.time_ns(), msg.stamp_ns, msg.tick)
 
     def _publish_prediction(self, rt: RobotRuntime, perc: Perception, recv_ns: int) -> None:
+        if self.learners is not None:  # answered in worker_prediction
+            self.learners.predict(rt, perc, recv_ns, skip_busy=self._realtime)
+            return
         self._commit(rt)  # acknowledged means durable: the updates it reports are on disk
         try:
             pred = rt.predict(perc, recv_ns, self.clock.monotonic_ns)
@@ -468,6 +499,38 @@ class Service:
         self._publish(rt, self._pubs[rt.robot].prediction, keys.prediction(rt.robot), pred)
         self.stats.published += 1
 
+    def worker_predictions(self, batch: Sequence[tuple[Any, ...]]) -> None:
+        """Publish predictions learner workers computed: ``(rt, reply, perception,
+        receipt ns)`` each. Every pair they count was bookkept before their replies arrived:
+        commit the robots' logs (in parallel), then publish."""
+        self._commit_all({id(b[0]): b[0] for b in batch}.values())
+        for rt, reply, perc, recv_ns in batch:
+            self._worker_prediction(rt, reply, perc, recv_ns)
+
+    def _commit_all(self, robots: Iterable[RobotRuntime]) -> None:
+        """With worker processes: commit the dirty logs of ``robots`` side by side."""
+        dirty = [rt.wal for rt in robots if rt.wal is not None and rt.wal.dirty]
+        if len(dirty) > 1 and self._committer is not None:
+            list(self._committer.map(lambda w: w.commit(), dirty))
+
+    def _worker_prediction(self, rt: RobotRuntime, reply: dict[str, Any], perc: Perception,
+                           recv_ns: int) -> None:
+        if not reply.get("ok"):
+            rt.predict_errors += 1
+            if rt.predict_errors == 1:
+                log.error("%s: prediction for tick %d failed in the worker (%s); further "
+                          "failures are only counted", rt.robot, perc.tick, reply.get("error"))
+            return
+        self._commit(rt)
+        msg = decode("prediction", reply["pred"], dims=rt.dims, robot=rt.robot)
+        assert isinstance(msg, Prediction)
+        latency_ms = (self.clock.monotonic_ns() - recv_ns) / 1e6
+        rt.predict_ms.add(float(reply["ms"]))
+        rt.latency.add(latency_ms)
+        pred = replace(msg, latency_ms=latency_ms, mode=rt.mode, stamp_ns=self.clock.time_ns())
+        self._publish(rt, self._pubs[rt.robot].prediction, keys.prediction(rt.robot), pred)
+        self.stats.published += 1
+
     def _on_timer(self, now: int) -> None:
         continuing = self._last_fire is not None  # the previous tick published too
         published = False
@@ -477,6 +540,8 @@ class Service:
                 self._publish_prediction(rt, perc, recv_ns)
                 published = True
         self._learned_since_tick = False
+        if self.learners is not None:
+            self.learners.new_tick()
         if not published:
             self._last_fire = None
             self._next_tick = max(self._next_tick + self._period_ns, now)
@@ -533,12 +598,15 @@ class Service:
             "wal_commit_ms_p99": _pct(rt.wal.commit_ms, 99) if rt.wal is not None else 0.0,
             "wal_commit_ms_max": 0.0 if rt.wal is None else round(rt.wal.commit_ms_max, 3),
             "resent_pairs": rt.resent,
+            "workers": "inline",
             "controls": self._acks[rt.robot][0],
             "control_op": self._acks[rt.robot][1],
             "control_stamp_ns": self._acks[rt.robot][2],
             "level": self._health[rt.robot].last[0],
             "level_reasons": self._health[rt.robot].last[1],
         }
+        if self.learners is not None:
+            info.update(self.learners.info(rt))
         return Status(
             rt.robot, rt.last_tick, rt.last_t, daemon=self.config.id, mode=rt.mode,
             ticks=rt.ticks, updates=rt.updates, updates_per_s=rt.updates_per_s(now),
@@ -557,6 +625,7 @@ class Service:
 
     def _publish_status(self, now: int) -> None:
         lines = []
+        self._commit_all(self.robots.values())
         for rt in self.robots.values():
             self._commit(rt)
             st = self.status_of(rt, now)
@@ -587,21 +656,33 @@ class Service:
             if by_updates or by_time:
                 self._checkpoint(rt, "periodic")
 
-    def _snapshot(self, rt: RobotRuntime, reason: str) -> tuple[dict[str, Any], ...]:
+    def _snapshot(self, rt: RobotRuntime, reason: str,
+                  model_state: Mapping[str, np.ndarray] | None = None,
+                  ahead: Sequence[Pair] = ()) -> tuple[dict[str, Any], ...]:
         rec = self.recorders.get(rt.robot)
         model, daemon, meta = checkpoint_snapshot(
             rt, reason, daemon_id=self.config.id, created_unix_ns=self.clock.time_ns(),
             session_id=str(getattr(rec, "session_id", "") or ""),
             session_segment=rt.session_resets,
             extra=self._checkpoint_meta(rt) if self._checkpoint_meta is not None else None,
+            model_state=model_state, ahead=ahead,
         )
         # the same counts as status (restored into rt.invalid; self.unserved restarts at 0)
         meta["counters"]["invalid"] = self.invalid_counts(rt)
         return model, daemon, meta
 
     def _checkpoint(self, rt: RobotRuntime, reason: str, *, sync: bool = False) -> None:
+        if self.learners is not None:  # the worker sends its state to write_snapshot
+            self.learners.snapshot(rt, reason, sync=sync)
+            return
+        self.write_snapshot(rt, reason, None, sync=sync)
+
+    def write_snapshot(self, rt: RobotRuntime, reason: str,
+                       model_state: Mapping[str, np.ndarray] | None, *,
+                       ahead: Sequence[Pair] = (), sync: bool = False) -> None:
+        """Checkpoint ``rt`` (with the model state a worker sent, if given)."""
         st = self._ckpt[rt.robot]
-        model, daemon, meta = self._snapshot(rt, reason)
+        model, daemon, meta = self._snapshot(rt, reason, model_state, ahead)
         c = self.config.checkpoint
         st.time_ns = self.clock.monotonic_ns()
         gen = rt.generation
@@ -724,6 +805,20 @@ class Service:
                 except OSError as exc:
                     log.error("%s: closing the write-ahead log failed: %s", rt.robot, exc)
 
+    def _learn_queued(self, until: float) -> None:
+        """Shutdown: learn queued pairs until ``until`` (``time.monotonic``); with workers,
+        then wait for every pair in flight (learned and logged) and every snapshot."""
+        while time.monotonic() < until and any(
+            rt.learning and rt.queue for rt in self.robots.values()
+        ):
+            if self.learners is None:
+                self._learn_once()
+            else:
+                self.learners.pump()
+                self.learners.wait_one(0.05)
+        if self.learners is not None:
+            self.learners.drain()
+
     def shutdown(self) -> None:
         """Stop intake, drain, learn what fits, checkpoint, close recorders and transport."""
         if self._stopping:
@@ -738,11 +833,7 @@ class Service:
             while item is not None:
                 self._handle(item)
                 item = self.inbox.get(0)
-            budget = self.config.checkpoint.shutdown_learn_s
-            while time.monotonic() - t0 < budget and any(
-                rt.learning and rt.queue for rt in self.robots.values()
-            ):
-                self._learn_once()
+            self._learn_queued(t0 + self.config.checkpoint.shutdown_learn_s)
             self._collect_checkpoints(wait=True)
             if self.config.checkpoint.on_shutdown:
                 for rt in self.robots.values():
@@ -759,6 +850,10 @@ class Service:
         finally:
             if self._writer is not None:
                 self._writer.shutdown(wait=True)
+            if self.learners is not None:
+                self.learners.close()
+            if self._committer is not None:
+                self._committer.shutdown(wait=True)
             self._close_wals()
             for robot, rec in self.recorders.items():
                 try:

@@ -60,6 +60,7 @@ class Incoming:
 
 
 Deliver = Callable[[Incoming], None]
+_WAKE = Incoming("", None, 0, 0, 0)  # Inbox.wake's marker, never handed to the loop
 
 
 class Publisher(Protocol):
@@ -111,10 +112,20 @@ class Inbox:
     def get(self, timeout: float) -> Incoming | None:
         try:
             if timeout <= 0:
-                return self._q.get_nowait()
-            return self._q.get(timeout=timeout)
+                item = self._q.get_nowait()
+            else:
+                item = self._q.get(timeout=timeout)
         except queue.Empty:
             return None
+        return None if item is _WAKE else item
+
+    def wake(self) -> None:
+        """End the loop's current wait in :meth:`get` (a learner worker replied). Never
+        blocks; dropped when the inbox is full (the loop is not waiting then)."""
+        try:
+            self._q.put_nowait(_WAKE)
+        except queue.Full:
+            pass
 
     @property
     def overflow(self) -> int:

@@ -331,7 +331,9 @@ def run_job(job: EpisodeJob) -> JobResult:
                 job.workdir / "daemon.toml",
                 port=aux_port,
                 workdir=job.workdir,
-                daemon={"mode": "predict", "clock": "lockstep", "seed": job.learner_seed},
+                # predict mode: no learning to move off the loop, so no worker process hop
+                daemon={"mode": "predict", "clock": "lockstep", "seed": job.learner_seed,
+                        "workers": "inline"},
                 checkpoint={"dir": ck, "on_shutdown": False, "every_updates": 0,
                             "every_s": 0.0},
                 recording={"enabled": False},

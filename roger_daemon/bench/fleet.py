@@ -1,0 +1,379 @@
+"""``roger bench fleet``: N simulated robots x 30 Hz against one real daemon, learning.
+
+The daemon runs as a subprocess on a free loopback port and serves robots ``r0`` .. ``r<N-1>``
+(each with its own model and seed); this process plays every robot with one Zenoh session.
+Each robot feeds its own slice of the shipped synthetic stream
+(:func:`roger_daemon.learner.synthetic.subtask_stream`, 23-D perception, 9-D actions with
+subtask labels). Two phases, each with a fresh daemon (``--clock both``, the default):
+
+- **realtime**: a sender thread publishes perception(t) and action(t) of every robot at
+  ``--rate`` Hz (robots in a rotating order, so that no robot is always sent first); the
+  daemon publishes a prediction per robot on its own 30 Hz timer. Per robot:
+  ``updates_per_s`` (from the daemon's status, over the measured window), ``dropped``
+  (training queue overflow, whole run), ``predictions_per_s`` and ``jitter_p99_ms``
+  (|interval between two predictions received - 1/rate|, client side). Daemon-wide: the
+  timer's own period jitter (status ``info.period_jitter_ms_p99``).
+- **lockstep**: every robot publishes perception(t) at ``--rate`` Hz, and action(t) as soon
+  as prediction(t) arrived (as ``roger bench daemon``'s lockstep phase). ``latency_p50/p99_ms``
+  is perception(t) published -> prediction(t) received, measured here (one clock); it
+  includes any time the perception waits for learning in the daemon.
+
+CPU: utime + stime of the daemon and its child processes (its learner workers), from
+``/proc``, over the measured window, in % of one core. The first ``--warmup`` seconds of each
+phase are not measured. ``loadavg`` is reported before and after: the figures depend on what
+else runs on the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import queue
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from protocols import Action, Perception, decode, encode, keys
+from protocols.aibo import DIMS, SUBTASKS
+from roger_daemon.harness import DaemonProcess, free_port, write_config
+from roger_daemon.learner.synthetic import subtask_stream
+
+__all__ = ["FleetClient", "child_pids", "configure", "feed", "proc_cpu_s", "run"]
+
+TARGETS = {"dropped": 0, "updates_per_s_min": 29.5, "predictions_per_s_min": 29.5,
+           "latency_p99_ms": 10.0, "jitter_p99_ms": 5.0}
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``roger bench fleet``."""
+    parser.add_argument("--robots", type=int, default=8, help="simulated robots (default 8)")
+    parser.add_argument("--seconds", type=float, default=30.0,
+                        help="measured seconds of each phase (default 30)")
+    parser.add_argument("--rate", type=float, default=30.0, help="feed rate per robot (Hz)")
+    parser.add_argument("--warmup", type=float, default=2.0,
+                        help="unmeasured seconds at the start of each phase (default 2)")
+    parser.add_argument("--clock", choices=("both", "realtime", "lockstep"), default="both",
+                        help="which phases to run (default both)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="SECTION.KEY=VALUE",
+                        help="daemon config override, e.g. daemon.workers=inline")
+    parser.add_argument("--no-recording", action="store_true",
+                        help="switch the daemon's MCAP recording off (on by default, as in "
+                             "production)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="keep the daemon's config, log, checkpoints and recordings here")
+
+
+def _pct(values: Any, q: float) -> float:
+    a = np.asarray(values, dtype=np.float64)
+    return float(np.percentile(a, q)) if a.size else float("nan")
+
+
+def child_pids(pid: int) -> list[int]:
+    out: list[int] = []
+    try:
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/children", encoding="ascii") as f:
+                out += [int(c) for c in f.read().split()]
+    except OSError:
+        pass
+    return out
+
+
+def proc_cpu_s(pid: int, *, children: bool = True) -> float:
+    """CPU seconds (user + system) used so far by ``pid`` and its live child processes."""
+    total = 0.0
+    tick = os.sysconf("SC_CLK_TCK")
+    for p in [pid, *(child_pids(pid) if children else [])]:
+        try:
+            with open(f"/proc/{p}/stat", encoding="ascii") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+        except (OSError, IndexError, ValueError):
+            continue
+    return total
+
+
+class FleetClient:
+    """One Zenoh session playing every robot; collects predictions and status."""
+
+    def __init__(self, connect: str, robots: list[str]) -> None:
+        import zenoh
+
+        cfg = zenoh.Config()
+        cfg.insert_json5("mode", '"peer"')
+        cfg.insert_json5("connect/endpoints", json.dumps([connect]))
+        cfg.insert_json5("listen/endpoints", "[]")
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        self.session = zenoh.open(cfg)
+        self.robots = robots
+        self.sent: dict[str, dict[int, int]] = {r: {} for r in robots}
+        self.preds: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}  # (recv, tick)
+        self.status: dict[str, list[tuple[int, Any]]] = {r: [] for r in robots}
+        self.answered: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
+        self.errors = 0
+        cc = zenoh.CongestionControl.BLOCK  # the feed must not lose its own messages
+        self._pubs = {(r, k): self.session.declare_publisher(
+            keys.key(r, k), congestion_control=cc, priority=zenoh.Priority.REAL_TIME,
+            express=True) for r in robots for k in ("perception", "action")}
+        self._subs = [self.session.declare_subscriber("roger/*/prediction", self._on_pred),
+                      self.session.declare_subscriber("roger/*/status", self._on_status)]
+        self.lockstep = False
+
+    def _on_pred(self, sample: Any) -> None:
+        now = time.monotonic_ns()
+        robot = str(sample.key_expr).split("/")[1]
+        try:
+            msg = decode("prediction", sample.payload.to_bytes(), dims=DIMS, robot=robot)
+        except Exception:
+            self.errors += 1
+            return
+        self.preds[robot].append((now, msg.tick))
+        if self.lockstep:
+            self.answered.put((robot, msg.tick))
+
+    def _on_status(self, sample: Any) -> None:
+        robot = str(sample.key_expr).split("/")[1]
+        try:
+            msg = decode("status", sample.payload.to_bytes(), dims=DIMS, robot=robot)
+        except Exception:
+            self.errors += 1
+            return
+        self.status[robot].append((time.monotonic_ns(), msg))
+
+    def perception(self, robot: str, tick: int, x: np.ndarray) -> None:
+        self.sent[robot][tick] = time.monotonic_ns()
+        self._pubs[(robot, "perception")].put(
+            encode(Perception(robot, tick, tick / 30.0, x=x)))
+
+    def action(self, robot: str, tick: int, y: np.ndarray, label: str) -> None:
+        self._pubs[(robot, "action")].put(
+            encode(Action(robot, tick, tick / 30.0, y=y, label=label)))
+
+    def last_status(self, before_ns: int) -> dict[str, Any]:
+        """The last status of every robot received before ``before_ns``."""
+        return {r: [m for t, m in self.status[r] if t < before_ns][-1] for r in self.robots}
+
+    def wait_status(self, after_ns: int, timeout: float = 15.0) -> dict[str, Any]:
+        """The first status of every robot received after ``after_ns``."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            got = {r: next((m for t, m in self.status[r] if t >= after_ns), None)
+                   for r in self.robots}
+            if all(m is not None for m in got.values()):
+                return got
+            time.sleep(0.05)
+        raise TimeoutError("no status from every robot")
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def _stream_of(stream: Any, i: int, n: int, tick: int) -> tuple[np.ndarray, np.ndarray, str]:
+    k = (tick + i * (len(stream.x) // max(n, 1))) % len(stream.x)
+    return stream.x[k], stream.y[k], SUBTASKS[int(stream.labels[k]) % len(SUBTASKS)]
+
+
+def feed(fleet: FleetClient, stream: Any, args: argparse.Namespace, lockstep: bool,
+          stop_at: float) -> int:
+    """Publish at ``args.rate`` until ``stop_at``; in lockstep actions follow predictions."""
+    n = len(fleet.robots)
+    period = 1.0 / args.rate
+    t0 = time.monotonic()
+    tick = 0
+    while time.monotonic() < stop_at:
+        for j in range(n):
+            i = (tick + j) % n
+            r = fleet.robots[i]
+            x, y, label = _stream_of(stream, i, n, tick)
+            fleet.perception(r, tick, x)
+            if not lockstep:
+                fleet.action(r, tick, y, label)
+        tick += 1
+        while True:  # lockstep: answer predictions with actions until the next tick
+            left = t0 + tick * period - time.monotonic()
+            if left <= 0:
+                break
+            if not lockstep:
+                time.sleep(left)
+                break
+            try:
+                r, t = fleet.answered.get(timeout=left)
+            except queue.Empty:
+                break
+            i = fleet.robots.index(r)
+            _x, y, label = _stream_of(stream, i, n, t)
+            fleet.action(r, t, y, label)
+    return tick
+
+
+def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, Any, Any],
+                  rate: float, lockstep: bool) -> dict[str, Any]:
+    s0, s1, end = st
+    preds = [(t, k) for t, k in fleet.preds[r] if w0 <= t < w1]
+    recv = np.asarray([t for t, _ in preds], dtype=np.int64)
+    nominal = 1000.0 / rate
+    jitter = np.abs(np.diff(recv) / 1e6 - nominal) if len(recv) > 1 else np.zeros(0)
+    dt = s1.uptime_s - s0.uptime_s
+    out: dict[str, Any] = {
+        "updates_per_s": (s1.updates - s0.updates) / dt if dt > 0 else float("nan"),
+        "dropped": int(end.dropped),
+        "predictions_per_s": len(preds) / ((w1 - w0) / 1e9),
+        # what this process managed to send: on a starved machine the feed itself lags
+        "fed_per_s": sum(w0 <= t < w1 for t in fleet.sent[r].values()) / ((w1 - w0) / 1e9),
+        "jitter_p99_ms": _pct(jitter, 99),
+        "queue_depth_end": int(end.queue_depth),
+        "updates": int(end.updates), "experts": int(end.experts),
+        "daemon_latency_p99_ms": float(end.latency_ms_p99),
+    }
+    if lockstep:
+        sent = fleet.sent[r]
+        lat = [(t - sent[k]) / 1e6 for t, k in preds if k in sent]
+        out["latency_p50_ms"] = _pct(lat, 50)
+        out["latency_p99_ms"] = _pct(lat, 99)
+        out["latency_max_ms"] = max(lat) if lat else float("nan")
+    return out
+
+
+def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: Any) -> dict[str, Any]:
+    robots = [f"r{i}" for i in range(args.robots)]
+    port = free_port()
+    cfg = write_config(
+        workdir / f"{clock}.toml", port=port, workdir=workdir / clock,
+        daemon={"clock": clock, "rate_hz": args.rate, "queue_size": 256},
+        recording={"enabled": not args.no_recording},
+        robots=[{"id": r, "seed": i} for i, r in enumerate(robots)])
+    daemon = DaemonProcess(cfg, args=["--fresh", *(a for o in args.overrides
+                                                   for a in ("--set", o))])
+    fleet: FleetClient | None = None
+    code = None
+    try:
+        daemon.wait_ready(120.0)
+        fleet = FleetClient(f"tcp/127.0.0.1:{port}", robots)
+        fleet.lockstep = clock == "lockstep"
+        time.sleep(1.0)  # let the link and the declarations settle
+        start = time.monotonic()
+        w0 = int((start + args.warmup) * 1e9)
+        w1 = int((start + args.warmup + args.seconds) * 1e9)
+        feeder = threading.Thread(target=feed, args=(fleet, stream, args, fleet.lockstep,
+                                                      start + args.warmup + args.seconds))
+        feeder.start()
+        time.sleep(args.warmup)
+        pid = daemon.proc.pid
+        cpu0, main0, c0 = proc_cpu_s(pid), proc_cpu_s(pid, children=False), time.monotonic()
+        s0 = fleet.wait_status(w0)
+        feeder.join()
+        cpu1, main1, c1 = proc_cpu_s(pid), proc_cpu_s(pid, children=False), time.monotonic()
+        end = fleet.wait_status(w1 + 500_000_000)
+        s1 = fleet.last_status(w1)
+        per = {r: _robot_result(fleet, r, w0, w1, (s0[r], s1[r], end[r]), args.rate,
+                                fleet.lockstep) for r in robots}
+        info = end[robots[0]].info
+        result: dict[str, Any] = {
+            "robots": per,
+            "daemon_cpu_percent": 100.0 * (cpu1 - cpu0) / (c1 - c0),
+            "daemon_main_cpu_percent": 100.0 * (main1 - main0) / (c1 - c0),
+            "daemon_period_jitter_p99_ms": float(info.get("period_jitter_ms_p99", 0.0)),
+            "missed_ticks": int(info.get("missed_ticks", 0)),
+            "workers": info.get("workers", "inline"),
+            "decode_errors": fleet.errors,
+        }
+    finally:
+        if fleet is not None:
+            fleet.close()
+        if daemon.proc.poll() is None:
+            code, _ = daemon.terminate(60.0)
+        else:
+            daemon.kill()
+            code = daemon.proc.returncode
+    result["exit_code"] = code
+    return result
+
+
+def _worst(phase: dict[str, Any], key: str, fn: Any) -> float:
+    vals = [float(v[key]) for v in phase["robots"].values() if key in v]
+    return float(fn(vals)) if vals else float("nan")
+
+
+def _summary(phases: dict[str, Any]) -> dict[str, Any]:
+    rt, ls = phases.get("realtime"), phases.get("lockstep")
+    s: dict[str, Any] = {}
+    if rt:
+        s["dropped_total"] = int(sum(v["dropped"] for v in rt["robots"].values()))
+        s["updates_per_s_min"] = _worst(rt, "updates_per_s", min)
+        s["predictions_per_s_min"] = _worst(rt, "predictions_per_s", min)
+        s["jitter_p99_ms_max"] = _worst(rt, "jitter_p99_ms", max)
+        s["daemon_period_jitter_p99_ms"] = rt["daemon_period_jitter_p99_ms"]
+    if ls:
+        s["latency_p99_ms_max"] = _worst(ls, "latency_p99_ms", max)
+        s["latency_p50_ms_max"] = _worst(ls, "latency_p50_ms", max)
+        s["lockstep_predictions_per_s_min"] = _worst(ls, "predictions_per_s", min)
+        s["lockstep_dropped_total"] = int(sum(v["dropped"] for v in ls["robots"].values()))
+    checks = []
+    if rt:
+        checks += [s["dropped_total"] == 0,
+                   s["updates_per_s_min"] >= TARGETS["updates_per_s_min"],
+                   s["predictions_per_s_min"] >= TARGETS["predictions_per_s_min"],
+                   s["jitter_p99_ms_max"] <= TARGETS["jitter_p99_ms"]]
+    if ls:
+        checks.append(s["latency_p99_ms_max"] <= TARGETS["latency_p99_ms"])
+    s["meets_targets"] = bool(checks) and all(checks)
+    return s
+
+
+def _print_table(result: dict[str, Any]) -> None:
+    m = result["machine"]
+    print(f"roger bench fleet: {result['settings']['robots']} robots x "
+          f"{result['settings']['rate_hz']:g} Hz, {result['settings']['seconds']:g} s per "
+          f"phase ({m['cpus']} CPUs, load {m['loadavg_before'][0]:.2f} before, "
+          f"{m['loadavg_after'][0]:.2f} after)")
+    for name, ph in result["phases"].items():
+        print(f"\n{name}: workers {ph['workers']}, daemon CPU {ph['daemon_cpu_percent']:.0f} % "
+              f"of one core (loop process {ph['daemon_main_cpu_percent']:.0f} %), timer "
+              f"jitter p99 {ph['daemon_period_jitter_p99_ms']:.2f} ms, "
+              f"missed ticks {ph['missed_ticks']}")
+        print(f"  {'robot':<6} {'upd/s':>7} {'dropped':>8} {'pred/s':>7} {'jit p99':>8} "
+              f"{'lat p50':>8} {'lat p99':>8} {'queue':>6}")
+        for r, v in ph["robots"].items():
+            print(f"  {r:<6} {v['updates_per_s']:7.2f} {v['dropped']:8d} "
+                  f"{v['predictions_per_s']:7.2f} {v['jitter_p99_ms']:8.2f} "
+                  f"{v.get('latency_p50_ms', float('nan')):8.2f} "
+                  f"{v.get('latency_p99_ms', float('nan')):8.2f} {v['queue_depth_end']:6d}")
+    print(f"\nsummary: {json.dumps(result['summary'])}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the phases; print a table or one JSON object."""
+    if args.robots < 1 or args.seconds <= 0 or args.rate <= 0:
+        print("roger bench fleet: --robots >= 1, --seconds > 0 and --rate > 0 are required")
+        return 2
+    stream = subtask_stream(4000)
+    load_before = os.getloadavg()
+    clocks = ("realtime", "lockstep") if args.clock == "both" else (args.clock,)
+    phases: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="roger-bench-fleet-") as tmp:
+        workdir = args.keep or Path(tmp)
+        workdir.mkdir(parents=True, exist_ok=True)
+        for clock in clocks:
+            phases[clock] = _phase(workdir, args, clock, stream)
+    result = {
+        "phases": phases, "summary": _summary(phases), "targets": TARGETS,
+        "settings": {"robots": args.robots, "seconds": args.seconds, "rate_hz": args.rate,
+                     "warmup_s": args.warmup, "recording": not args.no_recording,
+                     "overrides": list(args.overrides)},
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "platform": platform.platform(), "loadavg_before": load_before,
+                    "loadavg_after": os.getloadavg()},
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print_table(result)
+    return 0

@@ -1,0 +1,365 @@
+"""The daemon's side of the learner workers: one process per robot owns that robot's model.
+
+With ``[daemon] workers = "process"`` (the default) the service loop keeps Zenoh, pairing,
+the training queues, the write-ahead log, recording, status and publishing; each robot's
+model lives in its own worker process (:mod:`roger_daemon.worker`), started with
+``subprocess`` (a fresh interpreter: nothing forked after Zenoh opened, nothing pickled) and
+driven over its stdin/stdout with msgpack frames. Robots learn in parallel on every core, and
+no robot waits for another's learning.
+
+Ordering is what keeps the daemon's guarantees: a worker answers its requests one by one, in
+order, and one reader thread per worker hands the replies to the loop in that order. So
+
+- a learn reply is bookkept (label code, write-ahead log record, ``updates``) exactly as an
+  in-process ``learn_one`` would be, and in the same order;
+- a prediction reflects every pair sent before it; when it arrives, every earlier learn reply
+  has been bookkept, so the loop commits the log and then publishes (acknowledged means
+  durable); lockstep sends the queued pairs, then the prediction request, so prediction(t)
+  includes what it includes in-process (replay stays exact);
+- a snapshot (checkpoint) is consistent with the loop's bookkeeping when it arrives; pairs
+  sent after the snapshot request go to the front of the checkpoint's queue;
+- ``reset`` first drains the worker (pending replies bookkept), then replaces its model.
+
+At most ``depth`` learn requests are in flight per worker (1), so a prediction waits for at
+most one learning step. In realtime a robot whose previous prediction is still being computed
+skips that tick (counted as ``info.worker_busy_ticks``). A worker that dies or answers
+``fatal`` raises :class:`WorkerError` in the loop, which aborts the daemon (exit 1; the
+write-ahead log holds every acknowledged pair for the restart); a wait for a worker has a
+deadline and never hangs.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.robot import Pair, RobotRuntime
+from roger_daemon.worker import pack_arrays, read_frame, unpack_arrays, write_frame
+
+__all__ = ["ProcessLearners", "RemoteModel", "WorkerError"]
+
+log = logging.getLogger(__name__)
+
+WORKER_MODES = ("process", "inline")
+
+
+class WorkerError(RuntimeError):
+    """A learner worker died, failed or did not answer in time."""
+
+
+class RemoteModel:
+    """``RobotRuntime.model`` when a worker owns the model: the counts the loop reports.
+
+    ``reset`` replaces the model through :meth:`fresh` (``RobotRuntime.make_model``).
+    """
+
+    def __init__(self, owner: ProcessLearners, robot: str, n_learned: int,
+                 n_experts: int) -> None:
+        self._owner, self._robot = owner, robot
+        self.n_learned = n_learned
+        self.n_experts = n_experts
+
+    def fresh(self) -> RemoteModel:
+        self._owner.send(self._robot, {"op": "fresh"}, None)
+        self.n_learned, self.n_experts = 0, 0
+        return self
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        raise WorkerError("the model lives in a worker process: use ProcessLearners.snapshot")
+
+
+@dataclass
+class _Slot:
+    rt: RobotRuntime
+    proc: subprocess.Popen[bytes]
+    model: RemoteModel | None = None
+    pending: deque[tuple[str, Any]] = field(default_factory=deque)
+    learns: int = 0
+    predicts: int = 0
+    snapshots: int = 0
+    busy_ticks: int = 0
+    learn_est_ns: int = 0  # send -> reply of a learn request, decaying maximum
+    since_tick: bool = False  # a learn was sent since the last timer tick
+    thread: threading.Thread | None = None
+
+
+def _vec(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype="<f8").tobytes()
+
+
+class ProcessLearners:
+    """One worker process per robot; see the module docstring.
+
+    Parameters
+    ----------
+    robots
+        The runtimes, models loaded (and recovered) in this process; each model is handed to
+        its worker and replaced by a :class:`RemoteModel`.
+    configs
+        Robot id -> :class:`~roger_daemon.config.RobotConfig` (model kind, seed, params).
+    timeout_s
+        Deadline of every blocking wait for a worker (start, snapshot, drain).
+    """
+
+    depth = 1
+
+    def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
+                 timeout_s: float = 120.0) -> None:
+        self.timeout_s = timeout_s
+        self._replies: queue.SimpleQueue[tuple[str, dict[str, Any] | None]] = \
+            queue.SimpleQueue()
+        self._wake: Callable[[], None] = lambda: None
+        self._service: Any = None
+        self.slots: dict[str, _Slot] = {}
+        try:
+            for robot, rt in robots.items():  # start them all first: they import in parallel
+                proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.worker"],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+                reader = threading.Thread(target=self._read, args=(robot, proc), daemon=True,
+                                          name=f"roger-worker-{robot}")
+                self.slots[robot] = _Slot(rt, proc, thread=reader)
+                reader.start()
+            for robot, rt in robots.items():
+                self._load(robot, rt, configs[robot])
+            self._wait(lambda: all(not s.pending for s in self.slots.values()), "start")
+        except BaseException:
+            self.close(kill=True)
+            raise
+        for robot, s in self.slots.items():
+            log.info("%s: learner worker pid %d owns the model (%d updates)", robot,
+                     s.proc.pid, s.rt.updates)
+
+    def _load(self, robot: str, rt: RobotRuntime, cfg: Any) -> None:
+        self.send(robot, {
+            "op": "load", "robot": robot, "x_dim": rt.dims.x, "y_dim": rt.dims.y,
+            "model": cfg.model, "seed": cfg.seed, "params": cfg.params.to_mapping(),
+            "state": pack_arrays(rt.model.state_dict()),
+            "codes": pack_arrays({"codes": rt.codes}),
+        }, None)
+        model = RemoteModel(self, robot, rt.updates, int(rt.model.n_experts))
+        self.slots[robot].model = model
+        rt.model = model
+        rt.make_model = model.fresh
+
+    # --- plumbing --------------------------------------------------------------------------
+
+    def _read(self, robot: str, proc: subprocess.Popen[bytes]) -> None:
+        assert proc.stdout is not None
+        while True:
+            try:
+                frame = read_frame(proc.stdout)
+            except (OSError, ValueError) as exc:
+                log.error("%s: unreadable reply from the learner worker: %s", robot, exc)
+                frame = None
+            self._replies.put((robot, frame))
+            self._wake()
+            if frame is None or "fatal" in frame:
+                return
+
+    def send(self, robot: str, req: dict[str, Any], ctx: Any) -> None:
+        """Send one request; its reply is handled with ``ctx`` (in order)."""
+        s = self.slots[robot]
+        assert s.proc.stdin is not None
+        try:
+            write_frame(s.proc.stdin, req)
+        except (OSError, ValueError) as exc:
+            raise WorkerError(self._died(robot, f"cannot send to it ({exc})")) from None
+        s.pending.append((str(req["op"]), ctx))
+
+    def _died(self, robot: str, why: str) -> str:
+        s = self.slots[robot]
+        try:
+            code: int | None = s.proc.wait(1.0)
+        except subprocess.TimeoutExpired:
+            code = None
+        return (f"{robot}: learner worker pid {s.proc.pid} failed: {why} (exit status "
+                f"{code}); stopping the daemon (the write-ahead log holds every acknowledged "
+                "pair)")
+
+    def attach(self, service: Any, wake: Callable[[], None]) -> None:
+        """Route replies to ``service`` and wake its loop with ``wake`` on each."""
+        self._service, self._wake = service, wake
+
+    def _wait(self, done: Callable[[], bool], what: str) -> None:
+        end = time.monotonic() + self.timeout_s
+        while not done():
+            left = end - time.monotonic()
+            try:
+                if left <= 0:
+                    raise queue.Empty
+                item = self._replies.get(timeout=left)
+            except queue.Empty:
+                raise WorkerError(f"no reply from a learner worker within {self.timeout_s:g} s "
+                                  f"({what})") from None
+            self._dispatch(*item)
+
+    # --- replies ---------------------------------------------------------------------------
+
+    def pump(self, deadline_ns: int | None = None) -> None:
+        """Handle every reply that arrived, then keep each worker fed with learning
+        (:meth:`feed`). Predictions of the batch are published together
+        (``service.worker_predictions``: one parallel write-ahead log commit for all)."""
+        batch: list[tuple[Any, ...]] = []
+        while True:
+            try:
+                item = self._replies.get_nowait()
+            except queue.Empty:
+                break
+            self._dispatch(*item, batch=batch)
+        if batch:
+            self._service.worker_predictions(batch)
+        self.feed(deadline_ns)
+
+    def _dispatch(self, robot: str, frame: dict[str, Any] | None,
+                  batch: list[tuple[Any, ...]] | None = None) -> None:
+        if frame is None:
+            raise WorkerError(self._died(robot, "it exited"))
+        if "fatal" in frame:
+            raise WorkerError(self._died(robot, str(frame["fatal"])))
+        s = self.slots[robot]
+        op, ctx = s.pending.popleft()
+        if op == "learn":
+            s.learns -= 1
+            pair, sent_ns = ctx
+            took = time.monotonic_ns() - sent_ns
+            s.learn_est_ns = max(took, int(s.learn_est_ns * 0.95))
+            self._learned(s, pair, frame)
+        elif op == "predict":
+            s.predicts -= 1
+            if batch is not None:
+                batch.append((s.rt, frame, *ctx))
+            elif self._service is not None:
+                self._service.worker_predictions([(s.rt, frame, *ctx)])
+        elif op == "snapshot":
+            s.snapshots -= 1
+            ahead = [c[0] for o, c in s.pending if o == "learn"]
+            reason, sync = ctx
+            self._service.write_snapshot(s.rt, reason, unpack_arrays(frame["state"], copy=False),
+                                         ahead=ahead, sync=sync)
+        elif op in ("load", "fresh") and s.model is not None:
+            s.model.n_learned, s.model.n_experts = int(frame["n"]), int(frame["experts"])
+
+    def _learned(self, s: _Slot, pair: Pair, frame: dict[str, Any]) -> None:
+        if not frame.get("ok"):
+            s.rt.learn_errors += 1
+            log.error("%s: learning the pair of tick %d failed; pair skipped (see the "
+                      "worker's log line)", s.rt.robot, pair.tick)
+            return
+        assert s.model is not None
+        s.model.n_learned, s.model.n_experts = int(frame["n"]), int(frame["experts"])
+        s.rt.learned(pair, float(frame["ms"]))
+
+    # --- requests --------------------------------------------------------------------------
+
+    def _send_learn(self, s: _Slot) -> None:
+        pair = s.rt.queue.popleft()
+        self.send(s.rt.robot, {"op": "learn", "x": _vec(pair.x), "y": _vec(pair.y),
+                               "code": pair.label, "tick": pair.tick},
+                  (pair, time.monotonic_ns()))
+        s.learns += 1
+        s.since_tick = True
+
+    def feed(self, deadline_ns: int | None = None) -> None:
+        """Keep ``depth`` learn requests in flight per learning robot.
+
+        ``deadline_ns`` (realtime: the next timer tick): once a robot has learned since the
+        last tick, its next pair is sent only if it is expected back before the tick, so the
+        tick's prediction does not wait behind it (as the inline loop schedules learning)."""
+        now = time.monotonic_ns()
+        for s in self.slots.values():
+            while s.rt.learning and s.rt.queue and s.learns < self.depth:
+                if deadline_ns is not None and s.since_tick and \
+                        now + s.learn_est_ns + 1_000_000 >= deadline_ns:
+                    break
+                self._send_learn(s)
+
+    def new_tick(self) -> None:
+        """The realtime timer fired: every robot may learn once more regardless."""
+        for s in self.slots.values():
+            s.since_tick = False
+
+    def learn_all(self, rt: RobotRuntime) -> None:
+        """Send every queued pair of ``rt`` (lockstep: before answering a perception)."""
+        s = self.slots[rt.robot]
+        while rt.learning and rt.queue:
+            self._send_learn(s)
+
+    def predict(self, rt: RobotRuntime, perc: Any, recv_ns: int, *, skip_busy: bool) -> None:
+        """Ask for a prediction; the reply goes to ``service.worker_prediction``."""
+        s = self.slots[rt.robot]
+        if skip_busy and s.predicts > 0:
+            s.busy_ticks += 1
+            return
+        self.send(rt.robot, {"op": "predict", "x": _vec(perc.x), "tick": perc.tick,
+                             "t": perc.t, "vocab": list(rt.vocab)}, (perc, recv_ns))
+        s.predicts += 1
+
+    def snapshot(self, rt: RobotRuntime, reason: str, *, sync: bool) -> None:
+        """Ask for the model's state; the reply goes to ``service.write_snapshot``."""
+        s = self.slots[rt.robot]
+        if s.snapshots and not sync:
+            return
+        self.send(rt.robot, {"op": "snapshot"}, (reason, sync))
+        s.snapshots += 1
+        if sync:
+            self.drain(rt)
+
+    def drain(self, rt: RobotRuntime | None = None) -> None:
+        """Wait until every request sent (to ``rt``'s worker, or all) is answered."""
+        slots = list(self.slots.values()) if rt is None else [self.slots[rt.robot]]
+        self._wait(lambda: not any(s.pending for s in slots), "drain")
+
+    def learning(self) -> bool:
+        """True while learn requests are in flight."""
+        return any(s.learns for s in self.slots.values())
+
+    def wait_one(self, timeout: float) -> None:
+        """Handle the next reply (up to ``timeout`` s), then feed the workers."""
+        try:
+            item = self._replies.get(timeout=timeout)
+        except queue.Empty:
+            return
+        self._dispatch(*item)
+        self.pump()
+
+    def info(self, rt: RobotRuntime) -> dict[str, Any]:
+        s = self.slots[rt.robot]
+        return {"workers": "process", "worker_pid": s.proc.pid,
+                "worker_busy_ticks": s.busy_ticks}
+
+    def close(self, *, kill: bool = False, timeout: float = 10.0) -> None:
+        """Stop every worker (``stop`` request, then SIGKILL after ``timeout``)."""
+        for s in self.slots.values():
+            if not kill and s.proc.poll() is None and s.proc.stdin is not None:
+                try:
+                    write_frame(s.proc.stdin, {"op": "stop"})
+                except (OSError, ValueError):
+                    pass
+            if s.proc.stdin is not None:
+                try:
+                    s.proc.stdin.close()
+                except OSError:
+                    pass
+        end = time.monotonic() + timeout
+        for robot, s in self.slots.items():
+            if not kill:
+                try:
+                    s.proc.wait(max(0.1, end - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    log.warning("%s: learner worker pid %d did not stop; killed", robot,
+                                s.proc.pid)
+            if s.proc.poll() is None:
+                s.proc.kill()
+                s.proc.wait(5.0)
+            if s.proc.stdout is not None:
+                s.proc.stdout.close()

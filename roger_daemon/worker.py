@@ -1,0 +1,231 @@
+"""A learner worker process: one robot's model, driven over a pipe (``[daemon] workers``).
+
+``python -m roger_daemon.worker`` reads requests on stdin and answers each with exactly one
+reply on stdout, in order. Frames are ``u32 length (little endian) | msgpack map``; arrays
+travel as ``{"t": dtype, "s": shape, "b": bytes}`` (numeric and fixed-width unicode dtypes
+only; never pickle). Log lines go to stderr (the daemon's log). The worker pins BLAS to one
+thread (:func:`roger_daemon.blas.pin_blas_threads`), so its floats are the in-process
+model's, bit for bit.
+
+Requests (``op``) and replies:
+
+- ``load``: ``robot``, ``x_dim``, ``y_dim``, ``model`` (``roger`` | ``unimap``), ``seed``,
+  ``params`` (the learner parameter mapping), ``state`` (a model ``state_dict`` or nil for a
+  fresh model), ``codes`` (label codes of the learned pairs) -> ``n``, ``experts``;
+- ``learn``: ``x``, ``y`` (float64 bytes), ``code``, ``tick`` -> ``ok``, ``ms``, ``n``,
+  ``experts`` (``ok`` false: the learner rejected the pair, the model is unchanged);
+- ``predict``: ``x``, ``tick``, ``t``, ``vocab`` -> ``ok``, ``pred`` (an encoded
+  ``Prediction``: mean, variance, multimap with majority labels, ``updates``), ``ms``;
+- ``fresh``: replace the model by a fresh one (``reset``) -> ``n``, ``experts``;
+- ``snapshot``: -> ``state`` (the model's ``state_dict``), ``n``;
+- ``stop``: -> ``{}``, then the process exits.
+
+An unexpected error answers ``fatal`` (the traceback text) and the worker exits 1. End of
+input (the daemon died) ends the worker too. The daemon's side is
+:mod:`roger_daemon.learners`.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import sys
+import time
+import traceback
+from collections.abc import Mapping
+from typing import IO, Any
+
+import msgpack
+import numpy as np
+
+__all__ = ["pack_arrays", "read_frame", "unpack_arrays", "write_frame"]
+
+log = logging.getLogger(__name__)
+
+_LEN = struct.Struct("<I")
+_KINDS = frozenset("biufU")  # bool, int, uint, float, fixed-width unicode: nothing else
+MAX_FRAME = 1 << 30
+
+
+def pack_arrays(arrays: Mapping[str, np.ndarray]) -> dict[str, dict[str, Any]]:
+    """Named arrays as msgpack-ready maps (dtype string, shape, raw bytes)."""
+    out = {}
+    for name, value in arrays.items():
+        a = np.asarray(value)  # tobytes() is C order; ascontiguousarray would make 0-d 1-d
+        if a.dtype.kind not in _KINDS:
+            raise TypeError(f"array {name} has dtype {a.dtype}; only numeric and unicode")
+        out[name] = {"t": a.dtype.str, "s": list(a.shape), "b": a.tobytes()}
+    return out
+
+
+def unpack_arrays(packed: Any, *, copy: bool = True) -> dict[str, np.ndarray]:
+    """The inverse of :func:`pack_arrays`; raises ``ValueError`` on anything else.
+
+    ``copy=False`` returns read-only views of the frame's bytes (one copy less of a model
+    state that is only written to disk)."""
+    if not isinstance(packed, dict):
+        raise ValueError("arrays must be a map")
+    out = {}
+    for name, m in packed.items():
+        if not isinstance(name, str) or not isinstance(m, dict):
+            raise ValueError("bad array entry")
+        dt = np.dtype(str(m.get("t")))
+        shape = m.get("s")
+        data = m.get("b")
+        if dt.kind not in _KINDS or not isinstance(data, bytes) or not isinstance(shape, list) \
+                or not all(isinstance(d, int) and d >= 0 for d in shape):
+            raise ValueError(f"bad array {name}")
+        if int(np.prod(shape, dtype=np.int64)) * dt.itemsize != len(data):
+            raise ValueError(f"array {name}: {len(data)} bytes do not match {dt} {shape}")
+        a = np.frombuffer(data, dtype=dt).reshape(shape)
+        out[name] = a.copy() if copy else a
+    return out
+
+
+def write_frame(f: IO[bytes], msg: Mapping[str, Any]) -> None:
+    """One length-prefixed msgpack frame, flushed."""
+    payload = msgpack.packb(msg, use_bin_type=True)
+    f.write(_LEN.pack(len(payload)) + payload)
+    f.flush()
+
+
+def _read_exact(f: IO[bytes], n: int) -> bytearray | None:
+    buf = bytearray(n)  # read in place: a model state is not held twice
+    view = memoryview(buf)
+    pos = 0
+    while pos < n:
+        got = f.readinto(view[pos:])  # type: ignore[attr-defined]
+        if not got:
+            return None
+        pos += got
+    return buf
+
+
+def read_frame(f: IO[bytes]) -> dict[str, Any] | None:
+    """The next frame's map; ``None`` at end of input. A bad frame raises ``ValueError``."""
+    head = _read_exact(f, _LEN.size)
+    if head is None:
+        return None
+    (length,) = _LEN.unpack(head)
+    if length > MAX_FRAME:
+        raise ValueError(f"frame of {length} bytes")
+    payload = _read_exact(f, length)
+    if payload is None:
+        return None
+    msg = msgpack.unpackb(payload, raw=False)
+    if not isinstance(msg, dict):
+        raise ValueError("frame is not a map")
+    return msg
+
+
+def _vec(b: Any, n: int) -> np.ndarray:
+    a = np.frombuffer(b, dtype="<f8")
+    if a.size != n:
+        raise ValueError(f"expected {n} floats, got {a.size}")
+    return a.astype(np.float64)
+
+
+class _Worker:
+    """The model of one robot and the daemon bookkeeping that labels its experts."""
+
+    def __init__(self) -> None:
+        self.rt: Any = None
+
+    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+        op = req.get("op")
+        if op == "load":
+            return self._load(req)
+        if self.rt is None:
+            raise RuntimeError(f"{op!r} before 'load'")
+        rt = self.rt
+        if op == "learn":
+            return self._learn(req)
+        if op == "predict":
+            return self._predict(req)
+        if op == "fresh":
+            rt.reset()
+            return {"n": rt.updates, "experts": int(rt.model.n_experts)}
+        if op == "snapshot":
+            return {"state": pack_arrays(rt.model.state_dict()), "n": rt.updates}
+        if op == "stop":
+            return {}
+        raise ValueError(f"unknown op {op!r}")
+
+    def _load(self, req: dict[str, Any]) -> dict[str, Any]:
+        from protocols.messages import Dims
+        from roger_daemon.config import RobotConfig
+        from roger_daemon.daemon import make_model
+        from roger_daemon.learner import RogerParams, load_model
+        from roger_daemon.robot import RobotRuntime
+
+        robot = RobotConfig(id=str(req["robot"]), x_dim=int(req["x_dim"]),
+                            y_dim=int(req["y_dim"]), model=str(req["model"]),
+                            seed=int(req["seed"]), params=RogerParams.from_mapping(req["params"]))
+        state = req.get("state")
+        model = make_model(robot) if state is None else load_model(unpack_arrays(state))
+        rt = RobotRuntime(robot.id, Dims(robot.x_dim, robot.y_dim), model,
+                          lambda: make_model(robot))
+        codes = unpack_arrays(req["codes"])["codes"] if req.get("codes") else np.zeros(0)
+        for c in codes.astype(np.int64):
+            rt._append_code(int(c))
+        self.rt = rt
+        return {"n": rt.updates, "experts": int(rt.model.n_experts)}
+
+    def _learn(self, req: dict[str, Any]) -> dict[str, Any]:
+        from roger_daemon.robot import Pair
+
+        rt = self.rt
+        x = _vec(req["x"], rt.dims.x)
+        y = _vec(req["y"], rt.dims.y)
+        rt.queue.append(Pair(x, y, int(req["code"]), int(req["tick"])))
+        errors = rt.learn_errors
+        ms = rt.learn_one()
+        return {"ok": rt.learn_errors == errors, "ms": ms, "n": rt.updates,
+                "experts": int(rt.model.n_experts)}
+
+    def _predict(self, req: dict[str, Any]) -> dict[str, Any]:
+        from protocols.messages import Perception, encode
+
+        rt = self.rt
+        vocab = [str(v) for v in req.get("vocab", [])]
+        if vocab != rt.vocab:
+            rt.vocab = vocab
+            rt._labels_cache = None
+        perc = Perception(rt.robot, int(req["tick"]), float(req["t"]),
+                          x=_vec(req["x"], rt.dims.x))
+        t0 = time.perf_counter_ns()
+        try:
+            pred = rt.predict(perc, 0, lambda: 0)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+        return {"ok": True, "pred": encode(pred), "ms": (time.perf_counter_ns() - t0) / 1e6}
+
+
+def main() -> int:
+    """The worker's loop: one reply per request, until ``stop`` or end of input."""
+    logging.basicConfig(level="INFO", stream=sys.stderr,
+                        format="%(levelname)s %(name)s (worker): %(message)s")
+    from roger_daemon.blas import pin_blas_threads
+    from roger_daemon.memory import limit_heap_growth
+
+    pin_blas_threads(1)
+    limit_heap_growth()
+    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+    worker = _Worker()
+    while True:
+        req = read_frame(stdin)
+        if req is None:
+            return 0
+        try:
+            reply = worker.handle(req)
+        except Exception as exc:
+            write_frame(stdout, {"fatal": f"{type(exc).__name__}: {exc}\n"
+                                          f"{traceback.format_exc()}"})
+            return 1
+        write_frame(stdout, reply)
+        if req.get("op") == "stop":
+            return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,251 @@
+"""Learner worker processes (``[daemon] workers = "process"``): real worker subprocesses,
+the service loop over the in-memory transport, compared with the in-process model.
+
+Bounded loops with generous deadlines; no timing assertions.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from protocols import Action, Control, Perception, decode, encode, keys
+from protocols.messages import Prediction
+from roger_daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+from roger_daemon.config import ConfigError, DaemonConfig, parse_config
+from roger_daemon.daemon import build_robot
+from roger_daemon.learner.synthetic import subtask_stream
+from roger_daemon.learners import ProcessLearners, WorkerError
+from roger_daemon.service import Service
+from roger_daemon.transport import MemoryTransport
+from roger_daemon.wal import read_records, wal_dir
+from roger_daemon.worker import pack_arrays, unpack_arrays
+
+LABELS = ("seek", "trap", "aim", "kick")
+STREAM = subtask_stream(60)
+DEADLINE_S = 120.0
+
+
+def make_config(tmp_path: Path, name: str, **checkpoint: Any) -> DaemonConfig:
+    return parse_config({
+        "daemon": {"clock": "lockstep"},
+        "robots": [{"id": "aibo"}, {"id": "b2"}],
+        "checkpoint": {"dir": str(tmp_path / name), "every_updates": 0, "every_s": 0,
+                       **checkpoint},
+        "recording": {"enabled": False},
+    })
+
+
+class Loop:
+    """A service over the memory transport, inline or with worker processes."""
+
+    def __init__(self, cfg: DaemonConfig, *, process: bool) -> None:
+        from roger_daemon import wal
+
+        self.transport = MemoryTransport()
+        self.robots = {}
+        for r in cfg.robots:
+            rt, _ = build_robot(cfg, r, fresh=True)
+            wal.start(rt, wal_dir(cfg.checkpoint.dir, r.id), checkpoint_seq=None, replay=False,
+                      fresh=True)
+            self.robots[r.id] = rt
+        self.learners = ProcessLearners(self.robots, {r.id: r for r in cfg.robots},
+                                        timeout_s=DEADLINE_S) if process else None
+        self.service = Service(cfg, self.transport, self.robots, sync_checkpoints=True,
+                               learners=self.learners)
+        self.service.start()
+        self.preds: list[Prediction] = []
+
+    def send(self, robot: str, t: int) -> None:
+        p = encode(Perception(robot, t, t / 30, x=STREAM.x[t]))
+        a = encode(Action(robot, t, t / 30, y=STREAM.y[t], label=LABELS[STREAM.labels[t]]))
+        self.transport.inject(keys.key(robot, "action"), a)  # action first: learned, then
+        self.transport.inject(keys.key(robot, "perception"), p)  # prediction(t) includes t
+
+    def collect(self, n: int) -> list[Prediction]:
+        """Step until ``n`` predictions in all were published (bounded by the deadline)."""
+        end = time.monotonic() + DEADLINE_S
+        while len(self.preds) < n:
+            assert time.monotonic() < end, f"only {len(self.preds)} of {n} predictions"
+            self.service.step(0.01)
+            for key, data in self.transport.take("prediction"):
+                robot = key.split("/")[1]
+                msg = decode("prediction", data, dims=self.robots[robot].dims, robot=robot)
+                assert isinstance(msg, Prediction)
+                self.preds.append(msg)
+        return self.preds
+
+
+def _same_prediction(a: Prediction, b: Prediction) -> None:
+    assert (a.robot, a.tick, a.updates, a.expert, a.mode) == (
+        b.robot, b.tick, b.updates, b.expert, b.mode)
+    np.testing.assert_array_equal(a.mean, b.mean)
+    np.testing.assert_array_equal(a.var, b.var)
+    assert len(a.multimap) == len(b.multimap)
+    for ea, eb in zip(a.multimap, b.multimap, strict=True):
+        assert (ea.expert, ea.p, ea.n, ea.label) == (eb.expert, eb.p, eb.n, eb.label)
+        np.testing.assert_array_equal(ea.mean, eb.mean)
+        np.testing.assert_array_equal(ea.var, eb.var)
+
+
+def test_arrays_round_trip_without_pickle() -> None:
+    arrays = {"f": np.arange(6.0).reshape(2, 3), "i": np.arange(4, dtype=np.int32),
+              "s": np.array('{"a": 1}'), "e": np.zeros((0, 5))}
+    back = unpack_arrays(pack_arrays(arrays))
+    assert array_digest(back) == array_digest(arrays)
+    with pytest.raises(TypeError):
+        pack_arrays({"o": np.array([object()])})
+    with pytest.raises(ValueError):
+        unpack_arrays({"o": {"t": "|O", "s": [1], "b": b"\0" * 8}})
+    with pytest.raises(ValueError):
+        unpack_arrays({"f": {"t": "<f8", "s": [3], "b": b"\0" * 8}})
+
+
+def test_workers_config_is_validated(tmp_path: Path) -> None:
+    assert make_config(tmp_path, "c").workers == "process"
+    with pytest.raises(ConfigError) as err:
+        parse_config({"daemon": {"workers": "threads"}})
+    assert err.value.key == "daemon.workers"
+    assert '"process", "inline"' in str(err.value)
+
+
+def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path) -> None:
+    """Lockstep predictions, label majorities, checkpoints and write-ahead log records of
+    two robots learned by worker processes equal those of the in-process loop."""
+    inline = Loop(make_config(tmp_path, "inline"), process=False)
+    proc = Loop(make_config(tmp_path, "process"), process=True)
+    try:
+        for t in range(30):
+            for loop in (inline, proc):
+                loop.send("aibo", t)
+                loop.send("b2", 30 + t)
+        a, b = inline.collect(60), proc.collect(60)
+        key = lambda p: (p.robot, p.tick)  # noqa: E731
+        for pa, pb in zip(sorted(a, key=key), sorted(b, key=key), strict=True):
+            _same_prediction(pa, pb)
+        assert max(p.updates for p in b if p.robot == "aibo") == 30
+        assert any(e.label for p in b for e in p.multimap)
+        for loop in (inline, proc):
+            loop.transport.inject(keys.key("aibo", "control"),
+                                  encode(Control("aibo", 0, 0.0, op="checkpoint")))
+            loop.service.step(0.01)
+        ck = {}
+        for name, loop in (("inline", inline), ("process", proc)):
+            loop.service.shutdown()
+            paths = list_checkpoints(tmp_path / name, "aibo")
+            ck[name] = read_checkpoint(paths[0])
+            assert ck[name].meta["updates"] == 30
+        assert ck["inline"].meta["model_digest"] == ck["process"].meta["model_digest"]
+        np.testing.assert_array_equal(ck["inline"].daemon["label_codes"],
+                                      ck["process"].daemon["label_codes"])
+        recs = [[(r.kind, r.index, r.tick) for r in read_records(wal_dir(tmp_path / n, "b2"))]
+                for n in ("inline", "process")]
+        assert recs[0] == recs[1] and len(recs[0]) == 31  # fresh + 30 pairs
+    finally:
+        for loop in (inline, proc):
+            loop.service.shutdown()
+
+
+def test_reset_drains_the_worker_first(tmp_path: Path) -> None:
+    proc = Loop(make_config(tmp_path, "p"), process=True)
+    try:
+        for t in range(5):
+            proc.send("aibo", t)
+        proc.collect(5)
+        proc.transport.inject(keys.key("aibo", "control"),
+                              encode(Control("aibo", 0, 0.0, op="reset")))
+        proc.send("aibo", 5)
+        preds = proc.collect(6)
+        assert preds[-1].updates == 1  # the fresh model learned pair 5 only
+        recs = read_records(wal_dir(tmp_path / "p", "aibo"))
+        assert [r.kind for r in recs] == ["fresh"] + ["pair"] * 5 + ["fresh", "pair"]
+    finally:
+        proc.service.shutdown()
+
+
+def test_shutdown_learns_queue_and_checkpoints(tmp_path: Path) -> None:
+    cfg = make_config(tmp_path, "s", shutdown_learn_s=3.0)
+    proc = Loop(cfg, process=True)
+    for t in range(20):  # queued pairs, never answered: learned by the shutdown drain
+        a = encode(Action("aibo", t, t / 30, y=STREAM.y[t], label="seek"))
+        p = encode(Perception("aibo", t, t / 30, x=STREAM.x[t]))
+        proc.transport.inject(keys.key("aibo", "perception"), p)
+        proc.transport.inject(keys.key("aibo", "action"), a)
+    proc.service.shutdown()
+    ck = read_checkpoint(list_checkpoints(tmp_path / "s", "aibo")[0])
+    assert ck.meta["reason"] == "shutdown"
+    assert ck.meta["updates"] + len(ck.daemon["queue_ticks"]) == 20
+    assert len([r for r in read_records(wal_dir(tmp_path / "s", "aibo"))
+                if r.kind == "pair"]) == ck.meta["updates"]
+    assert all(s.proc.poll() is not None for s in proc.learners.slots.values())
+
+
+def test_worker_crash_is_detected_and_reported(tmp_path: Path) -> None:
+    proc = Loop(make_config(tmp_path, "k"), process=True)
+    assert proc.learners is not None
+    pid = proc.learners.slots["b2"].proc.pid
+    try:
+        proc.send("aibo", 0)
+        proc.collect(1)
+        os.kill(pid, signal.SIGKILL)
+        proc.send("b2", 1)
+        with pytest.raises(WorkerError, match=r"b2: learner worker pid \d+ failed"):
+            end = time.monotonic() + DEADLINE_S
+            while time.monotonic() < end:
+                proc.service.step(0.01)
+    finally:
+        proc.service.abort()
+    assert all(s.proc.poll() is not None for s in proc.learners.slots.values())
+
+
+@pytest.mark.slow
+@pytest.mark.integration
+def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
+    tmp_path: Path,
+) -> None:
+    """A real daemon (worker processes, real Zenoh on loopback): SIGKILL one robot's worker;
+    the daemon reports it and exits 1 (not hung); a restart re-learns every acknowledged pair
+    from the write-ahead log."""
+    from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
+
+    port = free_port()
+    cfg = write_config(tmp_path / "d.toml", port=port, workdir=tmp_path,
+                       robots=({"id": "aibo"}, {"id": "b2"}))
+    daemon = DaemonProcess(cfg)
+    client = None
+    try:
+        daemon.wait_ready(DEADLINE_S)
+        client = Client(f"tcp/127.0.0.1:{port}")
+        client.wait_daemon(DEADLINE_S)
+        for t in range(12):
+            client.perception(t, STREAM.x[t])
+            client.wait_prediction(t, timeout=DEADLINE_S)
+            client.action(t, STREAM.y[t], LABELS[STREAM.labels[t]])
+        client.perception(12, STREAM.x[12])
+        acked = client.wait_prediction(12, timeout=DEADLINE_S).msg.updates
+        assert acked == 12
+        st = client.wait_status(lambda s: s.info.get("workers") == "process",
+                                timeout=DEADLINE_S)
+        os.kill(int(st.info["worker_pid"]), signal.SIGKILL)
+        assert daemon.proc.wait(DEADLINE_S) == 1
+        assert "learner worker pid" in daemon.log() and "failed" in daemon.log()
+    finally:
+        if client is not None:
+            client.close()
+        daemon.kill()
+    again = DaemonProcess(cfg, log=tmp_path / "again.log")
+    try:
+        again.wait_ready(DEADLINE_S)
+        assert "re-learned 12 pairs" in again.log()
+        code, _ = again.terminate(DEADLINE_S)
+        assert code == 0
+    finally:
+        again.kill()
+    assert read_checkpoint(list_checkpoints(tmp_path / "checkpoints", "aibo")[0]) \
+        .meta["updates"] == 12
