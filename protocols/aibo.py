@@ -12,17 +12,21 @@ from protocols.messages import Dims
 
 __all__ = [
     "ACTION_NAMES",
+    "ACTION_RANGES",
     "COLOURS",
     "DIMS",
     "INDICATOR",
     "INDICATOR_THRESHOLD",
     "NOT_SEEN",
     "PERCEPTION_NAMES",
+    "PERCEPTION_RANGES",
+    "STATE_FREE_DIMS",
     "SUBTASKS",
     "blob_slice",
     "decode_indicator",
     "encode_indicator",
     "is_seen",
+    "range_scaling",
 ]
 
 #: The six colour classes the vision reports, in vector order.
@@ -60,6 +64,34 @@ assert DIMS == Dims(23, 9)
 #: (x, y, size) of a colour class that is not seen. A seen blob always has size > 0
 #: (at least the minimum pixel count), so ``size < 0`` is unambiguous.
 NOT_SEEN = (0.0, 0.0, -1.0)
+
+_BLOB_Y = 160.0 / 208.0  # |blob y| <= H/W at the default 208x160 camera
+_BLOB = ((-1.0, 1.0), (-_BLOB_Y, _BLOB_Y), (-1.0, 1.0))  # x, y, size (-1 = not seen)
+_HEAD = ((math.radians(-75.0), 0.0), (math.radians(-88.0), math.radians(88.0)),
+         (math.radians(-15.0), math.radians(45.0)))  # tilt, pan, nod
+_TAIL = ((math.radians(-45.0), math.radians(45.0)), (math.radians(5.0), math.radians(60.0)))
+
+#: Documented range ``(low, high)`` of every perception entry (``protocols/AIBO.md``).
+PERCEPTION_RANGES: tuple[tuple[float, float], ...] = _BLOB * len(COLOURS) + _HEAD + _TAIL
+
+#: Documented range of every action entry: walk clips, head/tail joint ranges, indicator.
+ACTION_RANGES: tuple[tuple[float, float], ...] = (
+    (-0.18, 0.225), (-0.17, 0.17), (-2.1, 2.1), *_HEAD, *_TAIL, (-1.0, 1.0))
+
+#: Perception entries that carry no task state: the tail pan wags on a clock and the tail
+#: tilt is constant (``simulator/hcc.py``), so the learner's default AIBO profile drops them.
+STATE_FREE_DIMS = (PERCEPTION_NAMES.index("tail_pan"), PERCEPTION_NAMES.index("tail_tilt"))
+
+assert len(PERCEPTION_RANGES) == DIMS.x and len(ACTION_RANGES) == DIMS.y
+
+
+def range_scaling(ranges: tuple[tuple[float, float], ...]
+                  ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``(offset, scale)`` mapping each ``[low, high]`` onto ``[-1, 1]``: centre, half-width."""
+    offset = tuple(0.5 * (lo + hi) for lo, hi in ranges)
+    scale = tuple(0.5 * (hi - lo) for lo, hi in ranges)
+    return offset, scale
+
 
 #: Action indicator values (``y[8]``): what the controller emits.
 INDICATOR = {"none": 0.0, "kick": 1.0, "trap": -1.0}

@@ -10,6 +10,14 @@ Relative paths are taken relative to the current working directory (systemd:
 ``WorkingDirectory=``). The learner table is validated by
 :meth:`roger_daemon.learner.RogerParams.from_mapping`; its errors are re-raised naming the
 TOML key ``learner.<name>``.
+
+``learner.preset`` names a row of :data:`roger_daemon.learner.params.PRESETS` (``"default"``
+unless given; ``"paper"`` is the paper's literal numbers with every lever off); the other
+``[learner]`` keys override it.  Each robot's ``profile`` sets its input/output scaling and
+input weights: ``"aibo"`` (the default for a 23-D/9-D robot unless the preset is ``"paper"``)
+maps every documented sensor and command range of ``protocols/AIBO.md`` onto [-1, 1] and drops
+the state-free tail inputs; ``"none"`` leaves the data as it is.  A robot's own ``x_offset``,
+``x_scale``, ``y_offset``, ``y_scale`` and ``input_weights`` override its profile's.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ from protocols.messages import MODES
 __all__ = [
     "CLOCKS",
     "MODELS",
+    "PROFILES",
     "CheckpointConfig",
     "ConfigError",
     "DaemonConfig",
@@ -44,6 +53,8 @@ __all__ = [
 
 CLOCKS = ("realtime", "lockstep")
 MODELS = ("roger", "unimap")
+PROFILES = ("aibo", "none")
+DEFAULT_PRESET = "default"
 ZENOH_MODES = ("peer", "client")
 _ID_FORM = "a string of 1-64 characters [A-Za-z0-9_-]"
 _MISSING = object()
@@ -85,6 +96,8 @@ class RobotConfig:
     y_dim: int = AIBO_DIMS.y
     model: str = "roger"
     seed: int = 0
+    #: ``"aibo"`` (documented ranges -> [-1, 1], tail inputs dropped) or ``"none"``.
+    profile: str = "none"
     #: The learner parameters for this robot: ``[learner]`` merged with the robot's scaling.
     params: Any = None
 
@@ -273,19 +286,52 @@ def _learner_error(exc: Exception, prefix: str) -> ConfigError:
     return ConfigError(prefix, f"{prefix}: {text}")
 
 
+def _learner_mapping(learner_table: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """``(preset name, RogerParams mapping)``: the preset's row, then the table's own keys."""
+    from roger_daemon.learner.params import PRESETS
+
+    table = dict(learner_table)
+    preset = table.pop("preset", DEFAULT_PRESET)
+    if not isinstance(preset, str) or preset not in PRESETS:
+        raise _bad("learner.preset", "one of " + ", ".join(_show(c) for c in PRESETS), preset)
+    return preset, {**PRESETS[preset], **table}
+
+
+def _profile_mapping(profile: str, x_dim: int, y_dim: int, key: str) -> dict[str, Any]:
+    """The scaling and input weights of a robot profile (``"aibo"``: ``protocols/AIBO.md``)."""
+    if profile == "none":
+        return {}
+    from protocols.aibo import ACTION_RANGES, PERCEPTION_RANGES, STATE_FREE_DIMS, range_scaling
+
+    if (x_dim, y_dim) != (AIBO_DIMS.x, AIBO_DIMS.y):
+        raise _bad(key, f'"none" for a robot whose dimensions are not the AIBO\'s '
+                   f"({AIBO_DIMS.x}, {AIBO_DIMS.y}); x_dim, y_dim = {x_dim}, {y_dim}", profile)
+    x_offset, x_scale = range_scaling(PERCEPTION_RANGES)
+    y_offset, y_scale = range_scaling(ACTION_RANGES)
+    weights = [0.0 if i in STATE_FREE_DIMS else 1.0 for i in range(x_dim)]
+    return {"x_offset": list(x_offset), "x_scale": list(x_scale), "y_offset": list(y_offset),
+            "y_scale": list(y_scale), "input_weights": weights}
+
+
 def _robot_params(
     learner_table: Mapping[str, Any], robot: _Table, x_dim: int, y_dim: int, idx: str
-) -> Any:
+) -> tuple[str, Any]:
     from roger_daemon.learner import ParameterError, RogerParams
 
-    mapping = dict(learner_table)
+    preset, mapping = _learner_mapping(learner_table)
+    aibo = (x_dim, y_dim) == (AIBO_DIMS.x, AIBO_DIMS.y) and preset != "paper"
+    profile = robot.choice("profile", "aibo" if aibo else "none", PROFILES)
+    mapping.update(_profile_mapping(profile, x_dim, y_dim, robot.key("profile")))
     scaling_keys: dict[str, str] = {}
     for name, length in (("x_offset", x_dim), ("x_scale", x_dim),
-                         ("y_offset", y_dim), ("y_scale", y_dim)):
+                         ("y_offset", y_dim), ("y_scale", y_dim), ("input_weights", x_dim)):
         vec = robot.floats(name, length)
         if vec is not None:
             if name.endswith("scale") and any(e <= 0 for e in vec):
                 raise _bad(robot.key(name), f"an array of {length} numbers > 0", list(vec))
+            if name == "input_weights" and (min(vec) < 0 or max(vec) <= 0):
+                raise _bad(robot.key(name), f"an array of {length} numbers >= 0, not all 0",
+                           list(vec))
             mapping[name] = list(vec)
             scaling_keys[name] = robot.key(name)
     try:
@@ -300,7 +346,7 @@ def _robot_params(
         if name in scaling_keys:
             raise ConfigError(scaling_keys[name], f"{idx}.{exc}") from None
         raise _learner_error(exc, "learner") from None
-    return params
+    return profile, params
 
 
 def _check_zenoh_file(path: Path) -> None:
@@ -354,9 +400,9 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
         y_dim = r.integer("y_dim", AIBO_DIMS.y, lo=1)
         model = r.choice("model", "roger", MODELS)
         rseed = r.integer("seed", seed, lo=0)
-        params = _robot_params(learner_table, r, x_dim, y_dim, f"robots[{i}]")
+        profile, params = _robot_params(learner_table, r, x_dim, y_dim, f"robots[{i}]")
         r.done()
-        robots.append(RobotConfig(rid, x_dim, y_dim, model, rseed, params))
+        robots.append(RobotConfig(rid, x_dim, y_dim, model, rseed, profile, params))
 
     z = top.sub("zenoh")
     zfile = z.path("config_file", None)

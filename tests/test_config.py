@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from roger_daemon.config import ConfigError, apply_overrides, load_config, parse_config
@@ -51,7 +52,43 @@ def test_several_robots_with_scaling() -> None:
     arm = cfg.robot("arm_1")
     assert arm.model == "unimap" and arm.seed == 7
     assert arm.params.x_scale == (2.0, 4.0) and arm.params.y_offset == (0.5,)
-    assert arm.params.alpha == 1.5 and cfg.robot("aibo").params.x_scale is None
+    assert arm.params.alpha == 1.5 and arm.profile == "none"
+    assert cfg.robot("aibo").profile == "aibo" and cfg.robot("aibo").params.x_scale is not None
+
+
+def test_presets_and_the_aibo_profile() -> None:
+    from protocols.aibo import ACTION_RANGES, PERCEPTION_RANGES
+    from roger_daemon.learner import RogerParams
+    from roger_daemon.learner.scaling import AffineScaling
+
+    default = parse_config({}).robots[0]
+    assert default.profile == "aibo"
+    p = default.params
+    assert p.replace(x_offset=None, x_scale=None, y_offset=None, y_scale=None,
+                     input_weights=None) == RogerParams.preset("default")
+    sc = AffineScaling(p, 23, 9)
+    lo, hi = (np.array(r) for r in zip(*PERCEPTION_RANGES, strict=True))
+    kept = [i for i in range(23) if i not in (21, 22)]  # the tail inputs are dropped
+    np.testing.assert_allclose(sc.x_in(lo), -np.ones(21), atol=1e-12)
+    np.testing.assert_allclose(sc.x_in(hi), np.ones(21), atol=1e-12)
+    np.testing.assert_allclose(sc.x_in(0.5 * (lo + hi)), 0.0, atol=1e-12)
+    assert sc.d_model == 21 and len(kept) == 21
+    ylo, yhi = (np.array(r) for r in zip(*ACTION_RANGES, strict=True))
+    np.testing.assert_allclose(sc.y_in(ylo), -1.0, atol=1e-12)
+    np.testing.assert_allclose(sc.mean_out(np.ones(9)), yhi, atol=1e-12)
+    np.testing.assert_allclose(sc.var_out(1.0), ((yhi - ylo) / 2) ** 2, rtol=1e-12)
+    # the paper preset: the paper's numbers on raw data (no profile), unless asked for
+    paper = parse_config({"learner": {"preset": "paper"}}).robots[0]
+    assert paper.profile == "none" and paper.params == RogerParams()
+    both = parse_config({"learner": {"preset": "paper"},
+                         "robots": [{"id": "aibo", "profile": "aibo"}]}).robots[0]
+    assert both.params.theta_w == 0.1 and both.params.x_scale == p.x_scale
+    # a robot's own keys override its profile's; learner keys override the preset
+    own = parse_config({"learner": {"theta_w": 3.0},
+                        "robots": [{"id": "aibo", "input_weights": [1.0] * 23,
+                                    "y_scale": [2.0] * 9}]}).robots[0]
+    assert own.params.input_weights == (1.0,) * 23 and own.params.y_scale == (2.0,) * 9
+    assert own.params.x_scale == p.x_scale and own.params.theta_w == 3.0
 
 
 BAD: list[tuple[dict[str, Any], str]] = [
@@ -76,7 +113,21 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ({"learner": {"alpha": -1.0}}, "learner.alpha must be a float > 0, got -1.0"),
     ({"learner": {"beta": 0}}, "learner.beta must be an integer >= 1, got 0"),
     ({"learner": {"alhpa": 1.0}}, "learner: unknown parameter(s) 'alhpa'"),
-    ({"learner": {"nu0": 5.0}}, "learner.nu0 must be a float > d_x - 1 = 22"),
+    ({"learner": {"preset": "paper", "nu0": 5.0}}, "learner.nu0 must be a float > d_x - 1 = 22"),
+    ({"learner": {"nu0": 5.0}}, "learner.nu0 must be a float > d_x - 1 = 20 for d_x = 21 "
+                                "(input dimensions kept by input_weights: 21), got 5.0"),
+    ({"learner": {"preset": "fast"}},
+     'learner.preset must be one of "paper", "default", got "fast"'),
+    ({"learner": {"sticky_kappa": -1}}, "learner.sticky_kappa must be a float >= 0, got -1"),
+    ({"learner": {"min_support": 2.5}}, "learner.min_support must be an integer >= 0, got 2.5"),
+    ({"learner": {"gp_prior_mean": "data"}},
+     "learner.gp_prior_mean must be one of 'zero', 'expert', got 'data'"),
+    ({"robots": [{"id": "a", "profile": "arm"}]},
+     'robots[0].profile must be one of "aibo", "none", got "arm"'),
+    ({"robots": [{"id": "a", "x_dim": 2, "profile": "aibo"}]},
+     "robots[0].profile must be \"none\" for a robot whose dimensions are not the AIBO's"),
+    ({"robots": [{"id": "a", "x_dim": 2, "input_weights": [0.0, 0.0]}]},
+     "robots[0].input_weights must be an array of 2 numbers >= 0, not all 0, got [0.0, 0.0]"),
     ({"robots": []}, "robots must be a non-empty array of tables ([[robots]]), got []"),
     ({"robots": [{"x_dim": 3}]}, "robots[0].id is required"),
     ({"robots": [{"id": "a"}, {"id": "a"}]}, 'robots[1].id must be unique among robots, got "a"'),

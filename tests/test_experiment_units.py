@@ -33,7 +33,9 @@ def test_plan_defaults_are_the_papers_protocol() -> None:
     assert plan.per_subtask == 1000 and plan.time_limit == 150.0 and plan.vision == "rendered"
     assert plan.controllers == ("hcc", "roger", "dpa") and plan.daemon_check
     assert plan.seeds["master"] == 0 and plan.seeds["eval_sim"] != plan.seeds["demo_sim"]
-    assert learner_params(plan) == RogerParams()  # the paper's parameters
+    from roger_daemon.config import parse_config
+
+    assert learner_params(plan) == parse_config({}).robots[0].params  # the daemon's defaults
 
 
 def test_quick_presets_and_overrides() -> None:

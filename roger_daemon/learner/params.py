@@ -1,9 +1,12 @@
 """Hyperparameters of the ROGER learner: a frozen, validated value object.
 
 The defaults are the paper's (Grollman & Jenkins, IROS 2010, section IV.A and Table I):
-alpha = 0.5, mu0 = 0, kappa0 = 0.1, Lambda0 = 1 (read as the identity, roger-math.md §3),
+alpha = 0.5, mu0 = 0, kappa0 = 0.1, Lambda0 = 1 (read as the identity, docs/learner-math.md),
 nu0 = 24, theta_w = 0.1, theta_n = 0.1, beta = 300, P = 10.  The remaining fields are the
-"fidelity switches" and open choices of roger-math.md §0 and §6, each with a documented default.
+implementation choices the paper leaves open and the levers beyond the paper (issue 13), each
+with a documented default; with every lever at its default (``RogerParams()``, the ``"paper"``
+preset) the model is exactly the paper's Algorithm 1.  :data:`PRESETS` names whole settings
+(``RogerParams.preset("default")``).
 
 Every value is checked in ``__post_init__``; a bad one raises :class:`ParameterError`, whose
 message names the parameter, its valid range and the value given.  Checks that need the data
@@ -24,8 +27,10 @@ import numpy as np
 
 __all__ = [
     "EXPERT_CHOICES",
+    "GP_PRIOR_MEANS",
     "KERNEL_DIM_SCALINGS",
     "LIKELIHOOD_NORMALISERS",
+    "PRESETS",
     "ParameterError",
     "RogerParams",
 ]
@@ -33,6 +38,25 @@ __all__ = [
 KERNEL_DIM_SCALINGS = ("textbook", "grollman")
 LIKELIHOOD_NORMALISERS = ("multivariate", "grollman")
 EXPERT_CHOICES = ("argmax", "sample")
+GP_PRIOR_MEANS = ("zero", "expert")
+
+#: Named settings, one table: each preset is a set of changes to ``RogerParams()`` (the paper).
+#: ``"paper"``: the paper's literal numbers, every lever off (Algorithm 1 exactly).
+#: ``"default"``: the levers of issue 13 at the values measured to work in closed loop on
+#: range-scaled AIBO data (theta_n = 1e-4, theta_w = 10, each expert's GP prior mean = its data's
+#: running mean); final values are chosen from the goal-scoring experiment.  The per-robot
+#: input/output scaling and input weights are not here (they depend on the robot's dimensions):
+#: the daemon config applies the AIBO's by default (``roger_daemon.config``).
+PRESETS: Mapping[str, Mapping[str, Any]] = {
+    "paper": {},
+    "default": {
+        "theta_w": 10.0,
+        "theta_n": 1e-4,
+        "gp_prior_mean": "expert",
+        "sticky_kappa": 0.0,
+        "min_support": 20,
+    },
+}
 
 
 class ParameterError(ValueError):
@@ -154,7 +178,30 @@ class RogerParams:
     x_offset, x_scale, y_offset, y_scale : tuple of float or None
         Fixed affine scaling applied before learning: ``(x - x_offset) / x_scale`` and likewise
         for ``y``; predictions are mapped back.  Not learned from data.  The priors (``mu0 = 0``,
-        unit scales, zero GP mean) assume roughly normalised data (roger-math.md pitfall 3).
+        unit scales, zero GP mean) assume roughly normalised data (docs/learner-math.md).
+        ``theta_w``, ``mu0`` and ``lambda0`` are in these scaled units.  The daemon config fills
+        them from the robot's documented sensor ranges (``protocols/AIBO.md``) by default.
+    gp_prior_mean : {"zero", "expert"}, default "zero"
+        Prior mean of each expert's GP.  ``"zero"``: the paper's (eq. 1).  ``"expert"``: the
+        running mean of the outputs assigned to that expert (no labels), so that far from its
+        data an expert predicts its typical action instead of 0 ("stand still, head up");
+        exactly a zero-mean GP on ``y - m`` with ``m`` the expert's current mean (the
+        predictive variance is unchanged).  The empty expert's mean stays 0.  Lever of issue 13.
+    sticky_kappa : float >= 0 or inf, default 0.0
+        Temporal stickiness of the partition prior (the paper's section V future work, after
+        Fox et al. 2008): within each particle the expert of the previous point gets
+        ``n_k + sticky_kappa`` instead of ``n_k`` as its CRP weight.  ``0`` is the paper's CRP;
+        ``inf`` keeps every point with its predecessor's expert.
+    min_support : int >= 0, default 0
+        Prediction only: an expert with fewer points than this cannot win the gate (its gate
+        probability is 0 in ``predict_one`` and ``predict_multimap``) unless no expert of the
+        MAP particle has that many.  Tiny experts keep broad gates that win wherever the big
+        experts' gates are small (issue 13).  ``0`` or ``1``: every expert competes (paper).
+    input_weights : tuple of float >= 0, or None
+        Per-dimension weights of the (scaled) input, used by the gates and the kernel alike:
+        the model sees ``w_i * x_i``, so a weight ``w`` divides that dimension's kernel width by
+        ``w``; a weight ``0`` drops the dimension (state-free inputs such as the AIBO's tail
+        clock).  ``nu0`` must then exceed ``(kept dimensions) - 1``.  ``None``: all 1 (paper).
     """
 
     alpha: float = 0.5
@@ -176,6 +223,10 @@ class RogerParams:
     x_scale: tuple[float, ...] | None = None
     y_offset: tuple[float, ...] | None = None
     y_scale: tuple[float, ...] | None = None
+    gp_prior_mean: str = "zero"
+    sticky_kappa: float = 0.0
+    min_support: int = 0
+    input_weights: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         s = object.__setattr__
@@ -204,18 +255,37 @@ class RogerParams:
         s(self, "x_scale", _vector("x_scale", self.x_scale, positive=True))
         s(self, "y_offset", _vector("y_offset", self.y_offset, positive=False))
         s(self, "y_scale", _vector("y_scale", self.y_scale, positive=True))
+        s(self, "gp_prior_mean", _choice("gp_prior_mean", self.gp_prior_mean, GP_PRIOR_MEANS))
+        s(self, "sticky_kappa", _real("sticky_kappa", self.sticky_kappa, low=0.0,
+                                      low_open=False, allow_inf=True))
+        s(self, "min_support", _integer("min_support", self.min_support, low=0))
+        weights = _vector("input_weights", self.input_weights, positive=False)
+        if weights is not None and (min(weights) < 0 or max(weights) <= 0):
+            raise ParameterError(
+                "input_weights must be None or a non-empty sequence of finite floats >= 0, "
+                f"not all 0, got {self.input_weights!r}")
+        s(self, "input_weights", weights)
+
+    def model_dims(self, d_x: int) -> int:
+        """Input dimensions the gates and kernel see: those with a non-zero input weight."""
+        if self.input_weights is None:
+            return d_x
+        return sum(1 for w in self.input_weights if w != 0.0)
 
     def check_dims(self, d_x: int, d_y: int) -> None:
         """Checks that depend on the data dimensions (run by the models on construction)."""
-        if self.nu0 <= d_x - 1:
-            raise ParameterError(
-                f"nu0 must be a float > d_x - 1 = {d_x - 1} for d_x = {d_x}, got {self.nu0!r}")
         for name, want in (("x_offset", d_x), ("x_scale", d_x), ("y_offset", d_y),
-                           ("y_scale", d_y)):
+                           ("y_scale", d_y), ("input_weights", d_x)):
             value = getattr(self, name)
             if value is not None and len(value) != want:
                 raise ParameterError(
                     f"{name} must be None or have length {want}, got length {len(value)}")
+        d_m = self.model_dims(d_x)
+        if self.nu0 <= d_m - 1:
+            kept = "" if d_m == d_x else f" (input dimensions kept by input_weights: {d_m})"
+            raise ParameterError(
+                f"nu0 must be a float > d_x - 1 = {d_m - 1} for d_x = {d_m}{kept}, "
+                f"got {self.nu0!r}")
 
     # -- mapping round trip (TOML tables, JSON metadata) -------------------------------------
 
@@ -239,9 +309,24 @@ class RogerParams:
                 f"unknown parameter(s) {', '.join(map(repr, unknown))}; "
                 f"valid names are {', '.join(sorted(names))}")
         kwargs = dict(mapping)
-        if kwargs.get("prune_log_margin") == "inf":
-            kwargs["prune_log_margin"] = math.inf
+        for name in ("prune_log_margin", "sticky_kappa"):
+            if kwargs.get(name) == "inf":
+                kwargs[name] = math.inf
         return cls(**kwargs)
+
+    @classmethod
+    def preset(cls, name: str, **changes: Any) -> RogerParams:
+        """The named setting of :data:`PRESETS` (``"paper"`` or ``"default"``), then ``changes``.
+
+        >>> RogerParams.preset("paper") == RogerParams()
+        True
+        >>> RogerParams.preset("default", theta_w=3.0).theta_w
+        3.0
+        """
+        if name not in PRESETS:
+            names = ", ".join(map(repr, PRESETS))
+            raise ParameterError(f"preset must be one of {names}, got {name!r}")
+        return cls.from_mapping({**PRESETS[name], **changes})
 
     def replace(self, **changes: Any) -> RogerParams:
         """A copy with some fields changed (validated again)."""

@@ -134,8 +134,9 @@ class Roger:
     def _setup(self) -> None:
         p = self.params
         self._scaling = AffineScaling(p, self.d_x, self.d_y)
-        self.kernel = RBFKernel(p.theta_w, self.d_x, p.kernel_dim_scaling)
-        self._gates = GatePool(self.d_x, p.mu0, p.kappa0, p.lambda0, p.nu0)
+        self._dm = self._scaling.d_model  # input dimensions after input_weights
+        self.kernel = RBFKernel(p.theta_w, self._dm, p.kernel_dim_scaling)
+        self._gates = GatePool(self._dm, p.mu0, p.kappa0, p.lambda0, p.nu0)
         cap = self._gates.capacity
         self._gps: list[SparseOnlineGP | None] = [None] * cap
         self._ids = np.full(cap, -1, dtype=np.int64)
@@ -156,8 +157,9 @@ class Roger:
 
     def _new_gp(self) -> SparseOnlineGP:
         p = self.params
-        return SparseOnlineGP(self.d_x, self.d_y, self.kernel, p.theta_n, p.beta,
-                              p.novelty_threshold, p.likelihood_normaliser)
+        return SparseOnlineGP(self._dm, self.d_y, self.kernel, p.theta_n, p.beta,
+                              p.novelty_threshold, p.likelihood_normaliser,
+                              prior_mean=p.gp_prior_mean == "expert")
 
     def _alloc_slot(self) -> int:
         if not self._free:
@@ -213,6 +215,8 @@ class Roger:
         base = self._logw[flat_part]
         base[is_new] += self._log_alpha + self._gates.prior_log_predictive(xs)
         base[~is_new] += slot_gate[old_slots]
+        if p.sticky_kappa > 0.0 and self.n_learned > 0:
+            self._add_stickiness(base, flat_part, flat_slots, is_new)
 
         # GP factor: the empty expert analytically, the others once per unique expert
         ll_new = float(gaussian_log_likelihood(float(ys @ ys), self._empty_var, self.d_y,
@@ -220,6 +224,21 @@ class Roger:
         slot_ll, terms = self._gp_factors(xs, ys, live, base, is_new, old_slots, ll_new, cap)
         lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])
         return lw, flat_part, flat_slots, offsets, terms
+
+    def _add_stickiness(self, base: FloatArray, flat_part: IntArray, flat_slots: IntArray,
+                        is_new: npt.NDArray[np.bool_]) -> None:
+        """Sticky CRP (Fox et al. 2008; paper section V): the expert of the previous point in
+        each particle weighs ``n_k + kappa`` instead of ``n_k``; with ``kappa = inf`` every
+        other putative of that particle gets weight 0.  The common normaliser
+        ``N + alpha + kappa`` is dropped like ``N + alpha`` (docs/learner-math.md)."""
+        kappa = self.params.sticky_kappa
+        prev_ids = self._hist_eid[self.n_learned - 1]  # chosen expert id of each particle
+        ids = np.where(is_new, -2, self._ids[np.where(is_new, 0, flat_slots)])
+        is_prev = ids == prev_ids[flat_part]
+        if math.isinf(kappa):
+            base[~is_prev] = -np.inf
+        else:
+            base[is_prev] += np.log1p(kappa / self._npts[flat_slots[is_prev]])
 
     def _gp_factors(self, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
                     is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
@@ -370,6 +389,11 @@ class Roger:
         """``p(k | x) ∝ n_k t_k(x)`` over ``slots`` (+ ``alpha t_0(x)`` if the empty expert
         takes part), normalised (paper Algorithm 2, roger-math.md §6)."""
         lg = self._gates.log_predictive(slots, xs) + np.log(self._npts[slots])
+        support = self.params.min_support
+        if support > 1:  # too small to compete, unless no expert has the support
+            small = self._npts[slots] < support
+            if not small.all():
+                lg[small] = -np.inf
         if self.params.predict_empty_expert:
             lg = np.append(lg, self._log_alpha + self._gates.prior_log_predictive(xs))
         w = np.exp(lg - np.max(lg))
@@ -499,7 +523,7 @@ class Roger:
         compact[live] = np.arange(live.size)
         gps = [self._gps[s] for s in live.tolist()]
         assert all(g is not None for g in gps)
-        out = pack_experts([g for g in gps if g is not None], self.d_x, self.d_y)
+        out = pack_experts([g for g in gps if g is not None], self._dm, self.d_y)
         g = self._gates
         for name in g.FIELDS:
             out[f"gate_{name}"] = getattr(g, name)[live].copy()

@@ -1,9 +1,12 @@
-"""Input checking and the fixed affine scaling of inputs and outputs (roger-math.md pitfall 3).
+"""Input checking and the fixed affine scaling of inputs and outputs (docs/learner-math.md).
 
 The priors assume normalised data (``mu0 = 0``, unit gate scale, zero GP mean), so the params
 may carry a fixed offset and scale for x and y.  They are configuration, never learned from the
 data: ``x_s = (x - x_offset) / x_scale``, ``y_s = (y - y_offset) / y_scale``; a prediction
 ``(m, v)`` in scaled units maps back to ``(m * y_scale + y_offset, v * y_scale^2)``.
+
+``input_weights`` then multiply the scaled input, and the dimensions with weight 0 are dropped:
+the gates and the kernel see ``x_m = (w * x_s)[w != 0]`` (``params.model_dims(d_x)`` entries).
 """
 
 from __future__ import annotations
@@ -44,10 +47,20 @@ class AffineScaling:
         self.y_scale = vec(params.y_scale, 1.0, d_y)
         self.identity_x = params.x_offset is None and params.x_scale is None
         self.identity_y = params.y_offset is None and params.y_scale is None
+        self.d_model = params.model_dims(d_x)
+        self.weights: FloatArray = np.ones(d_x)
+        self.kept: npt.NDArray[np.int64] | None = None
+        if params.input_weights is not None:
+            w = np.asarray(params.input_weights, dtype=np.float64)
+            self.kept = np.flatnonzero(w != 0.0)
+            self.weights = w[self.kept]
 
     def x_in(self, x: FloatArray) -> FloatArray:
-        """Raw input to model units."""
-        return x if self.identity_x else (x - self.x_offset) / self.x_scale
+        """Raw input to model units (scaled, weighted, zero-weight dimensions dropped)."""
+        xs = x if self.identity_x else (x - self.x_offset) / self.x_scale
+        if self.kept is None:
+            return xs
+        return xs[self.kept] * self.weights
 
     def y_in(self, y: FloatArray) -> FloatArray:
         """Raw output to model units."""

@@ -12,6 +12,14 @@ Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (
 low-rank term, so ``C`` and ``Q`` stay symmetric up to round-off (Csató's ``(C + C^T)/2`` is
 not needed; the tests check it).
 
+Prior mean (``prior_mean=True``, issue 13): the GP models ``y - m`` where ``m`` is the running
+mean of the outputs learned so far, so far from its data the expert predicts ``m`` instead of 0.
+The SOGP's coefficients are linear in the targets, so one extra column of ``A`` (``a1``, the
+coefficients for the constant target 1) is carried along: when ``m`` moves by ``dm`` after a
+point, ``A <- A - a1 dm^T`` makes ``A`` exactly the coefficients of the targets ``y_i - m`` for
+the new ``m`` (docs/learner-math.md).  The variance does not involve the targets and is
+unchanged; deletion scores use the centred columns only.
+
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
 vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
 one rank-2 update of ``Q``, done in place by BLAS on the contiguous ``beta x beta`` buffer
@@ -96,6 +104,8 @@ class SparseOnlineGP:
         clean-up when ``1/Q_ii < novelty_threshold / 1000``.
     normaliser : {"multivariate", "grollman"}
         Normaliser of :meth:`log_likelihood`.
+    prior_mean : bool
+        GP prior mean = running mean of the learned outputs (default ``False``: zero mean).
 
     Examples
     --------
@@ -108,11 +118,13 @@ class SparseOnlineGP:
     """
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_dg", "q_refreshes")
+                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_dg", "q_refreshes",
+                 "prior_mean", "_m")
 
     def __init__(self, d_x: int, d_y: int, kernel: RBFKernel, noise: float,
                  capacity: int | None, novelty_threshold: float = 1e-6,
-                 normaliser: str = "multivariate", *, _alloc: int | None = None) -> None:
+                 normaliser: str = "multivariate", *, prior_mean: bool = False,
+                 _alloc: int | None = None) -> None:
         self.d_x = d_x
         self.d_y = d_y
         self.kernel = kernel
@@ -120,16 +132,23 @@ class SparseOnlineGP:
         self.capacity = capacity
         self.novelty_threshold = float(novelty_threshold)
         self.normaliser = normaliser
+        self.prior_mean = bool(prior_mean)
+        self._m: FloatArray = np.zeros(d_y)  # the prior mean (stays 0 unless prior_mean)
         self.fused = True  # full update + deletion in one pass at capacity (tests switch it)
         self.n = 0  # basis vectors
         self.n_points = 0  # pairs learned
         alloc = _alloc if _alloc is not None else self._initial_alloc()
         self._B: FloatArray = np.zeros((alloc, d_x))
-        self._A: FloatArray = np.zeros((alloc, d_y))
+        self._A: FloatArray = np.zeros((alloc, self.a_cols))
         self._C: FloatArray = np.zeros((alloc, alloc))
         self._Q: FloatArray = np.zeros((alloc, alloc))
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
         self.q_refreshes = 0  # re-inversions of Q after detected drift
+
+    @property
+    def a_cols(self) -> int:
+        """Columns of the coefficient buffer: ``d_y``, plus ``a1`` with a prior mean."""
+        return self.d_y + 1 if self.prior_mean else self.d_y
 
     def _initial_alloc(self) -> int:
         return 8 if self.capacity is None else min(8, self.capacity)
@@ -143,8 +162,13 @@ class SparseOnlineGP:
 
     @property
     def A(self) -> FloatArray:  # noqa: N802
-        """Mean coefficients alpha (n, d_y), one column per output."""
-        return self._A[: self.n]
+        """Mean coefficients alpha (n, d_y), one column per output (of ``y - m``)."""
+        return self._A[: self.n, : self.d_y]
+
+    @property
+    def mean_offset(self) -> FloatArray:
+        """The GP prior mean ``m`` (d_y,): zeros, or the running mean with ``prior_mean``."""
+        return self._m.copy()
 
     @property
     def C(self) -> FloatArray:  # noqa: N802
@@ -163,11 +187,34 @@ class SparseOnlineGP:
         n = self.n
         if n == 0:
             empty = np.zeros(0)
-            return empty, empty, np.zeros(self.d_y), self.kernel.k_star
+            return empty, empty, self._m.copy(), self.kernel.k_star
         k = self.kernel(self._B[:n], x)
         ck = self._C[:n, :n] @ k
         latent = max(self.kernel.k_star + float(k @ ck), LATENT_FLOOR)
-        return k, ck, k @ self._A[:n], latent
+        if not self.prior_mean:
+            return k, ck, k @ self._A[:n], latent
+        return k, ck, k @ self._A[:n, : self.d_y] + self._m, latent
+
+    def _targets(self, y: FloatArray, mean: FloatArray, k: FloatArray
+                 ) -> tuple[FloatArray, FloatArray]:
+        """``(y, mean)`` extended by the ``a1`` column (target 1, prediction ``a1^T k``).
+
+        ``y - mean`` is then the residual of every column of ``A``: with a prior mean the
+        columns model ``y - m`` and predict ``mean - m``, whose difference is ``y - mean``.
+        """
+        if not self.prior_mean:
+            return y, mean
+        a1k = float(k @ self._A[: self.n, self.d_y]) if self.n else 0.0
+        return np.append(y, 1.0), np.append(mean, a1k)
+
+    def _shift_mean(self, y: FloatArray) -> None:
+        """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
+        if not self.prior_mean:
+            return
+        dm = (y - self._m) / self.n_points
+        self._m = self._m + dm
+        n = self.n
+        self._A[:n, : self.d_y] -= np.outer(self._A[:n, self.d_y], dm)
 
     def predict(self, x: FloatArray) -> tuple[FloatArray, float]:
         """Predictive mean (d_y,) and variance of y (scalar, shared by the outputs)."""
@@ -195,12 +242,18 @@ class SparseOnlineGP:
         self._dg = None  # the fused path below recomputes it
         if n == 0:  # first point, §2.5
             self._B[0] = x
-            self._A[0] = y / (kstar + s0)
+            if self.prior_mean:  # targets [y - m, 1]
+                self._A[0, : self.d_y] = (y - self._m) / (kstar + s0)
+                self._A[0, self.d_y] = 1.0 / (kstar + s0)
+            else:
+                self._A[0] = y / (kstar + s0)
             self._C[0, 0] = -1.0 / (kstar + s0)
             self._Q[0, 0] = 1.0 / kstar
             self.n = 1
+            self._shift_mean(y)
             return
         k, ck, mean, latent = terms if terms is not None else self.terms(x)
+        y, mean = self._targets(y, mean, k)
         # step 2: Gaussian-likelihood scalars (Csató's K2 = r and K1 = q)
         r = -1.0 / (s0 + latent)
         q = (y - mean) / (s0 + latent)
@@ -224,6 +277,7 @@ class SparseOnlineGP:
         self._clean_up()  # steps 5 and 6
         if 0.0 < gamma < _NEAR_DEPENDENT * kstar and self.n > 1:
             self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+        self._shift_mean(y[: self.d_y])
 
     def q_inconsistent(self, gamma: float) -> bool:
         """True when ``Q`` has visibly drifted from ``K_B^-1`` (see ``_Q_DRIFT_TOL``)."""
@@ -314,7 +368,7 @@ class SparseOnlineGP:
     def _deletion_choice(self) -> int:
         """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
         n = self.n
-        a = self._A[:n]
+        a = self._A[:n, : self.d_y]  # the centred columns (not a1)
         den = np.diagonal(self._Q)[:n] + np.diagonal(self._C)[:n]
         # Q_ii + C_ii > 0 in exact arithmetic (a diagonal of K^-1 Sigma_post K^-1); guard it
         score = np.einsum("ij,ij->i", a, a) / np.maximum(den, 1e-300)
@@ -374,7 +428,9 @@ class SparseOnlineGP:
     def copy(self) -> SparseOnlineGP:
         """An independent copy (used for copy-on-write in :class:`~.roger.Roger`)."""
         out = SparseOnlineGP(self.d_x, self.d_y, self.kernel, self.noise, self.capacity,
-                             self.novelty_threshold, self.normaliser, _alloc=0)
+                             self.novelty_threshold, self.normaliser,
+                             prior_mean=self.prior_mean, _alloc=0)
+        out._m = self._m.copy()
         out.fused = self.fused
         out.n = self.n
         out.n_points = self.n_points
@@ -388,12 +444,13 @@ class SparseOnlineGP:
         return out
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,  # noqa: N803
-             n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None
-             ) -> None:
+             n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
+             mean: FloatArray | None = None) -> None:
         """Set the state from arrays (inverse of reading :attr:`B`, :attr:`A`, :attr:`C`, ...).
 
-        ``alloc`` restores the buffer size too, so that a restored expert computes with the
-        same memory layout as the saved one.
+        ``A`` has :attr:`a_cols` columns (``a1`` last with a prior mean); ``mean`` is
+        :attr:`mean_offset`.  ``alloc`` restores the buffer size too, so that a restored expert
+        computes with the same memory layout as the saved one.
         """
         n = B.shape[0]
         self.n = 0
@@ -401,7 +458,7 @@ class SparseOnlineGP:
         size = max(n, self._C.shape[0] if alloc is None else int(alloc))
         if size != self._C.shape[0]:
             self._B = np.zeros((size, self.d_x))
-            self._A = np.zeros((size, self.d_y))
+            self._A = np.zeros((size, self.a_cols))
             self._C = np.zeros((size, size))
             self._Q = np.zeros((size, size))
         self._B[:n] = B
@@ -410,6 +467,7 @@ class SparseOnlineGP:
         self._Q[:n, :n] = Q
         self.n = n
         self.n_points = int(n_points)
+        self._m = np.zeros(self.d_y) if mean is None else np.array(mean, dtype=np.float64)
         self._dg = None if diag_cache is None else np.array(diag_cache, dtype=np.float64)
 
 
@@ -434,10 +492,15 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
             gp.update(x, y, t)
     if not full:
         return
+    y_pub = y
     kstar = full[0].kernel.k_star
     ks = np.stack([t[0] for t in full_terms])
     cks = np.stack([t[1] for t in full_terms])
     means = np.stack([t[2] for t in full_terms])
+    if full[0].prior_mean:  # extend by the a1 column: target 1, prediction a1^T k (one model)
+        y = np.append(y, 1.0)
+        a1k = np.array([float(k @ gp._A[:, gp.d_y]) for gp, k in zip(full, ks, strict=True)])
+        means = np.concatenate([means, a1k[:, None]], axis=1)
     latents = np.array([t[3] for t in full_terms])
     e_hat = np.stack([gp._Q @ k for gp, k in zip(full, ks, strict=True)])  # step 3: Q k
     gamma = kstar - np.einsum("un,un->u", ks, e_hat)
@@ -456,6 +519,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
             gp._sparse_update(cks[j], e_hat[j], float(gamma[j]), -1.0 / (s0 + latents[j]),
                               (y - means[j]) / (s0 + latents[j]))
             gp._clean_up()
+            gp._shift_mean(y_pub)
         keep = np.flatnonzero(novel)
         full = [full[j] for j in keep.tolist()]
         if not full:
@@ -469,6 +533,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
         gp._clean_up()
         if g < _NEAR_DEPENDENT * kstar and gp.n > 1:
             gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+        gp._shift_mean(y_pub)
 
 
 def _fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
@@ -494,17 +559,21 @@ def _fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArra
     """
     u = len(gps)
     n = gps[0].n
-    d_y = gps[0].d_y
+    d_a = gps[0].a_cols
+    # deletion scores count the output columns only, not a prior mean's a1 column
+    cw = np.ones(d_a)
+    cw[gps[0].d_y:] = 0.0
     rows = np.arange(u)
     s0 = np.array([g.noise for g in gps])
     r = -1.0 / (s0 + latents)  # Csató's K2
     q = (y - means) / (s0 + latents)[:, None]  # Csató's K1
-    a_stack = np.stack([g._A for g in gps])  # (u, n, d_y)
-    a_flat = a_stack.reshape(u * n, d_y)
+    a_stack = np.stack([g._A for g in gps])  # (u, n, d_a)
+    a_flat = a_stack.reshape(u * n, d_a)
     # deletion scores |A1_i|^2 / (Q1_ii + C1_ii) (Csató ogpbvmin.m), A1_i = A_i + s_i q
-    aq = np.matmul(a_stack, q[:, :, None])[:, :, 0]
-    aa = ((a_flat * a_flat) @ np.ones(d_y)).reshape(u, n)
-    qq = np.einsum("ud,ud->u", q, q)
+    qw = q * cw
+    aq = np.matmul(a_stack, qw[:, :, None])[:, :, 0]
+    aa = ((a_flat * a_flat) @ cw).reshape(u, n)
+    qq = np.einsum("ud,ud->u", qw, q)
     inv_gamma = 1.0 / gamma
     num = np.empty((u, n + 1))
     num[:, :n] = aa + cks * (2.0 * aq + cks * qq[:, None])

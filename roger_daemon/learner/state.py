@@ -3,11 +3,13 @@
 A state dict is ``dict[str, np.ndarray]`` with numeric arrays only, plus ``"meta"``: a 0-d
 unicode array holding a JSON object (schema version, model kind, dimensions, parameters,
 random-generator states, counters).  ``np.savez`` and ``np.load(allow_pickle=False)`` round-trip
-it unchanged.  Layout (schema 1):
+it unchanged.  Layout (schema 2):
 
 * ``expert_*``: the U distinct experts, concatenated: ``expert_n_bv`` (U,), ``expert_n_points``
-  (U,), ``expert_alloc`` (U,), ``expert_B`` (sum n, d_x), ``expert_A`` (sum n, d_y),
-  ``expert_C`` and ``expert_Q`` (sum n^2, row-major blocks), ``expert_diag_cache`` (sum n);
+  (U,), ``expert_alloc`` (U,), ``expert_B`` (sum n, d_m), ``expert_A`` (sum n, d_y, or d_y + 1
+  with ``gp_prior_mean = "expert"``: the ``a1`` column last), ``expert_mean`` (U, d_y, the GP
+  prior means), ``expert_C`` and ``expert_Q`` (sum n^2, row-major blocks),
+  ``expert_diag_cache`` (sum n);
 * ROGER only: ``expert_id``, ``expert_count`` (CRP counts), ``gate_*`` (the NIW statistics and
   cached predictive of each expert), ``particle_log_weights`` (P,), ``particle_offsets`` (P+1,)
   and ``particle_experts`` (indices into the experts, per particle in order),
@@ -15,6 +17,10 @@ it unchanged.  Layout (schema 1):
 
 Everything that influences future results is stored (including caches), so a restored model
 continues bit-identically.
+
+Migration: schema 1 (before the issue-13 levers) had no ``expert_mean``; it is read as zeros,
+and its params lack the new fields, which take their defaults (the paper's, all levers off), so
+a schema-1 state loads as the same model.
 """
 
 from __future__ import annotations
@@ -39,7 +45,8 @@ __all__ = [
     "unpack_meta",
 ]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+READABLE_SCHEMAS = (1, 2)  # 1: before the GP prior mean (migrated on load)
 
 Seed = int | np.random.Generator | None
 
@@ -106,9 +113,9 @@ def unpack_meta(state: Mapping[str, np.ndarray], kind: str | None = None) -> dic
     if not isinstance(meta, dict):
         raise ValueError("state dict 'meta' is not a JSON object")
     version = meta.get("schema")
-    if version != SCHEMA_VERSION:
+    if version not in READABLE_SCHEMAS:
         raise ValueError(f"state dict schema {version!r} is not supported "
-                         f"(this version reads schema {SCHEMA_VERSION})")
+                         f"(this version reads schemas {READABLE_SCHEMAS})")
     if kind is not None and meta.get("kind") != kind:
         raise ValueError(f"state dict holds a {meta.get('kind')!r} model, not {kind!r}")
     return meta
@@ -122,7 +129,10 @@ def pack_experts(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.
         "expert_n_points": np.array([g.n_points for g in gps], dtype=np.int64),
         "expert_alloc": np.array([g._C.shape[0] for g in gps], dtype=np.int64),
         "expert_B": np.concatenate([g.B for g in gps]) if gps else np.zeros((0, d_x)),
-        "expert_A": np.concatenate([g.A for g in gps]) if gps else np.zeros((0, d_y)),
+        "expert_A": (np.concatenate([g._A[: g.n] for g in gps]) if gps
+                     else np.zeros((0, d_y))),
+        "expert_mean": (np.stack([g.mean_offset for g in gps]) if gps
+                        else np.zeros((0, d_y))),
         "expert_C": np.concatenate([g.C.ravel() for g in gps]) if gps else np.zeros(0),
         "expert_Q": np.concatenate([g.Q.ravel() for g in gps]) if gps else np.zeros(0),
         # the hot path's cached diag(C) + diag(Q) (NaN where none): restores bit-exactly
@@ -140,7 +150,8 @@ def unpack_experts(state: Mapping[str, np.ndarray],
     b_all, a_all = state["expert_B"], state["expert_A"]
     c_all, q_all = state["expert_C"], state["expert_Q"]
     dg_all = state["expert_diag_cache"]
-    out = []
+    means = state.get("expert_mean")  # absent in schema 1: zero prior means
+    out: list[SparseOnlineGP] = []
     row = 0
     flat = 0
     for n, cnt, alloc in zip(ns.tolist(), counts.tolist(), allocs.tolist(), strict=True):
@@ -148,7 +159,8 @@ def unpack_experts(state: Mapping[str, np.ndarray],
         dg = dg_all[row:row + n]
         gp.load(b_all[row:row + n], a_all[row:row + n],
                 c_all[flat:flat + n * n].reshape(n, n), q_all[flat:flat + n * n].reshape(n, n),
-                cnt, alloc=alloc, diag_cache=None if np.isnan(dg).any() else dg)
+                cnt, alloc=alloc, diag_cache=None if np.isnan(dg).any() else dg,
+                mean=None if means is None else means[len(out)])
         row += n
         flat += n * n
         out.append(gp)

@@ -45,7 +45,7 @@ class UnimapGP:
         Input and output dimensions.
     params : RogerParams, optional
         Only ``theta_w``, ``theta_n``, ``beta``, the kernel/likelihood options, the novelty
-        threshold and the scalings are used.
+        threshold, the scalings, ``input_weights`` and ``gp_prior_mean`` are used.
     seed : int, numpy Generator or None
         Accepted for API symmetry; the baseline is deterministic and draws nothing.
 
@@ -66,9 +66,14 @@ class UnimapGP:
         self._learn_rng, self._predict_rng = spawn_generators(seed)
         p = self.params
         self._scaling = AffineScaling(p, self.d_x, self.d_y)
-        self.kernel = RBFKernel(p.theta_w, self.d_x, p.kernel_dim_scaling)
-        self._gp = SparseOnlineGP(self.d_x, self.d_y, self.kernel, p.theta_n, p.beta,
-                                  p.novelty_threshold, p.likelihood_normaliser)
+        self.kernel = RBFKernel(p.theta_w, self._scaling.d_model, p.kernel_dim_scaling)
+        self._gp = self._new_gp()
+
+    def _new_gp(self) -> SparseOnlineGP:
+        p = self.params
+        return SparseOnlineGP(self._scaling.d_model, self.d_y, self.kernel, p.theta_n, p.beta,
+                              p.novelty_threshold, p.likelihood_normaliser,
+                              prior_mean=p.gp_prior_mean == "expert")
 
     @property
     def n_learned(self) -> int:
@@ -122,7 +127,7 @@ class UnimapGP:
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata (no pickle)."""
-        out = pack_experts([self._gp], self.d_x, self.d_y)
+        out = pack_experts([self._gp], self._scaling.d_model, self.d_y)
         out["meta"] = pack_meta({
             "schema": SCHEMA_VERSION,
             "kind": self.kind,
@@ -142,7 +147,5 @@ class UnimapGP:
         model = cls(int(meta["d_x"]), int(meta["d_y"]), RogerParams.from_mapping(meta["params"]))
         model._learn_rng = generator_from_state(meta["rng_learn"])
         model._predict_rng = generator_from_state(meta["rng_predict"])
-        (model._gp,) = unpack_experts(state, lambda: SparseOnlineGP(
-            model.d_x, model.d_y, model.kernel, model.params.theta_n, model.params.beta,
-            model.params.novelty_threshold, model.params.likelihood_normaliser))
+        (model._gp,) = unpack_experts(state, model._new_gp)
         return model
