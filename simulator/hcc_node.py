@@ -53,7 +53,7 @@ from simulator.transport import (
     wait_for,
 )
 
-__all__ = ["RULES", "choose_expert", "configure", "run", "transition_command"]
+__all__ = ["RULES", "choose_expert", "configure", "hcc_from_config", "run", "transition_command"]
 
 log = logging.getLogger("roger.hcc")
 
@@ -148,7 +148,8 @@ def transition_command(
     return np.array(expert.mean, dtype=np.float64), how, int(expert.expert)
 
 
-def _hcc_from_config(path: str | None) -> HCC:
+def hcc_from_config(path: str | None) -> HCC:
+    """The HCC of a task TOML (its [sim] robot/camera/motion and [hcc] table; None: defaults)."""
     cfg = load_config(path)
     params = HCCParams(
         attack=cfg.field.attack, hz=cfg.episode.control_hz, ball_radius=cfg.ball.radius
@@ -302,7 +303,7 @@ class HCCNode:
 def run(args: argparse.Namespace) -> int:
     """Serve until stopped (or the simulator's run is complete); print the counters."""
     try:
-        hcc = _hcc_from_config(args.config)
+        hcc = hcc_from_config(args.config)
     except (ValueError, OSError, TypeError) as exc:
         print(f"roger hcc: {exc}", file=sys.stderr)
         return 2

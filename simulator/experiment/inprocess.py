@@ -48,11 +48,14 @@ __all__ = [
 
 
 def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, seed: int,
-                starts: Sequence[StartLocation] | None = None) -> Demonstrations:
+                starts: Sequence[StartLocation] | None = None
+                ) -> tuple[Demonstrations, list[EpisodeRecord]]:
     """The HCC demonstrating ``shots`` episodes from each location (repetition = shot index).
 
-    Pairs in learning order: location by location, shot by shot, tick by tick.
+    Pairs in learning order: location by location, shot by shot, tick by tick; and each
+    demonstration's outcome (failures are demonstrations too, as in the paper).
     """
+    records: list[EpisodeRecord] = []
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
     labels: list[str] = []
@@ -61,15 +64,18 @@ def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, 
     for loc in locations:
         for shot in range(shots):
             rec = _Recorder(hcc)
-            run_episode(sim, rec, loc, seed, shot, start=_start(starts, loc))
+            res = run_episode(sim, rec, loc, seed, shot, start=_start(starts, loc))
+            records.append(EpisodeRecord(loc, shot, res.outcome, res.success, res.sim_time_s,
+                                         res.ticks, dict(res.counters)))
             xs.extend(rec.x)
             ys.extend(rec.y)
             labels.extend(rec.labels)
             locs.extend([loc] * len(rec.x))
             ticks.extend(range(len(rec.x)))
-    return Demonstrations(np.array(xs).reshape(-1, DIMS.x), np.array(ys).reshape(-1, DIMS.y),
+    data = Demonstrations(np.array(xs).reshape(-1, DIMS.x), np.array(ys).reshape(-1, DIMS.y),
                           labels, np.array(locs, dtype=np.int64),
                           np.array(ticks, dtype=np.int64), 0)
+    return data, records
 
 
 def _start(starts: Sequence[StartLocation] | None, loc: int) -> StartLocation | None:
@@ -202,7 +208,7 @@ class EpisodeRecord:
         return {
             "location": self.location, "repetition": self.repetition, "outcome": self.outcome,
             "success": self.success, "sim_time_s": round(self.sim_time_s, 3),
-            "ticks": self.ticks, "counters": dict(self.counters),
+            "ticks": self.ticks, **{k: int(v) for k, v in self.counters.items()},
             "path_m": round(self.path_m, 3), "ball_path_m": round(self.ball_path_m, 3),
             "failure_mode": self.failure_mode,
         }
