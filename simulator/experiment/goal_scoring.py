@@ -50,6 +50,10 @@ PAPER = {"hcc": 0.69, "roger": 0.31, "dpa": 0.0, "experts": 85, "ratio": 0.45}
 DEFAULT_SHOTS = 5
 DEFAULT_TIME_LIMIT = 60.0
 DEFAULT_VISION = "fast"
+#: The task's learner settings on top of the daemon's default preset (docs/goal-scoring.md):
+#: the broad kernel of the default preset needs a coarser novelty test, else K_B becomes
+#: ill-conditioned and a GP trained on one subtask's 1000 points returns NaN.
+TASK_LEARNER_OVERRIDES = ("learner.novelty_threshold=1e-3",)
 #: Offsets of the derived seeds (all derived from ``--seed``; every one is in results.json).
 _EVAL_SEED_OFFSET = 1_000_003
 
@@ -158,6 +162,8 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         raise ValueError(f"--shots and --learner-seeds must be >= 1, got {shots} and "
                          f"{learner_seeds}")
     overrides = list(args.overrides)
+    if args.preset != "paper":
+        overrides[:0] = list(TASK_LEARNER_OVERRIDES)
     if args.preset is not None:
         overrides.insert(0, f"learner.preset={args.preset}")
     attempts = args.attempts if args.attempts is not None else (1 if quick else 3)

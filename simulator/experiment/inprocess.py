@@ -143,6 +143,7 @@ class TransitionerController:
         fallback = None if multimap else np.asarray(self.model.predict_one(x).mean)
         y, how, _ = transition_command(multimap, fallback, subtask, self.rule)
         self.counts[how] += 1
+        y = _finite(y, x, self.counts)
         self.hcc.commit(y)
         return y, subtask
 
@@ -163,11 +164,10 @@ class OracleController:
         gp = self.gps.get(subtask)
         if gp is None:  # a subtask never demonstrated: hold still (counted)
             self.counts["no_expert"] += 1
-            y = np.zeros(DIMS.y)
-            y[3:8] = x[18:23]
+            y = hold_command(x)
         else:
             self.counts["label"] += 1
-            y = np.asarray(gp.predict_one(x).mean, dtype=np.float64)
+            y = _finite(np.asarray(gp.predict_one(x).mean, dtype=np.float64), x, self.counts)
         self.hcc.commit(y)
         return y, subtask
 
@@ -183,7 +183,8 @@ class MeanController:
         pass
 
     def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
-        return np.asarray(self.model.predict_one(x).mean, dtype=np.float64), ""
+        y = np.asarray(self.model.predict_one(x).mean, dtype=np.float64)
+        return _finite(y, x, self.counts), ""
 
 
 @dataclass
@@ -243,6 +244,22 @@ def failure_mode(outcome: str, counters: Mapping[str, int], path_m: float | None
     if not kicks:
         return "no kick after trap"
     return "kicks, misses"
+
+
+def hold_command(x: np.ndarray) -> np.ndarray:
+    """Stand still with head and tail where they are (what ``roger hcc`` sends without a
+    prediction)."""
+    y = np.zeros(DIMS.y)
+    y[3:8] = x[18:23]
+    return y
+
+
+def _finite(y: np.ndarray, x: np.ndarray, counts: Counter[str]) -> np.ndarray:
+    """``y``, or a hold command (counted as ``non_finite``) if a learner returned NaN/inf."""
+    if np.all(np.isfinite(y)):
+        return y
+    counts["non_finite"] += 1
+    return hold_command(x)
 
 
 class _Tracking:
