@@ -25,8 +25,9 @@ Subtasks (labels reported with every action; :data:`COARSE` maps them to the pap
   view, head in the look pose. Goal not seen: pivot round the ball towards the goal's
   remembered side (chosen at entry); goal seen: turn to centre it; centred for a few ticks
   -> kick. A ball seen in front means the trap failed -> approach. Timeout -> kick.
-* ``kick`` (paper: kick): the kick motion, action indicator = kick for the whole motion, then
-  seek.
+* ``kick`` (paper: kick): the kick motion, action indicator = kick while the ball is not seen
+  (held under the chin), none once the released ball is in view (those perceptions are the
+  approach's, which must not learn to kick); motion done -> seek.
 
 Perceptual aliasing (the paper's multimap): seek, aim and kick all hold the look pose and see
 no ball, so the same perception is met while turning to find the ball, pivoting to the goal
@@ -377,7 +378,8 @@ class HCC:
         elif subtask == "aim":
             self._aim(y, x)
         elif subtask == "kick":
-            y[8] = encode_indicator("kick")
+            if x[self._ball][2] <= 0:  # the ball seen again means it has been released
+                y[8] = encode_indicator("kick")
         else:
             raise ValueError(f"unknown subtask {subtask!r}; expected one of {LABELS}")
         return y

@@ -116,6 +116,9 @@ def test_aim_turns_to_the_goal_and_kicks_when_centred() -> None:
     assert all(decode_indicator(y[8]) == "kick" and lab == "kick" for y, lab in kicks)
     h.act(percept())
     assert h.state in ("seek_left", "seek_right")
+    # the released ball in view: the kick's indicator is off (it is the approach's perception)
+    y = h.policy("kick", percept(ball=(0.0, -0.2, 0.1)))
+    assert decode_indicator(y[8]) == "none"
 
 
 def test_aim_without_the_goal_pivots_towards_its_remembered_side() -> None:
