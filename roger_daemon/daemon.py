@@ -312,7 +312,8 @@ def _describe(cfg: DaemonConfig) -> dict[str, Any]:
         "mode": cfg.mode, "queue_size": cfg.queue_size, "pair_window": cfg.pair_window,
         "seed": cfg.seed, "count_unserved": cfg.count_unserved,
         "robots": [{"id": r.id, "x_dim": r.x_dim, "y_dim": r.y_dim, "model": r.model,
-                    "seed": r.seed, "learner": r.params.to_mapping()} for r in cfg.robots],
+                    "seed": r.seed, "profile": r.profile,
+                    "learner": r.params.to_mapping()} for r in cfg.robots],
         "zenoh": {k: (str(v) if isinstance(v, Path) else v)
                   for k, v in vars(cfg.zenoh).items()},
         "checkpoint": {k: (str(v) if isinstance(v, Path) else v)

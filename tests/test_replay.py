@@ -126,9 +126,11 @@ def test_replay_with_other_params_from_a_config_mismatches(
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check", "--json"]) == 1
     rep = json.loads(capsys.readouterr().out)
     assert rep["params"]["theta_n"] == 0.3 and rep["seed"] == 7
-    cfg.write_text("[daemon]\nseed = 7\n[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
+    # the session was recorded with the paper's parameters (the "paper" preset)
+    paper = '[learner]\npreset = "paper"\n'
+    cfg.write_text(f"[daemon]\nseed = 7\n{paper}[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check"]) == 0
-    cfg.write_text("[daemon]\nseed = 8\n[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
+    cfg.write_text(f"[daemon]\nseed = 8\n{paper}[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check"]) == 1
     cfg.write_text("[daemon]\nrate_hz = \"fast\"\n")
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg)]) == 2

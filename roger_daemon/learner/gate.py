@@ -1,4 +1,4 @@
-"""Normal-Inverse-Wishart input gates (roger-math.md §3): posterior, predictive, batched.
+"""Normal-Inverse-Wishart input gates (docs/learner-math.md §3): posterior, predictive, batched.
 
 Each expert's gate is the conjugate NIW posterior over the mean and covariance of the inputs
 it generated (paper eq. 1).  The "gate predictive" factor of a putative weight is the posterior
@@ -31,7 +31,7 @@ IntArray = npt.NDArray[np.int64]
 
 def niw_update(kappa: float, nu: float, mu: FloatArray, lam: FloatArray,
                x: FloatArray) -> tuple[float, float, FloatArray, FloatArray]:
-    """One rank-1 NIW posterior update (roger-math.md §3.2; Murphy 2007 eq. 250-254).
+    """One rank-1 NIW posterior update (docs/learner-math.md §3.2; Murphy 2007 eq. 250-254).
 
     ``kappa' = kappa + 1``, ``nu' = nu + 1``, ``mu' = (kappa mu + x) / (kappa + 1)``,
     ``Lambda' = Lambda + kappa / (kappa + 1) (x - mu)(x - mu)^T``.

@@ -1,4 +1,4 @@
-"""The RBF kernel shared by every expert (roger-math.md §2.3, fidelity switch 1).
+"""The RBF kernel shared by every expert (docs/learner-math.md §2.3, fidelity switch 1).
 
 ``k(a, b) = exp(-|a - b|^2 / (2 * theta_w^2 * s))`` with ``s = 1`` (textbook) or ``s = d_x``
 (Grollman's SOGP library divides the squared distance by the input dimension).  The amplitude

@@ -130,7 +130,7 @@ class RogerParams:
     kappa0 : float, default 0.1
         Pseudo-count of the gate-centre prior (NIW ``kappa0``).
     lambda0 : float, default 1.0
-        Inverse-Wishart *scale* matrix of the gates, ``lambda0 * I`` (roger-math.md §3).
+        Inverse-Wishart *scale* matrix of the gates, ``lambda0 * I`` (docs/learner-math.md §3).
     nu0 : float, default 24.0
         Inverse-Wishart degrees of freedom; must exceed ``d_x - 1`` (checked per model).
     theta_w : float, default 0.1

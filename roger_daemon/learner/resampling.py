@@ -1,4 +1,4 @@
-"""Fearnhead & Clifford's optimal resampling without duplicates (roger-math.md §5).
+"""Fearnhead & Clifford's optimal resampling without duplicates (docs/learner-math.md §5).
 
 Given ``M`` putative particles with log weights and a target ``P < M``:
 
@@ -39,7 +39,7 @@ def fearnhead_threshold(weights: FloatArray, n_keep: int) -> tuple[float, int]:
 
     ``weights`` are normalised and ``len(weights) > n_keep``.  ``1/c = R_L / (P - L)`` for the
     first ``L`` (in descending order of weight) with ``w_(L+1) <= R_L / (P - L)``, where ``R_L``
-    is the mass outside the top ``L`` (roger-math.md §5 step 1).
+    is the mass outside the top ``L`` (docs/learner-math.md §5 step 1).
     """
     return _threshold(np.sort(weights)[::-1], n_keep)
 
@@ -88,6 +88,9 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int,
     w = expw / total
     order = np.argsort(-w, kind="stable")  # ties broken by index
     inv_c, n_top = _threshold(w[order], n_keep)
+    if inv_c <= 0.0:  # fewer than P weights survive exp(): resample the rest in log space
+        sel, out = _underflow_resample(lv, lse, order[:n_top], n_keep, rng)
+        return (sel if valid is None else valid[sel]), out
     keep = np.zeros(lv.size, dtype=bool)
     keep[order[:n_top]] = True  # kept outright, weight unchanged
     rest = np.flatnonzero(~keep)  # fixed (original) order
@@ -114,3 +117,25 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int,
     out = new_lw[sel]
     out -= _logsumexp(out)
     return (sel if valid is None else valid[sel]), out
+
+
+def _underflow_resample(lv: FloatArray, lse: float, top: IntArray, n_keep: int,
+                        rng: np.random.Generator) -> tuple[IntArray, FloatArray]:
+    """Fearnhead's scheme when all but the ``top`` putatives underflow to weight 0.
+
+    The top ones carry all the mass that ``exp`` can represent; with ``c`` the exact
+    threshold, each of them has ``w >= 1/c`` and is kept with its weight.  The threshold
+    equation restricted to the others, ``sum min(c w_i, 1) = P - L``, does not change when their
+    weights are rescaled, so they are resampled by the same scheme on their own log weights and
+    scaled back (``logsumexp`` of the rest).  Only reached where ``exp`` underflows, e.g. with
+    a small ``theta_n`` (without it ``log(1/c) = log 0`` failed).
+    """
+    rest = np.setdiff1d(np.arange(lv.size), top)
+    lw_rest = lv[rest]
+    top_rest = float(lw_rest.max())
+    lse_rest = top_rest + math.log(float(np.sum(np.exp(lw_rest - top_rest))))
+    picked, out_rest = fearnhead_resample(lw_rest, n_keep - top.size, rng)
+    sel = np.concatenate([top, rest[picked]])
+    out = np.concatenate([lv[top] - lse, out_rest + (lse_rest - lse)])
+    order = np.argsort(sel)
+    return sel[order], out[order]

@@ -5,7 +5,7 @@ Grollman & Jenkins (IROS 2010), section III: each expert is an NIW input gate
 into experts under a CRP prior; ``P`` particles are carried by Fearnhead's optimal resampling
 (:mod:`.resampling`).
 
-Algorithm 1 (``learn_one``), roger-math.md §4:
+Algorithm 1 (``learn_one``), docs/learner-math.md §4:
 
 1. for every particle ``p`` and every expert ``k`` of it, plus one new empty expert, the
    putative log weight is ``log w_p + log CRP(k) + log t_k(x) + log N(y; mu_k(x), s_k^2 I)``,
@@ -387,7 +387,7 @@ class Roger:
 
     def _gate_probs(self, slots: IntArray, xs: FloatArray) -> FloatArray:
         """``p(k | x) ∝ n_k t_k(x)`` over ``slots`` (+ ``alpha t_0(x)`` if the empty expert
-        takes part), normalised (paper Algorithm 2, roger-math.md §6)."""
+        takes part), normalised (paper Algorithm 2, docs/learner-math.md §6)."""
         lg = self._gates.log_predictive(slots, xs) + np.log(self._npts[slots])
         support = self.params.min_support
         if support > 1:  # too small to compete, unless no expert has the support

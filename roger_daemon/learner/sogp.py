@@ -1,12 +1,13 @@
 """Sparse online Gaussian process (Csató & Opper 2002), the regressor inside every expert.
 
 Multi-output: the ``d_y`` outputs are independent GPs with the same kernel and noise, so they
-share the covariance coefficients ``C`` and the inverse Gram matrix ``Q`` (roger-math.md §2.2):
+share the covariance coefficients ``C`` and the inverse Gram matrix ``Q``
+(docs/learner-math.md §2.2):
 
 * mean ``f(x) = A^T k_x``, latent variance ``k* + k_x^T C k_x`` (clamped at 1e-12);
 * predictive variance of ``y``: ``s0^2 + k* + k_x^T C k_x`` (noise added exactly once, pitfall 4).
 
-Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (roger-math.md
+Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (docs/learner-math.md
 §2.5); capacity ``beta`` is enforced by a ``while n > beta`` loop of KL-optimal deletions
 (thesis App. G(g), §2.7), followed by the geometric clean-up.  Every update is a symmetric
 low-rank term, so ``C`` and ``Q`` stay symmetric up to round-off (Csató's ``(C + C^T)/2`` is
@@ -23,7 +24,7 @@ unchanged; deletion scores use the centred columns only.
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
 vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
 one rank-2 update of ``Q``, done in place by BLAS on the contiguous ``beta x beta`` buffer
-(:func:`_fused_add_delete`, batched over experts by :func:`update_many`).  Buffers grow by
+(:mod:`.sogp_fused`, batched over experts by :func:`update_many`).  Buffers grow by
 1.5x as an expert does, up to ``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
 """
 
@@ -34,17 +35,19 @@ from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
-from scipy.linalg import cho_factor, cho_solve
-from scipy.linalg.blas import dgemm as _dgemm
+from scipy.linalg.lapack import dpotrf as _dpotrf
+from scipy.linalg.lapack import dpotri as _dpotri
 
 from roger_daemon.learner.kernel import RBFKernel
+from roger_daemon.learner.sogp_fused import add_lowrank as _add_lowrank
+from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
 
 __all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 
 LATENT_FLOOR = 1e-12  # clamp of k* + k^T C k (Grollman, OTL, Csató)
-_GAMMA_FLOOR = 1e-12  # projection residuals below this count as 0 (roger-math.md §2.5 step 3)
+_GAMMA_FLOOR = 1e-12  # projection residuals below this count as 0 (learner-math.md §2.5 step 3)
 _LOG_2PI = math.log(2.0 * math.pi)
 # Q = K_B^-1 is kept by rank-1 updates and drifts when K_B is ill-conditioned (pitfall 6: a
 # broad kernel and a small novelty threshold admit near-duplicate basis vectors). Two O(n)
@@ -53,25 +56,6 @@ _LOG_2PI = math.log(2.0 * math.pi)
 _Q_DRIFT_TOL = 1e-6
 _NEAR_DEPENDENT = 1e-3  # a basis vector added with gamma below this (x k*) re-inverts Q
 _Q_JITTER = 1e-10  # times k*: first jitter tried if K_B's Cholesky factorisation fails
-
-
-def _add_lowrank(buf: FloatArray, n: int, cols: FloatArray, coefs: FloatArray) -> None:
-    """``buf[:n, :n] += cols diag(coefs) cols^T`` (a symmetric rank-m update), in place.
-
-    One BLAS ``dgemm`` updates the whole contiguous buffer in place (``buf`` is symmetric, so
-    its transpose is the same matrix in Fortran order); when the live block is smaller than the
-    buffer the vectors are zero-padded, which leaves the padding unchanged.  Buffers grow by
-    1.5x, so at most ~2.25x the live block is touched; tiny blocks use numpy.
-    """
-    alloc = buf.shape[0]
-    if alloc == n:
-        _dgemm(1.0, cols, cols * coefs, 1.0, buf.T, trans_b=True, overwrite_c=True)
-    elif n >= 32:
-        padded = np.zeros((alloc, cols.shape[1]), order="F")
-        padded[:n] = cols
-        _dgemm(1.0, padded, padded * coefs, 1.0, buf.T, trans_b=True, overwrite_c=True)
-    else:
-        buf[:n, :n] += (cols * coefs) @ cols.T
 
 
 def gaussian_log_likelihood(sq_err: FloatArray | float, var: FloatArray | float, d_y: int,
@@ -118,7 +102,7 @@ class SparseOnlineGP:
     """
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_dg", "q_refreshes",
+                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_K", "_dg", "q_refreshes",
                  "prior_mean", "_m")
 
     def __init__(self, d_x: int, d_y: int, kernel: RBFKernel, noise: float,
@@ -142,6 +126,9 @@ class SparseOnlineGP:
         self._A: FloatArray = np.zeros((alloc, self.a_cols))
         self._C: FloatArray = np.zeros((alloc, alloc))
         self._Q: FloatArray = np.zeros((alloc, alloc))
+        # K_B, kept alongside Q (its rows are the kernel vectors already computed when each
+        # basis vector entered), so a re-inversion of Q costs a Cholesky, not a Gram matrix
+        self._K: FloatArray = np.zeros((alloc, alloc))
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
         self.q_refreshes = 0  # re-inversions of Q after detected drift
 
@@ -231,7 +218,7 @@ class SparseOnlineGP:
 
     def update(self, x: FloatArray, y: FloatArray,
                terms: tuple[FloatArray, FloatArray, FloatArray, float] | None = None) -> None:
-        """Learn one pair (Csató thesis eq. 2.46, App. G; roger-math.md §2.5).
+        """Learn one pair (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5).
 
         ``terms`` may pass :meth:`terms` ``(x)`` computed earlier for this very state.
         """
@@ -249,6 +236,7 @@ class SparseOnlineGP:
                 self._A[0] = y / (kstar + s0)
             self._C[0, 0] = -1.0 / (kstar + s0)
             self._Q[0, 0] = 1.0 / kstar
+            self._K[0, 0] = kstar
             self.n = 1
             self._shift_mean(y)
             return
@@ -273,7 +261,7 @@ class SparseOnlineGP:
             _fused_add_delete([self], x, y, k[None], ck[None], mean[None], np.array([latent]),
                               e_hat[None], np.array([gamma]))
         else:
-            self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
+            self._full_update(x, k, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6
         if 0.0 < gamma < _NEAR_DEPENDENT * kstar and self.n > 1:
             self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
@@ -288,23 +276,25 @@ class SparseOnlineGP:
         return bool(diag.size and float(diag.min()) * kstar < 1.0 - _Q_DRIFT_TOL)
 
     def refresh_inverse_gram(self) -> None:
-        """Re-invert ``Q = K_B^-1`` from the basis vectors by Cholesky (roger-math.md pitfall 6).
+        """Re-invert ``Q = K_B^-1`` by Cholesky (docs/learner-math.md, matrix drift).
 
         Only ``Q`` is a function of the basis alone; ``A`` and ``C`` carry the data and are kept.
-        Counted in :attr:`q_refreshes`.
+        ``K_B`` is the kept copy (no Gram matrix is recomputed); LAPACK ``dpotrf`` then
+        ``dpotri`` (the inverse from the factor, lower triangle mirrored, so ``Q`` is exactly
+        symmetric).  Counted in :attr:`q_refreshes`.
         """
         n = self.n
-        basis = self._B[:n]
-        gram = self.kernel.gram(basis, basis)
+        gram = self._K[:n, :n]
         jitter = 0.0
         while True:  # K_B is SPD in exact arithmetic; add jitter only if round-off says no
-            try:
-                factor = cho_factor(gram + jitter * np.eye(n), lower=True)
+            factor, info = _dpotrf(gram if jitter == 0.0 else gram + jitter * np.eye(n),
+                                   lower=1, clean=0)
+            if info == 0:
                 break
-            except np.linalg.LinAlgError:
-                jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
-        inv = cho_solve(factor, np.eye(n))
-        self._Q[:n, :n] = 0.5 * (inv + inv.T)
+            jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
+        inv, _ = _dpotri(factor, lower=1, overwrite_c=1)
+        low = np.tril(inv)
+        self._Q[:n, :n] = low + np.tril(low, -1).T
         self._dg = None
         self.q_refreshes += 1
 
@@ -343,8 +333,8 @@ class SparseOnlineGP:
                 break
             self.delete(i)
 
-    def _full_update(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray, gamma: float,
-                     r: float, q: FloatArray) -> None:
+    def _full_update(self, x: FloatArray, k: FloatArray, ck: FloatArray, e_hat: FloatArray,
+                     gamma: float, r: float, q: FloatArray) -> None:
         """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
         n = self.n
         self._dg = None
@@ -361,6 +351,9 @@ class SparseOnlineGP:
         for mat in (self._C, self._Q):
             mat[n, : n + 1] = 0.0
             mat[:n, n] = 0.0
+        self._K[n, :n] = k
+        self._K[:n, n] = k
+        self._K[n, n] = self.kernel.k_star
         _add_lowrank(self._C, n + 1, s[:, None], np.array([r]))
         _add_lowrank(self._Q, n + 1, e[:, None], np.array([1.0 / gamma]))
         self.n = n + 1
@@ -382,7 +375,7 @@ class SparseOnlineGP:
         if i != j:  # permute i to the end
             idx = [i, j]
             rev = [j, i]
-            for mat in (self._C, self._Q):
+            for mat in (self._C, self._Q, self._K):
                 v = mat[:n, :n]
                 v[idx] = v[rev]
                 v[:, idx] = v[:, rev]
@@ -417,7 +410,7 @@ class SparseOnlineGP:
             buf = np.zeros((new, old.shape[1]))
             buf[:n] = old[:n]
             setattr(self, name, buf)
-        for name in ("_C", "_Q"):
+        for name in ("_C", "_Q", "_K"):
             old = getattr(self, name)
             buf = np.zeros((new, new))
             buf[:n, :n] = old[:n, :n]
@@ -439,17 +432,19 @@ class SparseOnlineGP:
         out._A = self._A.copy()
         out._C = self._C.copy()
         out._Q = self._Q.copy()
+        out._K = self._K.copy()
         out._dg = None if self._dg is None else self._dg.copy()
         out.q_refreshes = self.q_refreshes
         return out
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,  # noqa: N803
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
-             mean: FloatArray | None = None) -> None:
+             mean: FloatArray | None = None, gram: FloatArray | None = None) -> None:
         """Set the state from arrays (inverse of reading :attr:`B`, :attr:`A`, :attr:`C`, ...).
 
         ``A`` has :attr:`a_cols` columns (``a1`` last with a prior mean); ``mean`` is
-        :attr:`mean_offset`.  ``alloc`` restores the buffer size too, so that a restored expert
+        :attr:`mean_offset`, ``gram`` the kept ``K_B`` (recomputed from ``B`` if ``None``).
+        ``alloc`` restores the buffer size too, so that a restored expert
         computes with the same memory layout as the saved one.
         """
         n = B.shape[0]
@@ -461,10 +456,12 @@ class SparseOnlineGP:
             self._A = np.zeros((size, self.a_cols))
             self._C = np.zeros((size, size))
             self._Q = np.zeros((size, size))
+            self._K = np.zeros((size, size))
         self._B[:n] = B
         self._A[:n] = A
         self._C[:n, :n] = C
         self._Q[:n, :n] = Q
+        self._K[:n, :n] = self.kernel.gram(B, B) if gram is None else gram
         self.n = n
         self.n_points = int(n_points)
         self._m = np.zeros(self.d_y) if mean is None else np.array(mean, dtype=np.float64)
@@ -534,109 +531,3 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
         if g < _NEAR_DEPENDENT * kstar and gp.n > 1:
             gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
         gp._shift_mean(y_pub)
-
-
-def _fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
-                      ks: FloatArray, cks: FloatArray, means: FloatArray, latents: FloatArray,
-                      e_hat: FloatArray, gamma: FloatArray) -> None:
-    """Full update to n + 1 BVs then one KL-optimal deletion, for u full experts at once.
-
-    With ``s = [Ck; 1]`` and ``e = [Q k; -1]`` the (n+1)-BV state would be
-    ``C1 = C (+) 0 + r s s^T``, ``Q1 = Q (+) 0 + e e^T / gamma``, ``A1 = A (+) 0 + s q^T``
-    (roger-math.md §2.5 step 4b).  Deleting BV ``i`` (§2.7) needs only column ``i`` and the
-    diagonals of ``C1`` and ``Q1``, which are O(n) from ``C``, ``Q``, ``s`` and ``e``.  The new
-    BV takes the place of ``i``, so with ``q_v``, ``c_v`` the columns of ``Q1``, ``C1`` at
-    ``i`` and ``w = q_v + c_v`` (all permuted so that index n sits at i)::
-
-        C2 = C_z + [s, q_v, w] diag(r, 1/q*, -1/(q* + c*)) [s, q_v, w]^T
-        Q2 = Q_z + [e, q_v] diag(1/gamma, -1/q*) [e, q_v]^T
-        A2 = A1 - w a*^T / (q* + c*)
-
-    (``C_z``: ``C`` with row and column ``i`` zeroed): one rank-3 and one rank-2 in-place
-    BLAS update per expert instead of five passes, and all O(n) vector work batched over the
-    experts.  Equal to :meth:`SparseOnlineGP._full_update` then
-    :meth:`SparseOnlineGP.delete` up to round-off (tested).  ``n_points`` is not touched.
-    """
-    u = len(gps)
-    n = gps[0].n
-    d_a = gps[0].a_cols
-    # deletion scores count the output columns only, not a prior mean's a1 column
-    cw = np.ones(d_a)
-    cw[gps[0].d_y:] = 0.0
-    rows = np.arange(u)
-    s0 = np.array([g.noise for g in gps])
-    r = -1.0 / (s0 + latents)  # Csató's K2
-    q = (y - means) / (s0 + latents)[:, None]  # Csató's K1
-    a_stack = np.stack([g._A for g in gps])  # (u, n, d_a)
-    a_flat = a_stack.reshape(u * n, d_a)
-    # deletion scores |A1_i|^2 / (Q1_ii + C1_ii) (Csató ogpbvmin.m), A1_i = A_i + s_i q
-    qw = q * cw
-    aq = np.matmul(a_stack, qw[:, :, None])[:, :, 0]
-    aa = ((a_flat * a_flat) @ cw).reshape(u, n)
-    qq = np.einsum("ud,ud->u", qw, q)
-    inv_gamma = 1.0 / gamma
-    num = np.empty((u, n + 1))
-    num[:, :n] = aa + cks * (2.0 * aq + cks * qq[:, None])
-    num[:, n] = qq
-    den_all = np.empty((u, n + 1))
-    dg0 = np.stack([g._diag_cq() for g in gps])  # diag(C) + diag(Q)
-    den_all[:, :n] = dg0
-    den_all[:, :n] += r[:, None] * (cks * cks) + (e_hat * e_hat) * inv_gamma[:, None]
-    den_all[:, n] = r + inv_gamma
-    idx = np.argmin(num / np.maximum(den_all, 1e-300), axis=1)
-    old = idx < n  # an old BV goes (the new one takes its place); else the new one goes
-    j_old = rows[old]
-    i_old = idx[old]
-    # vectors (u, 4, n+1): s = [Ck; 1], e = [Qk; -1], then the columns i of C1 and Q1
-    vecs = np.empty((u, 4, n + 1))
-    vecs[:, 0, :n] = cks
-    vecs[:, 0, n] = 1.0
-    vecs[:, 1, :n] = e_hat
-    vecs[:, 1, n] = -1.0
-    s_i = vecs[rows, 0, idx]
-    e_i = vecs[rows, 1, idx]
-    vecs[:, 2] = vecs[:, 0] * (r * s_i)[:, None]  # C1[:, i] = C(+)0 [:, i] + r s s_i
-    vecs[:, 3] = vecs[:, 1] * (e_i * inv_gamma)[:, None]  # Q1[:, i] = Q(+)0 [:, i] + e e_i / g
-    for j, i in zip(j_old.tolist(), i_old.tolist(), strict=True):  # row i == column i
-        vecs[j, 2, :n] += gps[j]._C[i]
-        vecs[j, 3, :n] += gps[j]._Q[i]
-    c_star = vecs[rows, 2, idx]
-    q_star = vecs[rows, 3, idx]
-    a_star = q * s_i[:, None]
-    a_star[old] += a_stack[j_old, i_old]
-    den = q_star + c_star
-    ok = den > 0.0
-    inv_den = np.where(ok, 1.0 / np.where(ok, den, 1.0), 0.0)  # broken: Q-only removal
-    # permute: index n moves to position i (for the rows where an old BV goes)
-    perm = vecs[:, :, :n]  # a view; fix position i in place
-    perm[j_old, :, i_old] = vecs[j_old, :, n]
-    w = perm[:, 3] + perm[:, 2]
-    a_stack[j_old, i_old] = 0.0  # A1 permuted: the new BV's row (at i) is 0 + 1 * q
-    left = np.stack([perm[:, 0], -w], axis=2)  # (u, n, 2)
-    right = np.stack([q, a_star * inv_den[:, None]], axis=1)  # (u, 2, d_y)
-    a_stack += np.matmul(left, right)
-    cols_c = np.empty((u, 3, n))  # cols_c[j].T is Fortran-ordered (n, 3)
-    cols_c[:, 0] = perm[:, 0]
-    cols_c[:, 1] = perm[:, 3]
-    cols_c[:, 2] = w
-    coef_c = np.stack([r, 1.0 / q_star, -inv_den], axis=1)
-    cols_q = np.empty((u, 2, n))
-    cols_q[:, 0] = perm[:, 1]
-    cols_q[:, 1] = perm[:, 3]
-    coef_q = np.stack([inv_gamma, -1.0 / q_star], axis=1)
-    # the diagonals of the new C and Q, for the next step's deletion scores
-    diag = dg0
-    diag[j_old, i_old] = 0.0
-    diag += np.einsum("ukn,uk->un", cols_c * cols_c, coef_c)
-    diag += np.einsum("ukn,uk->un", cols_q * cols_q, coef_q)
-    for j, gp in enumerate(gps):
-        if old[j]:
-            i = int(idx[j])
-            for mat in (gp._C, gp._Q):
-                mat[i, :] = 0.0
-                mat[:, i] = 0.0
-            gp._B[i] = x
-        gp._A[:n] = a_stack[j]
-        _add_lowrank(gp._C, n, cols_c[j].T, coef_c[j])
-        _add_lowrank(gp._Q, n, cols_q[j].T, coef_q[j])
-        gp._dg = diag[j].copy()

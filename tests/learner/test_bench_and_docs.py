@@ -12,7 +12,8 @@ import pytest
 from roger_daemon.cli import main
 from roger_daemon.learner.synthetic import subtask_stream
 
-MODULES = ["kernel", "sogp", "gate", "resampling", "roger", "unimap", "params", "synthetic"]
+MODULES = ["kernel", "sogp", "gate", "resampling", "roger", "unimap", "params", "synthetic",
+           "evidence"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -333,8 +333,66 @@ def test_state_round_trip_with_every_lever_and_schema_1_migration() -> None:
         del meta["params"][key]
     state["meta"] = np.array(json.dumps(meta))
     del state["expert_mean"]
+    del state["expert_K"]
     migrated = load_model(state)
     learn(old, s.x[100:], s.y[100:])
     learn(migrated, s.x[100:], s.y[100:])
     np.testing.assert_array_equal(old.assignments(), migrated.assignments())
     np.testing.assert_array_equal(old.particle_log_weights(), migrated.particle_log_weights())
+
+
+# -- the kept K_B (cheap re-inversions of Q) ----------------------------------------------
+
+
+@pytest.mark.parametrize("prior_mean", [False, True])
+def test_kept_gram_matrix_tracks_the_basis(prior_mean: bool) -> None:
+    """Through full updates, fused add-then-delete, KL and geometric deletions and copies, the
+    kept K_B equals the Gram matrix of the basis vectors, and a re-inversion gives K_B^-1."""
+    rng = np.random.default_rng(8)
+    model = gp(3, 2, width=1.5, capacity=15, threshold=1e-6, prior_mean=prior_mean)
+    plain = model.copy()
+    plain.fused = False
+    for step in range(300):
+        x = rng.uniform(-1, 1, 3) if step % 3 else np.full(3, 0.1) + 1e-4 * rng.normal(size=3)
+        y = rng.normal(size=2)
+        for g in (model, plain):
+            g.update(x, y)
+            n = g.n
+            np.testing.assert_allclose(g._K[:n, :n], g.kernel.gram(g.B, g.B), rtol=0,
+                                       atol=1e-15)
+    assert model.q_refreshes > 0 and plain.q_refreshes > 0  # near-duplicates re-invert Q
+    model.refresh_inverse_gram()
+    n = model.n
+    np.testing.assert_allclose(model.Q @ model._K[:n, :n], np.eye(n), atol=1e-6)
+    np.testing.assert_array_equal(model.Q, model.Q.T)
+
+
+# -- e. kernel width from the data (offline helper) ------------------------------------------
+
+
+def test_log_evidence_is_the_gaussian_marginal_likelihood() -> None:
+    from scipy.stats import multivariate_normal
+
+    from roger_daemon.learner.evidence import log_evidence
+
+    x, y = data(25, 2, 3, seed=9)
+    m = y.mean(axis=0)
+    cov = RBFKernel(0.8, 2).gram(x, x) + 0.05 * np.eye(25)
+    ref = sum(multivariate_normal(np.full(25, m[j]), cov).logpdf(y[:, j]) for j in range(3))
+    assert log_evidence(x, y, 0.8, 0.05, prior_mean=m) == pytest.approx(ref, rel=1e-10)
+
+
+def test_select_width_recovers_the_width_of_a_gp_sample() -> None:
+    from roger_daemon.learner.evidence import select_width
+
+    rng = np.random.default_rng(11)
+    x = rng.uniform(-2, 2, (150, 2))
+    cov = RBFKernel(0.5, 2).gram(x, x) + 1e-3 * np.eye(150)
+    y = np.linalg.cholesky(cov) @ rng.normal(size=(150, 2))
+    best, scores = select_width(x, y, [0.05, 0.5, 5.0], 1e-3)
+    assert best == 0.5 and scores.shape == (3,) and np.argmax(scores) == 1
+    best_w, _ = select_width(np.vstack([x, x]), np.vstack([y, y]), [0.05, 0.5, 5.0], 1e-3,
+                             window=150, center=True)
+    assert best_w == 0.5
+    with pytest.raises(ValueError, match="widths must be a non-empty"):
+        select_width(x, y, [], 1e-3)

@@ -111,6 +111,21 @@ def test_underflow_and_invalid_weights() -> None:
         fearnhead_resample(np.array([0.0, np.inf]), 1, np.random.default_rng(0))
 
 
+def test_fewer_than_p_weights_survive_exp() -> None:
+    """Weights 1000 nats below the best underflow to 0: the rest are resampled in log space
+    (it used to fail with log(0)); the result equals resampling them on their own."""
+    lw = np.array([0.0, -0.5, -1000.0, -1001.0, -1000.5, -1002.0, -1003.0])
+    idx, out = fearnhead_resample(lw, 4, np.random.default_rng(3))
+    assert idx.size == 4 and np.unique(idx).size == 4 and {0, 1} <= set(idx.tolist())
+    assert _lse(out) == pytest.approx(0.0) and np.all(np.isfinite(out))
+    top = np.log(np.exp(lw[:2]).sum())
+    np.testing.assert_allclose(out[:2], lw[:2] - top, rtol=1e-12)
+    ref_idx, ref_out = fearnhead_resample(lw[2:], 2, np.random.default_rng(3))
+    assert (idx[2:] - 2).tolist() == ref_idx.tolist()
+    rest = np.log(np.exp(lw[2:] + 1000.0).sum()) - 1000.0
+    np.testing.assert_allclose(out[2:], ref_out + rest - top, rtol=1e-12)
+
+
 def test_no_draw_when_nothing_to_resample() -> None:
     rng = np.random.default_rng(7)
     state = rng.bit_generator.state
