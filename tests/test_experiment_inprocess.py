@@ -51,6 +51,15 @@ def test_start_poses_from_toml_and_json(tmp_path: Path) -> None:
         poses[0].robot, poses[0].ball, poses[0].name)
 
 
+def test_the_example_held_out_poses_are_valid_and_new() -> None:
+    from simulator.episodes import START_LOCATIONS
+
+    poses = load_start_poses(Path(__file__).parents[1] / "configs" / "held-out-poses.toml")
+    assert len(poses) >= 5
+    known = {(s.robot, s.ball) for s in START_LOCATIONS}
+    assert not any((p.robot, p.ball) in known for p in poses)
+
+
 @pytest.mark.parametrize(("data", "needle"), [
     ({"poses": []}, "'pose' array"),
     ({"pose": []}, "non-empty array"),
