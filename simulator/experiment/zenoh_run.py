@@ -54,6 +54,7 @@ class ZenohRun:
         self.console = console
         self.timings = timings
         self.errors: list[str] = []
+        self.reused = 0
 
     def _phase(self, name: str, t0: float) -> None:
         self.timings[name] = round(time.monotonic() - t0, 2)
@@ -91,6 +92,7 @@ class ZenohRun:
             check = self._check(stream, models[0][1], progress)
             digests = self._checkpoints(stream, models, unimap)
             ev, oracle_eps = self._evaluate(runner, progress, stream, models, unimap, digests)
+            self.reused = runner.reused
         return self._results(demo_results, data, stream, models, unimap, ev, oracle_eps,
                              check, train_s)
 
@@ -212,6 +214,7 @@ class ZenohRun:
             **{k: controller_stats([r for r in ev if r.job.key == k]) for k in episodes
                if k != "oracle"},
         }
+        results["resumed_jobs"] = self.reused
         results["jobs_wall_s"] = {
             "demo": round(sum(r.wall_s for r in demo_results), 1),
             **{k: round(sum(r.wall_s for r in ev if r.job.key == k), 1) for k in episodes
