@@ -104,7 +104,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 #: How the transitioner picks among the experts of the current subtask (``--rule``).
-RULES = ("variance", "gate")
+RULES = ("variance", "gate", "support")
 
 
 def choose_expert(
@@ -114,7 +114,8 @@ def choose_expert(
 
     Among the experts labelled ``subtask`` (majority label of their data, paper section IV.A):
     ``rule = "variance"`` takes the lowest predictive variance (the expert most confident at
-    this perception, issue 13's measured rule), ``"gate"`` the highest gate probability;
+    this perception, issue 13's measured rule), ``"gate"`` the highest gate probability,
+    ``"support"`` the expert holding the most points (the broadest fit of the subtask);
     either way ``"label"``. If none carries the label, the highest-probability expert overall
     (``"fallback_top"``); ``(None, "fallback_mean")`` for an empty multimap. Remaining ties go to
     the higher gate probability, then the lower expert id.
@@ -129,6 +130,8 @@ def choose_expert(
         return ranked[0], "fallback_top"
     if rule == "variance":
         return min(mine, key=lambda e: float(np.sum(e.var))), "label"
+    if rule == "support":
+        return max(mine, key=lambda e: e.n), "label"
     return mine[0], "label"
 
 

@@ -104,6 +104,8 @@ def test_transitioner_rules_variance_and_gate() -> None:
     mm = (_e(1, 0.6, "aim", 0.5), _e(2, 0.3, "aim", 0.1), _e(3, 0.1, "kick", 0.01))
     assert choose_expert(mm, "aim", "variance") == (mm[1], "label")
     assert choose_expert(mm, "aim", "gate") == (mm[0], "label")
+    big = (ExpertOutput(4, 0.2, np.zeros(9), np.ones(9), 500, "aim"), *mm)
+    assert choose_expert(big, "aim", "support") == (big[0], "label")
     assert choose_expert(mm, "trap", "variance") == (mm[0], "fallback_top")
     y, how, expert = transition_command(mm, None, "aim", "variance")
     assert how == "label" and expert == 2 and np.all(y == 2.0)

@@ -135,7 +135,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--learner-seeds", type=int, default=None,
                         help="ROGER models trained with seeds SEED..SEED+N-1, each evaluated "
                         "(default 3; --quick: 1)")
-    parser.add_argument("--rule", choices=("variance", "gate"), default="variance",
+    parser.add_argument("--rule", choices=("variance", "gate", "support"), default="variance",
                         help="transitioner rule among the subtask's experts (default variance)")
     parser.add_argument("--preset", default=None,
                         help="learner preset (e.g. 'paper': the paper's literal numbers, every "
