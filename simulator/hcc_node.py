@@ -7,8 +7,9 @@
   the daemon's ``prediction``(t) (``--prediction-timeout`` seconds at most, matched by tick;
   in ``--clock realtime`` the newest prediction not older than ``--max-prediction-age`` ticks),
   and publishes as ``command``(t) the mean of the expert whose ``label`` is that subtask with
-  the lowest predictive variance (``--rule variance``, default) or the highest gate
-  probability ``p`` (``--rule gate``). ``source = "hcc:transitioner:<subtask>:<expert>:<how>"``
+  the most points (``--rule support``, default), the lowest predictive variance (``--rule
+  variance``) or the highest gate probability ``p`` (``--rule gate``).
+  ``source = "hcc:transitioner:<subtask>:<expert>:<how>"``
   where ``how`` is ``label`` or a fallback:
 
   - ``fallback_top``: no expert carries that label -> the highest-``p`` expert overall;
@@ -95,28 +96,28 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--rule",
         choices=RULES,
-        default="variance",
-        help="transitioner: among the subtask's experts take the lowest predictive variance "
-        "(default) or the highest gate probability",
+        default="support",
+        help="transitioner: among the subtask's experts take the one with the most points "
+        "(default), the lowest predictive variance, or the highest gate probability",
     )
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
     add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
 
 
 #: How the transitioner picks among the experts of the current subtask (``--rule``).
-RULES = ("variance", "gate", "support")
+RULES = ("support", "variance", "gate")
 
 
 def choose_expert(
-    multimap: tuple[ExpertOutput, ...], subtask: str, rule: str = "variance"
+    multimap: tuple[ExpertOutput, ...], subtask: str, rule: str = "support"
 ) -> tuple[ExpertOutput | None, str]:
     """The expert the transitioner uses for ``subtask``, and how it was chosen.
 
     Among the experts labelled ``subtask`` (majority label of their data, paper section IV.A):
-    ``rule = "variance"`` takes the lowest predictive variance (the expert most confident at
-    this perception, issue 13's measured rule), ``"gate"`` the highest gate probability,
-    ``"support"`` the expert holding the most points (the broadest fit of the subtask);
-    either way ``"label"``. If none carries the label, the highest-probability expert overall
+    ``rule = "support"`` (default) takes the expert holding the most points (the broadest fit
+    of the subtask; measured best, docs/goal-scoring.md), ``"variance"`` the lowest
+    predictive variance at this perception, ``"gate"`` the highest gate probability; either
+    way ``"label"``. If none carries the label, the highest-probability expert overall
     (``"fallback_top"``); ``(None, "fallback_mean")`` for an empty multimap. Remaining ties go to
     the higher gate probability, then the lower expert id.
     """

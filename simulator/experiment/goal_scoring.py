@@ -81,7 +81,7 @@ class Plan:
     seeds: dict[str, int] = field(default_factory=dict)
     shots: int = 1
     learner_seeds: int = 1
-    rule: str = "variance"
+    rule: str = "support"
     in_process: bool = False
     start_poses: str | None = None
     preset: str | None = None
@@ -135,8 +135,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--learner-seeds", type=int, default=None,
                         help="ROGER models trained with seeds SEED..SEED+N-1, each evaluated "
                         "(default 3; --quick: 1)")
-    parser.add_argument("--rule", choices=("variance", "gate", "support"), default="variance",
-                        help="transitioner rule among the subtask's experts (default variance)")
+    parser.add_argument("--rule", choices=("support", "variance", "gate"), default="support",
+                        help="transitioner rule among the subtask's experts (default support)")
     parser.add_argument("--preset", default=None,
                         help="learner preset (e.g. 'paper': the paper's literal numbers, every "
                         "lever off); same as --set learner.preset=NAME")

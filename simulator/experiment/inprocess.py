@@ -123,7 +123,7 @@ class TransitionerController:
     """ROGER's experts, chosen by the HCC's current subtask (``roger hcc --role transitioner``)."""
 
     def __init__(self, hcc: HCC, model: Any, expert_labels: Mapping[int, str],
-                 rule: str = "gate") -> None:
+                 rule: str = "support") -> None:
         self.hcc = hcc
         self.model = model
         self.labels = dict(expert_labels)

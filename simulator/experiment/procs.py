@@ -205,7 +205,7 @@ class EpisodeJob:
     task_config: str | None = None
     model_digest: str = ""  # of the checkpoint resumed from (part of the job's identity)
     name: str = ""  # result key (e.g. "roger:1" for the model of the second learner seed)
-    rule: str = "variance"  # the transitioner's rule (roger hcc --rule)
+    rule: str = "support"  # the transitioner's rule (roger hcc --rule)
 
     @property
     def key(self) -> str:
