@@ -227,7 +227,8 @@ class EpisodeJob:
             "attempts": self.attempts, "seed": self.seed, "time_limit": self.time_limit,
             "vision": self.vision, "learner": dict(self.learner),
             "learner_seed": self.learner_seed, "task_config": self.task_config,
-            "model_digest": self.model_digest, "name": self.name, "rule": self.rule,
+            "model_digest": self.model_digest, "name": self.name,
+            "rule": self.rule if self.controller == "roger" else "",
         }
 
     def timeout_s(self) -> float:
