@@ -3,7 +3,7 @@
 No I/O here.  The public API (``docs/learner-api.md``)::
 
     from roger_daemon.learner import RogerParams, Roger, UnimapGP, Prediction, ExpertPrediction
-    from roger_daemon.learner import ParameterError, load_model
+    from roger_daemon.learner import ParameterError, load_model, PRESETS
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from roger_daemon.learner.gate import NIWGate
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.load import load_model
-from roger_daemon.learner.params import ParameterError, RogerParams
+from roger_daemon.learner.params import PRESETS, ParameterError, RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
 from roger_daemon.learner.roger import Roger
@@ -21,6 +21,7 @@ from roger_daemon.learner.unimap import UnimapGP
 __all__ = [
     "ExpertPrediction",
     "NIWGate",
+    "PRESETS",
     "ParameterError",
     "Prediction",
     "RBFKernel",

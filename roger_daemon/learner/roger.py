@@ -39,6 +39,7 @@ from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
+from roger_daemon.learner.roger_state import load_roger_state, roger_state_dict
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import (
     LATENT_FLOOR,
@@ -47,14 +48,8 @@ from roger_daemon.learner.sogp import (
     update_many,
 )
 from roger_daemon.learner.state import (
-    SCHEMA_VERSION,
     Seed,
-    generator_from_state,
-    generator_state,
-    pack_experts,
-    pack_meta,
     spawn_generators,
-    unpack_experts,
     unpack_meta,
 )
 
@@ -515,38 +510,7 @@ class Roger:
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata; see :mod:`.state`.  No object arrays."""
-        # canonical order: slots by first appearance in the particles (not by slot number)
-        flat = np.concatenate(self._particles)
-        _, first = np.unique(flat, return_index=True)
-        live = flat[np.sort(first)]
-        compact = np.full(len(self._gps), -1, dtype=np.int64)
-        compact[live] = np.arange(live.size)
-        gps = [self._gps[s] for s in live.tolist()]
-        assert all(g is not None for g in gps)
-        out = pack_experts([g for g in gps if g is not None], self._dm, self.d_y)
-        g = self._gates
-        for name in g.FIELDS:
-            out[f"gate_{name}"] = getattr(g, name)[live].copy()
-        out["expert_id"] = self._ids[live].copy()
-        out["expert_count"] = self._npts[live].copy()
-        sizes = np.array([a.size for a in self._particles], dtype=np.int64)
-        out["particle_log_weights"] = self._logw.copy()
-        out["particle_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-        out["particle_experts"] = compact[flat]
-        out["history_ancestor"] = self._hist_anc[: self.n_learned].copy()
-        out["history_expert"] = self._hist_eid[: self.n_learned].copy()
-        out["meta"] = pack_meta({
-            "schema": SCHEMA_VERSION,
-            "kind": self.kind,
-            "d_x": self.d_x,
-            "d_y": self.d_y,
-            "params": self.params.to_mapping(),
-            "n_learned": self.n_learned,
-            "next_expert_id": self._next_id,
-            "rng_learn": generator_state(self._learn_rng),
-            "rng_predict": generator_state(self._predict_rng),
-        })
-        return out
+        return roger_state_dict(self)
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, np.ndarray]) -> Roger:
@@ -562,28 +526,4 @@ class Roger:
         return model
 
     def _load(self, state: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        self._learn_rng = generator_from_state(meta["rng_learn"])
-        self._predict_rng = generator_from_state(meta["rng_predict"])
-        gps = unpack_experts(state, self._new_gp)
-        u = len(gps)
-        for _ in range(u):
-            self._alloc_slot()
-        for s, gp in enumerate(gps):
-            self._gps[s] = gp
-        g = self._gates
-        for name in g.FIELDS:
-            getattr(g, name)[:u] = state[f"gate_{name}"]
-        self._ids[:u] = state["expert_id"]
-        self._npts[:u] = state["expert_count"]
-        offsets = np.asarray(state["particle_offsets"], dtype=np.int64)
-        flat = np.asarray(state["particle_experts"], dtype=np.int64)
-        self._particles = [flat[offsets[i]:offsets[i + 1]].copy()
-                           for i in range(offsets.size - 1)]
-        self._logw = np.asarray(state["particle_log_weights"], dtype=np.float64).copy()
-        self._ref = np.bincount(flat, minlength=len(self._gps)).astype(np.int64)
-        self.n_learned = int(meta["n_learned"])
-        self._next_id = int(meta["next_expert_id"])
-        width = self.params.particles
-        self._hist_anc = np.asarray(state["history_ancestor"], dtype=np.int32).reshape(-1, width)
-        self._hist_eid = np.asarray(state["history_expert"], dtype=np.int64).reshape(-1, width)
-
+        load_roger_state(self, state, meta)
