@@ -9,10 +9,12 @@ STAMP := $(VENV)/.installed
 venv: $(STAMP)
 
 $(STAMP): pyproject.toml
+	@echo "==> creating $(VENV) and installing roger with its dependencies (about 1.5 min the first time)"
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --progress-bar on -e '.[test]'
 	touch $(STAMP)
+	@echo "==> installed: run commands as $(BIN)/roger, or '. $(BIN)/activate' first"
 
 demo: $(STAMP)
 	$(BIN)/roger demo

@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import logging
-import os
 import sys
 from collections.abc import Sequence
+
+from roger_daemon import __version__
+from roger_daemon.console import LOG_LEVELS, configure_logging, guarded
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -31,6 +32,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "hcc": ("simulator.hcc_node", "the hand-coded FSM goal scorer: demonstrator or transitioner"),
     "experiment": ("simulator.experiment.cli", "experiments: goal-scoring (paper section IV)"),
     "demo": ("simulator.experiment.demo", "a short end-to-end session: demonstrate, learn, act"),
+    "list": ("roger_daemon.tools.listing", "daemons alive (liveliness) and the robots they serve"),
+    "status": ("roger_daemon.tools.status", "a robot's daemon status, readable (--watch, --json)"),
+    "echo": ("roger_daemon.tools.echo", "print the decoded messages on a key expression"),
+    "hz": ("roger_daemon.tools.hz", "the rate of messages on a key expression"),
+    "control": ("roger_daemon.tools.control", "mode, reset or checkpoint, confirmed by the daemon"),
+    "config": ("roger_daemon.tools.config_example", "print shipped config files (daemon, systemd)"),
+    "up": ("roger_daemon.launch", "start daemon, simulator and controller from one TOML file"),
+    "view": ("simulator.view.node", "live Foxglove view (WebSocket) of a session, or of a log"),
 }
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()
@@ -42,33 +51,47 @@ BENCHES: dict[str, tuple[str, str]] = {
 }
 
 
-def _configure_logging() -> None:
-    """Log once, to stderr, in a journald-friendly format (no timestamps under systemd)."""
-    level = os.environ.get("ROGER_LOG_LEVEL", "INFO").upper()
-    under_journal = "JOURNAL_STREAM" in os.environ or "INVOCATION_ID" in os.environ
-    fmt = "%(levelname)s %(name)s: %(message)s" if under_journal else (
-        "%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
-    logging.basicConfig(level=level, format=fmt, stream=sys.stderr)
+def _add_log_level(parser: argparse.ArgumentParser, default: str | None) -> None:
+    """``--log-level``, accepted before and after the subcommand (one name everywhere)."""
+    parser.add_argument("--log-level", choices=LOG_LEVELS, type=str.lower,
+                        default=default if default is not None else argparse.SUPPRESS,
+                        help="log messages at this level and above on stderr (default: "
+                             "$ROGER_LOG_LEVEL or info)")
+
+
+def build_parser(table: dict[str, tuple[str, str]], prog: str,
+                 wanted: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``table``; only the ``wanted`` subcommand is configured (``"*"``: all)."""
+    parser = argparse.ArgumentParser(prog=prog)
+    if table is COMMANDS:
+        parser.add_argument("--version", action="version", version=f"roger {__version__}",
+                            help="print the version and exit")
+        _add_log_level(parser, None)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, (module, help_text) in table.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == wanted or wanted == "*":
+            importlib.import_module(module).configure(p)
+            _add_log_level(p, None)
+        p.set_defaults(_module=module)
+    return parser
 
 
 def dispatch(table: dict[str, tuple[str, str]], prog: str, argv: Sequence[str]) -> int:
     """Parse ``argv`` against ``table`` and run the chosen module."""
-    parser = argparse.ArgumentParser(prog=prog)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
-    wanted = next((a for a in argv if not a.startswith("-")), None)
-    for name, (module, help_text) in table.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        if name == wanted:
-            importlib.import_module(module).configure(p)
-        p.set_defaults(_module=module)
-    args = parser.parse_args(list(argv))
+    wanted = next((a for a in argv if a in table), None)
+    args = build_parser(table, prog, wanted).parse_args(list(argv))
+    if table is COMMANDS or getattr(args, "log_level", None):  # bench NAME --log-level too
+        configure_logging(getattr(args, "log_level", None))
+    from roger_daemon.blas import pin_blas_threads
+
+    pin_blas_threads(1)  # results never depend on the BLAS thread count (roger_daemon/blas.py)
     code: int = importlib.import_module(args._module).run(args)
     return code
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``roger`` console script."""
-    _configure_logging()
-    return dispatch(COMMANDS, "roger", sys.argv[1:] if argv is None else list(argv))
+    args = sys.argv[1:] if argv is None else list(argv)
+    return guarded("roger", lambda: dispatch(COMMANDS, "roger", args))

@@ -11,36 +11,31 @@ shutdown drains, checkpoints and closes within a few seconds, exit status 0.
 
 from __future__ import annotations
 
-import os
+# One BLAS thread computes (the loop owns the model): pinned for every `roger` command by
+# roger_daemon.cli (roger_daemon/blas.py). Multithreaded BLAS on a small machine also fights
+# Zenoh's threads for cores: measured on 2 cores, a busy second core doubled learn_one's
+# median and produced 60-80 ms spikes.
+import argparse
+import json
+import logging
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
 
-# One thread computes (the loop owns the model); multithreaded BLAS on a small machine only
-# fights Zenoh's threads and the other processes for cores: measured on 2 cores, a busy second
-# core doubled learn_one's median and produced 60-80 ms spikes. Must precede numpy's import;
-# an explicit setting in the environment wins.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-import argparse  # noqa: E402
-import json  # noqa: E402
-import logging  # noqa: E402
-import signal  # noqa: E402
-import time  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
-from pathlib import Path  # noqa: E402
-from types import FrameType  # noqa: E402
-from typing import Any  # noqa: E402
-
-from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION, Dims  # noqa: E402
-from roger_daemon.checkpoint import (  # noqa: E402
+from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION, Dims
+from roger_daemon.checkpoint import (
     Checkpoint,
     CheckpointError,
     load_newest,
     write_checkpoint,
 )
-from roger_daemon.config import ConfigError, DaemonConfig, RobotConfig, load_config  # noqa: E402
-from roger_daemon.robot import RobotRuntime  # noqa: E402
-from roger_daemon.sdnotify import Notifier  # noqa: E402
-from roger_daemon.service import Recorder, Service, checkpoint_snapshot  # noqa: E402
+from roger_daemon.config import ConfigError, DaemonConfig, RobotConfig, load_config
+from roger_daemon.robot import RobotRuntime
+from roger_daemon.sdnotify import Notifier
+from roger_daemon.service import Recorder, Service, checkpoint_snapshot
 
 __all__ = [
     "Resumed",

@@ -111,7 +111,7 @@ class DaemonProcess:
             time.sleep(0.05)
         raise TimeoutError(f"{text!r} not in the daemon log after {timeout} s:\n{self.log()}")
 
-    def wait_ready(self, timeout: float = 30.0) -> None:
+    def wait_ready(self, timeout: float = 120.0) -> None:
         self.wait_for_log(" ready: ", timeout)
 
     def terminate(self, timeout: float = 10.0,
@@ -209,7 +209,7 @@ class Client:
 
     # --- waiting -----------------------------------------------------------------------------
 
-    def wait_daemon(self, timeout: float = 10.0) -> None:
+    def wait_daemon(self, timeout: float = 60.0) -> None:
         """Wait until the daemon's liveliness token is visible (link and declarations up)."""
         end = time.monotonic() + timeout
         key = keys.daemon_liveliness(self.daemon_id)
@@ -221,7 +221,7 @@ class Client:
             time.sleep(0.1)
         raise TimeoutError(f"daemon token {key} not seen within {timeout} s")
 
-    def wait_prediction(self, tick: int, timeout: float = 5.0) -> Received:
+    def wait_prediction(self, tick: int, timeout: float = 60.0) -> Received:
         end = time.monotonic() + timeout
         with self._cond:
             while True:
@@ -233,7 +233,7 @@ class Client:
                     raise TimeoutError(f"no prediction for tick {tick} within {timeout} s")
                 self._cond.wait(left)
 
-    def wait_status(self, predicate: Any = None, timeout: float = 10.0) -> Status:
+    def wait_status(self, predicate: Any = None, timeout: float = 60.0) -> Status:
         """The first status received from now on that satisfies ``predicate``."""
         end = time.monotonic() + timeout
         with self._cond:

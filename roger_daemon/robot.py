@@ -25,8 +25,9 @@ import numpy as np
 
 from protocols.errors import REASONS
 from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
+from roger_daemon.labels import majority_labels_coded
 
-__all__ = ["Pair", "RobotRuntime", "majority_labels"]
+__all__ = ["Pair", "RobotRuntime"]
 
 log = logging.getLogger(__name__)
 
@@ -42,23 +43,6 @@ class Pair:
     y: np.ndarray
     label: int
     tick: int
-
-
-def majority_labels(assignments: np.ndarray, codes: np.ndarray, vocab: list[str]) -> dict[int, str]:
-    """Expert id -> most frequent non-empty label of its points ("" if none is labelled).
-
-    Ties go to the label seen first (lowest code), so the result is deterministic.
-    """
-    if len(assignments) == 0 or not vocab:
-        return {}
-    ids, inv = np.unique(assignments, return_inverse=True)
-    n_lab = len(vocab)
-    counts = np.bincount(inv * n_lab + codes, minlength=len(ids) * n_lab).reshape(len(ids), n_lab)
-    if "" in vocab:
-        counts[:, vocab.index("")] = 0
-    best = counts.argmax(axis=1)
-    has = counts.max(axis=1) > 0
-    return {int(e): (vocab[int(b)] if h else "") for e, b, h in zip(ids, best, has, strict=True)}
 
 
 class _Window:
@@ -270,7 +254,7 @@ class RobotRuntime:
                             f"{len(codes)} labels; labels mapped on the common prefix")
             n = min(len(assign), len(codes))
             assign, codes = assign[:n], codes[:n]
-        labels = majority_labels(assign, codes, self.vocab)
+        labels = majority_labels_coded(assign, codes, self.vocab)
         self._labels_cache = (self.generation, labels)
         return labels
 

@@ -28,7 +28,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -48,6 +48,7 @@ from protocols.messages import (
 )
 from roger_daemon.checkpoint import write_checkpoint
 from roger_daemon.config import DaemonConfig
+from roger_daemon.health import LOG_LEVEL_OF, Health
 from roger_daemon.robot import RobotRuntime, _Window
 from roger_daemon.sdnotify import Notifier
 from roger_daemon.transport import Inbox, Incoming, Publisher, Transport
@@ -59,6 +60,7 @@ log = logging.getLogger(__name__)
 INPUT_KINDS = ("perception", "action", "control")
 RECORD_ONLY_KINDS = ("command", "episode")
 _MS = 1_000_000
+MAX_DRAIN_PER_STEP = 512  # inbox items handled per loop cycle
 
 
 class Clock(Protocol):
@@ -208,6 +210,9 @@ class Service:
         self.final_checkpoints_ok = True
         self._reported: set[str] = set()
         self._recorder_failed: set[str] = set()
+        self._health = {r: Health() for r in self.robots}
+        # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
+        self._acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
 
     # --- life cycle ----------------------------------------------------------------------
 
@@ -231,6 +236,8 @@ class Service:
             self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roger-ckpt")
         self._next_tick = now + self._period_ns
         self._next_status = now + self._status_period_ns
+        for rt in self.robots.values():  # the baseline that health changes are judged from
+            self._health[rt.robot].assess(self.status_of(rt, now).to_map(), now)
         summary = ", ".join(
             f"{r.robot} ({r.mode}, {r.updates} updates)" for r in self.robots.values()
         )
@@ -279,7 +286,9 @@ class Service:
         else:
             wait = max(0.0, min(max_wait_s, (self._next_deadline() - now) / 1e9))
         item = self.inbox.get(wait)
-        budget = self.inbox.capacity
+        # bounded, so that a backlog (lockstep runs ahead of learning) never starves status,
+        # checkpoints, the watchdog or a stop request: the rest waits for the next cycle
+        budget = min(self.inbox.capacity, MAX_DRAIN_PER_STEP)
         while item is not None and budget > 0:
             self._handle(item)
             budget -= 1
@@ -418,6 +427,12 @@ class Service:
         elif msg.op == "checkpoint":
             log.info("%s: checkpoint requested", rt.robot)
             self._checkpoint(rt, "requested")
+        n = self._acks[rt.robot][0] + 1
+        self._acks[rt.robot] = (n, msg.op, msg.stamp_ns)
+        # confirm at once: a status carrying this control's stamp (protocols/README.md, control)
+        now = self.clock.monotonic_ns()
+        st = self.status_of(rt, now)
+        self._publish(rt, self._pubs[rt.robot].status, keys.status(rt.robot), st)
 
     # --- output ----------------------------------------------------------------------------
 
@@ -486,6 +501,7 @@ class Service:
             "learn_errors": rt.learn_errors,
             "predict_errors": rt.predict_errors,
             "inbox_overflow": self.inbox.overflow,
+            "inbox_depth": len(self.inbox),
             "labels": len(rt.vocab),
             "checkpoint": ck.path,
             "checkpoint_updates": ck.updates,
@@ -497,6 +513,11 @@ class Service:
             "last_learned_tick": -1 if rt.last_learned_tick is None else rt.last_learned_tick,
             "recording": rt.robot in self.recorders,
             "recording_errors": self.stats.recording_errors,
+            "controls": self._acks[rt.robot][0],
+            "control_op": self._acks[rt.robot][1],
+            "control_stamp_ns": self._acks[rt.robot][2],
+            "level": self._health[rt.robot].last[0],
+            "level_reasons": self._health[rt.robot].last[1],
         }
         return Status(
             rt.robot, rt.last_tick, rt.last_t, daemon=self.config.id, mode=rt.mode,
@@ -511,11 +532,17 @@ class Service:
         lines = []
         for rt in self.robots.values():
             st = self.status_of(rt, now)
+            before = self._health[rt.robot].last[0]
+            level, reasons = self._health[rt.robot].assess(st.to_map(), now)
+            if level != before:  # into the journal too: journalctl -p warning shows it
+                log.log(LOG_LEVEL_OF[level], "%s: status %s%s", rt.robot, level,
+                        f" ({reasons})" if reasons else "")
+            st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
             self._publish(rt, self._pubs[rt.robot].status, keys.status(rt.robot), st)
             lines.append(
                 f"{rt.robot}: {st.mode}, {st.updates} updates ({st.updates_per_s:.1f}/s), "
                 f"{st.experts} experts, queue {st.queue_depth}, dropped {st.dropped}, "
-                f"p99 {st.latency_ms_p99:.1f} ms"
+                f"p99 {st.latency_ms_p99:.1f} ms, {level}"
             )
         self.notifier.status("; ".join(lines))
 

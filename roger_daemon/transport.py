@@ -5,7 +5,7 @@ thread and must only be enqueued), ``publisher`` (one per key, declared once), `
 (liveliness), ``stop_intake`` and ``close``. :class:`ZenohTransport` implements it with one
 Zenoh session; :class:`MemoryTransport` is the in-memory fake used by the unit tests.
 
-Zenoh rules followed here (``zenoh-mcap-systemd-notes.md`` sections 0 and 1):
+Zenoh rules followed here (docs/zenoh-notes.md §1, §3.1 and §4):
 
 - callbacks only copy the payload and push onto the :class:`Inbox`, never call Zenoh, never
   block (``put_nowait``; an overflow is counted);
@@ -36,6 +36,7 @@ __all__ = [
     "Publisher",
     "Transport",
     "ZenohTransport",
+    "open_session",
     "zenoh_config",
 ]
 
@@ -147,6 +148,13 @@ def zenoh_config(settings: ZenohSettings) -> Any:
     return cfg
 
 
+def open_session(settings: ZenohSettings) -> Any:
+    """Open one ``zenoh.Session`` from ``settings`` (the daemon's and the operator tools')."""
+    import zenoh
+
+    return zenoh.open(zenoh_config(settings))
+
+
 class _ZenohPublisher:
     def __init__(self, pub: Any) -> None:
         self._pub = pub
@@ -163,7 +171,7 @@ class ZenohTransport:
 
         self._zenoh = zenoh
         self._max = max_payload_bytes
-        self.session = zenoh.open(zenoh_config(settings))
+        self.session = open_session(settings)
         self._subs: list[Any] = []
         self._pubs: list[Any] = []
         self._tokens: list[Any] = []

@@ -1,7 +1,7 @@
 """Parameters of the AIBO soccer simulator: field, ball, robot, camera, motions, episodes.
 
 Every number is a field of a frozen dataclass with a documented default; the sources are
-``../shared/reference/aibo-soccer-facts.md`` (section numbers in the comments). A TOML file
+in ``docs/aibo-simulation.md`` (section numbers in the comments). A TOML file
 (``configs/aibo.toml``) can override any field, table by table; unknown keys are an error.
 """
 
@@ -50,7 +50,7 @@ def _non_negative(obj: object, *names: str) -> None:
 
 @dataclass(frozen=True)
 class FieldConfig:
-    """RoboCup 4-legged field, 2005 rules (facts section 2). Metres; +x points at ``attack``."""
+    """RoboCup 4-legged field, 2005 rules (docs/aibo-simulation.md §2). Metres; +x at ``attack``."""
 
     length: float = 5.4  # between the goal lines
     width: float = 3.6  # between the sidelines
@@ -80,11 +80,11 @@ class FieldConfig:
 
 @dataclass(frozen=True)
 class BallConfig:
-    """Orange ball (facts sections 2 and 4.4)."""
+    """Orange ball (docs/aibo-simulation.md §2 and §4.4)."""
 
     radius: float = 0.042
     mass: float = 0.03  # UNVERIFIED; the [MEAS] calibration used 0.03 kg
-    rolling_friction: float = 0.006  # facts 4.4 recommend 0.004-0.006
+    rolling_friction: float = 0.006  # docs/aibo-simulation.md §4.4: 0.004-0.006
     spinning_friction: float = 0.006
     lateral_friction: float = 0.5
     restitution: float = 0.5
@@ -102,7 +102,7 @@ class BallConfig:
 
 @dataclass(frozen=True)
 class WalkConfig:
-    """Walk engine limits (facts 1.5: Tekkotsu WalkMC's faster commented-out values).
+    """Walk engine limits (docs/aibo-simulation.md §1.5: Tekkotsu WalkMC's faster values).
 
     Speeds in m/s and rad/s; ``accel_factor`` x the limit per second is the acceleration limit
     (Tekkotsu uses 2x). ``noise`` is the seeded relative standard deviation of the executed
@@ -125,7 +125,7 @@ class WalkConfig:
 
 @dataclass(frozen=True)
 class RobotConfig:
-    """ERS-7-like body built from primitives (facts 1.1-1.3). Angles in degrees here.
+    """ERS-7-like body from primitives (docs/aibo-simulation.md §1.1-§1.3). Angles in degrees here.
 
     The trunk is level (the real stance pitches it ~14 deg nose down; omitted), so with the
     head at zero the camera sits ``trunk_height + 0.0195 + 0.08 + 0.0146`` ~= 0.23 m high.
@@ -147,7 +147,7 @@ class RobotConfig:
     nod_range: tuple[float, float] = (-15.0, 45.0)  # positive looks up
     tail_pan_range: tuple[float, float] = (-45.0, 45.0)
     tail_tilt_range: tuple[float, float] = (5.0, 60.0)
-    tilt_speed: float = 3.19  # rad/s, Sony's recommended maxima (facts 1.3)
+    tilt_speed: float = 3.19  # rad/s, Sony's maxima (docs/aibo-simulation.md §1.3)
     pan_speed: float = 10.1
     nod_speed: float = 5.78
     tail_speed: float = 15.2
@@ -166,7 +166,7 @@ class RobotConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """Head camera (facts 1.4): 208x160, HFOV 56.9 deg, square pixels."""
+    """Head camera (docs/aibo-simulation.md §1.4): 208x160, HFOV 56.9 deg, square pixels."""
 
     width: int = 208
     height: int = 160
@@ -216,7 +216,7 @@ class VisionNoiseConfig:
 
 @dataclass(frozen=True)
 class MotionConfig:
-    """Time-extended motions (facts 1.6, 4.3). Seconds, metres, degrees.
+    """Time-extended motions (docs/aibo-simulation.md §1.6, §4.3). Seconds, metres, degrees.
 
     Trap: the robot lunges forward for ``trap_lunge_time`` at ``trap_lunge_speed`` and lowers its
     head; at ``trap_capture_time`` a ball inside the capture box (robot frame, from the trunk
@@ -240,7 +240,7 @@ class MotionConfig:
     kick_distance_mean: float = 2.15  # [UTK] mean travel 2.15 m
     kick_distance_sd: float = 0.55
     kick_distance_range: tuple[float, float] = (0.5, 4.05)  # [UTK] longest 4.05 m
-    kick_heading_sd: float = 10.0  # degrees; facts 4.3 "sigma ~ 10-15 deg"
+    kick_heading_sd: float = 10.0  # degrees; docs/aibo-simulation.md §4.3: sigma ~ 10-15
     kick_distance_per_speed2: float = 0.99  # m per (m/s)^2, measured for BallConfig defaults
 
     def __post_init__(self) -> None:

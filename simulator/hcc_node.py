@@ -61,7 +61,9 @@ log = logging.getLogger("roger.hcc")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Command-line arguments of ``roger hcc``."""
-    parser.add_argument("--role", choices=("demonstrator", "transitioner"), default="demonstrator")
+    parser.add_argument("--role", choices=("demonstrator", "transitioner"), default="demonstrator",
+                        help="demonstrator: the FSM drives and publishes its actions to learn "
+                             "from (default); transitioner: executes the daemon's predictions")
     parser.add_argument("--robot", default="aibo", help="robot id in the key expressions")
     parser.add_argument(
         "--clock",

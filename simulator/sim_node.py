@@ -66,11 +66,11 @@ LINGER_S = 0.5
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Command-line arguments of ``roger sim``."""
-    parser.add_argument("--robot", choices=("aibo",), default="aibo", help="robot model")
-    parser.add_argument(
-        "--robot-id", default=None, help="id in the key expressions (default: --robot)"
-    )
-    parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
+    parser.add_argument("--robot", default="aibo",
+                        help="robot id in the key expressions (the model is always the AIBO)")
+    parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
+                        help="lockstep: wait for command(t) before stepping (default); "
+                             "realtime: step at 30 Hz whatever arrives")
     parser.add_argument(
         "--vision",
         choices=("rendered", "fast"),
@@ -83,9 +83,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--locations", default="all", help="start locations: 'all' or e.g. '0,3,7' or '0-4' (0..12)"
     )
-    parser.add_argument("--episodes-per-location", type=int, default=1)
+    parser.add_argument("--episodes-per-location", type=int, default=1,
+                        help="episodes run from each start location (default 1)")
     parser.add_argument("--max-episodes", type=int, default=0, help="cap (0: no cap)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the start poses' noise and of the vision (default 0)")
     parser.add_argument("--time-limit", type=float, default=None, help="seconds of sim time (150)")
     parser.add_argument(
         "--command-timeout",
@@ -156,7 +158,7 @@ class SimNode:
         self.args = args
         self.cfg = cfg
         self.stop = stop
-        self.robot = keys.validate_robot_id(args.robot_id or args.robot)
+        self.robot = keys.validate_robot_id(args.robot)
         self.sim = SoccerSim(cfg)
         self.tick = 0
         self.invalid = InvalidCounter("sim")

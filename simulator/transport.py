@@ -1,7 +1,7 @@
 """Zenoh plumbing shared by ``roger sim`` and ``roger hcc`` (and usable by the experiment).
 
 * :func:`loopback_config`: a peer-mode ``zenoh.Config`` with explicit listen/connect
-  endpoints, multicast scouting off, gossip on (``zenoh-mcap-systemd-notes.md`` 1.3).
+  endpoints, multicast scouting off, gossip on (docs/zenoh-notes.md §2.2).
 * :func:`add_zenoh_args` / :func:`config_from_args`: ``--listen``, ``--connect``,
   ``--zenoh-config`` on a command line.
 * :class:`Inbox`: a subscriber on a zenoh ``RingChannel`` (the callback side only enqueues,

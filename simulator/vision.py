@@ -14,10 +14,11 @@ When several instances of a class are in view (e.g. two pink beacon bands) the l
 reported. Blobs smaller than ``CameraConfig.min_area_fraction`` (4 px at 208x160) are not seen.
 
 * :class:`RenderedVision` renders the segmentation mask with pybullet's TinyRenderer and
-  measures blobs with ``np.bincount`` (facts 5.1).
+  measures blobs with ``np.bincount`` (docs/aibo-simulation.md §5.1).
 * :class:`FastVision` projects surface patches of every coloured object with the same camera
-  model and tests them for occlusion with one ``rayTestBatch`` (facts 5.2). It agrees with the
-  rendered path within a few hundredths in x/y and ~25 % in size (``tests/test_vision.py``).
+  model and tests them for occlusion with one ``rayTestBatch`` (docs/aibo-simulation.md §5.2). It
+  agrees with the rendered path within a few hundredths in x/y and ~25 % in size
+  (``tests/test_vision.py``).
 
 The robot's own body occludes but is never a blob.
 """

@@ -4,11 +4,12 @@ Frame: metres, +x from the own goal towards the opponent goal, +z up, the field 
 origin. The robot's body frame has +x forward, +y left. Heading 0 faces the opponent goal.
 
 The robot is a dynamic body (trunk and four legs) carried by a force-limited fixed constraint
-whose target the walk engine moves (facts 4.2, option 2): it pushes the ball and is stopped
+whose target the walk engine moves (docs/aibo-simulation.md §4.2): it pushes the ball and is stopped
 by walls and posts. Head (tilt, pan, nod) and tail (pan, tilt) are real revolute links, set
 kinematically (rate-limited to Sony's maximum joint speeds) and carrying the camera link.
-Trap and kick are scripted time-extended motions (facts 4.3): a trapped ball is held under
-the chin until it is kicked (impulse with Gaussian heading noise) or dropped on timeout.
+Trap and kick are scripted time-extended motions (docs/aibo-simulation.md §4.3): a trapped ball is
+held under the chin until it is kicked (impulse with Gaussian heading noise) or dropped on
+timeout.
 
 One :class:`World` owns one DIRECT pybullet client. :meth:`World.reset` rebuilds the scene
 from scratch (``resetSimulation``), so an episode depends only on its seed and commands.
@@ -226,7 +227,7 @@ class World:
         self.instances.append(Instance(cls, body, -1, "boxes", boxes=tuple(boxes)))
 
     def _build_beacon(self, sx: int, sy: int, goal_colour: str) -> None:
-        """Beacon: white bottom, then band B and band A on top (facts section 2).
+        """Beacon: white bottom, then band B and band A on top (docs/aibo-simulation.md §2).
 
         Looking from the yellow goal towards the blue goal, right-hand beacons have B = the
         neighbouring goal's colour and A = pink; left-hand beacons B = pink, A = goal colour.
@@ -346,7 +347,7 @@ class World:
             rgbaColor=_GREY,
             physicsClientId=c,
         )
-        # Head box behind the camera (the camera must not sit inside geometry, facts 5.1).
+        # Head box behind the camera (never inside geometry: docs/aibo-simulation.md §5.1).
         head_vis = p.createVisualShape(
             p.GEOM_BOX,
             halfExtents=(0.035, 0.035, 0.03),

@@ -229,7 +229,7 @@ def test_log_info_on_a_footerless_file(session_file: Path, tmp_path: Path) -> No
 
 def test_export_is_json_with_schemas_that_validate(session_file: Path, tmp_path: Path) -> None:
     out = tmp_path / "session.json.mcap"
-    assert roger(["log", "export", str(session_file), "--json", str(out)]) == 0
+    assert roger(["log", "export", str(session_file), "--out", str(out)]) == 0
     orig = messages(session_file)
     with open(out, "rb") as f:
         reader = make_reader(f)

@@ -134,6 +134,9 @@ def test_session_metadata_has_config_params_dims_seed_versions() -> None:
         assert k in m
     assert m["numpy_version"] == np.__version__
     assert m["config"].startswith("[learner]")
+    # which BLAS computed: library, kernel and thread count (one thread: roger_daemon/blas.py)
+    blas = json.loads(m["blas"])
+    assert blas and all(b["threads"] == 1 and b["library"] and b["kernel"] for b in blas)
     info = SessionInfo.from_metadata(m)
     assert (info.robot, info.seed, info.mode, info.start_updates) == ("aibo", 11, "learn", 40)
     assert info.dims is not None and (info.dims.x, info.dims.y) == (23, 9)

@@ -85,7 +85,7 @@ def test_roger_record_records_published_messages_and_finishes_on_sigterm(
             for p in pubs.values():
                 p.undeclare()
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=30) == 0
+        assert proc.wait(timeout=120) == 0
     finally:
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGKILL)
@@ -129,7 +129,7 @@ def test_replay_publish_resends_the_recorded_inputs(tmp_path: Path) -> None:
 
             _wait(drained, 30, "the re-published messages")
             sub.undeclare()
-        out, _ = proc.communicate(timeout=30)
+        out, _ = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGKILL)

@@ -20,14 +20,15 @@ from protocols import Action, Control, Perception, encode, keys
 from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.config import DaemonConfig, parse_config
 from roger_daemon.daemon import make_model, model_meta, open_recorders, start_robots
+from roger_daemon.labels import majority_labels
 from roger_daemon.recording import (
     is_complete,
     list_session_files,
     read_timeline,
     replay_session,
 )
-from roger_daemon.recording.compare import behaviour, behaviour_differences
-from roger_daemon.recording.replay import load_checkpoint, majority_labels
+from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
+from roger_daemon.recording.replay import load_checkpoint
 from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
 from roger_daemon.recording.synthetic import START_NS, record_synthetic_session, synthetic_stream
 from roger_daemon.service import Service
@@ -35,7 +36,7 @@ from roger_daemon.transport import MemoryTransport
 
 X, Y, LABELS = synthetic_stream("sqrt", 400)
 PROBES = [[v] for v in np.linspace(0.0, 1.0, 9)]
-TOL = 1e-9
+TOL = REL_TOL
 
 
 class FakeClock:

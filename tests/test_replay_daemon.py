@@ -9,6 +9,7 @@ import pytest
 
 from protocols.messages import Dims
 from roger_daemon.recording import is_complete, list_session_files, replay_session
+from roger_daemon.recording.compare import REL_TOL
 from roger_daemon.recording.synthetic import synthetic_stream
 
 harness = pytest.importorskip("roger_daemon.harness")
@@ -50,7 +51,7 @@ def test_replay_reproduces_a_real_daemon_session(tmp_path: Path) -> None:
     files = list_session_files(tmp_path / "recordings", robot="sim")
     assert len(files) == 1 and is_complete(files[0].path)
     res = replay_session(files[0].path)
-    assert res.ok(1e-9), res.summary(1e-9)
+    assert res.ok(REL_TOL), res.summary(REL_TOL)
     assert len(res.diffs) == 160 and len(res.timeline.segments) == 2
     assert res.seed == 5 and res.n_learned == 40  # ticks 120..159 after the reset
     assert res.timeline.ignored_not_learning == 2 * 20  # ticks 50-69 in mode predict

@@ -19,7 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from roger_daemon.blas import blas_info
+from roger_daemon.console import UsageError
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
+from roger_daemon.learner.params import ParameterError
 from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
 
 __all__ = ["configure", "run"]
@@ -44,12 +47,15 @@ def _params(overrides: list[str]) -> RogerParams:
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
-            raise SystemExit(f"--param needs KEY=VALUE, got {item!r}")
+            raise UsageError(f"--param needs KEY=VALUE, got {item!r}")
         try:
             mapping[key] = json.loads(value)
         except json.JSONDecodeError:
             mapping[key] = value
-    return RogerParams.from_mapping({**RogerParams().to_mapping(), **mapping})
+    try:
+        return RogerParams.from_mapping({**RogerParams().to_mapping(), **mapping})
+    except ParameterError as exc:
+        raise UsageError(f"--param: {exc}") from None
 
 
 def _machine() -> dict[str, Any]:
@@ -62,13 +68,6 @@ def _machine() -> dict[str, Any]:
                     break
     except OSError:
         pass
-    blas_threads: Any = os.environ.get("OPENBLAS_NUM_THREADS")
-    try:  # optional: report the BLAS pools numpy/scipy really use
-        from threadpoolctl import threadpool_info
-
-        blas_threads = sorted({int(p["num_threads"]) for p in threadpool_info()})
-    except Exception:  # noqa: BLE001 - threadpoolctl is optional
-        pass
     return {
         "cpu": cpu,
         "cores": os.cpu_count(),
@@ -76,7 +75,7 @@ def _machine() -> dict[str, Any]:
         "python": platform.python_version(),
         "numpy": np.__version__,
         "platform": platform.platform(),
-        "blas_threads": blas_threads,
+        "blas": blas_info(),
     }
 
 

@@ -53,13 +53,36 @@ def _threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
     return float(tau[first]), first
 
 
-def fearnhead_resample(log_weights: FloatArray, n_keep: int,
-                       rng: np.random.Generator) -> tuple[IntArray, FloatArray]:
+def _decision_margin(ws: FloatArray, n_keep: int, n_top: int, inv_c: float, u0: float,
+                     cum: FloatArray) -> float:
+    """Smallest relative distance of a threshold test (``w_(L+1) <= R_L / (P - L)`` for L up
+    to the chosen one, :func:`_threshold`) or of a stratified crossing (``cum_i`` against
+    ``U0 + j/c``) from its boundary, relative to the larger of the two compared values."""
+    # the test at L = P - 1 always passes (tau = R_{P-1} >= w_P): not a decision
+    n_tests = min(n_top + 1, n_keep - 1)
+    suffix = np.cumsum(ws[::-1])[::-1]
+    tau = suffix[:n_tests] / np.arange(n_keep, n_keep - n_tests, -1)
+    tested = ws[:n_tests]
+    thr = float(np.min(np.abs(tested - tau) / np.maximum(tested, tau), initial=math.inf))
+    points = u0 + np.maximum(np.rint((cum - u0) / inv_c), 0.0) * inv_c  # nearest U0 + j/c
+    cross = float(np.min(np.abs(cum - points) / np.maximum(cum, points))) if cum.size else math.inf
+    return min(thr, cross)
+
+
+def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Generator,
+                       diagnostics: dict[str, float] | None = None
+                       ) -> tuple[IntArray, FloatArray]:
     """Choose at most ``n_keep`` distinct putatives; return ``(indices, log_weights)``.
 
     Indices are in increasing order; the returned log weights are normalised (logsumexp 0).
     Exactly ``min(n_keep, number of finite log weights)`` indices are returned.  One uniform
     draw is taken from ``rng`` iff stratified resampling is needed.
+
+    ``diagnostics``, if given, receives ``"margin"``: how far, relatively, the closest discrete
+    decision of this call was from going the other way: a weight against the keep-outright
+    threshold, or a cumulative weight against a stratified point ``U0 + j/c`` (``inf`` when
+    every putative is kept). Round-off of another BLAS kernel can only flip a decision whose
+    margin is of the order of the floats' relative error (docs/reproducibility.md).
 
     Raises
     ------
@@ -82,6 +105,8 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int,
     expw = np.exp(lv - top)
     total = float(expw.sum())
     lse = top + math.log(total)
+    if diagnostics is not None:
+        diagnostics["margin"] = math.inf
     if lv.size <= n_keep:  # M <= P: keep them all
         keep_all = np.arange(lv.size) if valid is None else valid
         return keep_all, lv - lse
@@ -97,7 +122,10 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int,
     need = n_keep - n_top
     # stratified pass: with U0 ~ U(0, 1/c), i is picked when cum_{i-1} <= U0 + j/c < cum_i
     u0 = float(rng.uniform(0.0, inv_c))
-    crossings = np.ceil((np.cumsum(w[rest]) - u0) / inv_c)
+    cum = np.cumsum(w[rest])
+    crossings = np.ceil((cum - u0) / inv_c)
+    if diagnostics is not None:
+        diagnostics["margin"] = _decision_margin(w[order], n_keep, n_top, inv_c, u0, cum)
     np.maximum(crossings, 0.0, out=crossings)
     picked = np.empty(rest.size, dtype=bool)
     picked[0] = crossings[0] > 0.0

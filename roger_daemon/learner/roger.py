@@ -143,6 +143,9 @@ class Roger:
         self._hist_anc = np.zeros((0, p.particles), dtype=np.int32)
         self._hist_eid = np.zeros((0, p.particles), dtype=np.int64)
         self.n_learned = 0
+        # how close the last learn_one's discrete decisions were to flipping (diagnostic, not
+        # state): resampling in normalised weight, novelty in units of k* (docs/reproducibility.md)
+        self.last_margins: dict[str, float] = {}
         self._next_id = 0
         self._log_alpha = math.log(p.alpha)
         self._empty_var = self.kernel.k_star + p.theta_n  # empty expert: y ~ N(0, (k*+s0^2) I)
@@ -182,8 +185,12 @@ class Roger:
         ys = self._scaling.y_in(as_vector("y", y, self.d_y))
         lw, flat_part, flat_slots, offsets, terms = self._putatives(xs, ys)
         # resample to P (Fearnhead), then incorporate the point (Algorithm 1, last two lines)
-        keep, new_logw = fearnhead_resample(lw, self.params.particles, self._learn_rng)
-        self._instantiate(keep, new_logw, flat_part, flat_slots, offsets, xs, ys, terms)
+        resampled: dict[str, float] = {}
+        keep, new_logw = fearnhead_resample(lw, self.params.particles, self._learn_rng,
+                                            resampled)
+        novelty = self._instantiate(keep, new_logw, flat_part, flat_slots, offsets, xs, ys,
+                                    terms)
+        self.last_margins = {"resampling": resampled["margin"], "novelty": novelty}
 
     def _putatives(self, xs: FloatArray, ys: FloatArray
                    ) -> tuple[FloatArray, IntArray, IntArray, IntArray, dict[int, Terms]]:
@@ -285,8 +292,11 @@ class Roger:
 
     def _instantiate(self, keep: IntArray, new_logw: FloatArray, flat_part: IntArray,
                      flat_slots: IntArray, offsets: IntArray, xs: FloatArray, ys: FloatArray,
-                     terms: dict[int, Terms]) -> None:
-        """Build the surviving particles; update each chosen expert once (copy-on-write)."""
+                     terms: dict[int, Terms]) -> float:
+        """Build the surviving particles; update each chosen expert once (copy-on-write).
+
+        Returns the smallest novelty-test margin of the updated experts (``inf``: none).
+        """
         parts = self._particles
         surv_parent = flat_part[keep]
         surv_slot = flat_slots[keep]
@@ -357,6 +367,7 @@ class Roger:
         self._logw = new_logw
         self._record(surv_parent, chosen_ids)
         self.n_learned += 1
+        return min((gp.novelty_margin for gp in upd_gps), default=math.inf)
 
     def _record(self, ancestors: IntArray, expert_ids: IntArray) -> None:
         """Append one row of segmentation history (O(P) per step)."""

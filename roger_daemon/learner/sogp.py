@@ -103,7 +103,7 @@ class SparseOnlineGP:
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
                  "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_K", "_dg", "q_refreshes",
-                 "prior_mean", "_m")
+                 "prior_mean", "_m", "novelty_margin")
 
     def __init__(self, d_x: int, d_y: int, kernel: RBFKernel, noise: float,
                  capacity: int | None, novelty_threshold: float = 1e-6,
@@ -131,6 +131,9 @@ class SparseOnlineGP:
         self._K: FloatArray = np.zeros((alloc, alloc))
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
         self.q_refreshes = 0  # re-inversions of Q after detected drift
+        # |gamma - threshold k*| / k* of the last update's novelty test (diagnostic, not state;
+        # docs/reproducibility.md): how close that discrete decision was to going the other way
+        self.novelty_margin = math.inf
 
     @property
     def a_cols(self) -> int:
@@ -254,6 +257,7 @@ class SparseOnlineGP:
             gamma = kstar - float(k @ e_hat)
         if gamma < _GAMMA_FLOOR:
             gamma = 0.0
+        self.novelty_margin = abs(gamma - self.novelty_threshold * kstar) / kstar
         if gamma < self.novelty_threshold * kstar or gamma <= 0.0:
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
         elif self._fusable():
@@ -507,7 +511,10 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
             e_hat[j] = gp._Q @ ks[j]
             gamma[j] = kstar - float(ks[j] @ e_hat[j])
     gamma[gamma < _GAMMA_FLOOR] = 0.0
-    novel = (gamma >= np.array([g.novelty_threshold for g in full]) * kstar) & (gamma > 0.0)
+    thresholds = np.array([g.novelty_threshold for g in full]) * kstar
+    for gp, m in zip(full, (np.abs(gamma - thresholds) / kstar).tolist(), strict=True):
+        gp.novelty_margin = m
+    novel = (gamma >= thresholds) & (gamma > 0.0)
     if not np.all(novel):
         for j in np.flatnonzero(~novel).tolist():  # step 4a for the non-novel few
             gp = full[j]

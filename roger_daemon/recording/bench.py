@@ -127,10 +127,11 @@ def bench_sigkill(trials: int = 5, rate: float = 30.0, flush_interval: float = 1
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Options of ``roger bench recorder``."""
-    parser.add_argument("--ticks", type=int, default=3000)
+    parser.add_argument("--ticks", type=int, default=3000,
+                        help="ticks of synthetic traffic to record (default 3000)")
     parser.add_argument("--trials", type=int, default=5, help="SIGKILL trials (0: skip)")
     parser.add_argument("--dir", default=None, help="where temporary files go (default /tmp)")
-    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:

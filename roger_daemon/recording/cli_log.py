@@ -20,18 +20,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="log_command", metavar="ACTION")
     sub.required = True
     p = sub.add_parser("info", help="channels, counts, duration, rates, gaps, metadata")
-    p.add_argument("file", type=Path)
+    p.add_argument("file", type=Path, metavar="FILE", help="an MCAP session log")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p = sub.add_parser("recover", help="salvage a footer-less file into a valid, indexed file")
-    p.add_argument("file", type=Path)
+    p.add_argument("file", type=Path, metavar="FILE", help="a footer-less (crashed) MCAP log")
     p.add_argument("--out", type=Path, help="output file (default FILE.recovered.mcap)")
     p.add_argument("--in-place", action="store_true",
                    help="replace FILE atomically (keeps the damaged one as FILE.damaged)")
     p.add_argument("--json", action="store_true", help="report as JSON")
     p = sub.add_parser("export", help="the session as json + jsonschema MCAP (opens in Foxglove)")
-    p.add_argument("file", type=Path)
-    p.add_argument("--json", dest="out", type=Path, required=True, metavar="OUT",
-                   help="output MCAP with json message encoding")
+    p.add_argument("file", type=Path, metavar="FILE", help="an MCAP session log (msgpack)")
+    p.add_argument("--out", type=Path, default=None, metavar="OUT",
+                   help="output MCAP with json message encoding (default FILE.json.mcap)")
+    p.add_argument("--json", action="store_true", help="report as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,10 +91,16 @@ def _export(args: argparse.Namespace) -> int:
     from roger_daemon.recording.export import export_json
 
     try:
-        rep = export_json(args.file, args.out)
+        rep = export_json(args.file, args.out or args.file.with_suffix(".json.mcap"))
     except (ValueError, OSError) as exc:
         print(f"roger log export: {exc}", file=sys.stderr)
         return 1
+    if args.json:
+        print(json.dumps({"output": str(rep.output), "messages": rep.messages,
+                          "channels": rep.channels, "skipped": dict(rep.skipped),
+                          "source_complete": rep.source_complete,
+                          "source_error": rep.source_error}, indent=2, sort_keys=True))
+        return 0
     skipped = sum(rep.skipped.values())
     print(f"wrote {rep.output}: {rep.messages} JSON messages on {rep.channels} channels"
           + (f", skipped {skipped} non-msgpack payloads" if skipped else "")

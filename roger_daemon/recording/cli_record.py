@@ -45,7 +45,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="close the open chunk at least this often (default 1 s)")
     parser.add_argument("--rotate-mb", type=float, default=256.0, help="new part after this size")
     parser.add_argument("--rotate-s", type=float, default=3600.0, help="new part after this age")
-    parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                        help="MCAP chunk compression (default zstd)")
     parser.add_argument("--queue", type=int, default=4096, help="subscriber FIFO capacity")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: until SIGINT/SIGTERM)")

@@ -15,6 +15,8 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from roger_daemon.recording.compare import REL_TOL
+
 __all__ = ["configure", "run"]
 
 
@@ -38,8 +40,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "daemon's [checkpoint] dir), for the daemon to resume from")
     parser.add_argument("--check", action="store_true",
                         help="exit 1 unless every recorded prediction is reproduced")
-    parser.add_argument("--tolerance", type=float, default=1e-9,
-                        help="max abs difference allowed by --check (default 1e-9)")
+    parser.add_argument("--tolerance", type=float, default=REL_TOL,
+                        help="max relative error of any float allowed by --check (default "
+                             f"{REL_TOL:g}, what two BLAS kernels stay inside; the structure "
+                             "is always compared exactly)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     g = parser.add_argument_group("re-publish on Zenoh instead of replaying offline")
@@ -204,9 +208,26 @@ def _print_summary(s: dict[str, Any], res: Any) -> None:
     mm = s["max_abs_diff_multimap"]
     print(f"max |diff|:   mean {s['max_abs_diff_mean']:.3g}  var {s['max_abs_diff_var']:.3g}  "
           f"multimap {mm if isinstance(mm, str) else format(mm, '.3g')}")
+    rel = s["max_rel_err"]
+    print(f"max rel err:  {rel if isinstance(rel, str) else format(rel, '.3g')} "
+          f"(tolerance {s['tolerance']:g})")
     print(f"mismatches:   {s['mismatches']} beyond {s['tolerance']:g} (expert "
           f"{s['expert_mismatches']}, multimap ids {s['multimap_id_mismatches']}, sizes "
           f"{s['size_mismatches']}; labels {s['label_mismatches']} reported only)")
+    div = s["first_divergence"]
+    if div:
+        print(f"diverges:     tick {div['tick']} (update {div['updates']}, segment "
+              f"{div['segment']}): {div['what']}")
+        st = div["first_structure_divergence"]
+        if st and st["tick"] != div["tick"]:
+            print(f"structure:    first differs at tick {st['tick']} (update {st['updates']}): "
+                  f"{st['what']}")
+        if st and st["closest_decision"]:
+            c = st["closest_decision"]
+            print(f"decision:     closest before it: {c['kind']} at update {c['updates']}, "
+                  f"margin {c['margin']:.3g} ("
+                  + ("round-off of another BLAS kernel can flip it" if st["round_off_can_explain"]
+                     else "too wide for round-off: the learner or its inputs differ") + ")")
     if s["first_mismatch"]:
         print(f"first:        {s['first_mismatch']}")
     if s["invalid_messages"]:
@@ -215,7 +236,7 @@ def _print_summary(s: dict[str, Any], res: Any) -> None:
         print(f"warning:      {w}")
     if s.get("saved_checkpoint"):
         print(f"checkpoint:   {s['saved_checkpoint']} ({s['n_learned']} updates)")
-    print("result:       " + ("OK" if s["ok"] else "MISMATCH"))
+    print("result:       " + ("OK, " if s["ok"] else "") + s["verdict"])
 
 
 def _publish(args: argparse.Namespace, files: list[Path]) -> int:

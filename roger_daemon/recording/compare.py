@@ -14,7 +14,40 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["behaviour", "behaviour_differences", "probe_inputs"]
+__all__ = ["ABS_FLOOR", "REL_TOL", "behaviour", "behaviour_differences", "probe_inputs",
+           "rel_err"]
+
+#: Two runs of the learner on different BLAS kernels (``OPENBLAS_CORETYPE``) or CPUs agree to
+#: this relative error on every float they publish; the structure (experts, ids, sizes,
+#: assignments, labels, chosen expert) is compared exactly. Measured margin and the rule:
+#: docs/reproducibility.md.
+REL_TOL = 1e-5
+#: Below this magnitude a float is compared absolutely (a relative error of ~0 means nothing).
+ABS_FLOOR = 1e-12
+
+
+def rel_err(a: Any, b: Any) -> float:
+    """Normwise relative error ``max|a - b| / (max(max|a|, max|b|) + ABS_FLOOR)``.
+
+    0 for bit-identical arrays; ``inf`` if the shapes differ or a value is NaN or infinite in
+    one and not the other. Normwise (the array's largest magnitude as the scale), because a
+    component of an action vector passing through 0 carries the round-off of the whole
+    computation (docs/reproducibility.md).
+    """
+    x = np.asarray(a, dtype=np.float64)
+    y = np.asarray(b, dtype=np.float64)
+    if x.shape != y.shape:
+        return math.inf
+    if x.size == 0:
+        return 0.0
+    same = (x == y) | (np.isnan(x) & np.isnan(y))
+    if same.all():
+        return 0.0
+    if not (np.isfinite(x[~same]).all() and np.isfinite(y[~same]).all()):
+        return math.inf
+    scale = max(float(np.max(np.abs(x[np.isfinite(x)]), initial=0.0)),
+                float(np.max(np.abs(y[np.isfinite(y)]), initial=0.0)))
+    return float(np.max(np.abs(x[~same] - y[~same]))) / (scale + ABS_FLOOR)
 
 
 def _floats(v: Any) -> list[float]:
@@ -46,17 +79,10 @@ def behaviour(model: Any, probes: Sequence[Any]) -> dict[str, Any]:
     return out
 
 
-def _close(a: Sequence[float], b: Sequence[float], tol: float) -> float:
-    """Max abs difference (inf if the shapes differ or a value is not finite)."""
-    if len(a) != len(b):
-        return math.inf
-    d = max((abs(x - y) for x, y in zip(a, b, strict=True)), default=0.0)
-    return d if math.isfinite(d) else math.inf
-
-
 def behaviour_differences(a: Mapping[str, Any], b: Mapping[str, Any],
-                          tol: float = 1e-9) -> list[str]:
-    """What differs between two :func:`behaviour` results (empty: the same within ``tol``)."""
+                          tol: float = REL_TOL) -> list[str]:
+    """What differs between two :func:`behaviour` results (empty: the same structure, and
+    every float within relative error ``tol``, :func:`rel_err`)."""
     diffs: list[str] = []
     for key in ("n_learned", "n_experts", "expert_sizes"):
         if a[key] != b[key]:
@@ -71,13 +97,13 @@ def behaviour_differences(a: Mapping[str, Any], b: Mapping[str, Any],
         diffs.append(f"{len(a['probes'])} probes vs {len(b['probes'])}")
         return diffs
     for i, (p, q) in enumerate(zip(a["probes"], b["probes"], strict=True)):
-        if _close(p["x"], q["x"], tol) > 0:
+        if rel_err(p["x"], q["x"]) > 0:
             diffs.append(f"probe {i}: different inputs")
             continue
         for key in ("mean", "var"):
-            d = _close(p[key], q[key], tol)
+            d = rel_err(p[key], q[key])
             if d > tol:
-                diffs.append(f"probe {i}: {key} differs by {d:.3g}")
+                diffs.append(f"probe {i}: {key} differs by relative {d:.3g}")
         if p["expert"] != q["expert"]:
             diffs.append(f"probe {i}: expert {p['expert']} != {q['expert']}")
         ids_p = [e["expert"] for e in p["multimap"]]
@@ -86,10 +112,10 @@ def behaviour_differences(a: Mapping[str, Any], b: Mapping[str, Any],
             diffs.append(f"probe {i}: multimap experts {ids_p} != {ids_q}")
             continue
         for e, f in zip(p["multimap"], q["multimap"], strict=True):
-            d = max(abs(e["p"] - f["p"]), _close(e["mean"], f["mean"], tol),
-                    _close(e["var"], f["var"], tol))
+            d = max(rel_err(e["p"], f["p"]), rel_err(e["mean"], f["mean"]),
+                    rel_err(e["var"], f["var"]))
             if d > tol or e["n"] != f["n"]:
-                diffs.append(f"probe {i}: expert {e['expert']} differs by {d:.3g} "
+                diffs.append(f"probe {i}: expert {e['expert']} differs by relative {d:.3g} "
                              f"(n {e['n']} vs {f['n']})")
     return diffs
 

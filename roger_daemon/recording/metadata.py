@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from protocols.messages import MODES, Dims
+from roger_daemon.blas import blas_info
 
 __all__ = [
     "FORMAT",
@@ -177,6 +178,7 @@ def session_metadata(
         "hostname": socket.gethostname(),
         "platform": platform.platform(),
         "git_commit": git_commit(),
+        "blas": json.dumps(blas_info(), sort_keys=True),
         **package_versions(),
     }
     if resumed_session is not None:

@@ -19,6 +19,8 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.labels import majority_labels
+from roger_daemon.recording.compare import rel_err
 from roger_daemon.recording.metadata import SessionInfo
 from roger_daemon.recording.timeline import (
     LearnedPair,
@@ -29,6 +31,8 @@ from roger_daemon.recording.timeline import (
 )
 
 __all__ = [
+    "ROUND_OFF_MARGIN",
+    "DecisionMargin",
     "Model",
     "ModelFactory",
     "PredictionDiff",
@@ -80,6 +84,28 @@ def default_model_factory(
 
 
 @dataclass(frozen=True)
+class DecisionMargin:
+    """How close one discrete decision of the replayed learner was to going the other way.
+
+    ``kind``: ``"resampling"`` (normalised particle weight against a threshold or stratified
+    point), ``"novelty"`` (the SOGP's projection residual against its threshold, in units of
+    k*), ``"map_particle"`` (log-weight gap of the best two particles) or ``"expert_choice"``
+    (gate-probability gap of the best two experts). A margin near round-off (below
+    ``ROUND_OFF_MARGIN``) can flip on another BLAS kernel; a larger one cannot.
+    """
+
+    segment: int
+    updates: int  # the learner's n_learned after the step (or at the prediction)
+    kind: str
+    value: float
+
+
+#: A decision this close to its boundary may flip under another kernel's round-off: the floats
+#: differ by up to ~5e-7 relative across kernels with the default learner (docs/reproducibility.md).
+ROUND_OFF_MARGIN = 1e-6
+
+
+@dataclass(frozen=True)
 class PredictionDiff:
     """One recorded prediction against its recomputation."""
 
@@ -95,22 +121,37 @@ class PredictionDiff:
     multimap_ids_match: bool
     sizes_match: bool  # points per expert (the multimap's n) equal
     labels_match: bool | None  # majority labels equal (None: not compared)
+    rel: float = 0.0  # max relative error over every float (compare.rel_err); inf if ids differ
+    margin: DecisionMargin | None = None  # the replayed prediction's closest decision
 
     @property
     def expert_match(self) -> bool:
         """Same chosen expert id."""
         return self.expert_recorded == self.expert_replayed
 
+    @property
+    def structure_match(self) -> bool:
+        """Same chosen expert, same multimap expert ids and sizes (compared exactly)."""
+        return self.expert_match and self.multimap_ids_match and self.sizes_match
+
+    @property
+    def bit_identical(self) -> bool:
+        """The same structure and every float equal to the last bit."""
+        return self.structure_match and self.rel == 0.0
+
     def ok(self, tolerance: float) -> bool:
-        """Within tolerance, same chosen expert, same multimap experts and sizes."""
-        return (
-            self.mean_abs <= tolerance
-            and self.var_abs <= tolerance
-            and self.multimap_abs <= tolerance
-            and self.expert_match
-            and self.multimap_ids_match
-            and self.sizes_match
-        )
+        """The same structure and every float within relative error ``tolerance``."""
+        return self.structure_match and self.rel <= tolerance
+
+    def what(self) -> str:
+        """What differs, in words (the first structural difference, else the float error)."""
+        if not self.expert_match:
+            return f"chosen expert {self.expert_replayed} (recorded {self.expert_recorded})"
+        if not self.multimap_ids_match:
+            return "the multimap's experts differ"
+        if not self.sizes_match:
+            return "the experts' sizes differ"
+        return f"relative float error {self.rel:.3g}"
 
 
 @dataclass
@@ -133,6 +174,7 @@ class ReplayResult:
     timeline: Timeline
     warnings: list[str] = field(default_factory=list)
     learn_errors: int = 0  # pairs the learner rejected (skipped, as the daemon does)
+    margins: list[DecisionMargin] = field(default_factory=list)  # per learned pair
 
     @property
     def n_experts(self) -> int:
@@ -155,6 +197,52 @@ class ReplayResult:
     def max_multimap_diff(self) -> float:
         """Max abs difference inside the multimaps (inf if some expert ids differ)."""
         return max((d.multimap_abs for d in self.diffs), default=0.0)
+
+    def max_rel_err(self) -> float:
+        """Max relative error over every compared float (inf if some structure differs)."""
+        return max((d.rel for d in self.diffs), default=0.0)
+
+    def bit_identical(self) -> bool:
+        """Every recorded prediction recomputed to the last bit (and none unreplayable)."""
+        return self.unreplayable == 0 and all(d.bit_identical for d in self.diffs)
+
+    def verdict(self, tolerance: float) -> str:
+        """``"bit-identical"``, ``"within tolerance"`` or ``"MISMATCH"``."""
+        if self.bit_identical():
+            return "bit-identical"
+        return "within tolerance" if self.ok(tolerance) else "MISMATCH"
+
+    def first_divergence(self) -> dict[str, Any] | None:
+        """The first prediction that is not bit-identical: where, and what differs.
+
+        ``kind`` is ``"structure"`` when a discrete outcome differs (chosen expert, multimap
+        experts, sizes), else ``"float"``. The first *structural* divergence is reported
+        separately, since round-off elsewhere can flip a near-tied decision later on.
+        """
+        first = next((d for d in self.diffs if not d.bit_identical), None)
+        if first is None:
+            return None
+        out = _where(first)
+        k = next((i for i, d in enumerate(self.diffs) if not d.structure_match), None)
+        out["first_structure_divergence"] = None if k is None else {
+            **_where(self.diffs[k]), **self._closest_decision(k)}
+        return out
+
+    def _closest_decision(self, k: int) -> dict[str, Any]:
+        """The replayed learner's closest decision between the last structurally equal
+        prediction before ``diffs[k]`` and ``diffs[k]`` itself: could round-off explain it?"""
+        d = self.diffs[k]
+        since = next((p.updates for p in reversed(self.diffs[:k])
+                      if p.segment == d.segment and p.structure_match), -1)
+        cands = [m for m in self.margins
+                 if m.segment == d.segment and since < m.updates <= d.updates]
+        if d.margin is not None:
+            cands.append(d.margin)
+        if not cands:
+            return {"closest_decision": None, "round_off_can_explain": False}
+        m = min(cands, key=lambda c: c.value)
+        return {"closest_decision": {"kind": m.kind, "updates": m.updates, "margin": m.value},
+                "round_off_can_explain": m.value < ROUND_OFF_MARGIN}
 
     def mismatches(self, tolerance: float) -> list[PredictionDiff]:
         """Predictions that do not reproduce within ``tolerance``."""
@@ -196,7 +284,10 @@ class ReplayResult:
             "multimap_id_mismatches": sum(not d.multimap_ids_match for d in self.diffs),
             "size_mismatches": sum(not d.sizes_match for d in self.diffs),
             "label_mismatches": sum(d.labels_match is False for d in self.diffs),
+            "max_rel_err": _f(self.max_rel_err()),
             "tolerance": tolerance,
+            "verdict": self.verdict(tolerance),
+            "first_divergence": self.first_divergence(),
             "mismatches": len(bad),
             "first_mismatch": None
             if not bad
@@ -216,29 +307,10 @@ class ReplayResult:
         }
 
 
-def majority_labels(assignments: Iterable[int], labels: Iterable[str]) -> dict[int, str]:
-    """Majority non-empty label per expert ("" if none); ties go to the label seen first.
-
-    The daemon's rule (``roger_daemon.robot.majority_labels``).
-    """
-    a = np.asarray(list(assignments), dtype=np.int64)
-    labs = list(labels)
-    if a.size == 0:
-        return {}
-    if a.size != len(labs):
-        raise ValueError(f"{a.size} assignments but {len(labs)} labels")
-    order: dict[str, int] = {}
-    codes = np.fromiter((order.setdefault(s, len(order)) for s in labs), np.int64, len(labs))
-    names = list(order)
-    experts, inv = np.unique(a, return_inverse=True)
-    counts = np.zeros((experts.size, len(names)), dtype=np.int64)
-    np.add.at(counts, (inv, codes), 1)
-    if "" in order:
-        counts[:, order[""]] = 0
-    best = counts.argmax(axis=1)  # first maximum = the label seen first
-    has = counts.max(axis=1) > 0
-    return {int(e): (names[int(b)] if h else "")
-            for e, b, h in zip(experts, best, has, strict=True)}
+def _where(d: PredictionDiff) -> dict[str, Any]:
+    return {"tick": d.tick, "updates": d.updates, "segment": d.segment,
+            "kind": "float" if d.structure_match else "structure", "what": d.what(),
+            "rel_err": d.rel if math.isfinite(d.rel) else "inf"}
 
 
 def _maxabs(a: Any, b: Any) -> float:
@@ -264,6 +336,7 @@ def _compare(
     rec_ids = [int(e.expert) for e in rec.multimap]
     ids_match = sorted(rep_ids) == sorted(rec_ids)
     mm_abs = 0.0
+    rel = max(rel_err(pred.mean, rec.mean), rel_err(pred.var, rec.var))
     sizes = True
     labels_ok: bool | None = None
     if ids_match:
@@ -278,11 +351,13 @@ def _compare(
                 _maxabs(e.mean, r.mean),
                 _maxabs(e.var, r.var),
             )
+            rel = max(rel, rel_err(float(e.gate_prob), r.p), rel_err(e.mean, r.mean),
+                      rel_err(e.var, r.var))
             sizes = sizes and int(e.n_points) == r.n
             if labels_now is not None:
                 labels_ok = labels_ok and labels_now.get(int(r.expert), "") == r.label
     else:
-        mm_abs = math.inf
+        mm_abs = rel = math.inf
         sizes = False
     return PredictionDiff(
         segment=seg_no,
@@ -297,7 +372,27 @@ def _compare(
         multimap_ids_match=ids_match,
         sizes_match=sizes,
         labels_match=labels_ok,
+        rel=rel,
+        margin=_prediction_margin(seg_no, model, mm),
     )
+
+
+def _gap(values: Iterable[float]) -> float:
+    """Gap between the largest value and the largest *different* one (``inf``: none); exact
+    ties are resolved by index the same way on every machine, so they are not near-ties."""
+    v = sorted(set(values), reverse=True)
+    return v[0] - v[1] if len(v) > 1 else math.inf
+
+
+def _prediction_margin(seg_no: int, model: Model, mm: Sequence[Any]) -> DecisionMargin:
+    """The closer of the two decisions of a prediction: which particle is the MAP one, and
+    which of its experts (or the empty expert, the rest of the gate mass) is chosen."""
+    probs = [float(e.gate_prob) for e in mm]
+    choice = _gap([*probs, max(0.0, 1.0 - sum(probs))])
+    logw = getattr(model, "particle_log_weights", None)
+    best = _gap(np.asarray(logw()).tolist()) if logw is not None else math.inf
+    kind, value = min((("expert_choice", choice), ("map_particle", best)), key=lambda kv: kv[1])
+    return DecisionMargin(seg_no, int(model.n_learned), kind, value)
 
 
 #: What the daemon catches around ``learn_one`` (the pair is skipped, the loop goes on).
@@ -313,6 +408,7 @@ def _replay_segment(
     *,
     compare_labels: bool,
     progress: Callable[[int], None] | None,
+    margins: list[DecisionMargin] | None = None,
 ) -> tuple[int, int]:
     """Learn the segment's pairs, evaluating predictions on the way.
 
@@ -349,6 +445,10 @@ def _replay_segment(
         else:
             learned += 1
             labels.append(pair.label)
+            step = getattr(model, "last_margins", None)
+            if margins is not None and step:
+                kind, value = min(step.items(), key=lambda kv: kv[1])
+                margins.append(DecisionMargin(seg_no, learned, kind, float(value)))
         if progress is not None:
             progress(1)
     evaluate(learned)
@@ -381,6 +481,7 @@ def replay_timeline(
         use_seed = 0
     factory = model_factory or default_model_factory
     diffs: list[PredictionDiff] = []
+    margins: list[DecisionMargin] = []
     unreplayable = 0
     learn_errors = 0
     model: Model | None = None
@@ -412,7 +513,8 @@ def replay_timeline(
         else:
             model = factory(kind, tl.dims.x, tl.dims.y, use_params, use_seed)
         lost, errs = _replay_segment(
-            i, seg, model, diffs, compare_labels=compare_labels, progress=progress
+            i, seg, model, diffs, compare_labels=compare_labels, progress=progress,
+            margins=margins,
         )
         unreplayable += lost
         learn_errors += errs
@@ -453,6 +555,7 @@ def replay_timeline(
         timeline=tl,
         warnings=warnings,
         learn_errors=learn_errors,
+        margins=margins,
     )
 
 

@@ -27,8 +27,9 @@ from protocols.messages import (
     Status,
     encode,
 )
+from roger_daemon.labels import majority_labels
 from roger_daemon.recording.metadata import session_metadata
-from roger_daemon.recording.replay import Model, default_model_factory, majority_labels
+from roger_daemon.recording.replay import Model, default_model_factory
 from roger_daemon.recording.timeline import LEARNING_MODES
 from roger_daemon.recording.writer import SessionRecorder
 

@@ -21,7 +21,18 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["configure", "run"]
+__all__ = ["OUTCOME_MEANING", "configure", "run"]
+
+#: What each episode outcome the summary can print means (simulator/episodes.py OUTCOMES).
+OUTCOME_MEANING = {
+    "goal": "the ball crossed the opponent's goal line: success",
+    "own_goal": "the ball went into the robot's own goal",
+    "out": "the ball left the field over a sideline or an end line",
+    "timeout": "no goal within the time limit (--time-limit): with the paper's parameters "
+               "the learned experts rarely score (README, the paper's experiment), so this "
+               "is the expected outcome of the learned controller",
+    "stopped": "the simulator was stopped before the episode ended",
+}
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -35,7 +46,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="start location of the learned controller's episode (default 0)")
     parser.add_argument("--time-limit", type=float, default=150.0,
                         help="simulated seconds per episode (default 150, the paper's)")
-    parser.add_argument("--vision", choices=("rendered", "fast"), default="rendered")
+    parser.add_argument("--vision", choices=("rendered", "fast"), default="rendered",
+                        help="the simulator's vision: rendered segmentation (default) or the "
+                             "fast analytic projection")
 
 
 class _Demo:
@@ -165,10 +178,11 @@ class _Demo:
         from rich.table import Table
 
         from roger_daemon.checkpoint import load_newest
+        from roger_daemon.labels import majority_labels
         from roger_daemon.learner import load_model
         from roger_daemon.recording import list_session_files, read_timeline
         from simulator.experiment.figures import plot_experts_histogram, plot_pca
-        from simulator.experiment.metrics import majority_labels, segmentation_scores
+        from simulator.experiment.metrics import segmentation_scores
 
         out = self.out
         ck = load_newest(out / "checkpoints", "aibo")
@@ -197,7 +211,7 @@ class _Demo:
         ctl = summary["test"]["controller"]
         t = Table(title="roger demo: summary", show_header=False)
         t.add_column("what")
-        t.add_column("value", overflow="fold")
+        t.add_column("value")
         demo_eps = summary["demo"]["episodes"]
         t.add_row("demonstrations", ", ".join(f"location {e['location']}: {e['outcome']}"
                                               for e in demo_eps))
@@ -216,13 +230,24 @@ class _Demo:
         t.add_row("commands chosen by", ", ".join(
             f"{k} {ctl.get(k, 0)}" for k in ("label", "fallback_top", "fallback_mean",
                                              "no_prediction")))
-        t.add_row("MCAP log", ", ".join(str(p) for p in mcap))
-        t.add_row("checkpoint", str(ck.path))
-        for name, path in figs.items():
-            t.add_row(name, str(path))
-        t.add_row("replay it", f"roger replay {mcap[0]}" if mcap else "-")
         t.add_row("wall time", f"{wall:.0f} s")
         self.console.print(t)
+        # paths and commands as plain lines, never wrapped, so that they can be copied
+        import textwrap
+
+        for text in (f"outcome {outcome}: {OUTCOME_MEANING.get(outcome, outcome)}",
+                     "commands chosen by: label = an expert whose majority label is the FSM's "
+                     "subtask; fallback_top = no such expert, the most probable one; "
+                     "fallback_mean = an empty multimap, the prior mean; no_prediction = none "
+                     "in time, the robot stood still"):
+            print(textwrap.fill(text, 78, subsequent_indent="  "))
+        for p in mcap:
+            print(f"MCAP log:   {p}")
+        print(f"checkpoint: {ck.path}")
+        for name, path in figs.items():
+            print(f"figure:     {path}   ({name})")
+        if mcap:
+            print(f"replay it:  roger replay {mcap[0]}")
         (out / "summary.json").write_text(json.dumps({
             "experts": int(model.n_experts),
             "pairs": int(model.n_learned),

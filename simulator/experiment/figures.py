@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 import numpy.typing as npt  # noqa: E402
 
 from protocols.aibo import SUBTASKS  # noqa: E402
-from simulator.experiment.metrics import majority_labels  # noqa: E402
+from roger_daemon.labels import majority_labels  # noqa: E402
 
 __all__ = [
     "SUBTASK_COLOURS",

@@ -15,6 +15,8 @@ import numpy.typing as npt
 from scipy.stats import binomtest
 from sklearn.metrics import adjusted_rand_score, normalized_mutual_info_score
 
+from roger_daemon.labels import majority_labels
+
 __all__ = [
     "SegmentationScores",
     "SuccessRate",
@@ -76,21 +78,6 @@ def downsample_per_label(
     if not keep:
         return np.zeros(0, dtype=np.int64)
     return np.sort(np.concatenate(keep))
-
-
-def majority_labels(assignments: Sequence[int], labels: Sequence[str]) -> dict[int, str]:
-    """Each expert's majority label (ties broken by label name, for determinism)."""
-    if len(assignments) != len(labels):
-        raise ValueError(
-            f"assignments and labels must have the same length, got {len(assignments)} "
-            f"and {len(labels)}"
-        )
-    counts: dict[int, Counter[str]] = {}
-    for expert, label in zip(assignments, labels, strict=True):
-        counts.setdefault(int(expert), Counter())[label] += 1
-    return {
-        expert: min(c.items(), key=lambda kv: (-kv[1], kv[0]))[0] for expert, c in counts.items()
-    }
 
 
 @dataclass(frozen=True)

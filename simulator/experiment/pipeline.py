@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from roger_daemon.labels import majority_labels
 from simulator.episodes import SoccerSim, StartLocation
 from simulator.experiment import inprocess as ip
-from simulator.experiment.metrics import downsample_per_label, majority_labels
+from simulator.experiment.metrics import downsample_per_label
 from simulator.experiment.training import Demonstrations, train
 from simulator.hcc import HCC
 

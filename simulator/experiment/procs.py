@@ -66,15 +66,13 @@ def roger_argv(*args: str) -> list[str]:
 
 
 def child_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Environment of every child: INFO logs, quiet Zenoh, one BLAS thread per process."""
+    """Environment of every child: INFO logs, quiet Zenoh (each ``roger`` child pins its own
+    BLAS to one thread: roger_daemon/blas.py)."""
     env = dict(os.environ)
     env.update(
         {
             "ROGER_LOG_LEVEL": "INFO",
             "RUST_LOG": "error",
-            "OPENBLAS_NUM_THREADS": "1",
-            "OMP_NUM_THREADS": "1",
-            "MKL_NUM_THREADS": "1",
             "PYTHONUNBUFFERED": "1",
         }
     )

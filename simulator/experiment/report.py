@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simulator.experiment.metrics import majority_labels, segmentation_scores, success_rate
+from roger_daemon.labels import majority_labels
+from simulator.experiment.metrics import segmentation_scores, success_rate
 
 __all__ = ["SCHEMA", "build_results", "check_results", "print_report", "write_figures"]
 

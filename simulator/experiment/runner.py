@@ -151,6 +151,8 @@ def json_default(o: Any) -> Any:
 def machine() -> dict[str, Any]:
     from importlib.metadata import PackageNotFoundError, version
 
+    from roger_daemon.blas import blas_info
+
     versions: dict[str, str | None] = {}
     for pkg in ("numpy", "scipy", "pybullet", "eclipse-zenoh", "scikit-learn", "mcap"):
         try:
@@ -163,4 +165,5 @@ def machine() -> dict[str, Any]:
         "python": platform.python_version(),
         "platform": platform.platform(),
         "versions": versions,
+        "blas": blas_info(),
     }

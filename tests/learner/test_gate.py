@@ -12,7 +12,7 @@ from roger_daemon.learner.gate import GatePool, NIWGate
 
 
 def test_prior_predictive_matches_scipy_and_paper_values() -> None:
-    """Paper values, d = 23: nu_t = 2 and Sigma_t = 5.5 I (roger-math.md §3.3)."""
+    """Paper values, d = 23: nu_t = 2 and Sigma_t = 5.5 I (docs/learner-math.md §3.3)."""
     gate = NIWGate(23, 0.0, 0.1, 1.0, 24.0)
     df, loc, shape = gate.predictive()
     assert df == 2.0
@@ -37,7 +37,7 @@ def test_posterior_predictive_matches_scipy(d: int, n: int, seed: int) -> None:
 
 
 def test_batch_posterior_formula() -> None:
-    """Rank-1 recursion == batch NIW posterior (roger-math.md §3.1)."""
+    """Rank-1 recursion == batch NIW posterior (docs/learner-math.md §3.1)."""
     rng = np.random.default_rng(1)
     data = rng.normal(5.0, 1.0, (40, 3))  # offset data: no catastrophic cancellation
     gate = NIWGate(3, 0.0, 0.1, 1.0, 4.0)

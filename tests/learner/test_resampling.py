@@ -131,3 +131,33 @@ def test_no_draw_when_nothing_to_resample() -> None:
     state = rng.bit_generator.state
     fearnhead_resample(np.array([0.0, -1.0]), 2, rng)
     assert rng.bit_generator.state == state
+
+
+@given(lw=st.lists(st.floats(-30.0, 0.0), min_size=3, max_size=40), p=st.integers(2, 12),
+       seed=st.integers(0, 2**16))
+@settings(max_examples=200, deadline=None)
+def test_a_perturbation_inside_the_decision_margin_changes_no_choice(
+    lw: list[float], p: int, seed: int
+) -> None:
+    """The reported margin is a real safety distance: shaking every weight by a relative
+    amount well inside it (as another BLAS kernel's round-off would) keeps the same putatives."""
+    arr = np.array(lw)
+    diag: dict[str, float] = {}
+    idx, _ = fearnhead_resample(arr, p, np.random.default_rng(seed), diag)
+    margin = diag["margin"]
+    assert margin >= 0.0
+    if not np.isfinite(margin) or margin < 1e-9:
+        return  # every putative kept, or a genuine near-tie
+    shake = np.random.default_rng(seed + 1).uniform(-1.0, 1.0, arr.size) * margin / 20.0
+    idx2, _ = fearnhead_resample(arr + np.log1p(shake), p, np.random.default_rng(seed))
+    assert idx2.tolist() == idx.tolist()
+
+
+def test_the_margin_is_zero_at_an_exact_tie_and_infinite_without_a_decision() -> None:
+    diag: dict[str, float] = {}
+    fearnhead_resample(np.log([0.5, 0.3, 0.2]), 3, np.random.default_rng(0), diag)
+    assert diag["margin"] == np.inf  # M <= P: every putative kept, nothing decided
+    # two places for [1/2, 1/4, 1/4]: the keep-outright test w_1 <= R_0 / P = 1/2 sits exactly
+    # on its boundary
+    fearnhead_resample(np.log([0.5, 0.25, 0.25]), 2, np.random.default_rng(0), diag)
+    assert diag["margin"] == pytest.approx(0.0, abs=1e-12)

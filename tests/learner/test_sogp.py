@@ -53,7 +53,7 @@ def test_unbudgeted_sogp_equals_exact_gp(d_x: int, d_y: int) -> None:
 
 
 def test_unbudgeted_state_matches_closed_form() -> None:
-    """A = (K + s0 I)^-1 Y, C = -(K + s0 I)^-1, Q = K^-1 (roger-math.md §2.8)."""
+    """A = (K + s0 I)^-1 Y, C = -(K + s0 I)^-1, Q = K^-1 (docs/learner-math.md §2.8)."""
     rng = np.random.default_rng(2)
     x = rng.uniform(-1, 1, (20, 2))
     y = rng.normal(size=(20, 3))
@@ -219,7 +219,7 @@ def test_hot_path_diagonal_cache_tracks_the_matrices() -> None:
 
 def test_inverse_gram_stays_consistent_on_near_duplicate_inputs() -> None:
     """Consecutive robot frames are near-duplicates: with a broad kernel K_B gets very
-    ill-conditioned and the rank-1-updated Q drifts from K_B^-1 (roger-math.md pitfall 6)
+    ill-conditioned and the rank-1-updated Q drifts from K_B^-1 (docs/learner-math.md §7, pitfall 6)
     unless it is re-inverted (measured: max |Q K_B - I| 77 without, 3e-4 with)."""
     rng = np.random.default_rng(3)
     t = np.linspace(0, 6, 600)

@@ -1,0 +1,204 @@
+"""What the operator tools share: connecting, listening, decoding, printing.
+
+- :func:`add_connection_args` / :func:`settings_from_args`: ``--connect``, ``--zenoh-config``
+  and ``--timeout``, turned into the daemon's own :class:`~roger_daemon.config.ZenohSettings`
+  (one session setup for daemon and tools: :func:`roger_daemon.transport.open_session`);
+- :class:`Listener`: a subscriber whose callback only copies the sample onto a bounded queue
+  (nothing of ours runs long on Zenoh's threads); the command's thread takes from it;
+- :func:`decode_sample`: a key ``roger/<robot>/<kind>`` and its payload as a plain map;
+- :func:`key_expr`: a user's KEY argument as a key expression (``aibo/status`` is short for
+  ``roger/aibo/status``), rejected with exit status 2 when it is not one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from protocols import decode, keys
+from protocols.errors import ProtocolError
+from roger_daemon.config import ZenohSettings
+from roger_daemon.console import UsageError
+
+__all__ = [
+    "DEFAULT_CONNECT",
+    "Listener",
+    "Sample",
+    "UsageError",
+    "add_connection_args",
+    "count",
+    "port",
+    "seconds",
+    "decode_sample",
+    "dumps",
+    "key_expr",
+    "open_from_args",
+    "settings_from_args",
+]
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"  # the daemon's default listen endpoint
+
+
+def count(text: str) -> int:
+    """argparse type: an integer >= 0 (argparse reports a bad one and exits 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def seconds(text: str) -> float:
+    """argparse type: a finite number of seconds >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds >= 0, got {text!r}")
+    return value
+
+
+def port(text: str) -> int:
+    """argparse type: a TCP port, 0 (any free one) to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port 0-65535, got {text!r}")
+    return value
+
+
+def add_connection_args(parser: argparse.ArgumentParser, *, timeout: float = 5.0) -> None:
+    """``--connect`` (repeatable), ``--zenoh-config`` and ``--timeout``."""
+    g = parser.add_argument_group("zenoh")
+    g.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help=f"endpoint of the daemon (or router) to connect to; repeatable "
+                        f"(default: {DEFAULT_CONNECT})")
+    g.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
+                   help="a Zenoh JSON5 config file instead (--connect still overrides it)")
+    parser.add_argument("--timeout", type=seconds, default=timeout, metavar="S",
+                        help=f"give up after this many seconds without an answer "
+                             f"(default: {timeout:g})")
+
+
+def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
+    """A peer that listens nowhere, connects to ``--connect``, no multicast scouting."""
+    connect: list[str] = []
+    for value in args.connect or ([] if args.zenoh_config else [DEFAULT_CONNECT]):
+        connect += [e.strip() for e in value.split(",") if e.strip()]
+    if args.zenoh_config is not None and not args.zenoh_config.is_file():
+        raise UsageError(f"--zenoh-config: no such file: {args.zenoh_config}")
+    if args.zenoh_config is not None:
+        return ZenohSettings(config_file=args.zenoh_config, mode=None, listen=None,
+                             connect=tuple(connect) if args.connect else None,
+                             multicast_scouting=None)
+    return ZenohSettings(mode="peer", listen=(), connect=tuple(connect),
+                         multicast_scouting=False)
+
+
+def open_from_args(args: argparse.Namespace) -> Any:
+    """The Zenoh session the command line asked for (``UsageError`` if it cannot open)."""
+    from roger_daemon.transport import open_session
+
+    settings = settings_from_args(args)
+    try:
+        return open_session(settings)
+    except Exception as exc:  # zenoh.ZError for a malformed endpoint or config
+        raise UsageError(f"cannot open a Zenoh session with {settings.connect or '(file)'}: "
+                         f"{exc}") from None
+
+
+def key_expr(text: str) -> str:
+    """``KEY`` as a key expression under ``roger/`` (``aibo/status`` -> ``roger/aibo/status``)."""
+    import zenoh
+
+    full = text if text.startswith(keys.ROOT + "/") or text == keys.ROOT else (
+        f"{keys.ROOT}/{text}")
+    try:
+        zenoh.KeyExpr(full)
+    except Exception:
+        raise UsageError(
+            f"KEY must be a key expression such as roger/aibo/status, aibo/prediction or "
+            f"roger/*/status, got {text!r}") from None
+    return full
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    """One received sample: key, bytes, and ``time.monotonic()`` at receipt."""
+
+    key: str
+    payload: bytes
+    recv_s: float
+
+
+class Listener:
+    """A subscriber on ``key_expr`` feeding a bounded queue; overflow is counted."""
+
+    def __init__(self, session: Any, key_expr: str, capacity: int = 4096,
+                 *, liveliness: bool = False) -> None:
+        self._q: queue.Queue[Sample] = queue.Queue(maxsize=capacity)
+        self._lock = threading.Lock()
+        self.overflow = 0
+
+        def on_sample(sample: Any) -> None:
+            item = Sample(str(sample.key_expr), sample.payload.to_bytes(), time.monotonic())
+            try:
+                self._q.put_nowait(item)
+            except queue.Full:
+                with self._lock:
+                    self.overflow += 1
+
+        src = session.liveliness() if liveliness else session
+        self._sub = src.declare_subscriber(key_expr, on_sample)
+
+    def get(self, timeout: float) -> Sample | None:
+        """The next sample, or ``None`` after ``timeout`` seconds."""
+        try:
+            return self._q.get(timeout=max(timeout, 0.0)) if timeout > 0 else (
+                self._q.get_nowait())
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # already gone with the session
+            pass
+
+
+def decode_sample(key: str, payload: bytes) -> dict[str, Any]:
+    """The message on ``key`` as a plain map; ``ProtocolError`` if it is not a valid one."""
+    robot, kind = keys.parse(key)
+    return decode(kind, payload, robot=robot).to_map()
+
+
+def _rounded(value: Any, digits: int) -> Any:
+    if isinstance(value, float):
+        return round(value, digits)
+    if isinstance(value, list):
+        return [_rounded(v, digits) for v in value]
+    if isinstance(value, dict):
+        return {k: _rounded(v, digits) for k, v in value.items()}
+    return value
+
+
+def dumps(obj: Any, *, digits: int | None = None) -> str:
+    """One JSON line (``digits``: round floats for reading)."""
+    return json.dumps(obj if digits is None else _rounded(obj, digits), separators=(",", ":"))
+
+
+def invalid_text(key: str, exc: ProtocolError) -> str:
+    """How a tool reports a sample that does not decode."""
+    return f"{key}: invalid message ({exc.reason}: {exc.detail})"

@@ -1,0 +1,197 @@
+"""``roger view``: a live Foxglove view of a ROGER session (WebSocket), or a recorded one (MCAP).
+
+Live: subscribes to ``roger/<robot>/*`` over Zenoh (as the operator tools do), converts every
+message with :class:`simulator.view.scene.Converter` and serves the result on Foxglove's
+WebSocket protocol (``foxglove-sdk``; open ``ws://127.0.0.1:8765`` in the Foxglove app), and
+with ``--record OUT.mcap`` writes the same channels to an MCAP file as well. Offline: ``--log
+FILE.mcap --out OUT.mcap`` converts a recorded session (the daemon's or ``roger record``'s) into
+the same channels with the recorded log times, so a recorded session looks like a live one.
+
+The view is a separate, optional process: the daemon and the simulator never import
+``foxglove`` (install it with ``pip install -e '.[live]'``). The scene needs the simulator's
+ground truth: run ``roger sim --truth`` (``roger up`` does when ``[view]`` is on).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+from roger_daemon.console import UsageError
+from roger_daemon.tools.common import add_connection_args, port, seconds
+
+__all__ = ["Sinks", "configure", "convert_log", "run"]
+
+log = logging.getLogger("roger.view")
+
+_NUM = {"type": "number"}
+_BY_ACTION = {"type": "object", "description": "one number per action name (protocols/AIBO.md)",
+              "additionalProperties": _NUM}
+#: the JSON channels' schemas (name, jsonschema)
+JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
+    "/roger/command": ("roger.view.Command", {"type": "object", "properties": {
+        "tick": _NUM, "source": {"type": "string"}, "y": _BY_ACTION}}),
+    "/roger/prediction": ("roger.view.Prediction", {"type": "object", "properties": {
+        "tick": _NUM, "expert": _NUM, "updates": _NUM, "latency_ms": _NUM,
+        "mode": {"type": "string"}, "mean": _BY_ACTION, "var": _BY_ACTION, "std": _BY_ACTION}}),
+    "/roger/expert": ("roger.view.Expert", {"type": "object", "properties": {
+        "tick": _NUM, "expert": _NUM, "expert_label": {"type": "string"},
+        "subtask": {"type": "string"}, "experts": _NUM}}),
+}
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``roger view``."""
+    parser.add_argument("--robot", default="aibo", help="robot id to show (default aibo)")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address of the WebSocket server (default 127.0.0.1, this host only)")
+    parser.add_argument("--port", type=port, default=8765,
+                        help="port of the WebSocket server (default 8765, Foxglove's; 0: any)")
+    parser.add_argument("--record", type=Path, default=None, metavar="OUT",
+                        help="also write the live channels to this MCAP file")
+    parser.add_argument("--log", type=Path, default=None, metavar="FILE",
+                        help="offline: convert this recorded session (MCAP) instead of going "
+                             "live; needs --out")
+    parser.add_argument("--out", type=Path, default=None, metavar="OUT",
+                        help="offline: the Foxglove MCAP to write from --log")
+    parser.add_argument("--duration", type=seconds, default=0.0, metavar="S",
+                        help="live: stop after S seconds (default: until Ctrl-C)")
+    add_connection_args(parser, timeout=5.0)
+
+
+def _foxglove() -> Any:
+    try:
+        import foxglove
+    except ImportError:
+        raise UsageError("roger view needs the foxglove-sdk package: pip install -e '.[live]' "
+                         "(or pip install foxglove-sdk)") from None
+    return foxglove
+
+
+class Sinks:
+    """One ``foxglove.Context``: a channel per topic, fanning out to its server and/or MCAP."""
+
+    def __init__(self) -> None:
+        fg = _foxglove()
+        self.fg = fg
+        self.context = fg.Context()
+        self.channels: dict[str, Any] = {}
+
+    def _channel(self, topic: str, msg: Any) -> Any:
+        ch = self.channels.get(topic)
+        if ch is None:
+            import foxglove.channels as fc
+
+            if isinstance(msg, dict):
+                name, schema = JSON_SCHEMAS.get(topic, ("roger.view.Json", {"type": "object"}))
+                ch = self.fg.Channel(topic, message_encoding="json", context=self.context,
+                                     schema=self.fg.Schema(name=name, encoding="jsonschema",
+                                                           data=json.dumps(schema).encode()))
+            else:
+                cls = getattr(fc, type(msg).__name__ + "Channel")
+                ch = cls(topic, context=self.context)
+            self.channels[topic] = ch
+        return ch
+
+    def log(self, pairs: list[tuple[str, Any]], ns: int) -> None:
+        for topic, msg in pairs:
+            self._channel(topic, msg).log(msg, log_time=ns)
+
+
+def _decoded(key: str, payload: bytes) -> tuple[str, dict[str, Any]] | None:
+    from protocols import keys
+    from protocols.errors import ProtocolError
+    from roger_daemon.tools.common import decode_sample
+
+    try:
+        _, kind = keys.parse(key)
+        return kind, decode_sample(key, payload)
+    except ProtocolError:
+        return None
+
+
+def convert_log(src: Path, out: Path, robot: str | None = None) -> dict[str, int]:
+    """Convert a recorded session to Foxglove channels in ``out``; messages per topic."""
+    from mcap.reader import make_reader
+
+    from simulator.view.scene import Converter
+
+    sinks = Sinks()
+    conv = Converter()
+    counts: dict[str, int] = {}
+    writer = sinks.fg.open_mcap(str(out), allow_overwrite=True, context=sinks.context)
+    try:
+        with src.open("rb") as fh:
+            for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
+                got = _decoded(channel.topic, message.data)
+                if got is None or (robot and got[1]["robot"] != robot):
+                    continue
+                pairs = conv.convert(got[0], got[1], message.log_time)
+                sinks.log(pairs, message.log_time)
+                for topic, _ in pairs:
+                    counts[topic] = counts.get(topic, 0) + 1
+    finally:
+        writer.close()
+    return counts
+
+
+def run(args: argparse.Namespace) -> int:
+    """Live until Ctrl-C (or ``--duration``), or convert ``--log`` to ``--out``."""
+    if args.log is not None or args.out is not None:
+        if args.log is None or args.out is None:
+            raise UsageError("offline conversion needs both --log FILE and --out OUT")
+        if not args.log.is_file():
+            raise UsageError(f"--log: no such file: {args.log}")
+        counts = convert_log(args.log, args.out, args.robot)
+        print(f"wrote {args.out}: " + ", ".join(f"{t} {n}" for t, n in sorted(counts.items())))
+        return 0
+    return _live(args)
+
+
+def _live(args: argparse.Namespace) -> int:
+    from protocols import keys
+    from roger_daemon.tools.common import Listener, open_from_args
+    from simulator.view.scene import Converter
+
+    try:
+        keys.validate_robot_id(args.robot)
+    except ValueError as exc:
+        raise UsageError(f"--robot: {exc}") from None
+    sinks = Sinks()
+    try:
+        server = sinks.fg.start_server(name=f"roger view {args.robot}", host=args.host,
+                                       port=args.port, context=sinks.context)
+    except Exception as exc:  # the SDK raises its own error for a busy port or a bad host
+        raise UsageError(f"cannot serve the WebSocket on {args.host}:{args.port}: {exc}") from None
+    writer = (sinks.fg.open_mcap(str(args.record), allow_overwrite=True, context=sinks.context)
+              if args.record else None)
+    session = open_from_args(args)
+    listener = Listener(session, f"{keys.ROOT}/{args.robot}/*", capacity=8192)
+    log.info("serving the Foxglove WebSocket on ws://%s:%d (robot %s)%s", args.host,
+             server.port, args.robot, f", recording to {args.record}" if args.record else "")
+    print(f"roger view: ws://{args.host}:{server.port}", flush=True)
+    conv = Converter()
+    start = time.monotonic()
+    stop: list[int] = []
+    signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
+    try:
+        while not stop and (not args.duration or time.monotonic() - start < args.duration):
+            s = listener.get(0.2)
+            if s is None:
+                continue
+            got = _decoded(s.key, s.payload)
+            if got is not None:
+                ns = time.time_ns()
+                sinks.log(conv.convert(got[0], got[1], ns), ns)
+    finally:
+        listener.close()
+        session.close()
+        if writer is not None:
+            writer.close()
+        server.stop()
+    return 0

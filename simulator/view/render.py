@@ -1,0 +1,143 @@
+"""Read a Foxglove MCAP back, and draw its ``/scene`` channel from above as a PNG.
+
+:func:`read_messages` decodes every message of a Foxglove MCAP (``roger view --record`` or
+``--log ... --out``) into plain dicts: JSON channels with ``json``, protobuf channels with the
+schema the file carries (its FileDescriptorSet, through ``google.protobuf``). :func:`render_scene`
+draws the last field entity, the robot's and the ball's paths and their last poses from the
+``foxglove.SceneUpdate`` messages alone, so the picture shows what the 3D panel shows::
+
+    python -m simulator.view.render SESSION.foxglove.mcap --out docs/figures/live_scene.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+__all__ = ["read_messages", "render_scene"]
+
+
+def _protobuf_class(schema: Any) -> Any:
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+
+
+def read_messages(path: Path, topics: set[str] | None = None) -> list[tuple[str, int, dict]]:
+    """``(topic, log_time_ns, message as a dict)`` for every message (of ``topics``)."""
+    from google.protobuf.json_format import MessageToDict
+    from mcap.reader import make_reader
+
+    classes: dict[int, Any] = {}
+    out = []
+    with path.open("rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
+            if topics is not None and channel.topic not in topics:
+                continue
+            if channel.message_encoding == "json":
+                out.append((channel.topic, message.log_time, json.loads(message.data)))
+                continue
+            if schema is None or schema.encoding != "protobuf":
+                continue
+            if schema.id not in classes:
+                classes[schema.id] = _protobuf_class(schema)
+            msg = classes[schema.id].FromString(message.data)
+            out.append((channel.topic, message.log_time,
+                        MessageToDict(msg, preserving_proto_field_name=True)))
+    return out
+
+
+def _xyz(pose: dict[str, Any]) -> tuple[float, float, float]:
+    p = pose.get("position", {})
+    return float(p.get("x", 0.0)), float(p.get("y", 0.0)), float(p.get("z", 0.0))
+
+
+def _yaw(pose: dict[str, Any]) -> float:
+    q = pose.get("orientation", {})
+    return 2.0 * math.atan2(float(q.get("z", 0.0)), float(q.get("w", 1.0)))
+
+
+def _rgb(c: dict[str, Any]) -> tuple[float, float, float]:
+    return float(c.get("r", 0.0)), float(c.get("g", 0.0)), float(c.get("b", 0.0))
+
+
+def render_scene(path: Path, out: Path, title: str = "") -> dict[str, int]:
+    """Draw the ``/scene`` channel of ``path`` into ``out`` (PNG); counts of what was drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle, Rectangle
+    from matplotlib.transforms import Affine2D
+
+    field: dict[str, Any] | None = None
+    robot: list[tuple[float, float, float]] = []
+    ball: list[tuple[float, float]] = []
+    for _, _, upd in read_messages(path, {"/scene"}):
+        for ent in upd.get("entities", []):
+            if ent.get("id") == "field":
+                field = ent
+            elif ent.get("id") == "robot" and ent.get("cubes"):
+                x, y, _ = _xyz(ent["cubes"][0]["pose"])
+                robot.append((x, y, _yaw(ent["cubes"][0]["pose"])))
+            elif ent.get("id") == "ball" and ent.get("spheres"):
+                x, y, _ = _xyz(ent["spheres"][0]["pose"])
+                ball.append((x, y))
+    if field is None:
+        raise ValueError(f"{path}: no field entity on /scene (is it a roger view file?)")
+    fig, ax = plt.subplots(figsize=(7.5, 5.2), dpi=110)
+    for cube in field.get("cubes", []):
+        x, y, _ = _xyz(cube["pose"])
+        sx, sy = float(cube["size"].get("x", 0)), float(cube["size"].get("y", 0))
+        ax.add_patch(Rectangle((x - sx / 2, y - sy / 2), sx, sy, color=_rgb(cube["color"])))
+    for cyl in field.get("cylinders", []):
+        x, y, _ = _xyz(cyl["pose"])
+        ax.add_patch(Circle((x, y), float(cyl["size"].get("x", 0.1)),
+                            color=_rgb(cyl["color"]), ec="k", lw=0.5))
+    if ball:
+        bx, by = zip(*ball, strict=True)
+        ax.plot(bx, by, color=(1.0, 0.5, 0.0), lw=1.5, label="ball")
+        ax.add_patch(Circle(ball[-1], 0.06, color=(1.0, 0.5, 0.0), ec="k", lw=0.5))
+    if robot:
+        rx, ry, _ = zip(*robot, strict=True)
+        ax.plot(rx, ry, color="white", lw=1.5, label="robot")
+        x, y, yaw = robot[-1]
+        body = Rectangle((x - 0.14, y - 0.075), 0.28, 0.15, color=(0.85, 0.85, 0.85), ec="k",
+                         transform=Affine2D().rotate_around(x, y, yaw) + ax.transData)
+        ax.add_patch(body)
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m), towards the attacked goal")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title or f"/scene of {path.name}: {len(robot)} robot poses")
+    if robot or ball:
+        ax.legend(loc="upper left", fontsize=8, facecolor=(0.1, 0.4, 0.15), labelcolor="white")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)
+    return {"robot_poses": len(robot), "ball_positions": len(ball)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m simulator.view.render FILE --out PNG``."""
+    parser = argparse.ArgumentParser(prog="python -m simulator.view.render",
+                                     description="draw the /scene channel of a roger view MCAP")
+    parser.add_argument("file", type=Path, help="a Foxglove MCAP written by roger view")
+    parser.add_argument("--out", type=Path, required=True, help="the PNG to write")
+    parser.add_argument("--title", default="", help="the figure's title")
+    args = parser.parse_args(argv)
+    counts = render_scene(args.file, args.out, args.title)
+    print(f"wrote {args.out}: {counts}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
