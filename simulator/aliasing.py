@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from protocols.aibo import SUBTASKS, blob_slice, decode_indicator
+from protocols.aibo import blob_slice, decode_indicator
 
 __all__ = ["ACTION_SCALE", "conflicting", "main", "measure_aliasing"]
 
@@ -125,11 +125,9 @@ def measure_aliasing(
         float(conf[~cross].mean()) if (~cross).any() else 0.0
     )
     per_pair: dict[str, dict[str, float]] = {}
-    order = {s: k for k, s in enumerate(SUBTASKS)}
-    for a in SUBTASKS:
-        for b in SUBTASKS:
-            if order[a] > order[b]:
-                continue
+    present = _label_order(lab)
+    for k, a in enumerate(present):
+        for b in present[k:]:
             m = ((lab[i] == a) & (lab[j] == b)) | ((lab[i] == b) & (lab[j] == a))
             if m.any():
                 per_pair[f"{a}/{b}"] = {
@@ -137,8 +135,21 @@ def measure_aliasing(
                     "conflicts": int(conf[m].sum()),
                     "fraction": round(float(conf[m].mean()), 4),
                 }
+    within = {
+        a: per_pair[f"{a}/{a}"]["fraction"] for a in present if f"{a}/{a}" in per_pair
+    }
+    report["within_subtask_conflict_by_subtask"] = within
+    report["max_within_subtask_conflict"] = max(within.values()) if within else 0.0
     report["per_subtask_pair"] = per_pair
     return report
+
+
+def _label_order(labels: np.ndarray) -> list[str]:
+    """Labels present, in the demonstrator's order (``simulator.hcc.LABELS``), then others."""
+    from simulator.hcc import LABELS
+
+    present = set(labels.tolist())
+    return [s for s in LABELS if s in present] + sorted(present - set(LABELS))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

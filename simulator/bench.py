@@ -128,7 +128,7 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 def _inprocess(seeds: int) -> dict[str, Any]:
     from simulator.aliasing import measure_aliasing
     from simulator.episodes import START_LOCATIONS, SoccerSim, Trace, run_episode
-    from simulator.hcc import HCC
+    from simulator.hcc import HCC, LABELS
 
     sim = SoccerSim(vision="fast")
     hcc = HCC()
@@ -180,7 +180,7 @@ def _inprocess(seeds: int) -> dict[str, Any]:
         "mean_time_to_goal_s": round(float(np.mean(goal_times)), 2) if goal_times else None,
         "motion_counters": counters,
         "subtask_fractions": {
-            s: round(float(np.mean(labels == s)), 4) for s in ("seek", "trap", "aim", "kick")
+            s: round(float(np.mean(labels == s)), 4) for s in LABELS
         },
         "inprocess_fast_ticks_per_s": round(ticks / wall, 1),
         "aliasing": alias,

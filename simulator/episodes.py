@@ -126,7 +126,8 @@ class EpisodeResult:
         return {
             "episode": self.episode,
             "location": self.location,
-            "location_name": START_LOCATIONS[self.location].name,
+            "location_name": (START_LOCATIONS[self.location].name
+                              if 0 <= self.location < len(START_LOCATIONS) else ""),
             "repetition": self.repetition,
             "seed": self.seed,
             "outcome": self.outcome,
@@ -164,12 +165,15 @@ class SoccerSim:
         """Release the pybullet client."""
         self.world.close()
 
-    def reset(self, location: int, seed: int, repetition: int = 0) -> np.ndarray:
-        """Start an episode from ``START_LOCATIONS[location]``; returns the first perception."""
-        loc = START_LOCATIONS[location]
-        start, walk, vis, kick = episode_streams(seed, location, repetition)
+    def reset(self, location: int, seed: int, repetition: int = 0,
+              start: StartLocation | None = None) -> np.ndarray:
+        """Start an episode from ``START_LOCATIONS[location]`` (or from ``start``, e.g. a pose
+        of a ``--start-poses`` file, seeded as location ``location``); returns the first
+        perception."""
+        loc = START_LOCATIONS[location] if start is None else start
+        start_rng, walk, vis, kick = episode_streams(seed, location, repetition)
         e = self.cfg.episode
-        n = start.standard_normal(5)
+        n = start_rng.standard_normal(5)
         rx = loc.robot[0] + e.start_xy_noise * n[0]
         ry = loc.robot[1] + e.start_xy_noise * n[1]
         heading = math.radians(loc.robot[2] + e.start_heading_noise * n[2])
@@ -282,9 +286,10 @@ def run_episode(
     episode: int = 0,
     trace: Trace | None = None,
     should_stop: Callable[[], bool] | None = None,
+    start: StartLocation | None = None,
 ) -> EpisodeResult:
     """Run one episode in-process (no Zenoh): perceive, act, step until it ends."""
-    x = sim.reset(location, seed, repetition)
+    x = sim.reset(location, seed, repetition, start)
     controller.reset()
     while True:
         y, label = controller.act(x)

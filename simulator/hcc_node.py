@@ -6,8 +6,10 @@
 * ``--role transitioner``: runs the FSM on perception(t) to know the current subtask, takes
   the daemon's ``prediction``(t) (``--prediction-timeout`` seconds at most, matched by tick;
   in ``--clock realtime`` the newest prediction not older than ``--max-prediction-age`` ticks),
-  and publishes as ``command``(t) the mean of the expert whose ``label`` is that subtask, with
-  the highest gate probability ``p``. ``source = "hcc:transitioner:<subtask>:<expert>:<how>"``
+  and publishes as ``command``(t) the mean of the expert whose ``label`` is that subtask with
+  the most points (``--rule support``, default), the lowest predictive variance (``--rule
+  variance``) or the highest gate probability ``p`` (``--rule gate``).
+  ``source = "hcc:transitioner:<subtask>:<expert>:<how>"``
   where ``how`` is ``label`` or a fallback:
 
   - ``fallback_top``: no expert carries that label -> the highest-``p`` expert overall;
@@ -52,7 +54,7 @@ from simulator.transport import (
     wait_for,
 )
 
-__all__ = ["choose_expert", "configure", "run"]
+__all__ = ["RULES", "choose_expert", "configure", "hcc_from_config", "run", "transition_command"]
 
 log = logging.getLogger("roger.hcc")
 
@@ -93,29 +95,67 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=0.0,
         help="exit after this many seconds without perception (0: never)",
     )
+    parser.add_argument(
+        "--rule",
+        choices=RULES,
+        default="support",
+        help="transitioner: among the subtask's experts take the one with the most points "
+        "(default), the lowest predictive variance, or the highest gate probability",
+    )
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
     add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
 
 
+#: How the transitioner picks among the experts of the current subtask (``--rule``).
+RULES = ("support", "variance", "gate")
+
+
 def choose_expert(
-    multimap: tuple[ExpertOutput, ...], subtask: str
+    multimap: tuple[ExpertOutput, ...], subtask: str, rule: str = "support"
 ) -> tuple[ExpertOutput | None, str]:
     """The expert the transitioner uses for ``subtask``, and how it was chosen.
 
-    Highest gate probability among experts labelled ``subtask`` (``"label"``); if there is
-    none, the highest-probability expert overall (``"fallback_top"``); ``(None,
-    "fallback_mean")`` for an empty multimap. Ties go to the lower expert id.
+    Among the experts labelled ``subtask`` (majority label of their data, paper section IV.A):
+    ``rule = "support"`` (default) takes the expert holding the most points (the broadest fit
+    of the subtask; measured best, docs/goal-scoring.md), ``"variance"`` the lowest
+    predictive variance at this perception, ``"gate"`` the highest gate probability; either
+    way ``"label"``. If none carries the label, the highest-probability expert overall
+    (``"fallback_top"``); ``(None, "fallback_mean")`` for an empty multimap. Remaining ties go to
+    the higher gate probability, then the lower expert id.
     """
+    if rule not in RULES:
+        raise ValueError(f"transitioner rule must be one of {RULES}, got {rule!r}")
     if not multimap:
         return None, "fallback_mean"
     ranked = sorted(multimap, key=lambda e: (-e.p, e.expert))
-    for e in ranked:
-        if e.label == subtask:
-            return e, "label"
-    return ranked[0], "fallback_top"
+    mine = [e for e in ranked if e.label == subtask]
+    if not mine:
+        return ranked[0], "fallback_top"
+    if rule == "variance":
+        return min(mine, key=lambda e: float(np.sum(e.var))), "label"
+    if rule == "support":
+        return max(mine, key=lambda e: e.n), "label"
+    return mine[0], "label"
 
 
-def _hcc_from_config(path: str | None) -> HCC:
+def transition_command(
+    multimap: tuple[ExpertOutput, ...], mean: np.ndarray | None, subtask: str, rule: str
+) -> tuple[np.ndarray, str, int]:
+    """The transitioner's command for ``subtask``: (9-D command, how, expert id or -1).
+
+    The chosen expert's mean (:func:`choose_expert`); with an empty multimap the prediction's
+    own ``mean``. Shared by this node and the in-process evaluation
+    (``simulator.experiment.inprocess``), so both act identically.
+    """
+    expert, how = choose_expert(multimap, subtask, rule)
+    if expert is None:
+        y = np.zeros(DIMS.y) if mean is None else np.array(mean, dtype=np.float64)
+        return y, how, -1
+    return np.array(expert.mean, dtype=np.float64), how, int(expert.expert)
+
+
+def hcc_from_config(path: str | None) -> HCC:
+    """The HCC of a task TOML (its [sim] robot/camera/motion and [hcc] table; None: defaults)."""
     cfg = load_config(path)
     params = HCCParams(
         attack=cfg.field.attack, hz=cfg.episode.control_hz, ball_radius=cfg.ball.radius
@@ -259,17 +299,17 @@ class HCCNode:
             y = np.zeros(DIMS.y)
             y[3:8] = np.asarray(msg.x)[18:23]
             return y, f"hcc:transitioner:{subtask}:-1:no_prediction"
-        expert, how = choose_expert(pred.multimap, subtask)
+        y, how, expert = transition_command(pred.multimap, np.asarray(pred.mean), subtask,
+                                            self.args.rule)
         self.counts[how] += 1
-        if expert is None:
-            return np.array(pred.mean), f"hcc:transitioner:{subtask}:{pred.expert}:{how}"
-        return np.array(expert.mean), f"hcc:transitioner:{subtask}:{expert.expert}:{how}"
+        shown = pred.expert if expert < 0 else expert
+        return y, f"hcc:transitioner:{subtask}:{shown}:{how}"
 
 
 def run(args: argparse.Namespace) -> int:
     """Serve until stopped (or the simulator's run is complete); print the counters."""
     try:
-        hcc = _hcc_from_config(args.config)
+        hcc = hcc_from_config(args.config)
     except (ValueError, OSError, TypeError) as exc:
         print(f"roger hcc: {exc}", file=sys.stderr)
         return 2

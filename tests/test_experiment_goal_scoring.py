@@ -18,6 +18,7 @@ from typing import Any
 import pytest
 
 from simulator.experiment.report import check_results
+from simulator.hcc import LABELS
 
 pytestmark = pytest.mark.integration
 
@@ -58,12 +59,21 @@ def test_quick_run_writes_the_full_schema(
     learner = r["config"]["learner"]
     assert (learner["alpha"], learner["beta"], learner["particles"]) == (0.5, 300, 10)
     assert r["paper"] == {"hcc": 0.69, "roger": 0.31, "dpa": 0.0, "experts": 85, "ratio": 0.45}
-    for c in ("hcc", "roger", "dpa"):
+    for c in ("hcc", "roger", "dpa", "oracle"):
         assert r[c]["trials"] == 2
         assert 0.0 <= r[c]["ci95_low"] <= r[c]["success_rate"] <= r[c]["ci95_high"] <= 1.0
+        assert sum(r[c]["failure_modes"].values()) == 2
+    for c in ("hcc", "roger:0", "dpa", "oracle"):
         assert [row["location"] for row in r["per_location"][c]] == [0, 6]
         assert all(row["attempts"] == 1 for row in r["per_location"][c])
         assert len(r["episodes"][c]) == 2
+    assert "segmentation oracle" in r["oracle"]["name"]
+    (seed_row,) = r["roger_seeds"]
+    assert seed_row["learner_seed"] == 3 and seed_row["trials"] == 2
+    # the in-process path re-ran the first location and met the same episodes
+    agree = r["paths_agree"]
+    assert agree["all_same"] and {e["controller"] for e in agree["episodes"]} == {
+        "hcc", "roger:0", "dpa"}
     # which BLAS computed, pinned to one thread (roger_daemon/blas.py)
     assert r["machine"]["blas"] and all(b["threads"] == 1 for b in r["machine"]["blas"])
     for phase in ("demonstrations", "training", "daemon_check", "evaluation", "total"):
@@ -98,7 +108,7 @@ def test_quick_demonstrations_are_recorded_and_learned(
     # grouping: every expert has a majority label from the demonstrated subtasks
     rows = r["segmentation"]["experts_table"]
     assert sum(row["points"] for row in rows) == r["training"]["pairs"]
-    assert {row["label"] for row in rows} <= {"seek", "trap", "aim", "kick"}
+    assert {row["label"] for row in rows} <= set(LABELS)
 
 
 def test_quick_evaluation_ran_each_controller_cleanly(
@@ -106,18 +116,18 @@ def test_quick_evaluation_ran_each_controller_cleanly(
 ) -> None:
     out, r, _, _ = quick
     tr = r["transport"]
-    for c in ("hcc", "roger", "dpa"):
+    for c in ("hcc", "roger:0", "dpa"):
         assert tr[c]["sim_command_timeouts"] == 0, tr[c]
         assert tr[c]["sim_hold_ticks"] == 0, tr[c]
         assert tr[c]["sim_invalid_messages"] == 0, tr[c]
     # the transitioner got a prediction for every tick and chose experts by their labels
-    assert tr["roger"]["controller_no_prediction"] == 0
-    assert tr["roger"]["controller_label"] + tr["roger"]["controller_fallback_top"] > 0
+    assert tr["roger:0"]["controller_no_prediction"] == 0
+    assert tr["roger:0"]["controller_label"] + tr["roger:0"]["controller_fallback_top"] > 0
     # the DPA node forwarded one command per simulator tick
     assert tr["dpa"]["sim_ticks"] > 0
     for name in ("fig7_pca", "fig8_experts", "success_per_location"):
         assert Path(r["figures"][name]).read_bytes()[:8] == PNG
-    assert (out / "models" / "roger" / "aibo").is_dir()
+    assert (out / "models" / "roger-0" / "aibo").is_dir()
     assert (out / "training-data.npz").is_file()
 
 

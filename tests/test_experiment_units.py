@@ -30,12 +30,16 @@ def _args(*argv: str) -> argparse.Namespace:
 def test_plan_defaults_are_the_papers_protocol() -> None:
     plan = plan_from_args(_args())
     assert plan.locations == tuple(range(13)) and plan.attempts == 3
-    assert plan.per_subtask == 1000 and plan.time_limit == 150.0 and plan.vision == "rendered"
-    assert plan.controllers == ("hcc", "roger", "dpa") and plan.daemon_check
+    assert plan.per_subtask == 1000 and plan.time_limit == 60.0 and plan.vision == "fast"
+    assert plan.controllers == ("hcc", "roger", "dpa", "oracle") and plan.daemon_check
+    assert plan.shots == 5 and plan.learner_seeds == 3 and plan.rule == "support"
+    assert not plan.in_process
     assert plan.seeds["master"] == 0 and plan.seeds["eval_sim"] != plan.seeds["demo_sim"]
     from roger_daemon.config import parse_config
 
-    assert learner_params(plan) == parse_config({}).robots[0].params  # the daemon's defaults
+    # the daemon's defaults, with the task's coarser novelty test (docs/goal-scoring.md)
+    daemon = parse_config({}).robots[0].params
+    assert learner_params(plan) == daemon.replace(novelty_threshold=1e-3)
 
 
 def test_quick_presets_and_overrides() -> None:
@@ -43,9 +47,12 @@ def test_quick_presets_and_overrides() -> None:
     assert plan.quick and plan.locations == (0, 6) and plan.attempts == 2
     assert plan.per_subtask == 150 and plan.time_limit == 20.0 and plan.vision == "fast"
     assert plan.seeds["learner"] == 7
+    assert plan.shots == 1 and plan.learner_seeds == 1
     plan = plan_from_args(_args("--set", "learner.lambda0=0.01", "--set", "learner.alpha=2"))
     params = learner_params(plan)
     assert params.lambda0 == 0.01 and params.alpha == 2.0 and params.beta == 300
+    paper = learner_params(plan_from_args(_args("--preset", "paper")))
+    assert paper == RogerParams()  # the paper's literal numbers, every lever off
 
 
 def test_bad_arguments_are_refused() -> None:
@@ -57,6 +64,10 @@ def test_bad_arguments_are_refused() -> None:
         plan_from_args(_args("--locations", "13"))
     with pytest.raises(ValueError, match="learner.alpha"):
         learner_params(plan_from_args(_args("--set", "learner.alpha=-1")))
+    with pytest.raises(ValueError, match="--shots"):
+        plan_from_args(_args("--shots", "0"))
+    with pytest.raises(ValueError, match="learner.preset"):
+        learner_params(plan_from_args(_args("--preset", "nope")))
 
 
 def test_label_codes_follow_the_experiments_tie_rule() -> None:

@@ -11,7 +11,7 @@ from protocols import ExpertOutput
 from protocols.aibo import NOT_SEEN, blob_slice, decode_indicator
 from simulator.aliasing import conflicting, measure_aliasing
 from simulator.episodes import SoccerSim, Trace, run_episode
-from simulator.hcc import HCC, HeadModel
+from simulator.hcc import HCC, LABELS, HeadModel, coarse_label
 from simulator.hcc_node import choose_expert
 
 LOOK = math.radians(-15.0)
@@ -32,48 +32,77 @@ def percept(
     return x
 
 
-def test_nothing_seen_means_seek_turning_in_place_with_a_head_scan() -> None:
+def test_nothing_seen_means_seek_turning_in_place_in_the_look_pose() -> None:
     h = HCC()
-    pans = []
-    for _ in range(60):  # one head-scan period
+    for _ in range(60):
         y, label = h.act(percept())
-        assert label == "seek"
-        assert y[0] == 0 and abs(y[2]) == h.p.seek_turn
+        assert label == "seek_left"
+        assert y[0] == 0 and y[2] == h.p.seek_turn
         assert decode_indicator(y[8]) == "none"
-        pans.append(y[4])
-    assert max(pans) > 0.5 and min(pans) < -0.5  # the head sweeps
+        assert tuple(y[3:6]) == (h.p.look_tilt, 0.0, h.p.look_nod)
+
+
+def test_seek_turns_towards_the_ball_s_remembered_side() -> None:
+    h = HCC()
+    h.act(percept(ball=(0.8, 0.0, 0.1)))  # one glimpse, to the right: not enough to approach
+    y, label = h.act(percept())
+    assert label == "seek_left"  # the side is chosen at entry only
+    h._go(h._seek_side())
+    y, label = h.act(percept())
+    assert label == "seek_right" and y[2] == -h.p.seek_turn
 
 
 def test_seek_wanders_after_a_full_turn_without_the_ball() -> None:
     h = HCC()
     ticks = int((2 * math.pi + 0.5) / h.p.seek_turn * h.p.hz) + 2
-    ys = [h.act(percept())[0] for _ in range(ticks)]
-    assert ys[-1][0] == h.p.wander_speed and ys[-1][2] == 0
+    out = [h.act(percept()) for _ in range(ticks)]
+    y, label = out[-1]
+    assert label == "wander" and y[0] == h.p.wander_speed and y[2] == 0
 
 
-def test_ball_seen_for_two_ticks_starts_trap_and_a_close_ball_triggers_the_motion() -> None:
-    h = HCC()
-    far = (0.0, -0.1, 0.1)
-    assert h.act(percept(ball=far))[1] == "seek"
-    y, label = h.act(percept(ball=far))
-    assert label == "trap" and y[0] > 0.1  # walks to a ball ahead
-    # ball right under the nose: image y where the ray from the look pose meets the floor at
-    # 0.22 m in front of the trunk centre
+def test_every_policy_is_a_function_of_the_perception() -> None:
+    """Same subtask, same perception -> same action, whatever the FSM remembers (issue 13)."""
+    a, b = HCC(), HCC()
+    for _ in range(50):  # b accumulates odometry, timers, bearings
+        b.act(percept(goal=(0.5, 0.2, 0.3)))
+    b.act(percept(ball=(-0.7, -0.2, 0.1)))
+    x_set = [percept(), percept(ball=(0.2, -0.3, 0.1)), percept(goal=(-0.4, 0.2, 0.3))]
+    for label in LABELS:
+        for x in x_set:
+            np.testing.assert_array_equal(a.policy(label, x), b.policy(label, x))
+    with pytest.raises(ValueError, match="unknown subtask"):
+        a.policy("dance", percept())
+
+
+def _near_ball() -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """A ball 0.22 m in front of the trunk centre, seen from a head tilted down 55 degrees."""
     head = HeadModel()
     tilt = math.radians(-55)
     pos, rot = head.camera_pose(tilt, 0.0, 0.0)
     d = rot.T @ (np.array([0.22, 0.0, 0.042]) - pos)
-    near = (0.0, head.fn * d[2] / d[0], 0.4)
-    y, label = h.act(percept(ball=near, head=(tilt, 0.0, 0.0)))
-    assert label == "trap" and decode_indicator(y[8]) == "trap"
-    indicators = [decode_indicator(h.act(percept())[0][8]) for _ in range(30)]
-    assert indicators[:22].count("trap") == 22  # held for the motion, ball out of view
-    assert h.state == "aim"
+    return (0.0, head.fn * d[2] / d[0], 0.4), (tilt, 0.0, 0.0)
 
 
-def _aiming() -> HCC:
+def test_ball_seen_for_two_ticks_starts_approach_and_a_close_ball_the_held_trap() -> None:
     h = HCC()
-    h.state = "aim"
+    far = (0.0, -0.1, 0.1)
+    assert h.act(percept(ball=far))[1] == "seek_left"
+    y, label = h.act(percept(ball=far))
+    assert label == "approach" and y[0] > 0.1  # walks to a ball ahead
+    near, head = _near_ball()
+    y, label = h.act(percept(ball=near, head=head))
+    assert label == "trap" and decode_indicator(y[8]) == "trap"
+    out = [h.act(percept()) for _ in range(h.n_trap + 1)]
+    # the indicator is held for exactly the motion (one more would start a second trap)
+    assert [lab for _, lab in out[: h.n_trap - 1]] == ["trap"] * (h.n_trap - 1)
+    assert all(decode_indicator(y[8]) == "trap" for y, _ in out[: h.n_trap - 1])
+    assert out[-1][1] in ("aim_left", "aim_right")
+    assert decode_indicator(out[-1][0][8]) == "none"
+
+
+def _aiming(state: str = "aim_left") -> HCC:
+    h = HCC()
+    h.state = state
     return h
 
 
@@ -81,27 +110,29 @@ def test_aim_turns_to_the_goal_and_kicks_when_centred() -> None:
     h = _aiming()
     y, label = h.act(percept(goal=(0.6, 0.2, 0.3)))  # goal to the right
     assert label == "aim" and y[2] < 0 and decode_indicator(y[8]) == "none"
-    labels = [h.act(percept(goal=(0.0, 0.2, 0.3)))[1] for _ in range(4)]
-    assert labels[-1] == "kick"
-    kicks = [h.act(percept(goal=(0.0, 0.2, 0.3)))[0][8] for _ in range(20)]
-    assert all(decode_indicator(v) == "kick" for v in kicks)
-    for _ in range(10):
-        h.act(percept())
-    assert h.state == "seek"
+    labels = [h.act(percept(goal=(0.0, 0.2, 0.3)))[1] for _ in range(h.p.aim_settle_ticks)]
+    assert labels[-1] == "kick"  # centred for aim_settle_ticks
+    kicks = [h.act(percept(goal=(0.0, 0.2, 0.3))) for _ in range(h.n_kick - 1)]
+    assert all(decode_indicator(y[8]) == "kick" and lab == "kick" for y, lab in kicks)
+    h.act(percept())
+    assert h.state in ("seek_left", "seek_right")
+    # the released ball in view: the kick's indicator is off (it is the approach's perception)
+    y = h.policy("kick", percept(ball=(0.0, -0.2, 0.1)))
+    assert decode_indicator(y[8]) == "none"
 
 
-def test_aim_without_the_goal_turns_towards_its_remembered_side() -> None:
+def test_aim_without_the_goal_pivots_towards_its_remembered_side() -> None:
     h = _aiming()
     h.act(percept(goal=(0.9, 0.2, 0.3)))  # glimpse: right
     y, label = h.act(percept())
-    assert label == "aim" and y[2] == -h.p.aim_turn
+    assert label == "aim_right" and y[2] == -h.p.aim_turn and y[1] == h.p.aim_side
 
 
 def test_aim_sees_a_ball_in_front_means_the_trap_failed() -> None:
     h = _aiming()
     for _ in range(16):
         h.act(percept())
-    assert h.act(percept(ball=(0.0, -0.3, 0.15)))[1] == "trap"
+    assert h.act(percept(ball=(0.0, -0.3, 0.15)))[1] == "approach"
 
 
 def test_aim_times_out_into_a_kick() -> None:
@@ -110,15 +141,12 @@ def test_aim_times_out_into_a_kick() -> None:
     assert labels[-1] == "kick"
 
 
-def test_tail_and_aim_head_pose_do_not_reveal_the_subtask() -> None:
-    """The tail follows a state-free clock; the aim head pose is on the seek scan."""
-    seek, aim = HCC(), _aiming()
-    for _ in range(40):
-        ys, ls = seek.act(percept())
-        ya, la = aim.act(percept())
-        assert (ls, la) == ("seek", "aim")
-        np.testing.assert_array_equal(ys[6:8], ya[6:8])
-    assert ya[3] == ys[3] and ya[5] == ys[5]  # same tilt and nod; seek's pan sweeps through 0
+def test_tail_and_head_pose_do_not_reveal_seek_aim_or_kick() -> None:
+    """The tail command is a constant; seek, aim and kick all hold the look pose."""
+    ys = [HCC().policy(s, percept()) for s in ("seek_left", "aim_left", "kick", "wander")]
+    for y in ys[1:]:
+        np.testing.assert_array_equal(ys[0][3:8], y[3:8])
+    assert {coarse_label(s) for s in LABELS} == {"seek", "trap", "aim", "kick"}
 
 
 def test_ball_position_estimate_matches_the_world() -> None:
@@ -152,7 +180,7 @@ def test_hcc_scores_from_the_easy_start_in_process() -> None:
     finally:
         sim.close()
     assert res.outcome == "goal"
-    labels = list(dict.fromkeys(tr.labels))  # order of first appearance
+    labels = list(dict.fromkeys(coarse_label(s) for s in tr.labels))  # first appearance
     assert labels == ["seek", "trap", "aim", "kick"]
 
 
@@ -165,12 +193,14 @@ def test_aliasing_measure_on_constructed_data() -> None:
     turn_left[2], turn_right[2], kick[8] = 1.5, -1.5, 1.0
     X = np.array([x, x + 0.01, x, x + 0.02, x + 5.0])
     Y = np.array([turn_left, turn_right, kick, turn_left, kick])
-    labels = ["seek", "aim", "kick", "seek", "aim"]
+    labels = ["seek_left", "aim_left", "kick", "seek_left", "aim_left"]
     rep = measure_aliasing(X, Y, labels, episodes=[0, 1, 2, 3, 4])
     assert rep["pairs"] == 6  # the last point is far from the rest
     pp = rep["per_subtask_pair"]
-    assert pp["seek/seek"] == {"pairs": 1, "conflicts": 0, "fraction": 0.0}
-    assert pp["seek/aim"]["fraction"] == 1.0 and pp["seek/kick"]["fraction"] == 1.0
+    assert pp["seek_left/seek_left"] == {"pairs": 1, "conflicts": 0, "fraction": 0.0}
+    assert pp["seek_left/aim_left"]["fraction"] == 1.0
+    assert pp["seek_left/kick"]["fraction"] == 1.0
+    assert rep["within_subtask_conflict_by_subtask"] == {"seek_left": 0.0}
     assert rep["cross_subtask_conflict_fraction"] == 1.0
     assert conflicting(turn_left, turn_left + 0.01).tolist() == [False]
 

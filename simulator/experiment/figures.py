@@ -53,7 +53,10 @@ def expert_colours(assignments: npt.NDArray[np.int64]) -> dict[int, tuple[float,
 
 
 def _colour(label: str) -> str:
-    return SUBTASK_COLOURS.get(label, "tab:gray")
+    """Colour of the paper's subtask a demonstrator label belongs to (simulator.hcc.COARSE)."""
+    from simulator.hcc import coarse_label
+
+    return SUBTASK_COLOURS.get(coarse_label(label), "tab:gray")
 
 
 def plot_pca(
@@ -100,7 +103,9 @@ def plot_pca(
 def plot_experts_histogram(assignments: Sequence[int], labels: Sequence[str], out: Path) -> Path:
     """Fig. 8: data per expert, stacked by subtask (experts in id order)."""
     experts = np.asarray(assignments)
-    lab = np.asarray(labels)
+    from simulator.hcc import coarse_label
+
+    lab = np.asarray([coarse_label(s) for s in labels])
     uniq = sorted(set(experts.tolist()))
     pos = np.arange(len(uniq))
     fig, ax = plt.subplots(figsize=(max(8.0, 0.18 * len(uniq) + 4), 4.5))

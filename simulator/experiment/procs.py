@@ -202,6 +202,13 @@ class EpisodeJob:
     learner_seed: int = 0
     task_config: str | None = None
     model_digest: str = ""  # of the checkpoint resumed from (part of the job's identity)
+    name: str = ""  # result key (e.g. "roger:1" for the model of the second learner seed)
+    rule: str = "support"  # the transitioner's rule (roger hcc --rule)
+
+    @property
+    def key(self) -> str:
+        """The controller key its episodes are reported under."""
+        return self.name or self.controller
 
     @property
     def episodes(self) -> int:
@@ -218,7 +225,8 @@ class EpisodeJob:
             "attempts": self.attempts, "seed": self.seed, "time_limit": self.time_limit,
             "vision": self.vision, "learner": dict(self.learner),
             "learner_seed": self.learner_seed, "task_config": self.task_config,
-            "model_digest": self.model_digest,
+            "model_digest": self.model_digest, "name": self.name,
+            "rule": self.rule if self.controller == "roger" else "",
         }
 
     def timeout_s(self) -> float:
@@ -338,15 +346,16 @@ def run_job(job: EpisodeJob) -> JobResult:
                             "every_s": 0.0},
                 recording={"enabled": False},
                 learner=learner,
+                # the learner table is fully resolved (scaling included): no robot profile
                 robots=({"id": "aibo", "model": "unimap" if job.controller == "dpa"
-                         else "roger"},),
+                         else "roger", "profile": "none"},),
             )
             group.start("daemon", roger_argv("daemon", "--config", str(cfg)))
             group.wait_for_log("daemon", " ready: ", 120)
             if "resumed from" not in group.log_text("daemon"):
                 raise JobError("the daemon did not resume the trained model" + group.tails())
             if job.controller == "roger":
-                controller = roger_argv("hcc", "--role", "transitioner")
+                controller = roger_argv("hcc", "--role", "transitioner", "--rule", job.rule)
             else:
                 controller = roger_argv("experiment", "dpa")
             peers = 2

@@ -3,6 +3,7 @@
 ``results.json`` (schema ``roger.experiment.goal_scoring/1``) holds at least::
 
     {"hcc": {"success_rate", "trials", ...}, "roger": {...}, "dpa": {...},
+     "oracle": {...}, "roger_seeds": [{"learner_seed", "success_rate", ...}, ...],
      "experts", "ari", "nmi", "purity", "seed", "config", "per_location", "paper", ...}
 
 :func:`check_results` validates that shape (used by the tests and by ``--quick`` in CI).
@@ -19,6 +20,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.labels import majority_labels
 from simulator.experiment.metrics import segmentation_scores, success_rate
 
 __all__ = ["SCHEMA", "build_results", "check_results", "print_report", "write_figures"]
@@ -28,18 +30,17 @@ SCHEMA = "roger.experiment.goal_scoring/1"
 DPA_ALIASING_LIMIT = 0.15
 
 
-def _per_location(evals: Sequence[Any], controller: str,
+def _per_location(episodes: Sequence[dict[str, Any]],
                   locations: Sequence[int]) -> list[dict[str, Any]]:
     from simulator.episodes import START_LOCATIONS
 
     rows = []
     for loc in locations:
-        eps = [e for r in evals if r.job.controller == controller for e in r.episodes
-               if e["location"] == loc]
-        eps.sort(key=lambda e: e["repetition"])
+        eps = sorted((e for e in episodes if e["location"] == loc),
+                     key=lambda e: e["repetition"])
         rows.append({
             "location": loc,
-            "name": START_LOCATIONS[loc].name,
+            "name": START_LOCATIONS[loc].name if 0 <= loc < len(START_LOCATIONS) else "",
             "attempts": len(eps),
             "successes": sum(bool(e["success"]) for e in eps),
             "outcomes": [e["outcome"] for e in eps],
@@ -48,21 +49,67 @@ def _per_location(evals: Sequence[Any], controller: str,
     return rows
 
 
-def build_results(*, plan: Any, params: Any, demos: Sequence[Any], data: Any, stream: Any,
-                  model: Any, groups: dict[int, str], evals: Sequence[Any],
-                  check: dict[str, Any] | None, train_s: float,
-                  errors: Sequence[str]) -> dict[str, Any]:
-    """Everything the run measured, as a JSON-ready dict."""
+def controller_block(episodes: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Success rate (Wilson interval), outcomes and failure modes of some episodes."""
+    from simulator.experiment.inprocess import failure_mode
+
+    modes = [e.get("failure_mode") or failure_mode(e["outcome"], e, e.get("path_m"))
+             for e in episodes]
+    return {**success_rate([bool(e["success"]) for e in episodes]).to_json(),
+            "outcomes": dict(Counter(e["outcome"] for e in episodes)),
+            "failure_modes": dict(Counter(modes))}
+
+
+def _ratio(a: float | None, b: float | None) -> float | None:
+    if a is None or b is None or math.isnan(a) or math.isnan(b) or b <= 0:
+        return None
+    return a / b
+
+
+def _seed_blocks(episodes: dict[str, list[dict[str, Any]]], models: Sequence[tuple[int, Any]],
+                 labels: Sequence[str], hcc_rate: float | None) -> list[dict[str, Any]]:
+    """One row per learner seed: success, ratio to HCC and the segmentation of its model."""
+    from simulator.hcc import coarse_label
+
+    rows = []
+    for k, (seed, model) in enumerate(models):
+        a = np.asarray(model.assignments()).tolist()
+        seg = segmentation_scores(a, labels)
+        coarse = segmentation_scores(a, [coarse_label(s) for s in labels])
+        block = controller_block(episodes.get(f"roger:{k}", []))
+        rows.append({"learner_seed": seed, **block,
+                     "ratio_to_hcc": _ratio(block["success_rate"], hcc_rate),
+                     "experts": seg.experts, "ari": seg.ari, "nmi": seg.nmi,
+                     "purity": seg.purity, "ari_paper_subtasks": coarse.ari,
+                     "experts_per_subtask": seg.experts_per_subtask})
+    return rows
+
+
+def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], data: Any,
+                  stream: Any, models: Sequence[tuple[int, Any]],
+                  episodes: dict[str, list[dict[str, Any]]], check: dict[str, Any] | None,
+                  train_s: float, errors: Sequence[str],
+                  mcap: Sequence[str] = ()) -> dict[str, Any]:
+    """Everything the run measured, as a JSON-ready dict.
+
+    ``episodes`` maps a controller key (``hcc``, ``dpa``, ``oracle``, ``roger:K`` for the
+    model of learner seed number K) to its episode records; ``models`` are the ROGER models
+    as ``(learner seed, model)``. The ``roger`` block pools every learner seed's episodes (its
+    rate is the mean over seeds); ``roger_seeds`` has one row per seed.
+    """
     from simulator.experiment.goal_scoring import PAPER
     from simulator.experiment.training import expert_table
+    from simulator.hcc import coarse_label
 
-    assignments = np.asarray(model.assignments())
+    assignments = np.asarray(models[0][1].assignments())
+    groups = majority_labels(assignments.tolist(), stream.labels)
     seg = segmentation_scores(assignments.tolist(), stream.labels)
     out: dict[str, Any] = {
         "schema": SCHEMA,
         "seed": plan.seed,
         "seeds": dict(plan.seeds),
         "quick": plan.quick,
+        "path": "in-process" if plan.in_process else "zenoh",
         "config": {
             "learner": params.to_mapping(),
             "config_file": plan.config,
@@ -70,20 +117,18 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[Any], data: Any, st
             "experiment": plan.to_json(),
         },
     }
-    per_location: dict[str, list[dict[str, Any]]] = {}
-    for c in plan.controllers:
-        outcomes = [bool(e["success"]) for r in evals if r.job.controller == c
-                    for e in r.episodes]
-        out[c] = {**success_rate(outcomes).to_json(),
-                  "outcomes": dict(Counter(e["outcome"] for r in evals
-                                           if r.job.controller == c for e in r.episodes))}
-        per_location[c] = _per_location(evals, c, plan.locations)
+    roger_eps = [e for k in range(len(models)) for e in episodes.get(f"roger:{k}", [])]
+    blocks = {"hcc": episodes.get("hcc"), "dpa": episodes.get("dpa"),
+              "oracle": episodes.get("oracle"), "roger": roger_eps if roger_eps else None}
+    for c, eps in blocks.items():
+        if eps is not None:
+            out[c] = controller_block(eps)
+    if "oracle" in out:
+        out["oracle"]["name"] = "segmentation oracle (one sparse online GP per true subtask)"
     hcc_rate = out.get("hcc", {}).get("success_rate")
-    roger_rate = out.get("roger", {}).get("success_rate")
-    ratio = None
-    if hcc_rate and roger_rate is not None and not math.isnan(roger_rate) and hcc_rate > 0:
-        ratio = roger_rate / hcc_rate
-    out["ratio_roger_to_hcc"] = ratio
+    out["roger_seeds"] = _seed_blocks(episodes, models, stream.labels, hcc_rate)
+    out["ratio_roger_to_hcc"] = _ratio(out.get("roger", {}).get("success_rate"), hcc_rate)
+    out["ratio_oracle_to_hcc"] = _ratio(out.get("oracle", {}).get("success_rate"), hcc_rate)
     dpa_rate = out.get("dpa", {}).get("success_rate")
     out["dpa_above_aliasing_limit"] = (
         None if dpa_rate is None or math.isnan(dpa_rate) else bool(dpa_rate > DPA_ALIASING_LIMIT)
@@ -93,29 +138,32 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[Any], data: Any, st
     out["ari"] = seg.ari
     out["nmi"] = seg.nmi
     out["segmentation"] = {
+        "learner_seed": models[0][0],
         "largest_expert_share": seg.largest_share,
         "top3_experts_share": seg.top3_share,
         "experts_per_subtask": seg.experts_per_subtask,
+        "ari_paper_subtasks": segmentation_scores(
+            assignments.tolist(), [coarse_label(s) for s in stream.labels]).ari,
         "subtasks_without_expert": sorted(set(stream.labels) - set(groups.values())),
         "experts_table": expert_table(assignments.tolist(), stream.labels, groups),
     }
-    out["per_location"] = per_location
-    out["episodes"] = {c: [e for r in evals if r.job.controller == c for e in r.episodes]
-                       for c in plan.controllers}
-    demo_eps = [e for r in demos for e in r.episodes]
+    out["per_location"] = {c: _per_location(eps, plan.locations)
+                           for c, eps in sorted(episodes.items())}
+    out["episodes"] = {c: list(eps) for c, eps in sorted(episodes.items())}
     out["demonstrations"] = {
-        "episodes": demo_eps,
-        "hcc_success_rate": success_rate([bool(e["success"]) for e in demo_eps]).to_json(),
+        "episodes": list(demos),
+        "shots_per_location": plan.shots,
+        "hcc_success_rate": success_rate([bool(e["success"]) for e in demos]).to_json(),
         "pairs": len(data),
         "pairs_per_subtask": dict(sorted(Counter(data.labels).items())),
         "unpaired_in_logs": data.unpaired,
-        "mcap": [str(p) for r in demos for p in r.mcap],
+        "mcap": list(mcap),
     }
     out["training"] = {
         "pairs": len(stream),
         "pairs_per_subtask": dict(sorted(Counter(stream.labels).items())),
         "wall_s": round(train_s, 2),
-        "ms_per_pair": round(1000 * train_s / max(1, len(stream)), 3),
+        "ms_per_pair": round(1000 * train_s / max(1, len(stream) * len(models)), 3),
         "daemon_check": check,
     }
     out["paper"] = dict(PAPER)
@@ -126,7 +174,7 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[Any], data: Any, st
 def check_results(results: dict[str, Any]) -> list[str]:
     """Problems with the shape of ``results`` (empty when it has every required field)."""
     problems = []
-    for c in ("hcc", "roger", "dpa"):
+    for c in ("hcc", "roger", "dpa", "oracle"):
         block = results.get(c)
         if not isinstance(block, dict):
             problems.append(f"missing controller block {c!r}")
@@ -165,16 +213,24 @@ def print_report(console: Any, results: dict[str, Any]) -> None:
     t = Table(title="Goal scoring (paper section IV)", show_lines=False)
     for col in ("controller", "goals / trials", "success", "95% CI (Wilson)", "paper"):
         t.add_column(col, justify="left" if col == "controller" else "right")
-    for c in ("hcc", "roger", "dpa"):
+    for c in ("hcc", "oracle", "roger", "dpa"):
         b = results.get(c)
         if not b:
             continue
         t.add_row(CONTROLLER_NAMES[c], f"{b['successes']} / {b['trials']}",
                   _pct(b["success_rate"]),
-                  f"{_pct(b['ci95_low'])} - {_pct(b['ci95_high'])}", _pct(paper[c]))
+                  f"{_pct(b['ci95_low'])} - {_pct(b['ci95_high'])}", _pct(paper.get(c)))
+        if c == "roger" and len(results.get("roger_seeds", [])) > 1:
+            for row in results["roger_seeds"]:
+                t.add_row(f"  learner seed {row['learner_seed']}",
+                          f"{row['successes']} / {row['trials']}", _pct(row["success_rate"]),
+                          f"ratio {row['ratio_to_hcc'] or 0:.2f}, ARI {row['ari']:.2f}", "")
     ratio = results.get("ratio_roger_to_hcc")
     t.add_row("ratio ROGER / HCC", "", "-" if ratio is None else f"{ratio:.2f}", "",
               f"{paper['ratio']:.2f}")
+    oratio = results.get("ratio_oracle_to_hcc")
+    if oratio is not None:
+        t.add_row("ratio segmentation oracle / HCC", "", f"{oratio:.2f}", "", "-")
     console.print(t)
 
     s = Table(title="Segmentation of the training stream (MAP particle)")

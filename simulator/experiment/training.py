@@ -226,7 +226,8 @@ def daemon_check(
         checkpoint={"on_shutdown": True, "every_updates": 0, "every_s": 0.0},
         recording={"enabled": True},
         learner=learner_table(params),
-        robots=({"id": "aibo", "model": "roger"},),
+        # the learner table is fully resolved (scaling included): no robot profile on top
+        robots=({"id": "aibo", "model": "roger", "profile": "none"},),
     )
     daemon = DaemonProcess(cfg, args=["--fresh"], log=workdir / "daemon.log", env=child_env())
     client = None

@@ -1,0 +1,305 @@
+"""The experiment in one process: demonstrations, training and closed-loop evaluation, no Zenoh.
+
+Same simulator (:class:`simulator.episodes.SoccerSim`), same demonstrator
+(:class:`simulator.hcc.HCC`), same learners and the same transitioner rule
+(:func:`simulator.hcc_node.choose_expert`) as the Zenoh path of ``roger experiment
+goal-scoring``; the only difference is that perceptions, predictions and commands are function
+calls instead of messages. Given the same seeds both paths give the same episodes (a test
+checks it on a shared subset), so this path serves iteration and ablations
+(``docs/goal-scoring.md``) while the Zenoh path stays the reference.
+
+Controllers (all act on the 23-D perception only):
+
+* :class:`TransitionerController`: the HCC decides the subtask, the learned experts act (paper
+  section IV: "the HCC's transition model ... selects among the learned experts").
+* :class:`OracleController`: the **segmentation oracle**: one sparse online GP per true
+  subtask (trained on that subtask's demonstrations), the same HCC transitions. The
+  demonstrator's labels group its data, so it is a ceiling for ROGER, never part of ROGER.
+* :class:`MeanController`: the unimap GP's mean drives the robot (the paper's DPA).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from protocols import ExpertOutput
+from protocols.aibo import DIMS
+from simulator.episodes import SoccerSim, StartLocation, run_episode
+from simulator.experiment.training import Demonstrations
+from simulator.hcc import HCC
+from simulator.hcc_node import transition_command
+
+__all__ = [
+    "EpisodeRecord",
+    "MeanController",
+    "OracleController",
+    "TransitionerController",
+    "demonstrate",
+    "evaluate",
+    "failure_mode",
+    "fit_oracle",
+]
+
+
+def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, seed: int,
+                starts: Sequence[StartLocation] | None = None
+                ) -> tuple[Demonstrations, list[EpisodeRecord]]:
+    """The HCC demonstrating ``shots`` episodes from each location (repetition = shot index).
+
+    Pairs in learning order: location by location, shot by shot, tick by tick; and each
+    demonstration's outcome (failures are demonstrations too, as in the paper).
+    """
+    records: list[EpisodeRecord] = []
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
+    labels: list[str] = []
+    locs: list[int] = []
+    ticks: list[int] = []
+    for loc in locations:
+        for shot in range(shots):
+            rec = _Recorder(hcc)
+            res = run_episode(sim, rec, loc, seed, shot, start=_start(starts, loc))
+            records.append(EpisodeRecord(loc, shot, res.outcome, res.success, res.sim_time_s,
+                                         res.ticks, dict(res.counters)))
+            xs.extend(rec.x)
+            ys.extend(rec.y)
+            labels.extend(rec.labels)
+            locs.extend([loc] * len(rec.x))
+            ticks.extend(range(len(rec.x)))
+    data = Demonstrations(np.array(xs).reshape(-1, DIMS.x), np.array(ys).reshape(-1, DIMS.y),
+                          labels, np.array(locs, dtype=np.int64),
+                          np.array(ticks, dtype=np.int64), 0)
+    return data, records
+
+
+def _start(starts: Sequence[StartLocation] | None, loc: int) -> StartLocation | None:
+    return None if starts is None else starts[loc]
+
+
+class _Recorder:
+    """The HCC as demonstrator, keeping every (perception, action, label)."""
+
+    def __init__(self, hcc: HCC) -> None:
+        self.hcc = hcc
+        self.x: list[np.ndarray] = []
+        self.y: list[np.ndarray] = []
+        self.labels: list[str] = []
+
+    def reset(self) -> None:
+        self.hcc.reset()
+
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        y, label = self.hcc.act(x)
+        self.x.append(np.asarray(x, dtype=np.float64))
+        self.y.append(np.asarray(y, dtype=np.float64))
+        self.labels.append(label)
+        return y, label
+
+
+def fit_oracle(stream: Demonstrations, make_gp: Callable[[np.ndarray], Any]) -> dict[str, Any]:
+    """The segmentation oracle: one GP per true subtask, learning that subtask's points in order.
+
+    ``make_gp(y_of_subtask)`` builds an empty GP (it may use the subtask's outputs, e.g. for a
+    prior mean); labels only group the data here, as in the paper's section IV.A grouping.
+    """
+    lab = np.asarray(stream.labels)
+    gps: dict[str, Any] = {}
+    for label in sorted(set(stream.labels)):
+        idx = np.flatnonzero(lab == label)
+        gp = make_gp(stream.y[idx])
+        for i in idx:
+            gp.learn_one(stream.x[i], stream.y[i])
+        gps[label] = gp
+    return gps
+
+
+class TransitionerController:
+    """ROGER's experts, chosen by the HCC's current subtask (``roger hcc --role transitioner``)."""
+
+    def __init__(self, hcc: HCC, model: Any, expert_labels: Mapping[int, str],
+                 rule: str = "support") -> None:
+        self.hcc = hcc
+        self.model = model
+        self.labels = dict(expert_labels)
+        self.rule = rule
+        self.counts: Counter[str] = Counter()
+
+    def reset(self) -> None:
+        self.hcc.reset()
+
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        _, subtask = self.hcc.decide(x)
+        multimap = tuple(
+            ExpertOutput(expert=int(e.expert_id), p=float(e.gate_prob), mean=e.mean, var=e.var,
+                         n=int(e.n_points), label=self.labels.get(int(e.expert_id), ""))
+            for e in self.model.predict_multimap(x)
+        )
+        fallback = None if multimap else np.asarray(self.model.predict_one(x).mean)
+        y, how, _ = transition_command(multimap, fallback, subtask, self.rule)
+        self.counts[how] += 1
+        y = _finite(y, x, self.counts)
+        self.hcc.commit(y)
+        return y, subtask
+
+
+class OracleController:
+    """One GP per true subtask, chosen by the HCC's current subtask (the segmentation oracle)."""
+
+    def __init__(self, hcc: HCC, gps: Mapping[str, Any]) -> None:
+        self.hcc = hcc
+        self.gps = dict(gps)
+        self.counts: Counter[str] = Counter()
+
+    def reset(self) -> None:
+        self.hcc.reset()
+
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        y_hcc, subtask = self.hcc.decide(x)
+        gp = self.gps.get(subtask)
+        if gp is None:  # a subtask never demonstrated: hold still (counted)
+            self.counts["no_expert"] += 1
+            y = hold_command(x)
+        else:
+            self.counts["label"] += 1
+            y = _finite(np.asarray(gp.predict_one(x).mean, dtype=np.float64), x, self.counts)
+        self.hcc.commit(y)
+        return y, subtask
+
+
+class MeanController:
+    """The unimap GP's predictive mean is the command (``roger experiment dpa``)."""
+
+    def __init__(self, model: Any) -> None:
+        self.model = model
+        self.counts: Counter[str] = Counter()
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        y = np.asarray(self.model.predict_one(x).mean, dtype=np.float64)
+        return _finite(y, x, self.counts), ""
+
+
+@dataclass
+class EpisodeRecord:
+    """One evaluated episode: outcome, counters and how the robot moved."""
+
+    location: int
+    repetition: int
+    outcome: str
+    success: bool
+    sim_time_s: float
+    ticks: int
+    counters: dict[str, int] = field(default_factory=dict)
+    path_m: float = 0.0
+    ball_path_m: float = 0.0
+
+    @property
+    def failure_mode(self) -> str:
+        return failure_mode(self.outcome, self.counters, self.path_m)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "location": self.location, "repetition": self.repetition, "outcome": self.outcome,
+            "success": self.success, "sim_time_s": round(self.sim_time_s, 3),
+            "ticks": self.ticks, **{k: int(v) for k, v in self.counters.items()},
+            "path_m": round(self.path_m, 3), "ball_path_m": round(self.ball_path_m, 3),
+            "failure_mode": self.failure_mode,
+        }
+
+
+#: Below this walked distance (m) over a whole failed episode the robot "stood still".
+STILL_PATH_M = 0.3
+
+
+def failure_mode(outcome: str, counters: Mapping[str, int], path_m: float | None) -> str:
+    """How an episode ended, in words a reader of the ablation table can use.
+
+    ``stands still`` (walked < 0.3 m; only known in-process), ``ball out`` / ``own goal``,
+    ``never traps`` (no trap motion), ``traps fail`` (motions, no capture), ``kicks in place``
+    (kick motions without a captured ball), ``no kick after trap`` and ``kicks, misses``.
+    """
+    if outcome == "goal":
+        return "goal"
+    if outcome == "out":
+        return "ball out"
+    if outcome == "own_goal":
+        return "own goal"
+    if path_m is not None and path_m < STILL_PATH_M:
+        return "stands still"
+    traps, ok, kicks = (int(counters.get(k, 0)) for k in ("traps", "traps_ok", "kicks"))
+    if kicks and not ok:
+        return "kicks in place"
+    if not traps:
+        return "never traps"
+    if not ok:
+        return "traps fail"
+    if not kicks:
+        return "no kick after trap"
+    return "kicks, misses"
+
+
+def hold_command(x: np.ndarray) -> np.ndarray:
+    """Stand still with head and tail where they are (what ``roger hcc`` sends without a
+    prediction)."""
+    y = np.zeros(DIMS.y)
+    y[3:8] = x[18:23]
+    return y
+
+
+def _finite(y: np.ndarray, x: np.ndarray, counts: Counter[str]) -> np.ndarray:
+    """``y``, or a hold command (counted as ``non_finite``) if a learner returned NaN/inf."""
+    if np.all(np.isfinite(y)):
+        return y
+    counts["non_finite"] += 1
+    return hold_command(x)
+
+
+class _Tracking:
+    """Wraps a controller to measure the robot's and the ball's path (ground truth)."""
+
+    def __init__(self, inner: Any, sim: SoccerSim) -> None:
+        self.inner = inner
+        self.sim = sim
+        self.path = 0.0
+        self.ball_path = 0.0
+        self._last: tuple[float, float, float, float] | None = None
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.path = self.ball_path = 0.0
+        self._last = None
+
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        rx, ry, _ = self.sim.world.robot_pose()
+        bx, by, _ = self.sim.world.ball_position()
+        if self._last is not None:
+            self.path += math.hypot(rx - self._last[0], ry - self._last[1])
+            self.ball_path += math.hypot(bx - self._last[2], by - self._last[3])
+        self._last = (rx, ry, bx, by)
+        y, label = self.inner.act(x)
+        return y, label
+
+
+def evaluate(sim: SoccerSim, controller: Any, locations: Sequence[int], attempts: int,
+             seed: int, starts: Sequence[StartLocation] | None = None,
+             on_episode: Callable[[EpisodeRecord], None] | None = None) -> list[EpisodeRecord]:
+    """``attempts`` episodes (repetitions 0..attempts-1) from each location, in order."""
+    tracked = _Tracking(controller, sim)
+    out = []
+    for loc in locations:
+        for rep in range(attempts):
+            res = run_episode(sim, tracked, loc, seed, rep, start=_start(starts, loc))
+            rec = EpisodeRecord(loc, rep, res.outcome, res.success, res.sim_time_s, res.ticks,
+                                dict(res.counters), tracked.path, tracked.ball_path)
+            out.append(rec)
+            if on_episode is not None:
+                on_episode(rec)
+    return out

@@ -1,0 +1,176 @@
+"""Phases of ``roger experiment goal-scoring`` shared by the Zenoh and the in-process paths.
+
+* :func:`train_models`: ROGER once per learner seed, and the unimap GP (DPA), on one stream;
+* :func:`fit_segmentation_oracle`: one sparse online GP per *true* subtask (same learner
+  parameters), the ceiling for learned experts;
+* :func:`evaluate_in_process`: closed-loop episodes of any of the controllers in this process;
+* :func:`run_in_process`: the whole experiment without Zenoh (``--in-process``).
+
+The demonstrator's labels never enter ROGER's learning: they choose the points kept by the
+downsampling (paper section IV), group the trained experts for the transitioner (section IV.A),
+train the oracle, and score the segmentation.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.labels import majority_labels
+from simulator.episodes import SoccerSim, StartLocation
+from simulator.experiment import inprocess as ip
+from simulator.experiment.metrics import downsample_per_label
+from simulator.experiment.training import Demonstrations, train
+from simulator.hcc import HCC
+
+__all__ = [
+    "controllers_for",
+    "downsample",
+    "evaluate_in_process",
+    "fit_segmentation_oracle",
+    "make_hcc",
+    "make_sim",
+    "run_in_process",
+    "train_models",
+]
+
+Episodes = dict[str, list[dict[str, Any]]]
+
+
+def make_sim(plan: Any) -> SoccerSim:
+    """A simulator with the plan's task config, vision and time limit (as ``roger sim``)."""
+    from simulator.config import load_config
+
+    cfg = load_config(plan.task_config)
+    cfg = replace(cfg, vision=plan.vision,
+                  episode=replace(cfg.episode, time_limit=plan.time_limit))
+    return SoccerSim(cfg)
+
+
+def make_hcc(plan: Any) -> HCC:
+    """The HCC with the plan's task config (as ``roger hcc --config``)."""
+    from simulator.hcc_node import hcc_from_config
+
+    return hcc_from_config(plan.task_config)
+
+
+def downsample(data: Demonstrations, plan: Any) -> Demonstrations:
+    """At most ``plan.per_subtask`` random points per subtask, order kept (paper section IV)."""
+    rng = np.random.default_rng(plan.seeds["downsample"])
+    return data.subset(downsample_per_label(data.labels, plan.per_subtask, rng))
+
+
+def learner_seeds(plan: Any) -> list[int]:
+    """The learner seeds of the plan's ROGER models."""
+    return [plan.seeds["learner"] + k for k in range(plan.learner_seeds)]
+
+
+def train_models(stream: Demonstrations, params: Any, plan: Any,
+                 progress: Callable[[int], None] | None = None
+                 ) -> tuple[list[tuple[int, Any]], Any, float]:
+    """ROGER per learner seed and the unimap GP; returns ``(models, unimap, ROGER seconds)``."""
+    from roger_daemon.learner import Roger, UnimapGP
+
+    d_x, d_y = stream.x.shape[1], stream.y.shape[1]
+    models = []
+    train_s = 0.0
+    for seed in learner_seeds(plan):
+        model = Roger(d_x=d_x, d_y=d_y, params=params, seed=seed)
+        train_s += train(model, stream.x, stream.y, progress=progress)
+        models.append((seed, model))
+    unimap = UnimapGP(d_x=d_x, d_y=d_y, params=params, seed=plan.seeds["learner"])
+    train(unimap, stream.x, stream.y)
+    return models, unimap, train_s
+
+
+def fit_segmentation_oracle(stream: Demonstrations, params: Any, seed: int) -> dict[str, Any]:
+    """One sparse online GP per true subtask, with ROGER's learner parameters."""
+    from roger_daemon.learner import UnimapGP
+
+    d_x, d_y = stream.x.shape[1], stream.y.shape[1]
+    return ip.fit_oracle(stream, lambda _y: UnimapGP(d_x=d_x, d_y=d_y, params=params, seed=seed))
+
+
+def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[int, Any]],
+                    unimap: Any, oracle: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Controller key -> in-process controller, for the plan's controllers."""
+    out: dict[str, Any] = {}
+    if "hcc" in plan.controllers:
+        out["hcc"] = make_hcc(plan)
+    if "oracle" in plan.controllers and oracle is not None:
+        out["oracle"] = ip.OracleController(make_hcc(plan), oracle)
+    if "roger" in plan.controllers:
+        for k, (_, model) in enumerate(models):
+            groups = majority_labels(np.asarray(model.assignments()).tolist(), stream.labels)
+            out[f"roger:{k}"] = ip.TransitionerController(make_hcc(plan), model, groups,
+                                                          plan.rule)
+    if "dpa" in plan.controllers:
+        out["dpa"] = ip.MeanController(unimap)
+    return out
+
+
+def evaluate_in_process(plan: Any, controllers: Mapping[str, Any],
+                        locations: Sequence[int] | None = None,
+                        starts: Sequence[StartLocation] | None = None,
+                        on_episode: Callable[[str, ip.EpisodeRecord], None] | None = None
+                        ) -> Episodes:
+    """``plan.attempts`` episodes per location for each controller (evaluation seed)."""
+    sim = make_sim(plan)
+    locs = list(plan.locations if locations is None else locations)
+    out: Episodes = {}
+    try:
+        for key, controller in controllers.items():
+            def hook(rec: ip.EpisodeRecord, key: str = key) -> None:
+                if on_episode is not None:
+                    on_episode(key, rec)
+
+            recs = ip.evaluate(sim, controller, locs, plan.attempts, plan.seeds["eval_sim"],
+                               starts=starts, on_episode=hook)
+            out[key] = [r.to_json() for r in recs]
+    finally:
+        sim.close()
+    return out
+
+
+def run_in_process(plan: Any, params: Any, console: Any,
+                   context: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The whole experiment in this process; returns ``results.json``'s content.
+
+    ``context`` (if given) receives the stream, the models and the oracle (for
+    ``--start-poses``)."""
+    from simulator.experiment.report import build_results
+
+    timings: dict[str, float] = {}
+    t_all = t0 = time.monotonic()
+    sim = make_sim(plan)
+    try:
+        data, records = ip.demonstrate(sim, make_hcc(plan), plan.locations, plan.shots,
+                                       plan.seeds["demo_sim"])
+        demos = [r.to_json() for r in records]
+    finally:
+        sim.close()
+    timings["demonstrations"] = round(time.monotonic() - t0, 2)
+    stream = downsample(data, plan)
+    t0 = time.monotonic()
+    models, unimap, train_s = train_models(stream, params, plan)
+    oracle = fit_segmentation_oracle(stream, params, plan.seeds["learner"])
+    timings["training"] = round(time.monotonic() - t0, 2)
+    if context is not None:
+        context.update(stream=stream, models=models, unimap=unimap, oracle=oracle)
+    console.log(f"learned {len(stream)} pairs: "
+                + ", ".join(f"seed {s}: {m.n_experts} experts" for s, m in models))
+    t0 = time.monotonic()
+    episodes = evaluate_in_process(
+        plan, controllers_for(plan, stream, models, unimap, oracle),
+        on_episode=lambda k, r: console.log(f"{k:>8} location {r.location} "
+                                            f"#{r.repetition}: {r.failure_mode}"))
+    timings["evaluation"] = round(time.monotonic() - t0, 2)
+    results = build_results(plan=plan, params=params, demos=demos, data=data, stream=stream,
+                            models=models, episodes=episodes, check=None, train_s=train_s,
+                            errors=[])
+    results["timings_s"] = {**timings, "total": round(time.monotonic() - t_all, 2)}
+    return results
