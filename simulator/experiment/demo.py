@@ -21,6 +21,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from roger_daemon.atomic import write_json
+
 __all__ = ["OUTCOME_MEANING", "configure", "run"]
 
 #: What each episode outcome the summary can print means (simulator/episodes.py OUTCOMES).
@@ -253,7 +255,7 @@ class _Demo:
             print(f"figure:     {path}   ({name})")
         if mcap:
             print(f"replay it:  roger replay {mcap[0]}")
-        (out / "summary.json").write_text(json.dumps({
+        write_json(out / "summary.json", {
             "experts": int(model.n_experts),
             "pairs": int(model.n_learned),
             "expert_labels": {str(k): v for k, v in sorted(groups.items())},
@@ -264,7 +266,7 @@ class _Demo:
             "checkpoint": str(ck.path),
             "figures": {k: str(v) for k, v in figs.items()},
             "wall_s": round(wall, 1),
-        }, indent=1, default=str))
+        }, default=str)
 
 
 def run(args: argparse.Namespace) -> int:

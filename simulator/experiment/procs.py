@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from roger_daemon.atomic import write_json
 from roger_daemon.harness import free_port as _free_port
 from roger_daemon.harness import write_config
 
@@ -387,8 +388,8 @@ def run_job(job: EpisodeJob) -> JobResult:
     finally:
         group.close()
     wall = time.monotonic() - t0
-    (job.workdir / "job.json").write_text(json.dumps({
+    write_json(job.workdir / "job.json", {  # what --resume reads: written whole or not at all
         "spec": job.spec(), "wall_s": round(wall, 3),
         "mcap": [str(p.relative_to(job.workdir)) for p in mcap],
-    }, indent=1))
+    })
     return JobResult(job, sim["episodes"], sim["summary"], ctl, mcap, wall)

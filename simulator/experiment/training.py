@@ -15,7 +15,6 @@ check that the daemon (and a replay of its log) learns exactly the same model.
 
 from __future__ import annotations
 
-import json
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -26,6 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.atomic import write_json
 from roger_daemon.checkpoint import array_digest, write_checkpoint
 from roger_daemon.recording.compare import REL_TOL
 
@@ -307,7 +307,7 @@ def daemon_check(
         and out["replay"] is not None and out["replay"]["ok"]
         and out["daemon_updates"] == len(x)
     )
-    (workdir / "check.json").write_text(json.dumps(out, indent=1))
+    write_json(workdir / "check.json", out)
     return out
 
 
