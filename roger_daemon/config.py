@@ -53,7 +53,7 @@ __all__ = [
 ]
 
 CLOCKS = ("realtime", "lockstep")
-WORKERS = ("process", "inline")
+WORKERS = ("auto", "process", "inline")
 MODELS = ("roger", "unimap")
 PROFILES = ("aibo", "none")
 DEFAULT_PRESET = "default"
@@ -167,12 +167,21 @@ class DaemonConfig:
     seed: int = 0
     count_unserved: bool = True
     #: "process": each robot's model in its own worker process (roger_daemon.learners);
-    #: "inline": every model in the service loop's thread
-    workers: str = "process"
+    #: "inline": every model in the service loop's thread; "auto": inline for one robot (lower
+    #: latency), processes for several (learning on every core); docs/fleet.md
+    workers: str = "auto"
     log_dir: Path | None = None
     robots: tuple[RobotConfig, ...] = ()
     learner: Mapping[str, Any] = field(default_factory=dict)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+
+    @property
+    def learner_workers(self) -> str:
+        """Where models learn: ``workers`` with ``"auto"`` resolved by the number of robots
+        (measured: one robot answers faster inline, several learn more in processes)."""
+        if self.workers != "auto":
+            return self.workers
+        return "process" if len(self.robots) > 1 else "inline"
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     source: Path | None = None
@@ -401,7 +410,7 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
     pair_window = d.integer("pair_window", 64, lo=1)
     seed = d.integer("seed", 0, lo=0)
     count_unserved = d.boolean("count_unserved", True)
-    workers = d.choice("workers", "process", WORKERS)
+    workers = d.choice("workers", "auto", WORKERS)
     log_dir = d.path("log_dir", None)
     d.done()
 

@@ -357,8 +357,9 @@ def open_recorders(
 
 
 def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Any:
-    """``[daemon] workers = "process"``: hand every model to its own worker process."""
-    if cfg.workers != "process":
+    """``[daemon] workers`` = ``"process"`` (or ``"auto"`` with several robots): hand every
+    model to its own worker process."""
+    if cfg.learner_workers != "process":
         return None
     from roger_daemon.learners import ProcessLearners
 
@@ -369,7 +370,8 @@ def _describe(cfg: DaemonConfig) -> dict[str, Any]:
     return {
         "id": cfg.id, "clock": cfg.clock, "rate_hz": cfg.rate_hz, "status_hz": cfg.status_hz,
         "mode": cfg.mode, "queue_size": cfg.queue_size, "pair_window": cfg.pair_window,
-        "seed": cfg.seed, "count_unserved": cfg.count_unserved, "workers": cfg.workers,
+        "seed": cfg.seed, "count_unserved": cfg.count_unserved,
+        "workers": cfg.workers, "learner_workers": cfg.learner_workers,
         "robots": [{"id": r.id, "x_dim": r.x_dim, "y_dim": r.y_dim, "model": r.model,
                     "seed": r.seed, "profile": r.profile,
                     "learner": r.params.to_mapping()} for r in cfg.robots],

@@ -108,11 +108,15 @@ def test_arrays_round_trip_without_pickle() -> None:
 
 
 def test_workers_config_is_validated(tmp_path: Path) -> None:
-    assert make_config(tmp_path, "c").workers == "process"
+    cfg = make_config(tmp_path, "c")
+    assert cfg.workers == "auto" and cfg.learner_workers == "process"  # two robots
+    one = parse_config({"robots": [{"id": "aibo"}]})
+    assert one.workers == "auto" and one.learner_workers == "inline"  # one robot: lower latency
+    assert parse_config({"daemon": {"workers": "process"}}).learner_workers == "process"
     with pytest.raises(ConfigError) as err:
         parse_config({"daemon": {"workers": "threads"}})
     assert err.value.key == "daemon.workers"
-    assert '"process", "inline"' in str(err.value)
+    assert '"auto", "process", "inline"' in str(err.value)
 
 
 def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path) -> None:

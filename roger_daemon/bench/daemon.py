@@ -61,6 +61,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-wal", action="store_true",
                         help="switch the write-ahead log off (checkpoint.wal = false), to "
                              "measure what durable acknowledgements cost")
+    parser.add_argument("--workers", choices=("process", "inline"), default=None,
+                        help="where the daemon learns: a worker process per robot or its own "
+                             "loop (daemon.workers; default: the daemon's default)")
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep the daemon's logs, checkpoints and recordings here")
 
@@ -71,11 +74,14 @@ def _pct(values: list[float], q: float) -> float:
 
 class _Phase:
     def __init__(self, workdir: Path, name: str, clock: str, rate: float,
-                 recording: bool, *, wal: bool = True) -> None:
+                 recording: bool, *, wal: bool = True, workers: str | None = None) -> None:
         self.port = free_port()
+        daemon: dict[str, Any] = {"clock": clock, "rate_hz": rate, "queue_size": 256}
+        if workers is not None:
+            daemon["workers"] = workers
         cfg = write_config(
             workdir / f"{name}.toml", port=self.port, workdir=workdir / name,
-            daemon={"clock": clock, "rate_hz": rate, "queue_size": 256},
+            daemon=daemon,
             recording={"enabled": recording},
             checkpoint={"wal": wal},
         )
@@ -92,7 +98,7 @@ class _Phase:
 
 def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str, Any]:
     ph = _Phase(workdir, "lockstep", "lockstep", args.rate, args.recording,
-                wal=not args.no_wal)
+                wal=not args.no_wal, workers=args.workers)
     c = ph.client
     period = 1.0 / args.rate
     lat: list[float] = []
@@ -165,7 +171,7 @@ def _feed(c: Client, stream: Any, rate: float, seconds: float) -> tuple[int, int
 
 def _realtime(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str, Any]:
     ph = _Phase(workdir, "realtime", "realtime", args.rate, args.recording,
-                wal=not args.no_wal)
+                wal=not args.no_wal, workers=args.workers)
     c = ph.client
     try:
         c.wait_status()
@@ -195,7 +201,7 @@ def _realtime(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
 
 def _saturate(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str, Any]:
     ph = _Phase(workdir, "saturate", "realtime", args.rate, args.recording,
-                wal=not args.no_wal)
+                wal=not args.no_wal, workers=args.workers)
     c = ph.client
     try:
         start = c.wait_status()
@@ -254,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
         "settings": {"seconds": args.seconds, "rate_hz": args.rate,
                      "saturate_seconds": args.saturate_seconds,
                      "saturate_rate_hz": args.saturate_rate, "recording": args.recording,
-                     "wal": not args.no_wal},
+                     "wal": not args.no_wal, "workers": args.workers or "default"},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "platform": platform.platform(), "loadavg_before": load_before,
                     "loadavg_after": os.getloadavg()},
