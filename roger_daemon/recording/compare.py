@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ABS_FLOOR", "REL_TOL", "behaviour", "behaviour_differences", "probe_inputs",
-           "rel_err"]
+__all__ = ["ABS_FLOOR", "REL_TOL", "behaviour", "behaviour_differences", "max_abs_diff",
+           "probe_inputs", "rel_err"]
 
 #: Two runs of the learner on different BLAS kernels (``OPENBLAS_CORETYPE``) or CPUs agree to
 #: this relative error on every float they publish; the structure (experts, ids, sizes,
@@ -26,6 +26,24 @@ REL_TOL = 1e-5
 ABS_FLOOR = 1e-12
 
 
+def _arrays(a: Any, b: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """Both as float64 arrays, or ``None`` if their shapes differ."""
+    x = np.asarray(a, dtype=np.float64)
+    y = np.asarray(b, dtype=np.float64)
+    return (x, y) if x.shape == y.shape else None
+
+
+def max_abs_diff(a: Any, b: Any) -> float:
+    """``max|a - b|`` (0 for empty arrays; ``inf`` if the shapes differ or the result is NaN)."""
+    xy = _arrays(a, b)
+    if xy is None:
+        return math.inf
+    if xy[0].size == 0:
+        return 0.0
+    d = float(np.max(np.abs(xy[0] - xy[1])))
+    return d if not math.isnan(d) else math.inf
+
+
 def rel_err(a: Any, b: Any) -> float:
     """Normwise relative error ``max|a - b| / (max(max|a|, max|b|) + ABS_FLOOR)``.
 
@@ -34,10 +52,10 @@ def rel_err(a: Any, b: Any) -> float:
     component of an action vector passing through 0 carries the round-off of the whole
     computation (docs/reproducibility.md).
     """
-    x = np.asarray(a, dtype=np.float64)
-    y = np.asarray(b, dtype=np.float64)
-    if x.shape != y.shape:
+    xy = _arrays(a, b)
+    if xy is None:
         return math.inf
+    x, y = xy
     if x.size == 0:
         return 0.0
     same = (x == y) | (np.isnan(x) & np.isnan(y))

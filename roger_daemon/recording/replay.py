@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.labels import majority_labels
-from roger_daemon.recording.compare import rel_err
+from roger_daemon.recording.compare import max_abs_diff, rel_err
 from roger_daemon.recording.metadata import SessionInfo
 from roger_daemon.recording.timeline import (
     LearnedPair,
@@ -313,17 +313,6 @@ def _where(d: PredictionDiff) -> dict[str, Any]:
             "rel_err": d.rel if math.isfinite(d.rel) else "inf"}
 
 
-def _maxabs(a: Any, b: Any) -> float:
-    x = np.asarray(a, dtype=np.float64)
-    y = np.asarray(b, dtype=np.float64)
-    if x.shape != y.shape:
-        return math.inf
-    if x.size == 0:
-        return 0.0
-    d = float(np.max(np.abs(x - y)))
-    return d if not math.isnan(d) else math.inf
-
-
 def _compare(
     seg_no: int,
     rec: RecordedPrediction,
@@ -348,8 +337,8 @@ def _compare(
             mm_abs = max(
                 mm_abs,
                 abs(float(e.gate_prob) - r.p),
-                _maxabs(e.mean, r.mean),
-                _maxabs(e.var, r.var),
+                max_abs_diff(e.mean, r.mean),
+                max_abs_diff(e.var, r.var),
             )
             rel = max(rel, rel_err(float(e.gate_prob), r.p), rel_err(e.mean, r.mean),
                       rel_err(e.var, r.var))
@@ -364,8 +353,8 @@ def _compare(
         tick=rec.tick,
         updates=rec.updates,
         log_time_ns=rec.log_time_ns,
-        mean_abs=_maxabs(pred.mean, rec.mean),
-        var_abs=_maxabs(pred.var, rec.var),
+        mean_abs=max_abs_diff(pred.mean, rec.mean),
+        var_abs=max_abs_diff(pred.var, rec.var),
         expert_recorded=rec.expert,
         expert_replayed=int(pred.expert_id),
         multimap_abs=mm_abs,
