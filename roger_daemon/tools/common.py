@@ -18,6 +18,7 @@ import math
 import queue
 import threading
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -170,6 +171,21 @@ class Listener:
                 self._q.get_nowait())
         except queue.Empty:
             return None
+
+    def decoded(self, deadline: float,
+                on_invalid: Callable[[Sample, ProtocolError], None] | None = None,
+                ) -> Iterator[dict[str, Any]]:
+        """Decoded messages (:func:`decode_sample`) as they arrive, until the monotonic
+        ``deadline``; an invalid one is skipped (and passed to ``on_invalid``, if given)."""
+        while (left := deadline - time.monotonic()) > 0:
+            s = self.get(min(left, 0.2))
+            if s is None:
+                continue
+            try:
+                yield decode_sample(s.key, s.payload)
+            except ProtocolError as exc:
+                if on_invalid is not None:
+                    on_invalid(s, exc)
 
     def close(self) -> None:
         try:

@@ -24,7 +24,6 @@ from roger_daemon.tools.common import (
     Listener,
     UsageError,
     add_connection_args,
-    decode_sample,
     open_from_args,
 )
 
@@ -55,17 +54,7 @@ def _check(args: argparse.Namespace) -> None:
 
 
 def _wait(listener: Listener, deadline: float, pred: Any) -> dict[str, Any] | None:
-    while (left := deadline - time.monotonic()) > 0:
-        s = listener.get(min(left, 0.2))
-        if s is None:
-            continue
-        try:
-            st = decode_sample(s.key, s.payload)
-        except ProtocolError:
-            continue
-        if pred(st):
-            return st
-    return None
+    return next((st for st in listener.decoded(deadline) if pred(st)), None)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -16,12 +16,10 @@ import time
 from typing import Any
 
 from protocols import keys
-from protocols.errors import ProtocolError
 from roger_daemon.health import LEVELS, worst
 from roger_daemon.tools.common import (
     Listener,
     add_connection_args,
-    decode_sample,
     dumps,
     open_from_args,
     seconds,
@@ -56,14 +54,7 @@ def daemons_alive(session: Any, timeout: float) -> list[str]:
 def gather(listener: Listener, until: float) -> dict[str, dict[str, Any]]:
     """The newest status per robot received before ``until`` (monotonic seconds)."""
     out: dict[str, dict[str, Any]] = {}
-    while (left := until - time.monotonic()) > 0:
-        s = listener.get(min(left, 0.2))
-        if s is None:
-            continue
-        try:
-            st = decode_sample(s.key, s.payload)
-        except ProtocolError:
-            continue  # roger status/echo report those
+    for st in listener.decoded(until):  # invalid ones: roger status/echo report those
         out[st["robot"]] = st
     return out
 

@@ -20,9 +20,9 @@ from protocols.errors import ProtocolError
 from roger_daemon.health import is_stale
 from roger_daemon.tools.common import (
     Listener,
+    Sample,
     UsageError,
     add_connection_args,
-    decode_sample,
     dumps,
     invalid_text,
     open_from_args,
@@ -78,16 +78,10 @@ def _emit(st: dict[str, Any], as_json: bool, age_s: float = 0.0) -> None:
 
 
 def _next_status(listener: Listener, timeout: float) -> dict[str, Any] | None:
-    end = time.monotonic() + timeout
-    while (left := end - time.monotonic()) > 0:
-        s = listener.get(min(left, 0.2))
-        if s is None:
-            continue
-        try:
-            return decode_sample(s.key, s.payload)
-        except ProtocolError as exc:
-            print(invalid_text(s.key, exc), file=sys.stderr)
-    return None
+    def report(s: Sample, exc: ProtocolError) -> None:
+        print(invalid_text(s.key, exc), file=sys.stderr)
+
+    return next(listener.decoded(time.monotonic() + timeout, report), None)
 
 
 def run(args: argparse.Namespace) -> int:
