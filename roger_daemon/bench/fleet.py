@@ -127,26 +127,29 @@ class FleetClient:
                       self.session.declare_subscriber("roger/*/status", self._on_status)]
         self.lockstep = False
 
-    def _on_pred(self, sample: Any) -> None:
-        now = time.monotonic_ns()
-        robot = str(sample.key_expr).split("/")[1]
+    def _decode(self, sample: Any) -> tuple[str, Any] | None:
+        """(robot, message) of a sample, by the one key parser; ``None`` (counted) if bad."""
         try:
-            msg = decode("prediction", sample.payload.to_bytes(), dims=DIMS, robot=robot)
+            robot, kind = keys.parse(str(sample.key_expr))
+            return robot, decode(kind, sample.payload.to_bytes(), dims=DIMS, robot=robot)
         except Exception:
             self.errors += 1
+            return None
+
+    def _on_pred(self, sample: Any) -> None:
+        now = time.monotonic_ns()
+        got = self._decode(sample)
+        if got is None:
             return
+        robot, msg = got
         self.preds[robot].append((now, msg.tick))
         if self.lockstep:
             self.answered.put((robot, msg.tick))
 
     def _on_status(self, sample: Any) -> None:
-        robot = str(sample.key_expr).split("/")[1]
-        try:
-            msg = decode("status", sample.payload.to_bytes(), dims=DIMS, robot=robot)
-        except Exception:
-            self.errors += 1
-            return
-        self.status[robot].append((time.monotonic_ns(), msg))
+        got = self._decode(sample)
+        if got is not None:
+            self.status[got[0]].append((time.monotonic_ns(), got[1]))
 
     def perception(self, robot: str, tick: int, x: np.ndarray) -> None:
         self.sent[robot][tick] = time.monotonic_ns()
