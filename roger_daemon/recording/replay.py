@@ -14,12 +14,13 @@ import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.labels import majority_labels
+from roger_daemon.learner.protocol import Learner
 from roger_daemon.recording.compare import max_abs_diff, rel_err
 from roger_daemon.recording.metadata import SessionInfo
 from roger_daemon.recording.timeline import (
@@ -52,19 +53,8 @@ class ReplayError(RuntimeError):
     """The session cannot be replayed as asked (e.g. it resumed from a checkpoint not given)."""
 
 
-class Model(Protocol):
-    """The part of the learner API (docs/learner-api.md) that replay uses."""
-
-    @property
-    def n_learned(self) -> int: ...
-    @property
-    def n_experts(self) -> int: ...
-
-    def learn_one(self, x: Any, y: Any) -> Any: ...
-    def predict_one(self, x: Any) -> Any: ...
-    def predict_multimap(self, x: Any) -> Any: ...
-    def assignments(self) -> Any: ...
-    def expert_sizes(self) -> Any: ...
+#: What replay rebuilds and drives: the learner contract (docs/learner-api.md), one owner.
+Model = Learner
 
 
 #: ``factory(model_kind, d_x, d_y, params_mapping_or_None, seed_or_None) -> Model``
@@ -722,7 +712,7 @@ def save_checkpoint(
     last = res.pairs[-1].tick if res.pairs else None
     d = res.timeline.dims
     assert d is not None
-    state = dict(model.state_dict())  # type: ignore[attr-defined]
+    state = dict(model.state_dict())
     daemon = {
         "label_vocab": np.array(vocab, dtype=np.str_) if vocab else np.zeros(0, dtype="<U1"),
         "label_codes": np.array(codes, dtype=np.int32),

@@ -175,7 +175,7 @@ def record_synthetic_session(
             learned_labels.append(labels[t])
             out.pairs.append((t, x[t], y[t], labels[t]))
             if model.n_learned in checkpoint_at:
-                out.checkpoints[model.n_learned] = model.state_dict()  # type: ignore[attr-defined]
+                out.checkpoints[model.n_learned] = model.state_dict()
         if mode in ("predict", "learn+predict") and t % predict_every == 0:
             p = model.predict_one(x[t])
             mm = model.predict_multimap(x[t])
