@@ -38,7 +38,8 @@ from protocols.messages import Dims
 from roger_daemon.recording import files as sfiles
 from roger_daemon.recording.mcapio import read_metadata
 from roger_daemon.recording.metadata import SessionInfo
-from roger_daemon.recording.timeline import LearnedPair, read_timeline
+from roger_daemon.recording.session_read import read_timeline
+from roger_daemon.recording.timeline import LearnedPair
 
 __all__ = ["CatchUp", "CatchUpError", "log_tail"]
 

@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
     if args.publish:
         if args.robot:
-            from roger_daemon.recording.timeline import robot_absent
+            from roger_daemon.recording.session_read import robot_absent
 
             if why := robot_absent(files, args.robot):
                 print(f"roger replay: {why}", file=sys.stderr)
@@ -122,7 +122,7 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
         replay_timeline,
         resume_timeline,
     )
-    from roger_daemon.recording.timeline import read_timeline
+    from roger_daemon.recording.session_read import read_timeline
 
     err = Console(stderr=True)
     params: dict[str, Any] | None = None

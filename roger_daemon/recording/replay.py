@@ -1,7 +1,7 @@
 """Offline replay: rebuild the learner from a recorded session and compare its predictions.
 
 :func:`replay_session` is the core (used by ``roger replay``, the tests and the experiment).
-It reads the session with :func:`~roger_daemon.recording.timeline.read_timeline`, rebuilds the
+It reads the session with :func:`~roger_daemon.recording.session_read.read_timeline`, rebuilds the
 model with the recorded params and seed, learns the recorded pairs in the daemon's order, and
 recomputes every recorded prediction from the model at the same ``updates`` count (predictions
 are evaluated in ``updates`` order, then file order, calling ``predict_one`` then
@@ -23,12 +23,12 @@ from roger_daemon.labels import majority_labels
 from roger_daemon.learner.protocol import Learner
 from roger_daemon.recording.compare import max_abs_diff, rel_err
 from roger_daemon.recording.metadata import SessionInfo
+from roger_daemon.recording.session_read import read_timeline
 from roger_daemon.recording.timeline import (
     LearnedPair,
     RecordedPrediction,
     Segment,
     Timeline,
-    read_timeline,
 )
 
 __all__ = [
