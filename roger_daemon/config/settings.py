@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from protocols.aibo import DIMS as AIBO_DIMS
+from roger_daemon.zenoh_session import ZenohSettings
 
 __all__ = [
     "CLOCKS",
@@ -59,18 +60,6 @@ class RobotConfig:
     profile: str = "none"
     #: The learner parameters for this robot: ``[learner]`` merged with the robot's scaling.
     params: Any = None
-
-
-@dataclass(frozen=True)
-class ZenohSettings:
-    """How the daemon joins Zenoh. ``None`` means "leave to the JSON5 file or Zenoh's default"."""
-
-    config_file: Path | None = None
-    mode: str | None = "peer"
-    listen: tuple[str, ...] | None = ("tcp/127.0.0.1:7447",)
-    connect: tuple[str, ...] | None = ()
-    multicast_scouting: bool | None = False
-    lease_ms: int | None = None
 
 
 @dataclass(frozen=True)

@@ -41,9 +41,11 @@ class Table:
         self.seen: set[str] = set()
 
     def key(self, name: str) -> str:
+        """The dotted TOML key of ``name`` in this table."""
         return f"{self.prefix}.{name}" if self.prefix else name
 
     def raw(self, name: str, default: Any = _MISSING) -> Any:
+        """The raw value of ``name``, ticked off as known (``default`` if absent, else required)."""
         self.seen.add(name)
         if name in self.data:
             return self.data[name]
@@ -52,6 +54,7 @@ class Table:
         return default
 
     def number(self, name: str, default: float, *, lo: float = 0.0, lo_open: bool = True) -> float:
+        """A finite number above ``lo`` (or at least ``lo`` when not ``lo_open``)."""
         v = self.raw(name, default)
         op = ">" if lo_open else ">="
         want = f"a number {op} {lo:g}"
@@ -62,30 +65,35 @@ class Table:
         return float(v)
 
     def integer(self, name: str, default: int, *, lo: int = 0) -> int:
+        """An integer >= ``lo`` (booleans are not integers here)."""
         v = self.raw(name, default)
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise bad(self.key(name), f"an integer >= {lo}", v)
         return v
 
     def boolean(self, name: str, default: bool) -> bool:
+        """``true`` or ``false``."""
         v = self.raw(name, default)
         if not isinstance(v, bool):
             raise bad(self.key(name), "true or false", v)
         return v
 
     def choice(self, name: str, default: str, choices: Sequence[str]) -> str:
+        """One of ``choices``."""
         v = self.raw(name, default)
         if v not in choices:
             raise bad(self.key(name), "one of " + ", ".join(show(c) for c in choices), v)
         return str(v)
 
     def string(self, name: str, default: Any = _MISSING) -> str:
+        """A non-empty string."""
         v = self.raw(name, default)
         if not isinstance(v, str) or not v:
             raise bad(self.key(name), "a non-empty string", v)
         return v
 
     def ident(self, name: str, default: Any = _MISSING) -> str:
+        """An identifier (the robot-id form: 1-64 characters ``[A-Za-z0-9_-]``)."""
         v = self.raw(name, default)
         try:
             return validate_robot_id(v)
@@ -93,6 +101,7 @@ class Table:
             raise bad(self.key(name), _ID_FORM, v) from None
 
     def path(self, name: str, default: Path | None) -> Path | None:
+        """A path (``None`` for an empty string or when absent with no default)."""
         v = self.raw(name, default)
         if v is None or isinstance(v, Path):
             return v
@@ -101,6 +110,7 @@ class Table:
         return Path(v) if v else None
 
     def strings(self, name: str, default: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        """An array of non-empty strings, as a tuple."""
         v = self.raw(name, default)
         if v is None or isinstance(v, tuple):
             return v
@@ -109,6 +119,7 @@ class Table:
         return tuple(v)
 
     def floats(self, name: str, length: int) -> tuple[float, ...] | None:
+        """An optional array of exactly ``length`` finite numbers."""
         v = self.raw(name, None)
         if v is None:
             return None
@@ -125,9 +136,11 @@ class Table:
         return tuple(float(e) for e in v)
 
     def sub(self, name: str) -> Table:
+        """The sub-table ``name`` (empty when absent)."""
         return Table(self.raw(name, {}), self.key(name))
 
     def done(self) -> None:
+        """Reject the first key of this table that was never read (an unknown key)."""
         unknown = sorted(set(self.data) - self.seen)
         if unknown:
             k = self.key(unknown[0])
