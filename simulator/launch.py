@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from roger_daemon.console import UsageError
-from roger_daemon.supervise import Supervisor
+from simulator.supervise import Supervisor
 
 __all__ = ["Plan", "configure", "plan", "run"]
 

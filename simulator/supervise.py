@@ -1,5 +1,5 @@
 """``roger up``'s supervisor: start the planned processes in order, follow the daemon's status,
-stop them in reverse order (the order and stop rules are in :mod:`roger_daemon.launch`)."""
+stop them in reverse order (the order and stop rules are in :mod:`simulator.launch`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from types import FrameType
 from typing import IO, TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from roger_daemon.launch import Plan
+    from simulator.launch import Plan
 
 __all__ = ["Supervisor"]
 
