@@ -269,9 +269,11 @@ class SoccerSim:
 class Controller(Protocol):
     """What :func:`run_episode` drives: the HCC or anything with the same two methods."""
 
-    def reset(self) -> None: ...
+    def reset(self) -> None:
+        """Start a new episode."""
 
-    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]: ...
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        """The command and its label for one perception."""
 
 
 @dataclass
