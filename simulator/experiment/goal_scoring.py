@@ -48,7 +48,7 @@ CONTROLLER_NAMES = {
 #: The paper's numbers (section IV.A): success rates, experts, ratio learned/HCC.
 PAPER = {"hcc": 0.69, "roger": 0.31, "dpa": 0.0, "experts": 85, "ratio": 0.45}
 #: Defaults of the full run (docs/goal-scoring.md says why they differ from the paper's).
-DEFAULT_SHOTS = 5
+DEFAULT_SHOTS = 10
 DEFAULT_TIME_LIMIT = 60.0
 DEFAULT_VISION = "fast"
 #: The task's learner settings on top of the daemon's default preset (docs/goal-scoring.md):
@@ -133,7 +133,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="reuse the results of jobs already finished in OUT with the same "
                         "settings and model (e.g. after an interruption)")
     parser.add_argument("--shots", type=int, default=None,
-                        help="demonstrations per start location (default 5; --quick: 1)")
+                        help="demonstrations per start location (default 10; --quick: 1)")
     parser.add_argument("--learner-seeds", type=int, default=None,
                         help="ROGER models trained with seeds SEED..SEED+N-1, each evaluated "
                         "(default 3; --quick: 1)")
