@@ -38,6 +38,7 @@ import numpy.typing as npt
 from scipy.linalg.lapack import dpotrf as _dpotrf
 from scipy.linalg.lapack import dpotri as _dpotri
 
+from roger_daemon.learner import jit as _jit
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_fused import add_lowrank as _add_lowrank
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
@@ -178,12 +179,18 @@ class SparseOnlineGP:
         if n == 0:
             empty = np.zeros(0)
             return empty, empty, self._m.copy(), self.kernel.k_star
-        k = self.kernel(self._B[:n], x)
-        ck = self._C[:n, :n] @ k
-        latent = max(self.kernel.k_star + float(k @ ck), LATENT_FLOOR)
+        if n <= _jit.SMALL:  # one compiled call: kernel, C k, k^T C k, k^T A
+            k, ck, kck, mean = _jit.expert_terms(self._B, self._C, self._A, x,
+                                                 self.kernel.gamma, n)
+        else:  # C k by BLAS
+            k = _jit.kernel_vector(self._B, x, self.kernel.gamma, n)
+            ck = self._C[:n, :n] @ k
+            kck = float(k @ ck)
+            mean = k @ self._A[:n]
+        latent = max(self.kernel.k_star + kck, LATENT_FLOOR)
         if not self.prior_mean:
-            return k, ck, k @ self._A[:n], latent
-        return k, ck, k @ self._A[:n, : self.d_y] + self._m, latent
+            return k, ck, mean, latent
+        return k, ck, mean[: self.d_y] + self._m, latent
 
     def _targets(self, y: FloatArray, mean: FloatArray, k: FloatArray
                  ) -> tuple[FloatArray, FloatArray]:
