@@ -53,24 +53,32 @@ def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> Flo
 
 @njit(cache=True, fastmath=_FM, nogil=True)
 def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatArray,
-                 gamma: float, n: int) -> tuple[FloatArray, FloatArray, float, FloatArray]:
-    """``(k, C k, k^T C k, k^T A)`` over the live ``n`` rows (every column of ``A``)."""
-    k = kernel_vector(basis, x, gamma, n)
-    ck = np.empty(n)
+                 gamma: float, n: int) -> FloatArray:
+    """``[k, C k, k^T C k, k^T A]`` over the live ``n`` rows (every column of ``A``), packed in
+    one array of length ``2 n + 1 + cols`` (one boxed result: each costs a numba unpickle)."""
+    cols = coef.shape[1]
+    out = np.zeros(2 * n + 1 + cols)
+    d = basis.shape[1]
+    for i in range(n):
+        s = 0.0
+        for j in range(d):
+            t = basis[i, j] - x[j]
+            s += t * t
+        out[i] = math.exp(-gamma * s)
     kck = 0.0
     for i in range(n):
         s = 0.0
         for j in range(n):
-            s += cov[i, j] * k[j]
-        ck[i] = s
-        kck += k[i] * s
-    cols = coef.shape[1]
-    mean = np.zeros(cols)
+            s += cov[i, j] * out[j]
+        out[n + i] = s
+        kck += out[i] * s
+    out[2 * n] = kck
+    base = 2 * n + 1
     for i in range(n):
-        ki = k[i]
+        ki = out[i]
         for c in range(cols):
-            mean[c] += ki * coef[i, c]
-    return k, ck, kck, mean
+            out[base + c] += ki * coef[i, c]
+    return out
 
 
 @njit(cache=True, fastmath={"contract"}, nogil=True)

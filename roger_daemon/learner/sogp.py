@@ -180,8 +180,8 @@ class SparseOnlineGP:
             empty = np.zeros(0)
             return empty, empty, self._m.copy(), self.kernel.k_star
         if n <= _jit.SMALL:  # one compiled call: kernel, C k, k^T C k, k^T A
-            k, ck, kck, mean = _jit.expert_terms(self._B, self._C, self._A, x,
-                                                 self.kernel.gamma, n)
+            packed = _jit.expert_terms(self._B, self._C, self._A, x, self.kernel.gamma, n)
+            k, ck, kck, mean = packed[:n], packed[n: 2 * n], float(packed[2 * n]), packed[2 * n + 1:]
         else:  # C k by BLAS
             k = _jit.kernel_vector(self._B, x, self.kernel.gamma, n)
             ck = self._C[:n, :n] @ k
@@ -295,8 +295,14 @@ class SparseOnlineGP:
         symmetric).  Counted in :attr:`q_refreshes`.
         """
         n = self.n
-        gram = self._K[:n, :n]
         jitter = 0.0
+        if n <= _jit.SMALL:  # compiled: no LAPACK call overhead at this size
+            while not _jit.cholesky_inverse(self._K, n, jitter, self._Q):
+                jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
+            self._dg = None
+            self.q_refreshes += 1
+            return
+        gram = self._K[:n, :n]
         while True:  # K_B is SPD in exact arithmetic; add jitter only if round-off says no
             factor, info = _dpotrf(gram if jitter == 0.0 else gram + jitter * np.eye(n),
                                    lower=1, clean=0)
