@@ -30,6 +30,8 @@ class Learner(Protocol):
       ``expert_id == -1``); with the default ``expert_choice="argmax"`` it changes nothing.
     * ``predict_multimap(x)``: every expert of the MAP particle, gate probabilities summing
       to at most 1 (the rest is the empty expert's share).
+    * ``predict_with_multimap(x)``: both answers from one pass (one call per control tick),
+      equal to ``predict_one(x)`` then ``predict_multimap(x)``.
     * ``state_dict()`` / ``from_state_dict()``: named arrays without object dtype; the restored
       model continues exactly as the original would.
     """
@@ -49,6 +51,9 @@ class Learner(Protocol):
     def predict_one(self, x: npt.ArrayLike) -> Prediction: ...
 
     def predict_multimap(self, x: npt.ArrayLike) -> list[ExpertPrediction]: ...
+
+    def predict_with_multimap(self, x: npt.ArrayLike
+                              ) -> tuple[Prediction, list[ExpertPrediction]]: ...
 
     def assignments(self) -> npt.NDArray[np.int64]: ...
 

@@ -181,7 +181,8 @@ class SparseOnlineGP:
             return empty, empty, self._m.copy(), self.kernel.k_star
         if n <= _jit.SMALL:  # one compiled call: kernel, C k, k^T C k, k^T A
             packed = _jit.expert_terms(self._B, self._C, self._A, x, self.kernel.gamma, n)
-            k, ck, kck, mean = packed[:n], packed[n: 2 * n], float(packed[2 * n]), packed[2 * n + 1:]
+            k, ck, mean = packed[:n], packed[n: 2 * n], packed[2 * n + 1:]
+            kck = float(packed[2 * n])
         else:  # C k by BLAS
             k = _jit.kernel_vector(self._B, x, self.kernel.gamma, n)
             ck = self._C[:n, :n] @ k
