@@ -71,7 +71,8 @@ class RobotRuntime:
         Perception / action sizes.
     model
         An object following ``docs/learner-api.md`` (``learn_one``, ``predict_one``,
-        ``predict_multimap``, ``predict_with_multimap``, ``assignments``, ``n_experts``, ``n_learned``, ``state_dict``).
+        ``predict_multimap``, ``predict_with_multimap``, ``assignments``, ``n_experts``,
+        ``n_learned``, ``state_dict``).
     make_model
         Builds a fresh model (used by the ``reset`` control).
     mode
