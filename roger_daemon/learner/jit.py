@@ -10,7 +10,9 @@ expert's work in one call:
 * :func:`rank_update_cq`: the fused hot path's rank-3 update of ``C`` and rank-2 update of
   ``Q`` in one pass over the two buffers, with row and column ``i`` zeroed first;
 * :func:`cholesky_inverse`: ``K^{-1}`` of a small SPD matrix (Cholesky, then the inverse from
-  the factor), the re-inversion of ``Q`` without LAPACK's per-call overhead.
+  the factor), the re-inversion of ``Q`` without LAPACK's per-call overhead;
+* :func:`gate_update`, :func:`gate_log_predictive`: the NIW gates' rank-1 updates and
+  Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each.
 
 Reductions may be reassociated (``fastmath={"reassoc", "contract"}``: no NaN/inf assumptions), so
 the floats differ from numpy's in the last bits, like another BLAS kernel's; the compiled code
@@ -26,8 +28,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-__all__ = ["SMALL", "cholesky_inverse", "expert_terms", "kernel_vector", "rank_update_cq",
-           "warm_up"]
+__all__ = ["SMALL", "cholesky_inverse", "expert_terms", "gate_log_predictive", "gate_update",
+           "kernel_vector", "rank_update_cq", "warm_up"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -155,3 +157,73 @@ def warm_up() -> None:
     rank_update_cq(mat.copy(), mat.copy(), n, 0, np.zeros((3, n)), np.zeros(3), np.zeros((2, n)),
                    np.zeros(2))
     cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
+    slots = np.zeros(1, dtype=np.int64)
+    vec, cube = np.ones(1), np.ones((1, 1, 1))
+    gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
+                cube.copy(), vec.copy())
+    gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
+
+
+@njit(cache=True, nogil=True)
+def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, nu: FloatArray,
+                mu: FloatArray, lam: FloatArray, prec: FloatArray, logdet: FloatArray) -> None:
+    """NIW rank-1 updates of the gates in ``slots`` (docs/learner-math.md §3.2), in place.
+
+    ``Lambda += w u u^T`` with ``u = x - mu``, ``w = kappa / (kappa + 1)``; the precision by
+    Sherman-Morrison, ``log|Lambda|`` by the determinant lemma (:class:`.gate.GatePool`).
+    """
+    d = x.shape[0]
+    u = np.empty(d)
+    uw = np.empty(d)
+    pu = np.empty(d)
+    puf = np.empty(d)
+    for s in slots:
+        kp = kappa[s]
+        kp1 = kp + 1.0
+        w = kp / kp1
+        for a in range(d):
+            u[a] = x[a] - mu[s, a]
+            uw[a] = u[a] * w
+        for a in range(d):
+            t = 0.0
+            for b in range(d):
+                t += prec[s, a, b] * u[b]
+            pu[a] = t
+        t = 0.0
+        for a in range(d):
+            t += uw[a] * pu[a]
+        f = w / (1.0 + t)
+        for a in range(d):
+            puf[a] = pu[a] * f
+        for a in range(d):
+            ua = u[a]
+            pa = pu[a]
+            for b in range(d):
+                lam[s, a, b] += ua * uw[b]
+                prec[s, a, b] -= pa * puf[b]
+            mu[s, a] += u[a] / kp1
+        kappa[s] = kp1
+        nu[s] += 1.0
+        logdet[s] += math.log1p(t)
+
+
+@njit(cache=True, nogil=True)
+def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatArray,
+                        prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
+                        inv_nu_c: FloatArray) -> FloatArray:
+    """``log t_s(x)`` of the Student-t predictive of every gate in ``slots`` (§3.3)."""
+    d = x.shape[0]
+    out = np.empty(slots.shape[0])
+    diff = np.empty(d)
+    for j in range(slots.shape[0]):
+        s = slots[j]
+        for a in range(d):
+            diff[a] = x[a] - mu[s, a]
+        delta = 0.0
+        for a in range(d):
+            t = 0.0
+            for b in range(d):
+                t += prec[s, a, b] * diff[b]
+            delta += diff[a] * t
+        out[j] = lognorm[s] - half_nu_d[s] * math.log1p(delta * inv_nu_c[s])
+    return out
