@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.linalg.blas import dgemm as _dgemm
 
-from roger_daemon.learner.jit import rank_update_cq
+from roger_daemon.learner import jit as _jit
 
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
@@ -150,5 +150,5 @@ def fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray
             gp._K[i, i] = gp.kernel.k_star
         gp._A[:n] = a_stack[j]
         # zero row and column i of C and Q, then the rank-3 and rank-2 updates: one pass
-        rank_update_cq(gp._C, gp._Q, n, i, cols_c[j], coef_c[j], cols_q[j], coef_q[j])
+        _jit.rank_update_cq(gp._C, gp._Q, n, i, cols_c[j], coef_c[j], cols_q[j], coef_q[j])
         gp._dg = diag[j].copy()

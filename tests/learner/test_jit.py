@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from roger_daemon.learner import jit
+from roger_daemon.learner import jit_kernels as jit
 from roger_daemon.learner.kernel import RBFKernel
 
 
