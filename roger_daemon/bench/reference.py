@@ -2,11 +2,11 @@
 --compare REF``).
 
 ``roger_daemon/learner`` is self-contained (it imports nothing else from ``roger_daemon``), so
-the files of revision ``REF`` are written by ``git show`` into a temporary directory as a
-package ``_roger_ref_<sha>`` (every ``roger_daemon.learner`` in them renamed to it) and imported
-from there: the old and the new implementation then run in one process, on the same machine at
-the same moment.  Needs the git repository this package was installed from (an editable
-install or a checkout).
+the files of revision ``REF`` are written by ``git show`` into a directory of the system's
+temporary directory, ``roger-ref-<sha>``, as a package ``_roger_ref_<sha>`` (every
+``roger_daemon.learner`` in them renamed to it) and imported from there: the old and the new
+implementation then run in one process, on the same machine at the same moment.  Needs the git
+repository this package was installed from (an editable install or a checkout).
 """
 
 from __future__ import annotations
@@ -48,14 +48,21 @@ def load_reference(rev: str) -> tuple[ModuleType, str]:
     name = f"_roger_ref_{sha[:12]}"
     if name in sys.modules:
         return sys.modules[name], sha
-    root = Path(tempfile.mkdtemp(prefix="roger-ref-"))
+    # one directory per revision, written once: its files keep their times, so numba's on-disk
+    # cache of a revision's compiled kernels stays valid from one run to the next
+    root = Path(tempfile.gettempdir()) / f"roger-ref-{sha[:12]}"
     for f in files:
-        text = _git("show", f"{sha}:{f}").replace("roger_daemon.learner", name)
         dest = root / name / Path(f).relative_to(_LEARNER)
+        if dest.exists():
+            continue
+        text = _git("show", f"{sha}:{f}").replace("roger_daemon.learner", name)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        dest.write_text(text, encoding="utf-8")
-    sys.path.insert(0, str(root))
+        tmp = dest.with_suffix(".tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(dest)  # never a half-written module, even with two runs at once
+    if str(root) not in sys.path:
+        sys.path.append(str(root))  # kept: the package may import its modules lazily
     try:
         return importlib.import_module(name), sha
-    finally:
-        sys.path.remove(str(root))
+    except Exception as exc:  # an old revision that does not import here
+        raise RevisionError(f"{rev} ({sha[:12]}): importing its learner failed: {exc}") from exc
