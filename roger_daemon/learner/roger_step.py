@@ -65,6 +65,7 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
     lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])
     return lw, flat_part, flat_slots, offsets, terms
 
+
 def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slots: IntArray,
                     is_new: npt.NDArray[np.bool_]) -> None:
     """Sticky CRP (Fox et al. 2008; paper section V): the expert of the previous point in
@@ -79,6 +80,7 @@ def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slo
         base[~is_prev] = -np.inf
     else:
         base[is_prev] += np.log1p(kappa / model._npts[flat_slots[is_prev]])
+
 
 def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
                 is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
@@ -127,6 +129,7 @@ def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, bas
     known = max(known, float(np.max(best[first] + slot_ll[first])))
     evaluate(rest[best[rest] + model._gp_bound >= known - margin])
     return slot_ll, terms
+
 
 def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: IntArray,
                  flat_slots: IntArray, offsets: IntArray, xs: FloatArray, ys: FloatArray,
@@ -206,6 +209,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     record(model, surv_parent, chosen_ids)
     model.n_learned += 1
     return min((gp.novelty_margin for gp in upd_gps), default=math.inf)
+
 
 def record(model: Roger, ancestors: IntArray, expert_ids: IntArray) -> None:
     """Append one row of segmentation history (O(P) per step)."""
