@@ -5,8 +5,9 @@ points, 23-D inputs, 9-D outputs and 4 subtasks with overlapping inputs, with th
 parameters.  ``--stream aibo``: the first 1,500 pairs of the goal-scoring experiment's AIBO
 demonstrations (``roger_daemon/bench/data``), with the daemon's default configuration (the
 ``default`` preset and the AIBO profile).  ``--param`` overrides a parameter of either.  Every
-update is timed; every ``--predict-every`` steps ``predict_multimap`` and ``predict_one`` are
-timed on the next input.  The unimap baseline learns the same stream in the same run.
+update is timed; every ``--predict-every`` steps ``predict_multimap``, ``predict_one`` and
+``predict_with_multimap`` (both in one pass, the daemon's call) are timed on the next input.
+The unimap baseline learns the same stream in the same run.
 ``--compare REF`` runs git revision REF's learner beside this one instead
 (:mod:`.learner_compare`).  ``--json`` prints one JSON object.
 """
@@ -55,9 +56,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="override a RogerParams field (VALUE as JSON), repeatable")
     parser.add_argument("--no-unimap", action="store_true", help="skip the unimap baseline")
     parser.add_argument("--compare", metavar="REF", default=None,
-                        help="also run git revision REF's learner (e.g. main, HEAD~3) in this "
-                             "process, one update of each in turn on the same stream, and "
-                             "print both and the speed ratio (needs the git checkout)")
+                        help="instead, time git revision REF's learner (e.g. main, HEAD~3) "
+                             "and this one in this process, one update of each in turn on the "
+                             "same stream, and print both and the speed ratio (needs the git "
+                             "checkout)")
 
 
 @dataclass(frozen=True)
@@ -169,6 +171,7 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
     upd: list[int] = []
     pm: list[int] = []
     po: list[int] = []
+    pw: list[int] = []
     clock = time.perf_counter_ns
     start = time.perf_counter()
     for i in range(points):
@@ -183,6 +186,9 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
             t0 = clock()
             model.predict_one(q)
             po.append(clock() - t0)
+            t0 = clock()
+            model.predict_with_multimap(q)  # the daemon's one call per tick
+            pw.append(clock() - t0)
     wall = time.perf_counter() - start
     upd_arr = np.asarray(upd) * 1e-9
     quarters = [round(len(c) / float(c.sum()), 1) for c in np.array_split(upd_arr, 4) if c.size]
@@ -202,6 +208,7 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
         "predict_multimap_p50_ms": _ms(pm, 50),
         "predict_multimap_p99_ms": _ms(pm, 99),
         "predict_one_p99_ms": _ms(po, 99),
+        "predict_with_multimap_p99_ms": _ms(pw, 99),
         "experts": model.n_experts,
         "expert_sizes": sorted(model.expert_sizes().values(), reverse=True),
         "unique_experts": model.n_unique_experts,
@@ -239,6 +246,7 @@ def _table(res: dict[str, Any]) -> str:
         ("predict_multimap p50 / p99 ms",
          f"{res['predict_multimap_p50_ms']} / {res['predict_multimap_p99_ms']}"),
         ("predict_one p99 ms", res["predict_one_p99_ms"]),
+        ("predict_with_multimap p99 ms", res["predict_with_multimap_p99_ms"]),
         ("experts (MAP particle)", res["experts"]),
         ("expert sizes", res["expert_sizes"][:12]),
         ("unique experts / particles", f"{res['unique_experts']} / {res['particles']}"),
