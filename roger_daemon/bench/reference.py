@@ -18,6 +18,8 @@ import tempfile
 from pathlib import Path
 from types import ModuleType
 
+from roger_daemon.atomic import write_text
+
 __all__ = ["RevisionError", "load_reference"]
 
 _ROOT = Path(__file__).resolve().parents[2]
@@ -57,9 +59,7 @@ def load_reference(rev: str) -> tuple[ModuleType, str]:
             continue
         text = _git("show", f"{sha}:{f}").replace("roger_daemon.learner", name)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        tmp = dest.with_suffix(".tmp")
-        tmp.write_text(text, encoding="utf-8")
-        tmp.replace(dest)  # never a half-written module, even with two runs at once
+        write_text(dest, text)  # atomic: never a half-written module, even with two runs at once
     if str(root) not in sys.path:
         sys.path.append(str(root))  # kept: the package may import its modules lazily
     try:
