@@ -142,7 +142,8 @@ class Roger:
         self.n_learned = 0
         # how close the last learn_one's discrete decisions were to flipping (diagnostic, not
         # state): resampling in normalised weight, novelty in units of k* (docs/reproducibility.md)
-        self.last_margins: dict[str, float] = {}
+        self._margins: tuple[Any, float] | None = None  # (resampling margin or its thunk, novelty)
+        self._margins_read: dict[str, float] = {}
         self._next_id = 0
         self._log_alpha = math.log(p.alpha)
         self._empty_var = self.kernel.k_star + p.theta_n  # empty expert: y ~ N(0, (k*+s0^2) I)
@@ -182,12 +183,24 @@ class Roger:
         ys = self._scaling.y_in(as_vector("y", y, self.d_y))
         lw, flat_part, flat_slots, offsets, terms = self._putatives(xs, ys)
         # resample to P (Fearnhead), then incorporate the point (Algorithm 1, last two lines)
-        resampled: dict[str, float] = {}
+        resampled: dict[str, Any] = {}
         keep, new_logw = fearnhead_resample(lw, self.params.particles, self._learn_rng,
-                                            resampled)
+                                            resampled, lazy=True)
         novelty = instantiate(self, keep, new_logw, flat_part, flat_slots, offsets, xs, ys,
                               terms)
-        self.last_margins = {"resampling": resampled["margin"], "novelty": novelty}
+        self._margins = (resampled["margin"], novelty)
+        self._margins_read = {}
+
+    @property
+    def last_margins(self) -> dict[str, float]:
+        """How close the last ``learn_one``'s discrete decisions were to flipping (diagnostic,
+        not state): ``"resampling"`` in normalised weight, ``"novelty"`` in units of ``k*``
+        (docs/reproducibility.md); ``{}`` before any learning.  Computed when first read."""
+        if self._margins is not None and not self._margins_read:
+            margin, novelty = self._margins
+            self._margins_read = {"resampling": float(margin() if callable(margin) else margin),
+                                  "novelty": novelty}
+        return self._margins_read
 
     def _putatives(self, xs: FloatArray, ys: FloatArray
                    ) -> tuple[FloatArray, IntArray, IntArray, IntArray, dict[int, Terms]]:
