@@ -25,6 +25,8 @@ routine is tested against a numpy oracle (tests/learner/test_jit.py).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -34,11 +36,27 @@ __all__ = ["cholesky_inverse", "expert_terms", "gate_log_predictive", "gate_upda
            "kernel_vector", "rank_update_cq"]
 
 FloatArray = npt.NDArray[np.float64]
+F = TypeVar("F", bound=Callable[..., Any])
 
 _FM = {"reassoc", "contract"}
 
 
-@njit(cache=True, fastmath=_FM, nogil=True)
+def _compiled(**options: Any) -> Callable[[F], F]:
+    """``numba.njit(cache=True, **options)``; without the on-disk cache where no cache
+    directory is writable (a read-only install with no usable home: numba then refuses
+    ``cache=True`` when decorating), so the kernels are compiled in every process instead.
+    A hardened service sets ``NUMBA_CACHE_DIR`` to a writable path (configs/systemd)."""
+
+    def wrap(fn: F) -> F:
+        try:
+            return cast(F, njit(cache=True, **options)(fn))
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            return cast(F, njit(**options)(fn))
+
+    return wrap
+
+
+@_compiled(fastmath=_FM, nogil=True)
 def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> FloatArray:
     """``exp(-gamma |b_i - x|^2)`` for the first ``n`` rows of ``basis`` (explicit differences)."""
     d = basis.shape[1]
@@ -52,7 +70,7 @@ def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> Flo
     return k
 
 
-@njit(cache=True, fastmath=_FM, nogil=True)
+@_compiled(fastmath=_FM, nogil=True)
 def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatArray,
                  gamma: float, n: int) -> FloatArray:
     """``[k, C k, k^T C k, k^T A]`` over the live ``n`` rows (every column of ``A``), packed in
@@ -82,7 +100,7 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
     return out
 
 
-@njit(cache=True, fastmath={"contract"}, nogil=True)
+@_compiled(fastmath={"contract"}, nogil=True)
 def rank_update_cq(cmat: FloatArray, qmat: FloatArray, n: int, i: int, uc: FloatArray,
                    cc: FloatArray, uq: FloatArray, cq: FloatArray) -> None:
     """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
@@ -109,7 +127,7 @@ def rank_update_cq(cmat: FloatArray, qmat: FloatArray, n: int, i: int, uc: Float
             qmat[a, b] += w0 * uq[0, b] + w1 * uq[1, b]
 
 
-@njit(cache=True, nogil=True)
+@_compiled(nogil=True)
 def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -> bool:
     """``out[:n, :n] = (K + jitter I)^{-1}`` for the SPD ``K = gram[:n, :n]``; False (``out``
     untouched) if the Cholesky factorisation fails.  The result is exactly symmetric."""
@@ -146,7 +164,7 @@ def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -
     return True
 
 
-@njit(cache=True, nogil=True)
+@_compiled(nogil=True)
 def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, nu: FloatArray,
                 mu: FloatArray, lam: FloatArray, prec: FloatArray, logdet: FloatArray) -> None:
     """NIW rank-1 updates of the gates in ``slots`` (docs/learner-math.md §3.2), in place.
@@ -189,7 +207,7 @@ def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, 
         logdet[s] += math.log1p(t)
 
 
-@njit(cache=True, nogil=True)
+@_compiled(nogil=True)
 def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatArray,
                         prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
                         inv_nu_c: FloatArray) -> FloatArray:

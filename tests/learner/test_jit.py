@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -80,3 +83,17 @@ def test_cholesky_inverse_refuses_a_matrix_that_is_not_positive_definite() -> No
     assert not jit.cholesky_inverse(gram, 2, 0.0, out)
     assert np.all(out == 0.0)
     assert jit.cholesky_inverse(gram, 2, 1.5, out)  # + 1.5 I is SPD
+
+
+def test_kernels_still_compile_where_no_cache_directory_is_writable() -> None:
+    """numba refuses ``cache=True`` when it finds no writable cache location (a read-only
+    install without a usable home); the kernels then compile without the on-disk cache."""
+    code = ("import numba.core.caching as c\n"
+            "c.CacheImpl._locator_classes = []\n"
+            "import numpy as np\n"
+            "from roger_daemon.learner import jit_kernels as k\n"
+            "assert type(k.kernel_vector._cache).__name__ == 'NullCache'\n"
+            "print(k.kernel_vector(np.zeros((2, 1)), np.ones(1), 0.5, 2).tolist())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert out.stdout.strip() == str([float(np.exp(-0.5))] * 2)
