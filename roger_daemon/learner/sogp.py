@@ -197,8 +197,13 @@ class SparseOnlineGP(SOGPSteps):
         """
         if not self.prior_mean:
             return y, mean
-        a1k = float(k @ self._A[: self.n, self.d_y]) if self.n else 0.0
-        return np.append(y, 1.0), np.append(mean, a1k)
+        d = self.d_y
+        ext = np.empty((2, d + 1))  # [y, 1] and [mean, a1^T k] (cheaper than two np.append)
+        ext[0, :d] = y
+        ext[0, d] = 1.0
+        ext[1, :d] = mean
+        ext[1, d] = float(k @ self._A[: self.n, d]) if self.n else 0.0
+        return ext[0], ext[1]
 
     def _shift_mean(self, y: FloatArray) -> None:
         """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
@@ -207,7 +212,7 @@ class SparseOnlineGP(SOGPSteps):
         dm = (y - self._m) / self.n_points
         self._m = self._m + dm
         n = self.n
-        self._A[:n, : self.d_y] -= np.outer(self._A[:n, self.d_y], dm)
+        self._A[:n, : self.d_y] -= self._A[:n, self.d_y: self.d_y + 1] * dm  # a1 dm^T
 
     def predict(self, x: FloatArray) -> tuple[FloatArray, float]:
         """Predictive mean (d_y,) and variance of y (scalar, shared by the outputs)."""
