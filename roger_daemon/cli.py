@@ -8,6 +8,11 @@ Each subcommand lives in its own module that exposes two functions::
 Modules are imported lazily, only for the subcommand that runs, so ``roger bench learner``
 never imports Zenoh or pybullet. Add a subcommand by adding one row to ``COMMANDS`` (or to
 ``BENCHES`` for ``roger bench NAME``).
+
+Other installed packages add their own rows through the ``roger.commands`` entry point group:
+each entry names a module with ``COMMANDS`` and ``BENCHES`` tables of the same form (the
+simulator's is ``simulator.commands``). So this package never names the packages built on it:
+``roger sim`` works where the simulator is installed, and the daemon does not depend on it.
 """
 
 from __future__ import annotations
@@ -15,43 +20,68 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from importlib.metadata import entry_points
 
 from roger_daemon import __version__
 from roger_daemon.console import LOG_LEVELS, configure_logging, guarded
 
+#: The entry point group of the packages that add subcommands.
+ENTRY_POINT_GROUP = "roger.commands"
+
+
+class CommandTable(Mapping[str, tuple[str, str]]):
+    """``name -> (module, one-line help)``: this package's rows, then the ``attr`` table of
+    every module registered under :data:`ENTRY_POINT_GROUP` (read on first use)."""
+
+    def __init__(self, own: dict[str, tuple[str, str]], attr: str) -> None:
+        self._own = own
+        self._attr = attr
+        self._rows: dict[str, tuple[str, str]] | None = None
+
+    def _all(self) -> dict[str, tuple[str, str]]:
+        if self._rows is None:
+            rows = dict(self._own)
+            for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+                rows.update(getattr(ep.load(), self._attr, {}))
+            self._rows = rows
+        return self._rows
+
+    def __getitem__(self, name: str) -> tuple[str, str]:
+        return self._all()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+
 # name -> (module, one-line help)
-COMMANDS: dict[str, tuple[str, str]] = {
+COMMANDS = CommandTable({
     "bench": ("roger_daemon.bench", "benchmarks: learner, daemon, sim (table or --json)"),
     "daemon": ("roger_daemon.daemon", "the learner daemon: predictions, status, checkpoints"),
     "router": ("roger_daemon.router", "a Zenoh router (Python session) for several hosts"),
     "record": ("roger_daemon.recording.cli_record", "record Zenoh traffic to MCAP"),
     "log": ("roger_daemon.recording.cli_log", "log tools: info, recover, export"),
     "replay": ("roger_daemon.recording.cli_replay", "replay a log into the learner"),
-    "sim": ("simulator.sim_node", "the AIBO soccer simulator (pybullet) as a Zenoh process"),
-    "hcc": ("simulator.hcc_node", "the hand-coded FSM goal scorer: demonstrator or transitioner"),
-    "experiment": ("simulator.experiment.cli", "experiments: goal-scoring (paper section IV)"),
-    "demo": ("simulator.experiment.demo", "a short end-to-end session: demonstrate, learn, act"),
     "list": ("roger_daemon.tools.listing", "daemons alive (liveliness) and the robots they serve"),
     "status": ("roger_daemon.tools.status", "a robot's daemon status, readable (--watch, --json)"),
     "echo": ("roger_daemon.tools.echo", "print the decoded messages on a key expression"),
     "hz": ("roger_daemon.tools.hz", "the rate of messages on a key expression"),
     "control": ("roger_daemon.tools.control", "mode, reset or checkpoint, confirmed by the daemon"),
     "config": ("roger_daemon.tools.config_example", "print shipped config files (daemon, systemd)"),
-    "up": ("roger_daemon.launch", "start daemon, simulator and controller from one TOML file"),
-    "view": ("simulator.view.node", "live Foxglove view (WebSocket) of a session, or of a log"),
-}
+}, "COMMANDS")
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()
-BENCHES: dict[str, tuple[str, str]] = {
+BENCHES = CommandTable({
     "learner": ("roger_daemon.bench.learner",
                 "learner updates/s and latency (synthetic or AIBO stream; --compare REF)"),
     "recorder": ("roger_daemon.recording.bench", "recorder write+poll cost, SIGKILL loss"),
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
     "fleet": ("roger_daemon.bench.fleet", "N robots x 30 Hz against one daemon, per robot"),
     "soak": ("roger_daemon.bench.soak", "daemon RSS over a 30 Hz run, checkpoint bytes/expert"),
-    "sim": ("simulator.bench", "simulator lockstep ticks/s (rendered, fast) and HCC success"),
-}
+}, "BENCHES")
 
 
 def _add_log_level(parser: argparse.ArgumentParser, default: str | None) -> None:
@@ -62,7 +92,7 @@ def _add_log_level(parser: argparse.ArgumentParser, default: str | None) -> None
                              "$ROGER_LOG_LEVEL or info)")
 
 
-def build_parser(table: dict[str, tuple[str, str]], prog: str,
+def build_parser(table: Mapping[str, tuple[str, str]], prog: str,
                  wanted: str | None = None) -> argparse.ArgumentParser:
     """The parser of ``table``; only the ``wanted`` subcommand is configured (``"*"``: all)."""
     parser = argparse.ArgumentParser(prog=prog)
@@ -81,7 +111,7 @@ def build_parser(table: dict[str, tuple[str, str]], prog: str,
     return parser
 
 
-def dispatch(table: dict[str, tuple[str, str]], prog: str, argv: Sequence[str]) -> int:
+def dispatch(table: Mapping[str, tuple[str, str]], prog: str, argv: Sequence[str]) -> int:
     """Parse ``argv`` against ``table`` and run the chosen module."""
     wanted = next((a for a in argv if a in table), None)
     args = build_parser(table, prog, wanted).parse_args(list(argv))

@@ -33,6 +33,7 @@ class JournalFormatter(logging.Formatter):
     """``<N>LEVEL name: message`` with N the syslog priority of the record's level."""
 
     def format(self, record: logging.LogRecord) -> str:
+        """The record's text, every line prefixed with its syslog priority ``<N>``."""
         prio = _PRIORITY.get(record.levelno, 6 if record.levelno < logging.WARNING else 3)
         text = super().format(record)
         # every line of a multi-line message (tracebacks) keeps the priority

@@ -90,7 +90,7 @@ class DaemonProcess:
     def __init__(self, config: Path, *, args: Iterable[str] = (), log: Path | None = None,
                  env: Mapping[str, str] | None = None, cwd: Path | None = None) -> None:
         self.log_path = log or config.with_suffix(".log")
-        self._log = open(self.log_path, "ab")  # noqa: SIM115 - closed in wait()/kill()
+        self._log = open(self.log_path, "ab")  # closed in wait()/kill()
         full_env = {**os.environ, "ROGER_LOG_LEVEL": "INFO", "RUST_LOG": "error", **(env or {})}
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "roger_daemon", "daemon", "--config", str(config), *args],
@@ -98,6 +98,7 @@ class DaemonProcess:
         )
 
     def log(self) -> str:
+        """The process's output so far."""
         return self.log_path.read_text(encoding="utf-8", errors="replace")
 
     def wait_for_log(self, text: str, timeout: float = 30.0) -> None:
@@ -112,6 +113,7 @@ class DaemonProcess:
         raise TimeoutError(f"{text!r} not in the daemon log after {timeout} s:\n{self.log()}")
 
     def wait_ready(self, timeout: float = 120.0) -> None:
+        """Wait until the daemon logs that it is ready."""
         self.wait_for_log(" ready: ", timeout)
 
     def terminate(self, timeout: float = 10.0,
@@ -124,6 +126,7 @@ class DaemonProcess:
         return code, time.monotonic() - t0
 
     def kill(self) -> None:
+        """Kill the process (SIGKILL) if it still runs, and close its log."""
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(10)
@@ -145,14 +148,11 @@ class Client:
                  mode: str = "peer", daemon_id: str = "roger") -> None:
         import zenoh
 
+        from roger_daemon.zenoh_session import ZenohSettings, open_session
+
         self.zenoh = zenoh
-        cfg = zenoh.Config()
-        cfg.insert_json5("mode", json.dumps(mode))
-        cfg.insert_json5("connect/endpoints", json.dumps([connect]))
-        if mode != "client":
-            cfg.insert_json5("listen/endpoints", "[]")
-        cfg.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(cfg)
+        self.session = open_session(ZenohSettings(
+            mode=mode, connect=(connect,), listen=None if mode == "client" else ()))
         self.robot, self.dims, self.daemon_id = robot, dims, daemon_id
         self.predictions: list[Received] = []
         self.statuses: list[Received] = []
@@ -190,6 +190,7 @@ class Client:
     # --- sending -----------------------------------------------------------------------------
 
     def put(self, kind: str, payload: bytes, robot: str | None = None) -> None:
+        """Publish a payload of ``kind`` for this robot (or another ``robot``)."""
         if robot is None or robot == self.robot:
             self._pubs[kind].put(payload)
         else:
@@ -202,9 +203,11 @@ class Client:
         return t
 
     def action(self, tick: int, y: np.ndarray, label: str = "") -> None:
+        """Publish an action for ``tick``."""
         self.put("action", encode(Action(self.robot, tick, tick / 30.0, y=y, label=label)))
 
     def control(self, op: str, mode: str = "") -> None:
+        """Publish a control message (``op`` ``mode`` or ``reset``)."""
         self.put("control", encode(Control(self.robot, 0, 0.0, op=op, mode=mode)))
 
     # --- waiting -----------------------------------------------------------------------------
@@ -222,6 +225,7 @@ class Client:
         raise TimeoutError(f"daemon token {key} not seen within {timeout} s")
 
     def wait_prediction(self, tick: int, timeout: float = 60.0) -> Received:
+        """Wait for the prediction of ``tick`` (raise ``TimeoutError`` after ``timeout`` s)."""
         end = time.monotonic() + timeout
         with self._cond:
             while True:
@@ -251,8 +255,10 @@ class Client:
                 self._cond.wait(left)
 
     def predictions_since(self, t_ns: int) -> list[Prediction]:
+        """The predictions received at or after ``t_ns`` (``time.monotonic_ns``)."""
         with self._cond:
             return [r.msg for r in self.predictions if r.recv_ns >= t_ns]
 
     def close(self) -> None:
+        """Close the Zenoh session."""
         self.session.close()

@@ -70,11 +70,13 @@ class RemoteModel:
         self.n_experts = n_experts
 
     def fresh(self) -> RemoteModel:
+        """Replace the worker's model by a fresh one (a reset); returns ``self``."""
         self._owner.send(self._robot, {"op": "fresh"}, None)
         self.n_learned, self.n_experts = 0, 0
         return self
 
     def state_dict(self) -> dict[str, np.ndarray]:
+        """Not available: the model's state lives in the worker process."""
         raise WorkerError("the model lives in a worker process: use ProcessLearners.snapshot")
 
 
@@ -333,6 +335,7 @@ class ProcessLearners:
         self.pump()
 
     def info(self, rt: RobotRuntime) -> dict[str, Any]:
+        """The worker's part of the robot's status ``info``."""
         s = self.slots[rt.robot]
         return {"workers": "process", "worker_pid": s.proc.pid,
                 "worker_busy_ticks": s.busy_ticks}

@@ -26,6 +26,7 @@ import numpy as np
 from protocols.errors import REASONS
 from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
 from roger_daemon.labels import majority_labels_coded
+from roger_daemon.window import Window
 
 __all__ = ["Pair", "RobotRuntime"]
 
@@ -43,21 +44,6 @@ class Pair:
     y: np.ndarray
     label: int
     tick: int
-
-
-class _Window:
-    """A fixed-size window of recent float samples with percentiles."""
-
-    def __init__(self, size: int = 1000) -> None:
-        self.values: deque[float] = deque(maxlen=size)
-
-    def add(self, v: float) -> None:
-        self.values.append(v)
-
-    def pct(self, q: float) -> float:
-        if not self.values:
-            return 0.0
-        return float(np.percentile(np.fromiter(self.values, float), q))
 
 
 class RobotRuntime:
@@ -118,9 +104,9 @@ class RobotRuntime:
         self.session_resets = 0  # resets in this session (the log's segment number)
         self.recovered_pairs = 0  # pairs re-learned from the logs at start-up
         # windows and bookkeeping
-        self.latency = _Window()
-        self.learn_ms = _Window(200)
-        self.predict_ms = _Window(200)
+        self.latency = Window()
+        self.learn_ms = Window(200)
+        self.predict_ms = Window(200)
         self.generation = 0  # bumped on every model change (learn, reset)
         self._labels_cache: tuple[int, dict[int, str]] | None = None
         self._status_updates = 0
@@ -135,14 +121,17 @@ class RobotRuntime:
 
     @property
     def learning(self) -> bool:
+        """Whether the current mode pairs and learns."""
         return self.mode in LEARN_MODES
 
     @property
     def predicting(self) -> bool:
+        """Whether the current mode answers perceptions with predictions."""
         return self.mode in PREDICT_MODES
 
     @property
     def updates(self) -> int:
+        """The model's ``n_learned``."""
         return int(self.model.n_learned)
 
     # --- intake --------------------------------------------------------------------------
@@ -158,6 +147,7 @@ class RobotRuntime:
             log.debug("%s: rejected message (%s)", self.robot, detail)
 
     def on_perception(self, msg: Perception, recv_ns: int) -> None:
+        """Take a perception: count it, keep it as the newest query, pair it when learning."""
         self.ticks += 1
         self.last_tick, self.last_t = msg.tick, msg.t
         self.newest = (msg, recv_ns)
@@ -173,6 +163,7 @@ class RobotRuntime:
             self._perceptions.popitem(last=False)
 
     def on_action(self, msg: Action) -> None:
+        """Take an action: pair it with its tick's perception when learning."""
         if not self.learning:
             return
         perc = self._perceptions.pop(msg.tick, None)
@@ -278,6 +269,7 @@ class RobotRuntime:
 
     @property
     def codes(self) -> np.ndarray:
+        """The expert code of every learned pair, in learning order."""
         return self._codes[: self.n_codes]
 
     def expert_labels(self) -> dict[int, str]:
@@ -364,6 +356,7 @@ class RobotRuntime:
         }
 
     def counters(self) -> dict[str, Any]:
+        """The runtime's counters, as checkpointed and reported in status."""
         return {
             "ticks": self.ticks, "dropped": self.dropped, "unpaired_actions": self.unpaired,
             "learn_errors": self.learn_errors, "last_tick": self.last_tick,

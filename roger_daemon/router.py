@@ -18,6 +18,12 @@ from pathlib import Path
 from types import FrameType
 
 from roger_daemon.sdnotify import Notifier
+from roger_daemon.zenoh_session import (
+    ZenohOverrideError,
+    ZenohSettings,
+    open_session,
+    zenoh_config,
+)
 
 __all__ = ["configure", "run"]
 
@@ -56,7 +62,6 @@ def exposed(listen: list[str]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the router until SIGTERM/SIGINT."""
-    import zenoh
 
     stop = {"flag": False}
 
@@ -66,28 +71,30 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    overrides = []
+    for item in args.overrides:
+        key, sep, value = item.partition("=")
+        if not sep:
+            log.error("--set %r: must be KEY=JSON5 with a Zenoh config key, e.g. "
+                      "listen/endpoints='[\"tcp/127.0.0.1:7447\"]' (expected KEY=JSON5)", item)
+            return 2
+        overrides.append((key.strip(), value))
+    # the file, then router mode and the endpoint flags, then the overrides
+    settings = ZenohSettings(config_file=args.config, mode="router",
+                             listen=tuple(args.listen) or None,
+                             connect=tuple(args.connect) or None, multicast_scouting=None,
+                             overrides=tuple(overrides))
     try:
-        cfg = zenoh.Config.from_file(str(args.config))
+        cfg = zenoh_config(settings)
+    except ZenohOverrideError as exc:
+        log.error("--set: must be KEY=JSON5 with a Zenoh config key, e.g. "
+                  "listen/endpoints='[\"tcp/127.0.0.1:7447\"]' (%s)", exc)
+        return 2
     except Exception as exc:  # ZError: unreadable or invalid JSON5
         log.error("config error: %s is not a usable Zenoh config: %s", args.config, exc)
         return 2
-    cfg.insert_json5("mode", json.dumps("router"))
-    if args.listen:
-        cfg.insert_json5("listen/endpoints", json.dumps(args.listen))
-    if args.connect:
-        cfg.insert_json5("connect/endpoints", json.dumps(args.connect))
-    for item in args.overrides:
-        key, sep, value = item.partition("=")
-        try:
-            if not sep:
-                raise ValueError("expected KEY=JSON5")
-            cfg.insert_json5(key.strip(), value)
-        except Exception as exc:  # ZError: unknown key or bad JSON5
-            log.error("--set %r: must be KEY=JSON5 with a Zenoh config key, e.g. "
-                      "listen/endpoints='[\"tcp/127.0.0.1:7447\"]' (%s)", item, exc)
-            return 2
     try:
-        session = zenoh.open(cfg)
+        session = open_session(cfg)
     except Exception as exc:
         log.error("cannot start the router: %s", exc)
         return 1

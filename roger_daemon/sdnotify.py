@@ -48,6 +48,7 @@ class Notifier:
 
     @property
     def enabled(self) -> bool:
+        """Whether the process runs under systemd with a notify socket."""
         return self._sock is not None
 
     def send(self, *fields: str) -> bool:
@@ -86,6 +87,7 @@ class Notifier:
         return self.send("WATCHDOG=1")
 
     def close(self) -> None:
+        """Close the notify socket."""
         if self._sock is not None:
             self._sock.close()
             self._sock = None

@@ -5,7 +5,9 @@ thread and must only be enqueued), ``publisher`` (one per key, declared once), `
 (liveliness), ``stop_intake`` and ``close``. :class:`ZenohTransport` implements it with one
 Zenoh session; :class:`MemoryTransport` is the in-memory fake used by the unit tests.
 
-Zenoh rules followed here (docs/zenoh-notes.md §1, §3.1 and §4):
+Session setup (config layering, flags) is :mod:`roger_daemon.zenoh_session`'s; ``open_session``
+and ``zenoh_config`` are re-exported here. Zenoh rules followed here (docs/zenoh-notes.md §1,
+§3.1 and §4):
 
 - callbacks only copy the payload and push onto the :class:`Inbox`, never call Zenoh, never
   block (``put_nowait``; an overflow is counted);
@@ -18,7 +20,6 @@ Zenoh rules followed here (docs/zenoh-notes.md §1, §3.1 and §4):
 
 from __future__ import annotations
 
-import json
 import queue
 import re
 import threading
@@ -27,7 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from roger_daemon.config import ZenohSettings
+from roger_daemon.zenoh_session import ZenohSettings, open_session, zenoh_config
 
 __all__ = [
     "Inbox",
@@ -103,6 +104,7 @@ class Inbox:
         self.capacity = capacity
 
     def put(self, item: Incoming) -> None:
+        """Enqueue without blocking; count an overflow when full."""
         try:
             self._q.put_nowait(item)
         except queue.Full:
@@ -110,6 +112,7 @@ class Inbox:
                 self._overflow += 1
 
     def get(self, timeout: float) -> Incoming | None:
+        """The next item, waiting up to ``timeout`` seconds (``None`` when none came)."""
         try:
             if timeout <= 0:
                 item = self._q.get_nowait()
@@ -129,6 +132,7 @@ class Inbox:
 
     @property
     def overflow(self) -> int:
+        """How many items were dropped because the inbox was full."""
         with self._lock:
             return self._overflow
 
@@ -137,33 +141,6 @@ class Inbox:
 
 
 # --- Zenoh ---------------------------------------------------------------------------------
-
-
-def zenoh_config(settings: ZenohSettings) -> Any:
-    """Build a ``zenoh.Config``: the JSON5 file (if any), then the explicit settings on top."""
-    import zenoh
-
-    cfg = zenoh.Config.from_file(str(settings.config_file)) if settings.config_file else (
-        zenoh.Config()
-    )
-    if settings.mode is not None:
-        cfg.insert_json5("mode", json.dumps(settings.mode))
-    if settings.listen is not None:
-        cfg.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
-    if settings.connect is not None:
-        cfg.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
-    if settings.multicast_scouting is not None:
-        cfg.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
-    if settings.lease_ms is not None:
-        cfg.insert_json5("transport/link/tx/lease", json.dumps(settings.lease_ms))
-    return cfg
-
-
-def open_session(settings: ZenohSettings) -> Any:
-    """Open one ``zenoh.Session`` from ``settings`` (the daemon's and the operator tools')."""
-    import zenoh
-
-    return zenoh.open(zenoh_config(settings))
 
 
 class _ZenohPublisher:
@@ -189,6 +166,7 @@ class ZenohTransport:
         self._closed = False
 
     def subscribe(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver every sample matching ``key_expr`` (from Zenoh's callback threads)."""
         zenoh = self._zenoh
         limit = self._max
         put_kind = zenoh.SampleKind.PUT
@@ -210,6 +188,7 @@ class ZenohTransport:
         self._subs.append(sub)
 
     def publisher(self, key: str, *, realtime: bool) -> Publisher:
+        """A publisher for ``key``; ``realtime`` selects the prediction QoS."""
         zenoh = self._zenoh
         pub = self.session.declare_publisher(
             key,
@@ -222,9 +201,11 @@ class ZenohTransport:
         return _ZenohPublisher(pub)
 
     def declare_token(self, key: str) -> None:
+        """Declare a liveliness token held until :meth:`close`."""
         self._tokens.append(self.session.liveliness().declare_token(key))
 
     def stop_intake(self) -> None:
+        """Undeclare every subscriber (first step of shutdown)."""
         subs, self._subs = self._subs, []
         for sub in subs:
             try:
@@ -233,6 +214,7 @@ class ZenohTransport:
                 pass
 
     def close(self) -> None:
+        """Undeclare everything and close the session; idempotent."""
         if self._closed:
             return
         self._closed = True
@@ -288,19 +270,24 @@ class MemoryTransport:
     now_ns: Callable[[], int] = time.monotonic_ns
 
     def subscribe(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver every injected sample matching ``key_expr``."""
         self._subs.append((_key_regex(key_expr), deliver))
 
     def publisher(self, key: str, *, realtime: bool) -> Publisher:
+        """A publisher appending to :attr:`published`."""
         return _MemoryPublisher(key, realtime, self.published)
 
     def declare_token(self, key: str) -> None:
+        """Record a liveliness token."""
         self.tokens.append(key)
 
     def stop_intake(self) -> None:
+        """Forget every subscriber."""
         self.intake_stopped = True
         self._subs = []
 
     def close(self) -> None:
+        """Stop intake and mark closed."""
         self.stop_intake()
         self.closed = True
 

@@ -120,6 +120,8 @@ class EpisodeResult:
     sim_time_s: float
     ticks: int
     counters: dict[str, int] = field(default_factory=dict)
+    path_m: float = 0.0  # ground truth: how far the robot's body walked
+    ball_path_m: float = 0.0  # and how far the ball rolled
 
     def to_map(self) -> dict[str, Any]:
         """Plain JSON/msgpack map."""
@@ -134,6 +136,8 @@ class EpisodeResult:
             "success": self.success,
             "sim_time_s": round(self.sim_time_s, 4),
             "ticks": self.ticks,
+            "path_m": round(self.path_m, 3),
+            "ball_path_m": round(self.ball_path_m, 3),
             **{k: int(v) for k, v in self.counters.items()},
         }
 
@@ -149,6 +153,8 @@ class SoccerSim:
         self.location = 0
         self.seed = 0
         self.repetition = 0
+        self.path_m = 0.0
+        self.ball_path_m = 0.0
         self._vision_rng = np.random.default_rng(0)
 
     @property
@@ -183,6 +189,7 @@ class SoccerSim:
         self._vision_rng = vis
         self.outcome = None
         self.location, self.seed, self.repetition = location, seed, repetition
+        self.path_m = self.ball_path_m = 0.0
         return self.perceive()
 
     def perceive(self) -> np.ndarray:
@@ -196,7 +203,13 @@ class SoccerSim:
         """Execute command ``y`` for one tick; returns the outcome if the episode just ended."""
         if self.outcome is not None:
             raise RuntimeError("episode is over; call reset()")
+        rx, ry, _ = self.world.robot_pose()
+        bx, by, _ = self.world.ball_position()
         self.world.step(np.asarray(y, dtype=np.float64))
+        rx2, ry2, _ = self.world.robot_pose()
+        bx2, by2, _ = self.world.ball_position()
+        self.path_m += math.hypot(rx2 - rx, ry2 - ry)
+        self.ball_path_m += math.hypot(bx2 - bx, by2 - by)
         self.outcome = self._check()
         return self.outcome
 
@@ -248,15 +261,19 @@ class SoccerSim:
             sim_time_s=self.time,
             ticks=self.ticks,
             counters=dict(self.world.counters),
+            path_m=self.path_m,
+            ball_path_m=self.ball_path_m,
         )
 
 
 class Controller(Protocol):
     """What :func:`run_episode` drives: the HCC or anything with the same two methods."""
 
-    def reset(self) -> None: ...
+    def reset(self) -> None:
+        """Start a new episode."""
 
-    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]: ...
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        """The command and its label for one perception."""
 
 
 @dataclass

@@ -3,7 +3,8 @@
 * :func:`loopback_config`: a peer-mode ``zenoh.Config`` with explicit listen/connect
   endpoints, multicast scouting off, gossip on (docs/zenoh-notes.md §2.2).
 * :func:`add_zenoh_args` / :func:`config_from_args`: ``--listen``, ``--connect``,
-  ``--zenoh-config`` on a command line.
+  ``--zenoh-config``, ``--zenoh-set`` on a command line; session setup itself is
+  :mod:`roger_daemon.zenoh_session`'s (``open_session`` is re-exported here).
 * :class:`Inbox`: a subscriber on a zenoh ``RingChannel`` (the callback side only enqueues,
   inside zenoh; nothing of ours runs on zenoh threads) that decodes and validates every sample,
   counting and logging once per kind the ones that fail, never raising.
@@ -31,12 +32,14 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
 from protocols import Dims, ProtocolError, decode, encode, keys
 from protocols.messages import Message
+from roger_daemon.zenoh_session import ZenohSettings, open_session, settings_from_args, zenoh_config
+from roger_daemon.zenoh_session import add_zenoh_args as add_session_args
 
 __all__ = [
     "EPHEMERAL",
@@ -56,81 +59,36 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+T = TypeVar("T")
+
 MSGPACK = zenoh.Encoding("application/msgpack")
 
 #: Listen on an ephemeral port, loopback only.
 EPHEMERAL = "tcp/127.0.0.1:0"
+#: The nodes' Zenoh lease (ms): a vanished peer is noticed within it.
+LEASE_MS = 2000
 
 
 def loopback_config(
-    listen: Sequence[str] = (), connect: Sequence[str] = (), lease_ms: int = 2000
+    listen: Sequence[str] = (), connect: Sequence[str] = (), lease_ms: int = LEASE_MS
 ) -> zenoh.Config:
-    """Peer mode, the given endpoints only, no multicast scouting."""
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", json.dumps("peer"))
-    cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    cfg.insert_json5("scouting/gossip/enabled", "true")
-    cfg.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
-    return cfg
+    """Peer mode, the given endpoints only, no multicast scouting, gossip on."""
+    return zenoh_config(ZenohSettings(mode="peer", listen=tuple(listen), connect=tuple(connect),
+                                      multicast_scouting=False, gossip=True,
+                                      lease_ms=int(lease_ms)))
 
 
 def add_zenoh_args(
     parser: argparse.ArgumentParser, *, listen: Sequence[str] = (), connect: Sequence[str] = ()
 ) -> None:
-    """Add ``--listen``, ``--connect`` (repeatable, comma lists allowed) and ``--zenoh-config``."""
-    g = parser.add_argument_group("zenoh")
-    g.add_argument(
-        "--listen",
-        action="append",
-        default=None,
-        metavar="ENDPOINT",
-        help=f"endpoint to listen on, e.g. tcp/127.0.0.1:7450; 'none' for none "
-        f"(default: {', '.join(listen) or 'none'})",
-    )
-    g.add_argument(
-        "--connect",
-        action="append",
-        default=None,
-        metavar="ENDPOINT",
-        help=f"endpoint to connect to (default: {', '.join(connect) or 'none'})",
-    )
-    g.add_argument(
-        "--zenoh-config",
-        default=None,
-        metavar="FILE",
-        help="a zenoh JSON5 config file instead (endpoints flags still override it)",
-    )
-    parser.set_defaults(_listen_default=list(listen), _connect_default=list(connect))
-
-
-def _endpoints(values: list[str] | None, default: list[str]) -> list[str]:
-    if values is None:
-        return list(default)
-    out: list[str] = []
-    for v in values:
-        out.extend(e.strip() for e in v.split(",") if e.strip() and e.strip() != "none")
-    return out
+    """The Zenoh flags (:func:`roger_daemon.zenoh_session.add_zenoh_args`) with the nodes'
+    defaults: a loopback peer, gossip on, a 2 s lease."""
+    add_session_args(parser, listen=listen, connect=connect, lease_ms=LEASE_MS, gossip=True)
 
 
 def config_from_args(args: argparse.Namespace) -> zenoh.Config:
     """The session config a command line asked for."""
-    listen = _endpoints(args.listen, args._listen_default)
-    connect = _endpoints(args.connect, args._connect_default)
-    if args.zenoh_config:
-        cfg = zenoh.Config.from_file(args.zenoh_config)
-        if args.listen is not None:
-            cfg.insert_json5("listen/endpoints", json.dumps(listen))
-        if args.connect is not None:
-            cfg.insert_json5("connect/endpoints", json.dumps(connect))
-        return cfg
-    return loopback_config(listen, connect)
-
-
-def open_session(cfg: zenoh.Config) -> zenoh.Session:
-    """Open a session (call after any fork)."""
-    return zenoh.open(cfg)
+    return zenoh_config(settings_from_args(args))
 
 
 def publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
@@ -151,12 +109,14 @@ class InvalidCounter:
         self.counts: Counter[str] = Counter()
 
     def add(self, reason: str, detail: str) -> None:
+        """Count one rejected payload of ``reason``; log the first (then every 1000th)."""
         self.counts[reason] += 1
         n = self.counts[reason]
         if n == 1 or n % 1000 == 0:
             log.warning("%s: invalid message #%d (%s): %s", self.name, n, reason, detail)
 
     def total(self) -> int:
+        """How many payloads were rejected."""
         return sum(self.counts.values())
 
 
@@ -217,7 +177,9 @@ class Inbox:
             pass
 
 
-def wait_for(poll: Callable[[], Any], timeout: float, stop: StopFlag | None = None) -> Any:
+def wait_for(
+    poll: Callable[[], T | None], timeout: float, stop: StopFlag | None = None
+) -> T | None:
     """Call ``poll`` until it returns non-``None`` or ``timeout`` seconds pass (then ``None``).
 
     Polls with a short backoff (50 us growing to 0.5 ms) so that a lockstep round trip costs

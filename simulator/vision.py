@@ -102,6 +102,7 @@ class RenderedVision(Vision):
         return np.reshape(np.asarray(out[4], dtype=np.int64), (self.cam.height, self.cam.width))
 
     def blobs(self) -> np.ndarray:
+        """``(6, 3)`` array of (x, y, size) per colour class, from the segmentation image."""
         inst = self.world.instances
         keys = tuple(i.body * 64 + (i.link + 1) for i in inst)
         if keys != self._lut_for:
@@ -251,6 +252,7 @@ class FastVision(Vision):
         )
 
     def blobs(self) -> np.ndarray:
+        """``(6, 3)`` array of (x, y, size) per colour class, from projected surface patches."""
         if tuple(i.body for i in self.world.instances) != self._static_for:
             self._prepare_static()
         eye, rot = self.world.camera_pose()

@@ -11,7 +11,7 @@ import pytest
 
 from roger_daemon.console import UsageError
 from roger_daemon.harness import Client, free_port
-from roger_daemon.launch import plan
+from simulator.launch import plan
 
 pytestmark = pytest.mark.integration
 

@@ -27,7 +27,7 @@ pytest.importorskip("foxglove")
 websockets_sync = pytest.importorskip("websockets.sync.client")
 pytest.importorskip("google.protobuf")
 
-from protocols import Action, Command, EpisodeEvent, Perception, Prediction, Status, encode, keys  # noqa: E402,E501
+from protocols import Action, Command, EpisodeEvent, Perception, Prediction, Status, encode, keys  # noqa: E402
 from protocols.aibo import ACTION_NAMES  # noqa: E402
 from protocols.messages import ExpertOutput  # noqa: E402
 from roger_daemon.config import ZenohSettings  # noqa: E402

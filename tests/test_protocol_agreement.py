@@ -97,7 +97,7 @@ def _watch(h: Harness, wal: _CountingWal) -> list[tuple[str, int, int]]:
     from protocols import decode
 
     seen: list[tuple[str, int, int]] = []
-    pubs = h.service._pubs["aibo"]
+    pubs = h.service.outbox.pubs["aibo"]
     for kind in ("prediction", "status"):
         inner = getattr(pubs, kind)
 

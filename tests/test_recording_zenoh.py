@@ -52,7 +52,7 @@ def test_roger_record_records_published_messages_and_finishes_on_sigterm(
     tmp_path: Path,
 ) -> None:
     port = _free_port()
-    err = open(tmp_path / "stderr.txt", "w")  # noqa: SIM115 - closed below
+    err = open(tmp_path / "stderr.txt", "w")  # closed below
     proc = subprocess.Popen(
         [sys.executable, "-m", "roger_daemon", "record", "--key", "roger/**", "--out",
          str(tmp_path / "logs"), "--listen", f"tcp/127.0.0.1:{port}", "--connect", "none",

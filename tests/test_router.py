@@ -27,7 +27,7 @@ class Router:
     def __init__(self, config: Path, port: int, log: Path) -> None:
         self.port = port
         self.log_path = log
-        self._log = open(log, "ab")  # noqa: SIM115 - closed in stop()
+        self._log = open(log, "ab")  # closed in stop()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "roger_daemon", "router", "--config", str(config),
              "--listen", f"tcp/127.0.0.1:{port}"],

@@ -48,7 +48,7 @@ class Deployment:
         creds.chmod(0o600)
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.router_log = tmp / "router.log"
-        self._log = open(self.router_log, "ab")  # noqa: SIM115 - closed in close()
+        self._log = open(self.router_log, "ab")  # closed in close()
         self.router = subprocess.Popen(
             [sys.executable, "-m", "roger_daemon", "router", "--config",
              str(SECURE / "router.json5"), "--listen", self.endpoint,

@@ -270,3 +270,27 @@ def test_config_file_overrides_and_rejects_unknown_keys(tmp_path) -> None:
     with pytest.raises(ConfigError, match="max_turn"):
         load_config(p)
     assert load_config("configs/aibo.toml") == CFG
+
+
+def test_episode_result_measures_the_robots_and_the_balls_path() -> None:
+    """``path_m`` is the robot's walked distance (the 'stands still' failure mode on both
+    paths), ``ball_path_m`` the ball's: standing gives ~0, walking 2 s at a command below the
+    limit gives speed x time within the ramp and the 5 % execution noise."""
+    sim = SoccerSim(replace(CFG, episode=replace(CFG.episode, time_limit=10.0)))
+    try:
+        sim.reset(0, seed=1)
+        for _ in range(30):
+            sim.step(_cmd())
+        still = sim.result()
+        assert still.path_m < 0.01 and still.to_map()["path_m"] == round(still.path_m, 3)
+        sim.reset(4, seed=1)
+        v = 0.5 * CFG.walk.max_forward
+        for _ in range(60):
+            sim.step(_cmd(fwd=v))
+        walked = sim.result()
+        # acceleration accel_factor x max_forward per second: v is reached after this long
+        ramp = v / (CFG.walk.accel_factor * CFG.walk.max_forward)
+        assert walked.path_m == pytest.approx(v * (2.0 - ramp / 2), rel=0.06)
+        assert walked.ball_path_m >= 0.0 and "ball_path_m" in walked.to_map()
+    finally:
+        sim.close()

@@ -77,6 +77,7 @@ def _pct(values: Any, q: float) -> float:
 
 
 def child_pids(pid: int) -> list[int]:
+    """The ids of ``pid``'s child processes (from ``/proc``; empty where that is unreadable)."""
     out: list[int] = []
     try:
         for task in os.listdir(f"/proc/{pid}/task"):
@@ -107,12 +108,9 @@ class FleetClient:
     def __init__(self, connect: str, robots: list[str]) -> None:
         import zenoh
 
-        cfg = zenoh.Config()
-        cfg.insert_json5("mode", '"peer"')
-        cfg.insert_json5("connect/endpoints", json.dumps([connect]))
-        cfg.insert_json5("listen/endpoints", "[]")
-        cfg.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(cfg)
+        from roger_daemon.zenoh_session import ZenohSettings, open_session
+
+        self.session = open_session(ZenohSettings(listen=(), connect=(connect,)))
         self.robots = robots
         self.sent: dict[str, dict[int, int]] = {r: {} for r in robots}
         self.preds: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}  # (recv, tick)
@@ -152,11 +150,13 @@ class FleetClient:
             self.status[got[0]].append((time.monotonic_ns(), got[1]))
 
     def perception(self, robot: str, tick: int, x: np.ndarray) -> None:
+        """Publish a perception for ``robot`` and note when it was sent."""
         self.sent[robot][tick] = time.monotonic_ns()
         self._pubs[(robot, "perception")].put(
             encode(Perception(robot, tick, tick / 30.0, x=x)))
 
     def action(self, robot: str, tick: int, y: np.ndarray, label: str) -> None:
+        """Publish an action (the demonstrator's answer) for ``robot``."""
         self._pubs[(robot, "action")].put(
             encode(Action(robot, tick, tick / 30.0, y=y, label=label)))
 
@@ -176,6 +176,7 @@ class FleetClient:
         raise TimeoutError("no status from every robot")
 
     def close(self) -> None:
+        """Close the Zenoh session."""
         self.session.close()
 
 

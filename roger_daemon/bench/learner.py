@@ -106,6 +106,7 @@ def _params(base: RogerParams, overrides: list[str]) -> RogerParams:
 
 
 def machine_info() -> dict[str, Any]:
+    """CPU, cores, load average, Python, numpy, platform and BLAS of this run."""
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as fh:

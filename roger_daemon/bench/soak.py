@@ -90,7 +90,7 @@ def _growth(samples: list[dict[str, Any]], key: str, t0: float) -> float:
     after = [s for s in samples if s["t_s"] >= t0]
     if len(after) < 2 or after[0][key] <= 0:
         return float("nan")
-    return 100.0 * (after[-1][key] - after[0][key]) / after[0][key]
+    return 100.0 * float(after[-1][key] - after[0][key]) / float(after[0][key])
 
 
 def _sample(daemon: DaemonProcess, fleet: FleetClient, t0: float) -> dict[str, Any]:

@@ -142,12 +142,12 @@ class SparseOnlineGP(SOGPSteps):
     # -- views of the live part ---------------------------------------------------------------
 
     @property
-    def B(self) -> FloatArray:  # noqa: N802 - the thesis' name
+    def B(self) -> FloatArray:
         """Basis-vector inputs (n, d_x)."""
         return self._B[: self.n]
 
     @property
-    def A(self) -> FloatArray:  # noqa: N802
+    def A(self) -> FloatArray:
         """Mean coefficients alpha (n, d_y), one column per output (of ``y - m``)."""
         return self._A[: self.n, : self.d_y]
 
@@ -157,12 +157,12 @@ class SparseOnlineGP(SOGPSteps):
         return self._m.copy()
 
     @property
-    def C(self) -> FloatArray:  # noqa: N802
+    def C(self) -> FloatArray:
         """Covariance coefficients (n, n), symmetric, negative-definite-ish."""
         return self._C[: self.n, : self.n]
 
     @property
-    def Q(self) -> FloatArray:  # noqa: N802
+    def Q(self) -> FloatArray:
         """Inverse Gram matrix ``K_B^{-1}`` (n, n)."""
         return self._Q[: self.n, : self.n]
 
@@ -300,7 +300,7 @@ class SparseOnlineGP(SOGPSteps):
         out.q_refreshes = self.q_refreshes
         return out
 
-    def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,  # noqa: N803
+    def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
              mean: FloatArray | None = None, gram: FloatArray | None = None) -> None:
         """Set the state from arrays (inverse of reading :attr:`B`, :attr:`A`, :attr:`C`, ...).

@@ -62,13 +62,13 @@ from roger_daemon.recording.replay import (
     save_checkpoint,
 )
 from roger_daemon.recording.schemas import schema, schema_bytes, schema_name
+from roger_daemon.recording.session_read import read_timeline
 from roger_daemon.recording.startup import CheckpointPosition, RecoveryPlan, plan_recovery
 from roger_daemon.recording.timeline import (
     LearnedPair,
     PairTracker,
     RecordedPrediction,
     Timeline,
-    read_timeline,
 )
 from roger_daemon.recording.writer import RecorderStats, SessionRecorder, header_fields
 

@@ -38,7 +38,8 @@ from protocols.messages import Dims
 from roger_daemon.recording import files as sfiles
 from roger_daemon.recording.mcapio import read_metadata
 from roger_daemon.recording.metadata import SessionInfo
-from roger_daemon.recording.timeline import LearnedPair, read_timeline
+from roger_daemon.recording.session_read import read_timeline
+from roger_daemon.recording.timeline import LearnedPair
 
 __all__ = ["CatchUp", "CatchUpError", "log_tail"]
 
@@ -116,41 +117,6 @@ class CatchUp:
         return self.pairs[len(queue_ticks):]
 
 
-def _sessions(source: str | Path | Iterable[str | Path], robot: str | None) -> list[list[Path]]:
-    if isinstance(source, str | Path) and Path(source).is_dir():
-        found = sfiles.list_session_files(source, robot=robot)
-        return [[sf.path for sf in g] for g in sfiles.group_sessions(found)]
-    paths = [Path(source)] if isinstance(source, str | Path) else [Path(p) for p in source]
-    parsed = [sfiles.parse_name(p) for p in paths]
-    if all(sf is not None for sf in parsed):
-        return [[sf.path for sf in g] for g in sfiles.group_sessions(
-            [sf for sf in parsed if sf is not None])]
-    # Unnamed files: group by the session id in their metadata, keeping the given order.
-    groups: dict[str, list[Path]] = {}
-    for p in paths:
-        try:
-            sid = read_metadata(p).get("session_id", "") or str(p)
-        except Exception:
-            sid = str(p)
-        groups.setdefault(sid, []).append(p)
-    return list(groups.values())
-
-
-def _session_id(path: Path) -> str:
-    sf = sfiles.parse_name(path)
-    if sf is not None:
-        return sf.session_id
-    try:
-        return read_metadata(path).get("session_id", "") or str(path)
-    except Exception:
-        return str(path)
-
-
-def _sort_key(session_id: str) -> tuple[str, int] | None:
-    sf = sfiles.parse_name(session_id + ".mcap")
-    return None if sf is None else (sf.stamp, sf.k)
-
-
 @dataclass
 class _Walk:
     """The history as the walk rebuilds it: ``history[i]`` has index ``base + i``; None marks
@@ -217,7 +183,7 @@ def _walk(
         if not w.started and i > first:
             break  # the checkpoint's session or segment is not in the logs
         parts = sessions[i]
-        sid = _session_id(parts[0])
+        sid = sfiles.session_id_of(parts[0])
         try:
             tl = read_timeline(parts, robot=robot, dims=dims, predictions=False)
         except Exception as exc:  # unreadable or unrelated file: report, go on without it
@@ -369,12 +335,12 @@ def log_tail(
         If the logs start after the checkpoint (a gap), end before it, disagree on its tick, or
         do not hold ``from_session``.
     """
-    sessions = _sessions(source, robot)
+    sessions = sfiles.sessions(source, robot)
     if not sessions:
         raise CatchUpError(f"no session logs in {source}", "no_logs")
     first = 0
     if from_session is not None:
-        ids = [_session_id(parts[0]) for parts in sessions]
+        ids = [sfiles.session_id_of(parts[0]) for parts in sessions]
         if from_session not in ids:
             raise CatchUpError(
                 f"session {from_session} is not among the logs ({len(ids)} found)",

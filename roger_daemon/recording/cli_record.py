@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     import zenoh
 
     from roger_daemon.recording import zenoh_net
+    from roger_daemon.zenoh_session import open_session, settings_from_args
 
     if args.out.exists() and not args.out.is_dir():
         print(f"roger record: --out {args.out} exists and is not a directory; expected a "
@@ -77,8 +78,7 @@ def run(args: argparse.Namespace) -> int:
         robot=robot, created_by="roger record", mode="learn+predict",
         extra={"record_key": args.key},
     )
-    cfg = zenoh_net.config_from_args(args)
-    session = zenoh.open(cfg)
+    session = open_session(settings_from_args(args))
     if not zenoh_net.reached(session, args, "roger record"):
         session.close()
         return 1

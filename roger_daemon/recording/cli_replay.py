@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
     if args.publish:
         if args.robot:
-            from roger_daemon.recording.timeline import robot_absent
+            from roger_daemon.recording.session_read import robot_absent
 
             if why := robot_absent(files, args.robot):
                 print(f"roger replay: {why}", file=sys.stderr)
@@ -122,7 +122,7 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
         replay_timeline,
         resume_timeline,
     )
-    from roger_daemon.recording.timeline import read_timeline
+    from roger_daemon.recording.session_read import read_timeline
 
     err = Console(stderr=True)
     params: dict[str, Any] | None = None
@@ -248,10 +248,10 @@ def _print_summary(s: dict[str, Any], res: Any) -> None:
 
 
 def _publish(args: argparse.Namespace, files: list[Path]) -> int:
-    import zenoh
 
     from roger_daemon.recording import zenoh_net
     from roger_daemon.recording.publish import publish_log
+    from roger_daemon.zenoh_session import open_session, settings_from_args
 
     stop = {"flag": False}
 
@@ -261,7 +261,7 @@ def _publish(args: argparse.Namespace, files: list[Path]) -> int:
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
     try:
-        with zenoh.open(zenoh_net.config_from_args(args)) as session:
+        with open_session(settings_from_args(args)) as session:
             if not zenoh_net.reached(session, args, "roger replay --publish"):
                 return 1
             st = publish_log(session, files, speed=args.speed, kinds=kinds, robot=args.robot,

@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import re
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+from roger_daemon.recording.mcapio import read_metadata
 
 __all__ = [
     "SessionFile",
@@ -22,6 +25,9 @@ __all__ = [
     "parse_name",
     "part_path",
     "session_id_for",
+    "session_id_of",
+    "session_order",
+    "sessions",
 ]
 
 _NAME = re.compile(
@@ -99,3 +105,44 @@ def group_sessions(files: list[SessionFile]) -> list[list[SessionFile]]:
     for sf in sorted(files):
         groups.setdefault(sf.session_id, []).append(sf)
     return list(groups.values())
+
+
+def sessions(source: str | Path | Iterable[str | Path], robot: str | None) -> list[list[Path]]:
+    """The sessions in ``source`` (a directory, or files), each its parts in order.
+
+    Files named otherwise are grouped by the session id in their metadata, in the given order.
+    """
+    if isinstance(source, str | Path) and Path(source).is_dir():
+        found = list_session_files(source, robot=robot)
+        return [[sf.path for sf in g] for g in group_sessions(found)]
+    paths = [Path(source)] if isinstance(source, str | Path) else [Path(p) for p in source]
+    parsed = [parse_name(p) for p in paths]
+    if all(sf is not None for sf in parsed):
+        return [[sf.path for sf in g] for g in group_sessions(
+            [sf for sf in parsed if sf is not None])]
+    # Unnamed files: group by the session id in their metadata, keeping the given order.
+    groups: dict[str, list[Path]] = {}
+    for p in paths:
+        try:
+            sid = read_metadata(p).get("session_id", "") or str(p)
+        except Exception:
+            sid = str(p)
+        groups.setdefault(sid, []).append(p)
+    return list(groups.values())
+
+
+def session_id_of(path: Path) -> str:
+    """The session id of a file: from its name, else its metadata, else its path."""
+    sf = parse_name(path)
+    if sf is not None:
+        return sf.session_id
+    try:
+        return read_metadata(path).get("session_id", "") or str(path)
+    except Exception:
+        return str(path)
+
+
+def session_order(session_id: str) -> tuple[str, int] | None:
+    """The key that sorts session ids in start order (``None`` for an unnamed session)."""
+    sf = parse_name(session_id + ".mcap")
+    return None if sf is None else (sf.stamp, sf.k)

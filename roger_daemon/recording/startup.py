@@ -33,9 +33,6 @@ from roger_daemon.recording.catchup import (
     CatchUpError,
     _assemble,
     _result,
-    _session_id,
-    _sessions,
-    _sort_key,
     _walk,
 )
 from roger_daemon.recording.metadata import SessionInfo
@@ -155,8 +152,9 @@ def _locate_checkpoint(plan: RecoveryPlan, sessions: list[list[Path]], ids: list
         first = ids.index(ck.session_id)
     elif ck.session_id:
         # The checkpoint's own log is gone: sessions started after it may still continue it.
-        key = _sort_key(ck.session_id)
-        later = [i for i, s in enumerate(ids) if key is not None and (_sort_key(s) or key) > key]
+        key = sfiles.session_order(ck.session_id)
+        later = [i for i, s in enumerate(ids)
+                 if key is not None and (sfiles.session_order(s) or key) > key]
         if not later:
             plan.summary = f"the checkpoint's session {ck.session_id} is not among the logs"
             return None
@@ -179,11 +177,11 @@ def _locate_checkpoint(plan: RecoveryPlan, sessions: list[list[Path]], ids: list
 
 def _plan(plan: RecoveryPlan, d: Path, robot: str, dims: Dims | None,
           ck: CheckpointPosition | None, crashed: set[str]) -> None:
-    sessions = _sessions(d, robot)
+    sessions = sfiles.sessions(d, robot)
     if not sessions:
         plan.summary = "no session logs"
         return
-    ids = [_session_id(parts[0]) for parts in sessions]
+    ids = [sfiles.session_id_of(parts[0]) for parts in sessions]
     if ck is None:
         _plan_without_checkpoint(plan, sessions, ids, robot, dims, crashed)
         return

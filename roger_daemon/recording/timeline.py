@@ -23,6 +23,9 @@ routing it, and each prediction and status as it publishes it):
 * **Predictions**: each recorded prediction is tied to the newest perception of its tick (its
   query) and to its ``updates`` (the model's ``n_learned`` when it was computed).
 
+:func:`~roger_daemon.recording.session_read.read_timeline` applies these rules to a session's
+files; this module holds the rules' data.
+
 The first segment starts at the metadata's ``start_updates`` (non-zero when the daemon resumed
 from a checkpoint); when that checkpoint held unlearned pairs (metadata
 ``restored_queued_pairs``), the model learned those first, so the session's own pairs start at
@@ -33,27 +36,13 @@ before learning it (assuming the learner rejected no pair).
 from __future__ import annotations
 
 from collections import Counter, OrderedDict
-from collections.abc import Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from protocols import keys as keyexpr
-from protocols.errors import ProtocolError
-from protocols.messages import (
-    Action,
-    Control,
-    Dims,
-    ExpertOutput,
-    Perception,
-    Prediction,
-    Status,
-    decode,
-)
-from roger_daemon.recording.events import decode_dropped, dropped_topic
-from roger_daemon.recording.mcapio import LogReader, topics_of
+from protocols.messages import Action, Dims, ExpertOutput, Perception
 from roger_daemon.recording.metadata import SessionInfo
 
 __all__ = [
@@ -63,7 +52,6 @@ __all__ = [
     "RecordedPrediction",
     "Segment",
     "Timeline",
-    "read_timeline",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -201,210 +189,3 @@ class Timeline:
     def resets(self) -> int:
         """Number of resets in the session."""
         return len(self.segments) - 1
-
-
-def _drop(tl: Timeline, seg: Segment, payload: bytes) -> None:
-    """Apply a drop record: the newest formed pair of its tick was never learned."""
-    try:
-        tick = decode_dropped(payload)
-    except ValueError:
-        tl.invalid["bad_drop_record"] += 1
-        return
-    for i in range(len(seg.pairs) - 1, -1, -1):
-        if seg.pairs[i].tick == tick:
-            del seg.pairs[i]
-            for j in range(i, len(seg.pairs)):  # renumber (normally nothing follows)
-                seg.pairs[j] = replace(seg.pairs[j], index=seg.first_index + j)
-            tl.dropped_recorded += 1
-            return
-    tl.dropped_unmatched += 1
-
-
-def _robot_for(info: SessionInfo, topics: Iterable[str], robot: str | None) -> str:
-    if robot:
-        return robot
-    if info.robot and info.robot not in ("*", "all"):
-        return info.robot
-    robots = set()
-    for t in topics:
-        try:
-            r, kind = keyexpr.parse(t)
-        except ProtocolError:
-            continue
-        if kind in ("perception", "action"):
-            robots.add(r)
-    if len(robots) == 1:
-        return robots.pop()
-    raise ValueError(
-        f"cannot tell which robot to replay: the log has {sorted(robots) or 'none'}; pass --robot"
-    )
-
-
-def read_timeline(
-    paths: Iterable[str | Path],
-    *,
-    robot: str | None = None,
-    dims: Dims | None = None,
-    mode: str | None = None,
-    start_updates: int | None = None,
-    predictions: bool = True,
-) -> Timeline:
-    """Read a session (its parts in order) into segments of learned pairs and predictions.
-
-    ``robot``, ``dims``, ``mode`` and ``start_updates`` override the metadata (needed for files
-    from ``roger record``, which has no learner metadata: dims then come from the first valid
-    perception and action). ``predictions=False`` skips the recorded predictions (log-tail
-    catch-up needs only the pairs; predictions are the costliest messages to decode).
-    """
-    files = [Path(p) for p in paths]
-    if not files:
-        raise ValueError("no files to read")
-    readers = [LogReader(p) for p in files]
-    # Metadata first (cheap: it is at the front of each file).
-    from roger_daemon.recording.mcapio import read_metadata
-
-    meta = read_metadata(files[0])
-    info = SessionInfo.from_metadata(meta)
-    if len(files) > 1:
-        ids = {read_metadata(p).get("session_id", "") for p in files}
-        if len(ids) > 1:
-            raise ValueError(f"these files belong to {len(ids)} sessions; replay one at a time "
-                             "(its parts in order)")
-    topics: set[str] = set()
-    if not robot and not (info.robot and info.robot not in ("*", "all")):
-        for r in readers:
-            for lm in LogReader(r.path).messages():
-                topics.add(lm.topic)
-    who = _robot_for(info, topics, robot)
-    dims = dims or info.dims
-    mode_now = mode or info.mode
-    start = info.start_updates if start_updates is None else start_updates
-    segments = [Segment(start_updates=start, after_reset=False,
-                        queued=info.restored_queued_pairs if start_updates is None else 0)]
-    tl = Timeline(
-        info=info,
-        robot=who,
-        dims=dims,
-        segments=segments,
-        files=files,
-        file_errors={},
-        incomplete_files=[],
-    )
-    tl.pair_window = info.pair_window or DEFAULT_PAIR_WINDOW
-    tracker = PairTracker(tl.pair_window)
-    recent: OrderedDict[int, Perception] = OrderedDict()  # newest perception per tick (queries)
-    last_dropped: int | None = None
-    want = {keyexpr.key(who, k): k
-            for k in ("perception", "action", "control", "prediction", "status")
-            if predictions or k != "prediction"}
-    drop_topic = dropped_topic(who)
-    dx = dims.x if dims else None
-    dy = dims.y if dims else None
-    for reader in readers:
-        for lm in reader.messages():
-            kind = want.get(lm.topic)
-            if kind is None:
-                if lm.topic == drop_topic:
-                    _drop(tl, segments[-1], lm.message.data)
-                continue
-            tl.messages += 1
-            try:
-                msg = decode(kind, lm.message.data, dims=Dims(dx, dy) if dx and dy else None,
-                             robot=who)
-            except ProtocolError as exc:
-                tl.invalid[exc.reason] += 1
-                continue
-            t_ns = lm.message.log_time
-            pair = None
-            if isinstance(msg, Perception):
-                if dx is None:
-                    dx = msg.x.size
-                elif msg.x.size != dx:
-                    tl.invalid["wrong_dimension"] += 1
-                    continue
-                recent[msg.tick] = msg
-                recent.move_to_end(msg.tick)
-                if len(recent) > 4 * tracker.max_pending:
-                    recent.popitem(last=False)
-                if mode_now in LEARNING_MODES:
-                    pair = tracker.perception(msg)
-                else:
-                    tl.ignored_not_learning += 1
-            elif isinstance(msg, Action):
-                if dy is None:
-                    dy = msg.y.size
-                elif msg.y.size != dy:
-                    tl.invalid["wrong_dimension"] += 1
-                    continue
-                if mode_now in LEARNING_MODES:
-                    pair = tracker.action(msg)
-                else:
-                    tl.ignored_not_learning += 1
-            elif isinstance(msg, Control):
-                if msg.op == "mode":
-                    mode_now = msg.mode
-                elif msg.op == "reset":
-                    segments.append(Segment(start_updates=0, after_reset=True))
-                    tracker = PairTracker(tl.pair_window)
-            elif isinstance(msg, Prediction):
-                q = recent.get(msg.tick)
-                if q is None:
-                    tl.predictions_without_query += 1
-                    continue
-                segments[-1].predictions.append(
-                    RecordedPrediction(
-                        tick=msg.tick,
-                        updates=msg.updates,
-                        x=q.x,
-                        mean=msg.mean,
-                        var=msg.var,
-                        expert=msg.expert,
-                        multimap=msg.multimap,
-                        mode=msg.mode,
-                        log_time_ns=t_ns,
-                    )
-                )
-            elif isinstance(msg, Status):
-                if last_dropped is not None and msg.dropped > last_dropped:
-                    tl.daemon_dropped += msg.dropped - last_dropped
-                last_dropped = msg.dropped
-            if pair is not None:
-                p, a = pair
-                seg = segments[-1]
-                seg.pairs.append(
-                    LearnedPair(
-                        index=seg.end_updates,
-                        tick=p.tick,
-                        x=p.x,
-                        y=a.y,
-                        label=a.label,
-                        log_time_ns=t_ns,
-                    )
-                )
-        if reader.error:
-            tl.file_errors[str(reader.path)] = reader.error
-        if not reader.complete:
-            tl.incomplete_files.append(str(reader.path))
-    if tl.dims is None and dx is not None and dy is not None:
-        tl.dims = Dims(dx, dy)
-    tl.unpaired = tracker.pending
-    if robot and tl.messages == 0 and not tl.file_errors:
-        raise ValueError(robot_absent(files, robot) or f"robot {robot!r}: nothing to replay")
-    return tl
-
-
-def robot_absent(files: Iterable[Path], robot: str) -> str:
-    """Why ``robot`` cannot be replayed from ``files`` ("" if it has messages there): the
-    message names the robots the log does have."""
-    robots = set()
-    files = list(files)
-    for f in files:
-        for t in topics_of(f):
-            try:
-                robots.add(keyexpr.parse(t)[0])
-            except ProtocolError:
-                continue
-    if robot in robots:
-        return ""
-    return (f"robot {robot!r} has no message in {', '.join(map(str, files))}; "
-            f"the log has robot(s) {sorted(robots) or 'none'} (--robot ID)")

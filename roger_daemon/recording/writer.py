@@ -266,7 +266,7 @@ class SessionRecorder:
 
     def _open_part(self, part: int) -> None:
         path = files.part_path(self._dir, self._session_id, part)
-        f = open(path, "xb")  # noqa: SIM115 - closed in _finish_part
+        f = open(path, "xb")  # closed in _finish_part
         w = Writer(
             f,
             chunk_size=self._chunk_size,

@@ -1,8 +1,8 @@
 """What the operator tools share: connecting, listening, decoding, printing.
 
-- :func:`add_connection_args` / :func:`settings_from_args`: ``--connect``, ``--zenoh-config``
-  and ``--timeout``, turned into the daemon's own :class:`~roger_daemon.config.ZenohSettings`
-  (one session setup for daemon and tools: :func:`roger_daemon.transport.open_session`);
+- :func:`add_connection_args` / :func:`settings_from_args`: the Zenoh flags of every process
+  (:mod:`roger_daemon.zenoh_session`: ``--connect``, ``--listen``, ``--zenoh-config``,
+  ``--zenoh-set``) and ``--timeout``;
 - :class:`Listener`: a subscriber whose callback only copies the sample onto a bounded queue
   (nothing of ours runs long on Zenoh's threads); the command's thread takes from it;
 - :func:`decode_sample`: a key ``roger/<robot>/<kind>`` and its payload as a plain map;
@@ -20,13 +20,12 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from protocols import decode, keys
 from protocols.errors import ProtocolError
-from roger_daemon.config import ZenohSettings
 from roger_daemon.console import UsageError
+from roger_daemon.zenoh_session import add_zenoh_args, settings_from_args
 
 __all__ = [
     "DEFAULT_CONNECT",
@@ -81,36 +80,18 @@ def port(text: str) -> int:
 
 
 def add_connection_args(parser: argparse.ArgumentParser, *, timeout: float = 5.0) -> None:
-    """``--connect`` (repeatable), ``--zenoh-config`` and ``--timeout``."""
-    g = parser.add_argument_group("zenoh")
-    g.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
-                   help=f"endpoint of the daemon (or router) to connect to; repeatable "
-                        f"(default: {DEFAULT_CONNECT})")
-    g.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
-                   help="a Zenoh JSON5 config file instead (--connect still overrides it)")
+    """The Zenoh flags (:func:`~roger_daemon.zenoh_session.add_zenoh_args`: a peer that listens
+    nowhere and connects to the daemon by default) and ``--timeout``."""
+    add_zenoh_args(parser, listen=(), connect=(DEFAULT_CONNECT,),
+                   connect_help="endpoint of the daemon (or router) to connect to")
     parser.add_argument("--timeout", type=seconds, default=timeout, metavar="S",
                         help=f"give up after this many seconds without an answer "
                              f"(default: {timeout:g})")
 
 
-def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
-    """A peer that listens nowhere, connects to ``--connect``, no multicast scouting."""
-    connect: list[str] = []
-    for value in args.connect or ([] if args.zenoh_config else [DEFAULT_CONNECT]):
-        connect += [e.strip() for e in value.split(",") if e.strip()]
-    if args.zenoh_config is not None and not args.zenoh_config.is_file():
-        raise UsageError(f"--zenoh-config: no such file: {args.zenoh_config}")
-    if args.zenoh_config is not None:
-        return ZenohSettings(config_file=args.zenoh_config, mode=None, listen=None,
-                             connect=tuple(connect) if args.connect else None,
-                             multicast_scouting=None)
-    return ZenohSettings(mode="peer", listen=(), connect=tuple(connect),
-                         multicast_scouting=False)
-
-
 def open_from_args(args: argparse.Namespace) -> Any:
     """The Zenoh session the command line asked for (``UsageError`` if it cannot open)."""
-    from roger_daemon.transport import open_session
+    from roger_daemon.zenoh_session import open_session
 
     settings = settings_from_args(args)
     try:
@@ -188,6 +169,7 @@ class Listener:
                     on_invalid(s, exc)
 
     def close(self) -> None:
+        """Undeclare the subscriber."""
         try:
             self._sub.undeclare()
         except Exception:  # already gone with the session

@@ -20,7 +20,6 @@ Controllers (all act on the 23-D perception only):
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -222,7 +221,8 @@ STILL_PATH_M = 0.3
 def failure_mode(outcome: str, counters: Mapping[str, int], path_m: float | None) -> str:
     """How an episode ended, in words a reader of the ablation table can use.
 
-    ``stands still`` (walked < 0.3 m; only known in-process), ``ball out`` / ``own goal``,
+    ``stands still`` (walked < 0.3 m, measured by the simulator on either path), ``ball out`` /
+    ``own goal``,
     ``never traps`` (no trap motion), ``traps fail`` (motions, no capture), ``kicks in place``
     (kick motions without a captured ball), ``no kick after trap`` and ``kicks, misses``.
     """
@@ -262,43 +262,16 @@ def _finite(y: np.ndarray, x: np.ndarray, counts: Counter[str]) -> np.ndarray:
     return hold_command(x)
 
 
-class _Tracking:
-    """Wraps a controller to measure the robot's and the ball's path (ground truth)."""
-
-    def __init__(self, inner: Any, sim: SoccerSim) -> None:
-        self.inner = inner
-        self.sim = sim
-        self.path = 0.0
-        self.ball_path = 0.0
-        self._last: tuple[float, float, float, float] | None = None
-
-    def reset(self) -> None:
-        self.inner.reset()
-        self.path = self.ball_path = 0.0
-        self._last = None
-
-    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
-        rx, ry, _ = self.sim.world.robot_pose()
-        bx, by, _ = self.sim.world.ball_position()
-        if self._last is not None:
-            self.path += math.hypot(rx - self._last[0], ry - self._last[1])
-            self.ball_path += math.hypot(bx - self._last[2], by - self._last[3])
-        self._last = (rx, ry, bx, by)
-        y, label = self.inner.act(x)
-        return y, label
-
-
 def evaluate(sim: SoccerSim, controller: Any, locations: Sequence[int], attempts: int,
              seed: int, starts: Sequence[StartLocation] | None = None,
              on_episode: Callable[[EpisodeRecord], None] | None = None) -> list[EpisodeRecord]:
     """``attempts`` episodes (repetitions 0..attempts-1) from each location, in order."""
-    tracked = _Tracking(controller, sim)
     out = []
     for loc in locations:
         for rep in range(attempts):
-            res = run_episode(sim, tracked, loc, seed, rep, start=_start(starts, loc))
+            res = run_episode(sim, controller, loc, seed, rep, start=_start(starts, loc))
             rec = EpisodeRecord(loc, rep, res.outcome, res.success, res.sim_time_s, res.ticks,
-                                dict(res.counters), tracked.path, tracked.ball_path)
+                                dict(res.counters), res.path_m, res.ball_path_m)
             out.append(rec)
             if on_episode is not None:
                 on_episode(rec)

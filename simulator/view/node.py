@@ -99,6 +99,7 @@ class Sinks:
         return ch
 
     def log(self, pairs: list[tuple[str, Any]], ns: int) -> None:
+        """Write ``(topic, message)`` pairs to the MCAP at log time ``ns``."""
         for topic, msg in pairs:
             self._channel(topic, msg).log(msg, log_time=ns)
 

@@ -30,7 +30,9 @@ def _protobuf_class(schema: Any) -> Any:
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
 
 
-def read_messages(path: Path, topics: set[str] | None = None) -> list[tuple[str, int, dict]]:
+def read_messages(
+    path: Path, topics: set[str] | None = None
+) -> list[tuple[str, int, dict[str, Any]]]:
     """``(topic, log_time_ns, message as a dict)`` for every message (of ``topics``)."""
     from google.protobuf.json_format import MessageToDict
     from mcap.reader import make_reader

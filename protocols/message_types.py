@@ -1,0 +1,304 @@
+"""The message types of the ROGER wire (frozen dataclasses), their limits, and ``encode``.
+
+The field tables live in ``protocols/README.md``; decoding and validation are in
+:mod:`protocols.decoding`; :mod:`protocols.messages` has both.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import msgpack
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "CONTROL_OPS",
+    "MAX_MAP_ENTRIES",
+    "MAX_MULTIMAP",
+    "MAX_STR",
+    "MAX_VECTOR",
+    "EPISODE_EVENTS",
+    "MAX_PAYLOAD_BYTES",
+    "MODES",
+    "SCHEMA_VERSION",
+    "Action",
+    "Command",
+    "Control",
+    "Dims",
+    "EpisodeEvent",
+    "ExpertOutput",
+    "Message",
+    "Perception",
+    "Prediction",
+    "Status",
+    "TYPES",
+    "FloatArray",
+    "as_vector",
+    "encode",
+    "now_ns",
+]
+
+SCHEMA_VERSION = 1
+MAX_PAYLOAD_BYTES = 64 * 1024
+MAX_VECTOR = 1024
+MAX_STR = 256
+MAX_MULTIMAP = 512
+MAX_MAP_ENTRIES = 64
+MODES = ("learn", "predict", "learn+predict", "pause")
+CONTROL_OPS = ("mode", "reset", "checkpoint")
+EPISODE_EVENTS = ("start", "goal", "own_goal", "out", "timeout", "end", "truth")
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def now_ns() -> int:
+    """The sender's wall clock for ``stamp_ns``."""
+    return time.time_ns()
+
+
+@dataclass(frozen=True)
+class Dims:
+    """Expected vector sizes: ``x`` perception, ``y`` action/command/prediction mean."""
+
+    x: int
+    y: int
+
+
+def as_vector(values: Any) -> FloatArray:
+    """``values`` as a read-only float64 vector."""
+    arr = np.array(values, dtype=np.float64).reshape(-1)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Message:
+    """Header shared by every message."""
+
+    robot: str
+    tick: int
+    t: float
+    stamp_ns: int = field(default_factory=now_ns, kw_only=True)
+
+    KIND: ClassVar[str] = ""
+
+    def header(self) -> dict[str, Any]:
+        """The header fields as a msgpack-ready map."""
+        return {
+            "v": SCHEMA_VERSION,
+            "robot": self.robot,
+            "tick": int(self.tick),
+            "t": float(self.t),
+            "stamp_ns": int(self.stamp_ns),
+        }
+
+    def body(self) -> dict[str, Any]:
+        """The kind-specific fields (overridden)."""
+        return {}
+
+    def to_map(self) -> dict[str, Any]:
+        """The whole message as a plain map (also what the JSON export writes)."""
+        return {**self.header(), **self.body()}
+
+
+@dataclass(frozen=True, eq=False)
+class Perception(Message):
+    """What the robot senses at ``tick``: ``x``, ``Dims.x`` floats."""
+
+    x: FloatArray
+
+    KIND: ClassVar[str] = "perception"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "x", as_vector(self.x))
+
+    def body(self) -> dict[str, Any]:
+        """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
+        return {"x": self.x.tolist()}
+
+
+@dataclass(frozen=True, eq=False)
+class Action(Message):
+    """The demonstrator's action for the perception of the same ``tick``, with its subtask label.
+
+    The label is ground truth for evaluation and for grouping experts; it never enters the learner.
+    """
+
+    y: FloatArray
+    label: str = ""
+
+    KIND: ClassVar[str] = "action"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "y", as_vector(self.y))
+
+    def body(self) -> dict[str, Any]:
+        """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
+        return {"y": self.y.tolist(), "label": self.label}
+
+
+@dataclass(frozen=True, eq=False)
+class Command(Message):
+    """What the robot is told to do at ``tick``; ``source`` names the controller."""
+
+    y: FloatArray
+    source: str = ""
+
+    KIND: ClassVar[str] = "command"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "y", as_vector(self.y))
+
+    def body(self) -> dict[str, Any]:
+        """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
+        return {"y": self.y.tolist(), "source": self.source}
+
+
+@dataclass(frozen=True, eq=False)
+class ExpertOutput:
+    """One expert of the MAP particle, as seen from one query perception."""
+
+    expert: int
+    p: float
+    mean: FloatArray
+    var: FloatArray
+    n: int
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", as_vector(self.mean))
+        object.__setattr__(self, "var", as_vector(self.var))
+
+    def to_map(self) -> dict[str, Any]:
+        """Plain map for msgpack/JSON."""
+        return {
+            "expert": int(self.expert),
+            "p": float(self.p),
+            "mean": self.mean.tolist(),
+            "var": self.var.tolist(),
+            "n": int(self.n),
+            "label": self.label,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Prediction(Message):
+    """The learner's answer for the perception of ``tick``.
+
+    ``mean``/``var`` are the chosen expert's predictive mean and variance (per output, in action
+    units); ``expert`` its id (-1 when the model has no expert yet); ``multimap`` every expert of
+    the MAP particle; ``latency_ms`` from perception receipt to publish; ``updates`` the number
+    of training pairs the model had learned when it computed this prediction (so that a replay
+    can recompute it from the same model state).
+    """
+
+    mean: FloatArray
+    var: FloatArray
+    expert: int
+    multimap: tuple[ExpertOutput, ...] = ()
+    latency_ms: float = 0.0
+    mode: str = "learn+predict"
+    updates: int = 0
+
+    KIND: ClassVar[str] = "prediction"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", as_vector(self.mean))
+        object.__setattr__(self, "var", as_vector(self.var))
+        object.__setattr__(self, "multimap", tuple(self.multimap))
+
+    def body(self) -> dict[str, Any]:
+        """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
+        return {
+            "mean": self.mean.tolist(),
+            "var": self.var.tolist(),
+            "expert": int(self.expert),
+            "multimap": [e.to_map() for e in self.multimap],
+            "latency_ms": float(self.latency_ms),
+            "mode": self.mode,
+            "updates": int(self.updates),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class EpisodeEvent(Message):
+    """An episode event from the simulator; ``data`` holds small named values (pose, location)."""
+
+    event: str
+    episode: int
+    data: Mapping[str, Any] = field(default_factory=dict)
+
+    KIND: ClassVar[str] = "episode"
+
+    def body(self) -> dict[str, Any]:
+        """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
+        return {"event": self.event, "episode": int(self.episode), "data": dict(self.data)}
+
+
+@dataclass(frozen=True, eq=False)
+class Status(Message):
+    """Daemon health for one robot, published at 1 Hz."""
+
+    daemon: str
+    mode: str
+    ticks: int
+    updates: int
+    updates_per_s: float
+    experts: int
+    queue_depth: int
+    dropped: int
+    invalid: Mapping[str, int] = field(default_factory=dict)
+    latency_ms_p50: float = 0.0
+    latency_ms_p99: float = 0.0
+    uptime_s: float = 0.0
+    info: Mapping[str, Any] = field(default_factory=dict)
+
+    KIND: ClassVar[str] = "status"
+
+    def body(self) -> dict[str, Any]:
+        """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
+        return {
+            "daemon": self.daemon,
+            "mode": self.mode,
+            "ticks": int(self.ticks),
+            "updates": int(self.updates),
+            "updates_per_s": float(self.updates_per_s),
+            "experts": int(self.experts),
+            "queue_depth": int(self.queue_depth),
+            "dropped": int(self.dropped),
+            "invalid": {str(k): int(v) for k, v in self.invalid.items()},
+            "latency_ms_p50": float(self.latency_ms_p50),
+            "latency_ms_p99": float(self.latency_ms_p99),
+            "uptime_s": float(self.uptime_s),
+            "info": dict(self.info),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Control(Message):
+    """A request to the daemon: ``op`` is ``mode`` (with ``mode``), ``reset`` or ``checkpoint``."""
+
+    op: str
+    mode: str = ""
+
+    KIND: ClassVar[str] = "control"
+
+    def body(self) -> dict[str, Any]:
+        """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
+        return {"op": self.op, "mode": self.mode}
+
+
+TYPES: dict[str, type[Message]] = {
+    cls.KIND: cls
+    for cls in (Perception, Action, Command, Prediction, EpisodeEvent, Status, Control)
+}
+
+
+def encode(msg: Message) -> bytes:
+    """Serialise a message to msgpack bytes."""
+    out: bytes = msgpack.packb(msg.to_map(), use_bin_type=True)
+    return out

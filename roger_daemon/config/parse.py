@@ -1,0 +1,290 @@
+"""Parse and validate the daemon's TOML document into a :class:`DaemonConfig`.
+
+One function per section (``[daemon]``, ``[learner]`` with ``[[robots]]``, ``[zenoh]``,
+``[checkpoint]``, ``[recording]``); layering and error form in :mod:`roger_daemon.config`.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from protocols.aibo import DIMS as AIBO_DIMS
+from protocols.messages import MODES
+from roger_daemon.config.settings import (
+    CLOCKS,
+    DEFAULT_PRESET,
+    MODELS,
+    PROFILES,
+    WORKERS,
+    ZENOH_MODES,
+    CheckpointConfig,
+    ConfigError,
+    DaemonConfig,
+    RecordingConfig,
+    RobotConfig,
+    ZenohSettings,
+)
+from roger_daemon.config.table import Table, bad, show
+
+__all__ = ["apply_overrides", "load_config", "parse_config"]
+
+
+_PARAM_NAME = re.compile(r"^([a-z_][a-z0-9_]*) ")
+
+
+def _learner_error(exc: Exception, prefix: str) -> ConfigError:
+    """Turn a learner ``ParameterError`` into a config error naming the TOML key."""
+    text = str(exc)
+    m = _PARAM_NAME.match(text)
+    if m and not text.startswith("unknown"):
+        return ConfigError(f"{prefix}.{m.group(1)}", f"{prefix}.{text}")
+    return ConfigError(prefix, f"{prefix}: {text}")
+
+
+def _learner_mapping(learner_table: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """``(preset name, RogerParams mapping)``: the preset's row, then the table's own keys."""
+    from roger_daemon.learner.params import PRESETS
+
+    table = dict(learner_table)
+    preset = table.pop("preset", DEFAULT_PRESET)
+    if not isinstance(preset, str) or preset not in PRESETS:
+        raise bad("learner.preset", "one of " + ", ".join(show(c) for c in PRESETS), preset)
+    return preset, {**PRESETS[preset], **table}
+
+
+def _profile_mapping(profile: str, x_dim: int, y_dim: int, key: str) -> dict[str, Any]:
+    """The scaling and input weights of a robot profile (``"aibo"``: ``protocols/AIBO.md``)."""
+    if profile == "none":
+        return {}
+    from protocols.aibo import ACTION_RANGES, PERCEPTION_RANGES, STATE_FREE_DIMS, range_scaling
+
+    if (x_dim, y_dim) != (AIBO_DIMS.x, AIBO_DIMS.y):
+        raise bad(key, f'"none" for a robot whose dimensions are not the AIBO\'s '
+                   f"({AIBO_DIMS.x}, {AIBO_DIMS.y}); x_dim, y_dim = {x_dim}, {y_dim}", profile)
+    x_offset, x_scale = range_scaling(PERCEPTION_RANGES)
+    y_offset, y_scale = range_scaling(ACTION_RANGES)
+    weights = [0.0 if i in STATE_FREE_DIMS else 1.0 for i in range(x_dim)]
+    return {"x_offset": list(x_offset), "x_scale": list(x_scale), "y_offset": list(y_offset),
+            "y_scale": list(y_scale), "input_weights": weights}
+
+
+def _robot_params(
+    learner_table: Mapping[str, Any], robot: Table, x_dim: int, y_dim: int, idx: str
+) -> tuple[str, Any]:
+    from roger_daemon.learner import ParameterError, RogerParams
+
+    preset, mapping = _learner_mapping(learner_table)
+    aibo = (x_dim, y_dim) == (AIBO_DIMS.x, AIBO_DIMS.y) and preset != "paper"
+    profile = robot.choice("profile", "aibo" if aibo else "none", PROFILES)
+    mapping.update(_profile_mapping(profile, x_dim, y_dim, robot.key("profile")))
+    scaling_keys: dict[str, str] = {}
+    for name, length in (("x_offset", x_dim), ("x_scale", x_dim),
+                         ("y_offset", y_dim), ("y_scale", y_dim), ("input_weights", x_dim)):
+        vec = robot.floats(name, length)
+        if vec is not None:
+            if name.endswith("scale") and any(e <= 0 for e in vec):
+                raise bad(robot.key(name), f"an array of {length} numbers > 0", list(vec))
+            if name == "input_weights" and (min(vec) < 0 or max(vec) <= 0):
+                raise bad(robot.key(name), f"an array of {length} numbers >= 0, not all 0",
+                          list(vec))
+            mapping[name] = list(vec)
+            scaling_keys[name] = robot.key(name)
+    try:
+        params = RogerParams.from_mapping(mapping)
+    except ParameterError as exc:
+        raise _learner_error(exc, "learner") from None
+    try:
+        params.check_dims(x_dim, y_dim)
+    except ParameterError as exc:
+        m = _PARAM_NAME.match(str(exc))
+        name = m.group(1) if m else ""
+        if name in scaling_keys:
+            raise ConfigError(scaling_keys[name], f"{idx}.{exc}") from None
+        raise _learner_error(exc, "learner") from None
+    return profile, params
+
+
+def _check_zenoh_file(path: Path) -> None:
+    import zenoh
+
+    try:
+        zenoh.Config.from_file(str(path))
+    except Exception as exc:  # zenoh raises ZError for unreadable or invalid files
+        raise ConfigError(
+            "zenoh.config_file",
+            f"zenoh.config_file must be a readable Zenoh JSON5 config, got {show(str(path))} "
+            f"({exc})",
+        ) from None
+
+
+def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> DaemonConfig:
+    """Validate a parsed TOML document into a :class:`DaemonConfig`."""
+    top = Table(dict(data), "")
+    daemon = _daemon_section(top.sub("daemon"))
+    learner_raw = top.raw("learner", {})
+    if not isinstance(learner_raw, dict):
+        raise bad("learner", "a table", learner_raw)
+    learner_table = dict(learner_raw)
+    robots = _robots(top, learner_table, daemon["seed"])
+    zenoh_settings = _zenoh_section(top.sub("zenoh"))
+    ckpt = _checkpoint_section(top.sub("checkpoint"))
+    recording = _recording_section(top.sub("recording"))
+    top.done()
+    return DaemonConfig(
+        **daemon, robots=tuple(robots), learner=MappingProxyType(dict(learner_table)),
+        zenoh=zenoh_settings, checkpoint=ckpt, recording=recording, source=source,
+    )
+
+
+def _daemon_section(d: Table) -> dict[str, Any]:
+    """The ``[daemon]`` table as :class:`DaemonConfig` keyword arguments."""
+    out: dict[str, Any] = {"id": d.ident("id", "roger"),
+                           "clock": d.choice("clock", "realtime", CLOCKS)}
+    out["rate_hz"] = rate_hz = d.number("rate_hz", 30.0)
+    if rate_hz > 1000:
+        raise bad("daemon.rate_hz", "a number > 0 and <= 1000", rate_hz)
+    out["status_hz"] = status_hz = d.number("status_hz", 1.0)
+    if status_hz > 100:
+        raise bad("daemon.status_hz", "a number > 0 and <= 100", status_hz)
+    out.update(
+        mode=d.choice("mode", "learn+predict", MODES),
+        queue_size=d.integer("queue_size", 256, lo=1),
+        pair_window=d.integer("pair_window", 64, lo=1),
+        seed=d.integer("seed", 0, lo=0),
+        count_unserved=d.boolean("count_unserved", True),
+        workers=d.choice("workers", "auto", WORKERS),
+        log_dir=d.path("log_dir", None),
+    )
+    d.done()
+    return out
+
+
+def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[RobotConfig]:
+    """The ``[[robots]]`` array (ids unique; each robot's learner parameters resolved)."""
+    robots_raw = top.raw("robots", [{"id": "aibo"}])
+    if not isinstance(robots_raw, list) or not robots_raw:
+        raise bad("robots", "a non-empty array of tables ([[robots]])", robots_raw)
+    robots: list[RobotConfig] = []
+    for i, raw in enumerate(robots_raw):
+        r = Table(raw, f"robots[{i}]")
+        rid = r.ident("id")
+        if any(o.id == rid for o in robots):
+            raise bad(r.key("id"), "unique among robots", rid)
+        x_dim = r.integer("x_dim", AIBO_DIMS.x, lo=1)
+        y_dim = r.integer("y_dim", AIBO_DIMS.y, lo=1)
+        model = r.choice("model", "roger", MODELS)
+        rseed = r.integer("seed", seed, lo=0)
+        profile, params = _robot_params(learner_table, r, x_dim, y_dim, f"robots[{i}]")
+        r.done()
+        robots.append(RobotConfig(rid, x_dim, y_dim, model, rseed, profile, params))
+    return robots
+
+
+def _zenoh_section(z: Table) -> ZenohSettings:
+    """The ``[zenoh]`` table (with a ``config_file``, unset keys are left to the file)."""
+    zfile = z.path("config_file", None)
+    zdefault = ZenohSettings() if zfile is None else ZenohSettings(None, None, None, None, None)
+    zmode = z.raw("mode", zdefault.mode)
+    if zmode is not None and zmode not in ZENOH_MODES:
+        raise bad("zenoh.mode", 'one of "peer", "client"', zmode)
+    listen_default = None if zmode == "client" else zdefault.listen
+    listen = z.strings("listen", listen_default)
+    connect = z.strings("connect", zdefault.connect)
+    mcast = z.raw("multicast_scouting", zdefault.multicast_scouting)
+    if mcast is not None and not isinstance(mcast, bool):
+        raise bad("zenoh.multicast_scouting", "true or false", mcast)
+    lease = z.raw("lease_ms", None)
+    if lease is not None and (isinstance(lease, bool) or not isinstance(lease, int) or lease < 100):
+        raise bad("zenoh.lease_ms", "an integer >= 100 (milliseconds)", lease)
+    z.done()
+    for ep_key, eps in (("zenoh.listen", listen), ("zenoh.connect", connect)):
+        for ep in eps or ():
+            if "/" not in ep:
+                raise bad(ep_key, 'an array of endpoints like "tcp/127.0.0.1:7447"',
+                          list(eps or ()))
+    if zmode == "client" and not connect and zfile is None:
+        raise bad("zenoh.connect", "at least one endpoint when zenoh.mode is \"client\"", [])
+    if zfile is not None:
+        _check_zenoh_file(zfile)
+    return ZenohSettings(zfile, zmode, listen, connect, mcast, lease)
+
+
+def _checkpoint_section(c: Table) -> CheckpointConfig:
+    """The ``[checkpoint]`` table."""
+    ckpt = CheckpointConfig(
+        dir=c.path("dir", CheckpointConfig.dir) or CheckpointConfig.dir,
+        every_updates=c.integer("every_updates", CheckpointConfig.every_updates, lo=0),
+        every_s=c.number("every_s", CheckpointConfig.every_s, lo=0.0, lo_open=False),
+        keep=c.integer("keep", CheckpointConfig.keep, lo=1),
+        on_shutdown=c.boolean("on_shutdown", True),
+        shutdown_learn_s=c.number("shutdown_learn_s", 1.0, lo=0.0, lo_open=False),
+        wal=c.boolean("wal", True),
+        wal_commit_ms=c.number("wal_commit_ms", 50.0),
+        max_bytes=c.integer("max_bytes", 0, lo=0),
+        max_age_days=c.number("max_age_days", 0.0, lo=0.0, lo_open=False),
+    )
+    if ckpt.wal_commit_ms > 50.0:
+        raise bad("checkpoint.wal_commit_ms", "a number in (0, 50] (milliseconds)",
+                  ckpt.wal_commit_ms)
+    if ckpt.shutdown_learn_s > 3.0:
+        raise bad("checkpoint.shutdown_learn_s", "a number in [0, 3] (seconds)",
+                  ckpt.shutdown_learn_s)
+    c.done()
+    return ckpt
+
+
+def _recording_section(rec: Table) -> RecordingConfig:
+    """The ``[recording]`` table."""
+    recording = RecordingConfig(
+        enabled=rec.boolean("enabled", True),
+        dir=rec.path("dir", RecordingConfig.dir) or RecordingConfig.dir,
+        max_bytes=rec.integer("max_bytes", 0, lo=0),
+        max_age_days=rec.number("max_age_days", 0.0, lo=0.0, lo_open=False),
+    )
+    rec.done()
+    return recording
+
+
+def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """Apply ``SECTION.KEY=VALUE`` overrides (VALUE in TOML syntax; bare words are strings)."""
+    out: dict[str, Any] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError("", f"override {item!r} must look like SECTION.KEY=VALUE")
+        dotted, text = item.split("=", 1)
+        parts = dotted.strip().split(".")
+        if len(parts) != 2 or not all(parts):
+            raise ConfigError(
+                dotted, f"override key {dotted!r} must be SECTION.KEY (e.g. daemon.clock)"
+            )
+        try:
+            value = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text
+        section = out.setdefault(parts[0], {})
+        if not isinstance(section, dict):
+            raise ConfigError(dotted, f"cannot override {dotted}: {parts[0]} is not a table")
+        section[parts[1]] = value
+    return out
+
+
+def load_config(path: str | Path | None, overrides: Sequence[str] = ()) -> DaemonConfig:
+    """Read, override and validate. ``path=None`` means all defaults (robot ``aibo``)."""
+    data: dict[str, Any] = {}
+    source = None
+    if path is not None:
+        source = Path(path)
+        try:
+            text = source.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError("", f"cannot read {source}: {exc.strerror or exc}") from None
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError("", f"{source} is not valid TOML: {exc}") from None
+    return parse_config(apply_overrides(data, overrides), source=source)

@@ -1,0 +1,152 @@
+"""Replay and checkpoints: start from a daemon checkpoint (:func:`load_checkpoint`,
+:func:`resume_timeline`) and save the replayed model as one (:func:`save_checkpoint`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.recording.replay_result import Model, ReplayError, ReplayResult
+from roger_daemon.recording.timeline import LearnedPair, Segment, Timeline
+
+__all__ = ["load_checkpoint", "resume_timeline", "save_checkpoint"]
+
+
+def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[str, Any]]:
+    """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.checkpoint``),
+    or from a plain ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles."""
+    from roger_daemon.learner import load_model
+
+    try:
+        from roger_daemon.checkpoint import CheckpointError, read_checkpoint
+    except ImportError:  # pragma: no cover - daemon package absent
+        read_checkpoint = None  # type: ignore[assignment]
+        CheckpointError = Exception  # type: ignore[assignment,misc]
+    if read_checkpoint is not None:
+        try:
+            ck = read_checkpoint(Path(path))
+        except CheckpointError:
+            ck = None
+        if ck is not None:
+            model: Model = load_model(ck.model)
+            d = ck.daemon
+            pairs: list[LearnedPair] = []
+            if "queue_ticks" in d:
+                vocab = [str(v) for v in d.get("label_vocab", np.zeros(0, "<U1")).tolist()]
+                start = int(model.n_learned)
+                for i, (x, y, code, tick) in enumerate(zip(
+                        d["queue_x"], d["queue_y"], d["queue_labels"], d["queue_ticks"],
+                        strict=True)):
+                    label = vocab[int(code)] if 0 <= int(code) < len(vocab) else ""
+                    pairs.append(LearnedPair(start + i, int(tick), np.array(x, dtype=float),
+                                             np.array(y, dtype=float), label, 0))
+            return model, pairs, dict(ck.meta)
+    with np.load(path, allow_pickle=False) as z:
+        state = {k: z[k] for k in z.files}
+    return load_model(state), [], {}
+
+
+def resume_timeline(
+    tl: Timeline,
+    files: Sequence[str | Path],
+    *,
+    learned: int,
+    meta: Mapping[str, Any],
+    queued: Sequence[LearnedPair] = (),
+) -> tuple[Timeline, list[str]]:
+    """The part of a session after a checkpoint taken *during* it (a crash's last checkpoint).
+
+    The result has one segment starting at ``learned``: the checkpoint's queued pairs and the
+    pairs logged after them (log-tail catch-up, checked against the checkpoint's last learned
+    tick), with the recorded predictions computed from that point on. Replay it with the
+    checkpoint's model as ``initial_model`` (no ``initial_pairs``: they are in the segment).
+    Returns the original timeline and a warning when the history restarted after the
+    checkpoint (a reset): that part replays without it.
+    """
+    from roger_daemon.recording.catchup import log_tail
+
+    same = str(meta.get("session_id", "") or "") == tl.info.session_id
+    counters = meta.get("counters", {}) if isinstance(meta.get("counters"), dict) else {}
+    last_tick = counters.get("last_learned_tick")
+    tail = log_tail(
+        list(files), learned=learned, robot=tl.robot, dims=tl.dims,
+        last_tick=last_tick if isinstance(last_tick, int) else None,
+        from_session=tl.info.session_id if same and tl.info.session_id else None,
+        segment=int(meta.get("session_segment", 0) or 0) if same else 0,
+        queue=queued,
+    )
+    if tail.fresh:
+        return tl, ["the session reset its model after the checkpoint: the model after the "
+                    "reset is replayed from a fresh model, without the checkpoint"]
+    k = int(meta.get("session_segment", 0) or 0) if same else len(tl.segments) - 1
+    k = min(max(k, 0), len(tl.segments) - 1)
+    preds = [p for p in tl.segments[k].predictions if p.updates >= learned]
+    seg = Segment(start_updates=learned, after_reset=False, pairs=list(tail.pairs),
+                  predictions=preds)
+    notes = list(tail.notes)
+    return replace(tl, segments=[seg]), notes
+
+
+def save_checkpoint(
+    res: ReplayResult,
+    directory: str | Path,
+    *,
+    base_vocab: Sequence[str] = (),
+    base_codes: Sequence[int] = (),
+    queued_labels: Sequence[str] = (),
+    keep: int = 5,
+) -> Path:
+    """Write the replayed model as a daemon checkpoint in ``directory`` (the daemon's
+    ``[checkpoint] dir``), so that ``roger daemon`` resumes from it.
+
+    ``base_vocab``/``base_codes`` are the labels of the pairs the initial model had learned
+    (a daemon checkpoint's ``label_vocab``/``label_codes``) and ``queued_labels`` those of its
+    queued pairs given as ``initial_pairs``; pairs without a known label get the empty label.
+    The checkpoint names the session and segment it stands at, so the daemon's start-up
+    recovery only re-learns what was logged after the replayed pairs.
+    """
+    from roger_daemon.checkpoint import write_checkpoint
+
+    if res.model is None:
+        raise ReplayError("nothing was replayed: no model to save")
+    if res.learn_errors:
+        raise ReplayError("the learner rejected some pairs; their labels cannot be lined up")
+    model = res.model
+    n = int(model.n_learned)
+    vocab = [str(v) for v in base_vocab]
+    index = {v: i for i, v in enumerate(vocab)}
+
+    def code(label: str) -> int:
+        if label not in index:
+            index[label] = len(vocab)
+            vocab.append(label)
+        return index[label]
+
+    own = [code(lab) for lab in [*queued_labels, *res.labels]][-n:] if n else []
+    earlier = n - len(own)  # pairs the initial model had learned
+    base = [int(c) for c in base_codes][:earlier]
+    codes = base + ([code("")] * (earlier - len(base)) if earlier > len(base) else []) + own
+    seg_no = len(res.timeline.segments) - 1
+    last = res.pairs[-1].tick if res.pairs else None
+    d = res.timeline.dims
+    assert d is not None
+    state = dict(model.state_dict())
+    daemon = {
+        "label_vocab": np.array(vocab, dtype=np.str_) if vocab else np.zeros(0, dtype="<U1"),
+        "label_codes": np.array(codes, dtype=np.int32),
+        "queue_x": np.zeros((0, d.x)), "queue_y": np.zeros((0, d.y)),
+        "queue_labels": np.zeros(0, dtype=np.int32), "queue_ticks": np.zeros(0, dtype=np.int64),
+    }
+    meta = {
+        "reason": "replay", "updates": n, "x_dim": d.x, "y_dim": d.y,
+        "model": res.model_kind, "seed": res.seed, "params": res.params,
+        "counters": {"last_learned_tick": last, "last_tick": last or 0},
+        "session_id": res.info.session_id, "session_segment": seg_no,
+        "replayed_from": [str(p) for p in res.files],
+    }
+    path, _ = write_checkpoint(Path(directory), res.robot, state, daemon, meta, keep=keep)
+    return path

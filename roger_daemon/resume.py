@@ -1,0 +1,290 @@
+"""Where each robot's model starts when the daemon starts.
+
+The newest valid checkpoint (unless ``--fresh``; :func:`load_robot`), then the write-ahead log
+after it (``checkpoint.wal``), then start-up self-recovery from the session logs when recording
+is on (:func:`recover_from_logs`: footer-less logs recovered, the pairs logged after the
+checkpoint re-learned unless the write-ahead log already restored them, a ``recovered``
+checkpoint written). :func:`start_robots` does all three for every configured robot.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from protocols.messages import Dims
+from roger_daemon.checkpoint import Checkpoint, CheckpointError, load_newest, write_checkpoint
+from roger_daemon.config import DaemonConfig, RobotConfig
+from roger_daemon.robot import RobotRuntime
+from roger_daemon.sdnotify import Notifier
+from roger_daemon.service import checkpoint_snapshot
+
+__all__ = [
+    "Resumed",
+    "build_robot",
+    "load_robot",
+    "make_model",
+    "model_meta",
+    "recover_from_logs",
+    "start_robots",
+]
+
+log = logging.getLogger(__name__)
+
+
+def make_model(robot: RobotConfig) -> Any:
+    """A fresh model for ``robot`` (the paper's ROGER or the unimap baseline)."""
+    from roger_daemon.learner import Roger, UnimapGP
+
+    cls = UnimapGP if robot.model == "unimap" else Roger
+    return cls(d_x=robot.x_dim, d_y=robot.y_dim, params=robot.params, seed=robot.seed)
+
+
+def model_meta(robot: RobotConfig) -> dict[str, Any]:
+    """The model part of a checkpoint's metadata: kind, seed and learner parameters."""
+    return {"model": robot.model, "seed": robot.seed, "params": robot.params.to_mapping()}
+
+
+def build_robot(cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool) -> tuple[RobotRuntime, str]:
+    """The runtime of one robot, resumed from its newest valid checkpoint unless ``fresh``."""
+    rt, ckpt = load_robot(cfg, robot, fresh=fresh)
+    return rt, "" if ckpt is None else str(ckpt.path)
+
+
+def load_robot(
+    cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool
+) -> tuple[RobotRuntime, Checkpoint | None]:
+    """The runtime of one robot and the checkpoint it resumed from (None: fresh model)."""
+    from roger_daemon.learner import load_model
+    from roger_daemon.learner.jit import warm_up
+
+    warm_up()  # the learner's compiled kernels now, not in the robot's first update
+    dims = Dims(robot.x_dim, robot.y_dim)
+    loaded: dict[str, Any] = {}
+
+    def accept(ck: Checkpoint) -> None:
+        if (ck.meta.get("x_dim"), ck.meta.get("y_dim")) != (robot.x_dim, robot.y_dim):
+            raise CheckpointError(
+                f"dimensions {ck.meta.get('x_dim')}/{ck.meta.get('y_dim')} do not match the "
+                f"config's {robot.x_dim}/{robot.y_dim}"
+            )
+        try:
+            loaded["model"] = load_model(ck.model)
+        except Exception as exc:  # the learner rejects a state it cannot continue from
+            raise CheckpointError(f"the learner cannot load its model state ({exc})") from None
+        if int(loaded["model"].n_learned) != len(ck.daemon.get("label_codes", ())):
+            raise CheckpointError("model and label counts disagree")
+
+    rt = RobotRuntime(robot.id, dims, None, lambda: make_model(robot), mode=cfg.mode,
+                      queue_size=cfg.queue_size, pair_window=cfg.pair_window)
+    ckpt = None if fresh else load_newest(cfg.checkpoint.dir, robot.id, accept)
+    if ckpt is None:
+        rt.model = make_model(robot)
+        return rt, None
+    rt.model = loaded["model"]
+    rt.restore(ckpt.daemon, ckpt.meta.get("counters", {}))
+    saved = ckpt.meta.get("params")
+    if saved is not None and saved != robot.params.to_mapping():
+        log.warning("%s: the checkpoint's learner parameters differ from the config's; "
+                    "continuing with the checkpoint's (use --fresh to start over with the "
+                    "config's)", robot.id)
+    log.info("%s: resumed from %s (%d updates, %d queued pairs, model %s)", robot.id, ckpt.path,
+             rt.updates, len(rt.queue), str(ckpt.meta.get("model_digest", ""))[:12])
+    return rt, ckpt
+
+
+@dataclass
+class Resumed:
+    """Where one robot's model stands in the history when its new session starts."""
+
+    checkpoint: str = ""  # the checkpoint file it resumed from ("" for a fresh model)
+    session: str | None = None  # that checkpoint's session ("" if it names none)
+    segment: int = 0
+    recovered_pairs: int = 0
+    recovered_from: tuple[str, ...] = ()
+
+
+def _position(ckpt: Checkpoint | None) -> Resumed:
+    if ckpt is None:
+        return Resumed("", "", 0)
+    return Resumed(str(ckpt.path), str(ckpt.meta.get("session_id", "") or ""),
+                   int(ckpt.meta.get("session_segment", 0) or 0))
+
+
+def _same_learner(robot: RobotConfig, info: Any) -> str:
+    """Why a logged fresh model differs from the config's ("" if it does not)."""
+    mine = json.loads(json.dumps(robot.params.to_mapping(), sort_keys=True))
+    if info.learner_params is not None and info.learner_params != mine:
+        return "its learner parameters differ from the config's"
+    if info.seed is not None and info.seed != robot.seed:
+        return f"its seed {info.seed} is not the config's {robot.seed}"
+    if info.model != robot.model:
+        return f"its model {info.model!r} is not the config's {robot.model!r}"
+    return ""
+
+
+def recover_from_logs(
+    cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime, ckpt: Checkpoint | None,
+    *, notifier: Notifier | None = None, model_meta: dict[str, Any] | None = None,
+    relearn: bool = True,
+) -> tuple[RobotRuntime, Resumed]:
+    """Start-up self-recovery of one robot, before its new session opens.
+
+    Recovers footer-less session logs, re-learns the pairs logged after the checkpoint's last
+    learned pair (after its queued pairs; see ``roger_daemon.recording.startup``), writes a
+    checkpoint (reason ``recovered``) and returns the runtime with where its model now stands.
+    Never raises: a bad log is reported and the checkpoint stands as it is.
+    With ``relearn=False`` (the write-ahead log already restored what was learned) only the
+    logs are repaired and checked.
+    """
+    from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
+    from roger_daemon.recording.timeline import LearnedPair
+
+    where = _position(ckpt)
+    pos = None
+    if ckpt is not None:
+        start = rt.updates
+        queue = tuple(LearnedPair(start + i, p.tick, p.x, p.y,
+                                  rt.vocab[p.label] if 0 <= p.label < len(rt.vocab) else "", 0)
+                      for i, p in enumerate(rt.queue))
+        pos = CheckpointPosition(
+            learned=start, session_id=where.session or "", segment=where.segment,
+            last_tick=rt.last_learned_tick, queue=queue, path=where.checkpoint)
+    plan = plan_recovery(cfg.recording.dir, robot.id, dims=rt.dims, checkpoint=pos)
+    for rep in plan.recovered:
+        if rep.output:
+            log.warning("%s: log %s had no footer (killed daemon): recovered in place, %d "
+                        "messages in %d chunks kept, %d bytes of unreadable tail dropped "
+                        "(original kept as %s.damaged)", robot.id, rep.source, rep.messages,
+                        rep.chunks, rep.bytes_dropped, Path(rep.source).name)
+    for note in plan.notes:
+        log.warning("%s: start-up recovery: %s", robot.id, note)
+    if not plan.newer or not relearn:
+        log.info("%s: start-up recovery: %s%s", robot.id, plan.summary,
+                 "" if relearn else " (not re-learned: the write-ahead log is the record of "
+                 "what was learned)")
+        return rt, where
+    if plan.fresh:
+        why = _same_learner(robot, plan.fresh_info) if plan.fresh_info is not None else ""
+        if why:
+            log.warning("%s: start-up recovery: the logs restart from a fresh model (%s) but "
+                        "%s; logs not used", robot.id, plan.summary, why)
+            return rt, where
+    if notifier is not None:
+        notifier.status(f"recovering {robot.id}: re-learning {len(plan.pairs)} pairs from the "
+                        "session logs")
+    base = ("a fresh model" if plan.fresh else
+            f"checkpoint {where.checkpoint} ({rt.updates} updates, {len(rt.queue)} queued pairs)")
+    try:
+        if plan.fresh:
+            rt.reset()
+        for p in plan.pairs:
+            rt.enqueue_recovered(p.x, p.y, p.label, p.tick)
+        while rt.queue:
+            rt.learn_one()
+    except Exception:
+        log.exception("%s: start-up recovery failed while re-learning; continuing from the "
+                      "checkpoint alone", robot.id)
+        again, ck2 = load_robot(cfg, robot, fresh=ckpt is None)
+        return again, _position(ck2)
+    rt.session_resets = 0
+    rt.recovered_pairs = len(plan.pairs)
+    rt.last_tick = max(rt.last_tick, plan.last_tick or 0)
+    files = sorted({Path(f).name for f in plan.files})
+    first = plan.pairs[0].tick if plan.pairs else "-"
+    log.warning("%s: start-up recovery: %s; re-learned %d pairs (ticks %s..%s) from %s on top "
+                "of %s: now %d updates, %d experts", robot.id, plan.summary, len(plan.pairs),
+                first, plan.last_tick if plan.pairs else "-", ", ".join(files) or "(no files)",
+                base, rt.updates, int(rt.model.n_experts))
+    session, segment = plan.position
+    try:
+        path, full = _write_recovered(cfg, rt, session, segment, {
+            **(model_meta or {}), "recovered_pairs": len(plan.pairs),
+            "recovered_from": list(plan.sessions)})
+    except Exception as exc:
+        log.error("%s: could not write the recovered checkpoint (%s); the new session "
+                  "records that it resumed from %s plus %d recovered pairs", robot.id, exc,
+                  where.checkpoint or "a fresh model", len(plan.pairs))
+        return rt, Resumed(where.checkpoint, session, segment, len(plan.pairs),
+                           tuple(plan.sessions))
+    log.info("%s: checkpoint %s written (recovered, %d updates, model %s)", robot.id, path,
+             rt.updates, str(full["model_digest"])[:12])
+    return rt, Resumed(str(path), session, segment, len(plan.pairs), tuple(plan.sessions))
+
+
+def start_robots(
+    cfg: DaemonConfig, *, fresh: bool, notifier: Notifier | None = None
+) -> tuple[dict[str, RobotRuntime], dict[str, Resumed]]:
+    """Every robot's runtime: newest checkpoint (unless ``fresh``), then the write-ahead log
+    after it (``checkpoint.wal``), then start-up recovery from the session logs (when
+    recording is on and not ``fresh``; re-learning from them only without the write-ahead
+    log)."""
+    robots: dict[str, RobotRuntime] = {}
+    where: dict[str, Resumed] = {}
+    for robot in cfg.robots:
+        robots[robot.id], ckpt = load_robot(cfg, robot, fresh=fresh)
+        where[robot.id] = _position(ckpt)
+        by_wal = False
+        if cfg.checkpoint.wal:
+            by_wal, where[robot.id] = _start_wal(cfg, robot, robots[robot.id], ckpt,
+                                                 fresh=fresh)
+        if cfg.recording.enabled and not fresh:
+            # Before the new session opens: an open session would cut the history it reads.
+            robots[robot.id], logs = recover_from_logs(
+                cfg, robot, robots[robot.id], ckpt, notifier=notifier,
+                model_meta=model_meta(robot), relearn=not by_wal)
+            if not by_wal:
+                where[robot.id] = logs
+    return robots, where
+
+
+def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
+               ckpt: Checkpoint | None, *, fresh: bool) -> tuple[bool, Resumed]:
+    """Replay the write-ahead log after the checkpoint and attach it to ``rt``.
+
+    Returns whether the log is the authority on what was learned (then the session logs are
+    not re-learned) and where the model now stands (the ``recovered`` checkpoint written
+    after a replay, which the new session names as its start).
+    """
+    from roger_daemon import wal
+
+    d = wal.wal_dir(cfg.checkpoint.dir, rt.robot)
+    seq = None if ckpt is None else ckpt.meta.get("wal_seq")
+    has_log = bool(wal.read_records(d)) if seq is None else True
+    rep = wal.start(rt, d, checkpoint_seq=seq if isinstance(seq, int) else None,
+                    replay=has_log and not fresh,
+                    fresh=fresh or (ckpt is None and not has_log))
+    if rep.pairs or rep.fresh:
+        rt.recovered_pairs = rep.pairs
+        log.warning("%s: start-up recovery: re-learned %d pairs (ticks %s..%s) and %d resets "
+                    "from the write-ahead log %s after %s: now %d updates", rt.robot,
+                    rep.pairs, rep.first_tick, rep.last_tick, rep.fresh, d,
+                    ckpt.path if ckpt is not None else "a fresh model", rt.updates)
+    if rep.stopped:
+        log.error("%s: write-ahead log %s: %s", rt.robot, d, rep.stopped)
+    where = _position(ckpt)
+    if rep.pairs or rep.fresh or rep.stopped:  # the recovered state, durable at once
+        try:
+            path, _ = _write_recovered(cfg, rt, where.session or "", where.segment,
+                                       {**model_meta(robot), "recovered_pairs": rep.pairs})
+            log.info("%s: checkpoint %s written (recovered, %d updates)", rt.robot, path,
+                     rt.updates)
+            where = Resumed(str(path), where.session, where.segment, rep.pairs)
+        except OSError as exc:
+            log.error("%s: could not write the recovered checkpoint (%s); the write-ahead "
+                      "log still holds the pairs", rt.robot, exc)
+    return has_log and not fresh, where
+
+
+def _write_recovered(cfg: DaemonConfig, rt: RobotRuntime, session: str, segment: int,
+                     extra: dict[str, Any]) -> tuple[Path, dict[str, Any]]:
+    """Write ``rt`` as a checkpoint of reason ``recovered`` standing at ``session``/``segment``."""
+    model, daemon, meta = checkpoint_snapshot(
+        rt, "recovered", daemon_id=cfg.id, created_unix_ns=time.time_ns(), session_id=session,
+        session_segment=segment, extra=extra)
+    return write_checkpoint(cfg.checkpoint.dir, rt.robot, model, daemon, meta,
+                            **cfg.checkpoint.limits())

@@ -1,0 +1,100 @@
+"""Answering perceptions with predictions: lockstep at once, realtime on the clock's tick.
+
+Inline, the loop's thread predicts after committing the robot's write-ahead log (a prediction
+acknowledges what it reports); with learner worker processes the worker predicts and the loop
+publishes its replies (:func:`worker_predictions`). These functions are parts of
+:class:`~roger_daemon.service.loop.Service`'s loop and use its state.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+from protocols.messages import Perception, Prediction, decode
+from roger_daemon.robot import RobotRuntime
+
+if TYPE_CHECKING:
+    from roger_daemon.service.loop import Service
+
+__all__ = ["answer_lockstep", "on_timer", "publish_prediction", "worker_predictions"]
+
+log = logging.getLogger(__name__)
+
+
+def answer_lockstep(svc: Service) -> None:
+    """Lockstep: learn every complete pair first, then answer the perceptions just drained.
+
+    So prediction(t+1) includes pair t whenever action(t) arrived before perception(t+1),
+    which is the causal order of a lock-stepped simulator (deterministic runs).
+    """
+    answer, svc._answer = svc._answer, []
+    for rt in {id(a[0]): a[0] for a in answer}.values():
+        if svc.learners is not None:
+            svc.learners.learn_all(rt)
+        while rt.learning and rt.queue:
+            rt.learn_one()
+    for rt, msg, recv_ns in answer:
+        publish_prediction(svc, rt, msg, recv_ns)
+
+
+def publish_prediction(svc: Service, rt: RobotRuntime, perc: Perception, recv_ns: int) -> None:
+    """Answer ``perc``: inline (WAL committed first), or by the robot's learner worker."""
+    if svc.learners is not None:  # answered in worker_prediction
+        svc.learners.predict(rt, perc, recv_ns, skip_busy=svc._realtime)
+        return
+    svc._commit(rt)  # acknowledged means durable: the updates it reports are on disk
+    try:
+        pred = rt.predict(perc, recv_ns, svc.clock.monotonic_ns)
+    except Exception as exc:  # prediction only reads the model: skip it, keep serving
+        rt.predict_errors += 1
+        if rt.predict_errors == 1:
+            log.exception("%s: prediction for tick %d failed (%s); further failures are "
+                          "only counted", rt.robot, perc.tick, exc)
+        return
+    svc.outbox.prediction(rt.robot, pred)
+    svc.stats.published += 1
+
+
+def worker_predictions(svc: Service, batch: Sequence[tuple[Any, ...]]) -> None:
+    """Publish predictions learner workers computed: ``(rt, reply, perception,
+    receipt ns)`` each. Every pair they count was bookkept before their replies arrived:
+    commit the robots' logs (in parallel), then publish."""
+    svc._commit_all({id(b[0]): b[0] for b in batch}.values())
+    for rt, reply, perc, recv_ns in batch:
+        _worker_prediction(svc, rt, reply, perc, recv_ns)
+
+
+def _worker_prediction(svc: Service, rt: RobotRuntime, reply: dict[str, Any], perc: Perception,
+                       recv_ns: int) -> None:
+    if not reply.get("ok"):
+        rt.predict_errors += 1
+        if rt.predict_errors == 1:
+            log.error("%s: prediction for tick %d failed in the worker (%s); further "
+                      "failures are only counted", rt.robot, perc.tick, reply.get("error"))
+        return
+    svc._commit(rt)
+    msg = decode("prediction", reply["pred"], dims=rt.dims, robot=rt.robot)
+    assert isinstance(msg, Prediction)
+    latency_ms = (svc.clock.monotonic_ns() - recv_ns) / 1e6
+    rt.predict_ms.add(float(reply["ms"]))
+    rt.latency.add(latency_ms)
+    pred = replace(msg, latency_ms=latency_ms, mode=rt.mode, stamp_ns=svc.clock.time_ns())
+    svc.outbox.prediction(rt.robot, pred)
+    svc.stats.published += 1
+
+
+def on_timer(svc: Service, now: int) -> None:
+    """Realtime tick: predict for the newest perception of every predicting robot."""
+    published = False
+    for rt in svc.robots.values():
+        if rt.predicting and rt.newest is not None and not svc._stopping:
+            perc, recv_ns = rt.newest
+            publish_prediction(svc, rt, perc, recv_ns)
+            published = True
+    svc._learned_since_tick = False
+    if svc.learners is not None:
+        svc.learners.new_tick()
+    svc.schedule.fired(now, published)

@@ -1,0 +1,202 @@
+"""Checkpoints of the served robots: when they are due, writing them, rotating the WAL.
+
+A checkpoint is a copy of one robot's arrays (:func:`checkpoint_snapshot`) written by a
+background thread (:class:`Checkpoints`; on the loop thread in unit tests). After a durable
+checkpoint the robot's write-ahead log starts a new segment and drops the segments the previous
+checkpoint covers.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.checkpoint import write_checkpoint
+from roger_daemon.config import CheckpointConfig
+from roger_daemon.robot import Pair, RobotRuntime
+from roger_daemon.service.clock import Clock
+
+__all__ = ["CheckpointState", "Checkpoints", "Snapshot", "checkpoint_snapshot"]
+
+log = logging.getLogger(__name__)
+
+#: (model arrays, daemon arrays, metadata) of one robot
+Snapshot = tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]
+
+
+def checkpoint_snapshot(
+    rt: RobotRuntime, reason: str, *, daemon_id: str, created_unix_ns: int,
+    session_id: str, session_segment: int, extra: dict[str, Any] | None = None,
+    model_state: Mapping[str, np.ndarray] | None = None, ahead: Sequence[Pair] = (),
+) -> Snapshot:
+    """(model arrays, daemon arrays, metadata) of one robot, copied (safe to write later).
+
+    ``model_state``: the model's ``state_dict`` when a worker process sent it (else it is
+    taken from ``rt.model``); ``ahead``: pairs in flight to that worker, saved queued.
+
+    ``session_id``/``session_segment`` say where in the session logs the model stands (the
+    recorder's session and the number of resets in it; ``""`` without recording): start-up
+    recovery reads the log tail from there (with ``counters.last_learned_tick`` to check it).
+    """
+    if model_state is None:
+        model = {k: np.array(v, copy=True) for k, v in rt.model.state_dict().items()}
+    else:  # a worker's state: already this snapshot's own arrays
+        model = dict(model_state)
+    meta: dict[str, Any] = {
+        "created_unix_ns": created_unix_ns,
+        "reason": reason,
+        "daemon": daemon_id,
+        "updates": rt.updates,
+        "x_dim": rt.dims.x,
+        "y_dim": rt.dims.y,
+        "counters": rt.counters(),
+        "session_id": session_id,
+        "session_segment": session_segment,
+        # the write-ahead log's last record reflected in this snapshot (None: no log)
+        "wal_seq": None if rt.wal is None else rt.wal.last_seq,
+    }
+    if extra:
+        meta.update(extra)
+    return model, rt.daemon_arrays(ahead), meta
+
+
+@dataclass
+class CheckpointState:
+    """One robot's checkpoint bookkeeping (shown in its status)."""
+
+    generation: int = 0
+    time_ns: int = 0
+    path: str = ""
+    updates: int = 0
+    digest: str = ""
+    written: int = 0
+    errors: int = 0
+    in_flight: Future[tuple[Path, dict[str, Any]]] | None = None
+    in_flight_gen: int = 0
+    wal_seq: int | None = None  # of the newest checkpoint written in this life
+
+
+class Checkpoints:
+    """When each robot's checkpoint is due, and writing it (``sync``: on the caller's thread).
+
+    ``snapshot(rt, reason, model_state, ahead)`` copies what a checkpoint holds.
+    """
+
+    def __init__(
+        self, config: CheckpointConfig, robots: Mapping[str, RobotRuntime], clock: Clock,
+        snapshot: Callable[[RobotRuntime, str, Mapping[str, np.ndarray] | None,
+                            Sequence[Pair]], Snapshot],
+        *, sync: bool,
+    ) -> None:
+        self.config = config
+        self.robots = robots
+        self.clock = clock
+        self._snapshot = snapshot
+        self._sync = sync
+        self.state = {r: CheckpointState() for r in robots}
+        self._writer: ThreadPoolExecutor | None = None
+        #: set at shutdown: a failure from then on means the final checkpoints failed
+        self.stopping = False
+        self.final_ok = True
+
+    def start(self, now: int) -> None:
+        """The models as loaded count as checkpointed; start the writer thread."""
+        for rt in self.robots.values():
+            st = self.state[rt.robot]
+            st.generation, st.time_ns, st.updates = rt.generation, now, rt.updates
+        if not self._sync:
+            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roger-ckpt")
+
+    def due(self, now: int) -> Iterator[RobotRuntime]:
+        """The robots whose periodic checkpoint is due (none in flight, something learned)."""
+        c = self.config
+        for rt in self.robots.values():
+            st = self.state[rt.robot]
+            if st.in_flight is not None or rt.generation == st.generation:
+                continue
+            by_updates = c.every_updates > 0 and rt.generation - st.generation >= c.every_updates
+            by_time = c.every_s > 0 and now - st.time_ns >= c.every_s * 1e9
+            if by_updates or by_time:
+                yield rt
+
+    def up_to_date(self, rt: RobotRuntime) -> bool:
+        """Whether the newest checkpoint holds everything ``rt`` learned and queued."""
+        return rt.generation == self.state[rt.robot].generation and not rt.queue
+
+    def write(self, rt: RobotRuntime, reason: str,
+              model_state: Mapping[str, np.ndarray] | None, *,
+              ahead: Sequence[Pair] = (), sync: bool = False) -> None:
+        """Checkpoint ``rt`` (with the model state a worker sent, if given)."""
+        st = self.state[rt.robot]
+        model, daemon, meta = self._snapshot(rt, reason, model_state, ahead)
+        c = self.config
+        st.time_ns = self.clock.monotonic_ns()
+        gen = rt.generation
+        if sync or self._writer is None:
+            if st.in_flight is not None:
+                self.collect(wait=True)
+            try:
+                path, full = write_checkpoint(c.dir, rt.robot, model, daemon, meta, **c.limits())
+            except Exception as exc:
+                self._failed(rt.robot, exc)
+                return
+            self._done(rt.robot, gen, path, full)
+            return
+        if st.in_flight is not None:
+            return
+        st.in_flight = self._writer.submit(
+            write_checkpoint, c.dir, rt.robot, model, daemon, meta, **c.limits()
+        )
+        st.in_flight_gen = gen
+
+    def collect(self, wait: bool = False) -> None:
+        """Book the background writes that finished (``wait``: all of them)."""
+        for robot, st in self.state.items():
+            fut = st.in_flight
+            if fut is None or not (wait or fut.done()):
+                continue
+            st.in_flight = None
+            try:
+                path, meta = fut.result()
+            except Exception as exc:
+                self._failed(robot, exc)
+                continue
+            self._done(robot, st.in_flight_gen, path, meta)
+
+    def close(self) -> None:
+        """Wait for the writer thread to finish."""
+        if self._writer is not None:
+            self._writer.shutdown(wait=True)
+
+    def _rotate_wal(self, robot: str, meta: dict[str, Any]) -> None:
+        """After a durable checkpoint: new log segment; drop the segments the previous
+        checkpoint covers (one checkpoint's worth of log is kept in case the newest fails)."""
+        rt = self.robots[robot]
+        st = self.state[robot]
+        if rt.wal is None or not isinstance(meta.get("wal_seq"), int):
+            return
+        rt.wal.rotate()
+        if st.wal_seq is not None:
+            rt.wal.prune(st.wal_seq)
+        st.wal_seq = int(meta["wal_seq"])
+
+    def _done(self, robot: str, gen: int, path: Path, meta: dict[str, Any]) -> None:
+        st = self.state[robot]
+        self._rotate_wal(robot, meta)
+        st.generation, st.path, st.updates = gen, str(path), int(meta["updates"])
+        st.digest = str(meta["model_digest"])
+        st.written += 1
+        log.info("%s: checkpoint %s written (%s, %d updates, model %s)", robot, path,
+                 meta.get("reason", ""), st.updates, st.digest[:12])
+
+    def _failed(self, robot: str, exc: BaseException) -> None:
+        self.state[robot].errors += 1
+        if self.stopping:
+            self.final_ok = False
+        log.error("%s: checkpoint failed: %s", robot, exc)

@@ -1,0 +1,393 @@
+"""The service loop: one thread owns every model; timers are events of the same loop.
+
+Each cycle of :meth:`Service.step`:
+
+1. wait on the :class:`~roger_daemon.transport.Inbox` until the next deadline (at most
+   ``max_wait_s``; zero when there is learning to do), then drain what is there: decode,
+   validate, count rejects by reason, record, route (perception, action, control);
+   in lockstep mode every perception drained is answered at once, after learning the pairs
+   already complete (so prediction(t+1) includes pair t when action(t) came first);
+2. realtime mode: if the 30 Hz deadline has passed, publish a prediction for the newest
+   perception of every predicting robot and measure the period;
+3. learn one queued pair (round robin over robots) if the estimated learning time fits before
+   the next deadline, or nothing was learned since the last tick (so learning always
+   progresses);
+4. status at ``status_hz``, periodic checkpoints (written by a background thread from copied
+   arrays), recorder ``poll``, systemd watchdog ping.
+
+The parts, one module each: :mod:`.intake` (admission and rejects), :mod:`.answers`
+(predictions), :mod:`.schedule` (the realtime tick), :mod:`.status`, :mod:`.outbox`
+(publishing), :mod:`.checkpoints`, :mod:`.recording` and :mod:`.shutdown`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from protocols import keys
+from protocols.messages import (
+    Action,
+    Control,
+    Perception,
+    Status,
+)
+from roger_daemon.config import DaemonConfig
+from roger_daemon.health import LOG_LEVEL_OF, Health
+from roger_daemon.robot import Pair, RobotRuntime
+from roger_daemon.sdnotify import Notifier
+from roger_daemon.service.answers import (
+    answer_lockstep,
+    on_timer,
+    worker_predictions,
+)
+from roger_daemon.service.checkpoints import Checkpoints, Snapshot, checkpoint_snapshot
+from roger_daemon.service.clock import Clock, RealClock
+from roger_daemon.service.intake import Admission
+from roger_daemon.service.outbox import Outbox
+from roger_daemon.service.recording import Recorder, Recorders
+from roger_daemon.service.schedule import LoopStats, TickSchedule
+from roger_daemon.service.shutdown import abort, shutdown
+from roger_daemon.service.status import invalid_counts, robot_status
+from roger_daemon.transport import Inbox, Incoming, Transport
+
+__all__ = ["Service"]
+
+log = logging.getLogger(__name__)
+
+_MS = 1_000_000
+MAX_DRAIN_PER_STEP = 512  # inbox items handled per loop cycle
+
+
+class Service:
+    """The daemon's loop over one transport and a set of robots.
+
+    Parameters
+    ----------
+    config
+        The validated configuration.
+    transport
+        Zenoh, or :class:`~roger_daemon.transport.MemoryTransport` in unit tests.
+    robots
+        One :class:`RobotRuntime` per served robot, models already loaded or resumed.
+    notifier
+        systemd notify; a no-op one is used when ``None``.
+    recorders
+        Per robot id, an object with ``write``/``poll``/``close`` (optional).
+    clock
+        Time sources (a fake in unit tests).
+    sync_checkpoints
+        Write checkpoints on the loop thread (unit tests) instead of the writer thread.
+    resumed
+        Per robot id, the checkpoint path it resumed from (shown in status).
+    """
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        transport: Transport,
+        robots: Mapping[str, RobotRuntime],
+        *,
+        notifier: Notifier | None = None,
+        recorders: Mapping[str, Recorder] | None = None,
+        clock: Clock | None = None,
+        sync_checkpoints: bool = False,
+        resumed: Mapping[str, str] | None = None,
+        checkpoint_meta: Callable[[RobotRuntime], dict[str, Any]] | None = None,
+        learners: Any = None,
+    ) -> None:
+        self.config = config
+        self.transport = transport
+        self.robots = dict(robots)
+        self.notifier = notifier or Notifier(None)
+        self.recorders = Recorders(recorders or {}, config.recording)
+        self.admission = Admission(self.robots, self.recorders,
+                                   count_unserved=config.count_unserved)
+        self.clock: Clock = clock or RealClock()
+        self.inbox = Inbox(max(4 * config.queue_size, 1024))
+        self.stats = LoopStats()
+        self.resumed = dict(resumed or {})
+        self._checkpoint_meta = checkpoint_meta
+        self.checkpoints = Checkpoints(config.checkpoint, self.robots, self.clock, self._snapshot,
+                                       sync=sync_checkpoints)
+        self.outbox = Outbox(self.recorders, self.clock)
+        self.schedule = TickSchedule(int(round(1e9 / config.rate_hz)), self.stats)
+        self._commit_ns = int(config.checkpoint.wal_commit_ms * _MS)
+        self._status_period_ns = int(round(1e9 / config.status_hz))
+        self._realtime = config.clock == "realtime"
+        self._learned_since_tick = False
+        self._learn_est_ns = 0
+        self._rr = 0
+        self._next_status = 0
+        self.started_ns = 0
+        self._stop = False
+        self._stopping = False
+        self._answer: list[tuple[RobotRuntime, Perception, int]] = []
+        # roger_daemon.learners.ProcessLearners: the models live in worker processes
+        self.learners = learners
+        self._committer: ThreadPoolExecutor | None = None
+        self.health = {r: Health() for r in self.robots}
+        # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
+        self.acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
+
+    # --- life cycle ----------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Declare publishers, subscribers and the liveliness token; then READY=1."""
+        now = self.clock.monotonic_ns()
+        self.started_ns = now
+        self.outbox.declare(self.transport, self.robots)
+        # One subscriber (one callback thread) for everything: samples from one sender keep
+        # their order (action(t) before perception(t+1)), which lockstep determinism needs.
+        self.transport.subscribe(keys.everything(), self.inbox.put)
+        self.transport.declare_token(keys.daemon_liveliness(self.config.id))
+        self.checkpoints.start(now)
+        if self.learners is not None:
+            self.learners.attach(self, self.inbox.wake)
+            # fdatasync releases the GIL: the robots' logs commit side by side
+            self._committer = ThreadPoolExecutor(max_workers=min(8, len(self.robots)),
+                                                 thread_name_prefix="roger-wal")
+        self.schedule.start(now)
+        self._next_status = now + self._status_period_ns
+        for rt in self.robots.values():  # the baseline that health changes are judged from
+            self.health[rt.robot].assess(self.status_of(rt, now).to_map(), now)
+        summary = ", ".join(
+            f"{r.robot} ({r.mode}, {r.updates} updates)" for r in self.robots.values()
+        )
+        log.info("daemon %s ready: %s clock at %g Hz, serving %s", self.config.id,
+                 self.config.clock, self.config.rate_hz, summary)
+        self.notifier.ready(f"serving {summary}")
+
+    def request_stop(self) -> None:
+        """Ask the loop to stop (safe from a signal handler: it only sets a flag)."""
+        self._stop = True
+
+    @property
+    def stop_requested(self) -> bool:
+        """Whether :meth:`request_stop` was called."""
+        return self._stop
+
+    def run(self, max_wait_s: float = 0.05) -> None:
+        """Run cycles until :meth:`request_stop`; then :meth:`shutdown`."""
+        try:
+            while not self._stop:
+                self.step(max_wait_s)
+        except BaseException:
+            self.abort()
+            raise
+        self.shutdown()
+
+    def abort(self) -> None:
+        """Close everything without checkpointing (after an unexpected error in the loop)."""
+        abort(self)
+
+    @property
+    def final_checkpoints_ok(self) -> bool:
+        """Whether every checkpoint attempted during shutdown was written."""
+        return self.checkpoints.final_ok
+
+    @property
+    def unserved(self) -> Counter[str]:
+        """Rejections no served robot can be blamed for (bad keys, unserved robots)."""
+        return self.admission.unserved
+
+    # --- one cycle -------------------------------------------------------------------------
+
+    def step(self, max_wait_s: float = 0.05) -> None:
+        """One cycle of the loop (see the module docstring)."""
+        now = self.clock.monotonic_ns()
+        if self._can_learn(now):
+            wait = 0.0
+        else:
+            wait = max(0.0, min(max_wait_s, (self._next_deadline() - now) / 1e9))
+        item = self.inbox.get(wait)
+        # bounded, so that a backlog (lockstep runs ahead of learning) never starves status,
+        # checkpoints, the watchdog or a stop request: the rest waits for the next cycle
+        budget = min(self.inbox.capacity, MAX_DRAIN_PER_STEP)
+        while item is not None and budget > 0:
+            self._handle(item)
+            budget -= 1
+            item = self.inbox.get(0) if budget > 0 else None
+        if self._answer:
+            answer_lockstep(self)
+        if self.learners is not None:
+            self.learners.pump(self.schedule.next_tick if self._realtime and self._timer_active()
+                               else None)
+        now = self.clock.monotonic_ns()
+        if self._realtime and now >= self.schedule.next_tick:
+            on_timer(self, now)
+            now = self.clock.monotonic_ns()
+        if self._can_learn(now):
+            self._learn_once()
+            now = self.clock.monotonic_ns()
+        if now >= self._next_status:
+            self._publish_status(now)
+            self._next_status += self._status_period_ns
+            if self._next_status <= now:
+                self._next_status = now + self._status_period_ns
+        for rt in self.robots.values():
+            if rt.wal is not None and rt.wal.due(now, self._commit_ns):
+                self._commit(rt)
+        for rt in self.checkpoints.due(now):
+            self._checkpoint(rt, "periodic")
+        self.checkpoints.collect()
+        self.recorders.poll(self.clock.monotonic_ns)
+        self.notifier.watchdog(now)
+
+    def _next_deadline(self) -> int:
+        deadline = self._next_status
+        if self._realtime and self._timer_active():
+            deadline = min(deadline, self.schedule.next_tick)
+        return deadline
+
+    def _timer_active(self) -> bool:
+        return any(rt.predicting and rt.newest is not None for rt in self.robots.values())
+
+    def _can_learn(self, now: int) -> bool:
+        if self.learners is not None:
+            return False  # the workers learn; the loop only feeds them (learners.pump)
+        if not any(rt.learning and rt.queue for rt in self.robots.values()):
+            return False
+        if not self._realtime or not self._timer_active() or not self._learned_since_tick:
+            return True
+        return now + self._learn_est_ns + _MS < self.schedule.next_tick
+
+    def _learn_once(self) -> None:
+        robots = list(self.robots.values())
+        for i in range(len(robots)):
+            rt = robots[(self._rr + i) % len(robots)]
+            if rt.learning and rt.queue:
+                self._rr = (self._rr + i + 1) % len(robots)
+                ms = rt.learn_one()
+                ns = int(ms * _MS)
+                self._learn_est_ns = max(ns, int(self._learn_est_ns * 0.95))
+                self._learned_since_tick = True
+                return
+
+    # --- intake ----------------------------------------------------------------------------
+
+    def _handle(self, item: Incoming) -> None:
+        admitted = self.admission.admit(item)
+        if admitted is None:
+            return
+        rt, _, msg = admitted
+        dropped, resent = rt.dropped, rt.resent
+        if isinstance(msg, Perception):
+            rt.on_perception(msg, item.recv_ns)
+            if not self._realtime and rt.predicting and not self._stopping:
+                self._answer.append((rt, msg, item.recv_ns))
+        elif isinstance(msg, Action):
+            rt.on_action(msg)
+        elif isinstance(msg, Control):
+            self._control(rt, msg)
+        if (rt.dropped, rt.resent) != (dropped, resent) and rt.robot in self.recorders:
+            self.recorders.drop(rt, msg.tick, item.recv_wall_ns,
+                                "queue_full" if rt.dropped != dropped else "resent")
+
+    def _control(self, rt: RobotRuntime, msg: Control) -> None:
+        if msg.op == "mode":
+            if msg.mode != rt.mode:
+                log.info("%s: mode %s -> %s", rt.robot, rt.mode, msg.mode)
+            rt.mode = msg.mode
+        elif msg.op == "reset":
+            if self.learners is not None:
+                self.learners.drain(rt)  # what it learned before is logged before the reset
+            log.info("%s: reset requested: forgetting %d learned pairs", rt.robot, rt.updates)
+            rt.reset()
+        elif msg.op == "checkpoint":
+            log.info("%s: checkpoint requested", rt.robot)
+            self._checkpoint(rt, "requested")
+        n = self.acks[rt.robot][0] + 1
+        self.acks[rt.robot] = (n, msg.op, msg.stamp_ns)
+        # confirm at once: a status carrying this control's stamp (protocols/README.md, control)
+        now = self.clock.monotonic_ns()
+        st = self.status_of(rt, now)
+        self.outbox.status(rt.robot, st)
+
+    # --- output ----------------------------------------------------------------------------
+
+    def worker_predictions(self, batch: Sequence[tuple[Any, ...]]) -> None:
+        """Publish predictions learner workers computed: ``(rt, reply, perception,
+        receipt ns)`` each (:func:`~roger_daemon.service.answers.worker_predictions`)."""
+        worker_predictions(self, batch)
+
+    # --- status ----------------------------------------------------------------------------
+
+    def status_of(self, rt: RobotRuntime, now: int) -> Status:
+        """The status message of one robot at ``now`` (monotonic ns)."""
+        return robot_status(self, rt, now)
+
+    def _publish_status(self, now: int) -> None:
+        lines = []
+        self._commit_all(self.robots.values())
+        for rt in self.robots.values():
+            self._commit(rt)
+            st = self.status_of(rt, now)
+            before = self.health[rt.robot].last[0]
+            level, reasons = self.health[rt.robot].assess(st.to_map(), now)
+            if level != before:  # into the journal too: journalctl -p warning shows it
+                log.log(LOG_LEVEL_OF[level], "%s: status %s%s", rt.robot, level,
+                        f" ({reasons})" if reasons else "")
+            st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
+            self.outbox.status(rt.robot, st)
+            lines.append(
+                f"{rt.robot}: {st.mode}, {st.updates} updates ({st.updates_per_s:.1f}/s), "
+                f"{st.experts} experts, queue {st.queue_depth}, dropped {st.dropped}, "
+                f"p99 {st.latency_ms_p99:.1f} ms, {level}"
+            )
+        self.notifier.status("; ".join(lines))
+
+    # --- checkpoints and recording ---------------------------------------------------------
+
+    def _snapshot(self, rt: RobotRuntime, reason: str,
+                  model_state: Mapping[str, np.ndarray] | None = None,
+                  ahead: Sequence[Pair] = ()) -> Snapshot:
+        model, daemon, meta = checkpoint_snapshot(
+            rt, reason, daemon_id=self.config.id, created_unix_ns=self.clock.time_ns(),
+            session_id=self.recorders.session_id(rt.robot),
+            session_segment=rt.session_resets,
+            extra=self._checkpoint_meta(rt) if self._checkpoint_meta is not None else None,
+            model_state=model_state, ahead=ahead,
+        )
+        # the same counts as status (restored into rt.invalid; self.unserved restarts at 0)
+        meta["counters"]["invalid"] = invalid_counts(rt, self.unserved)
+        return model, daemon, meta
+
+    def _checkpoint(self, rt: RobotRuntime, reason: str, *, sync: bool = False) -> None:
+        if self.learners is not None:  # the worker sends its state to write_snapshot
+            self.learners.snapshot(rt, reason, sync=sync)
+            return
+        self.write_snapshot(rt, reason, None, sync=sync)
+
+    def write_snapshot(self, rt: RobotRuntime, reason: str,
+                       model_state: Mapping[str, np.ndarray] | None, *,
+                       ahead: Sequence[Pair] = (), sync: bool = False) -> None:
+        """Checkpoint ``rt`` (with the model state a worker sent, if given)."""
+        self.checkpoints.write(rt, reason, model_state, ahead=ahead, sync=sync)
+
+    def _commit(self, rt: RobotRuntime) -> None:
+        """Group commit of the robot's write-ahead log (a no-op when nothing is pending).
+
+        A failed commit stops the daemon: it may no longer acknowledge anything.
+        """
+        if rt.wal is None or not rt.wal.dirty:
+            return
+        rt.wal.commit()
+
+    def _commit_all(self, robots: Iterable[RobotRuntime]) -> None:
+        """With worker processes: commit the dirty logs of ``robots`` side by side."""
+        dirty = [rt.wal for rt in robots if rt.wal is not None and rt.wal.dirty]
+        if len(dirty) > 1 and self._committer is not None:
+            list(self._committer.map(lambda w: w.commit(), dirty))
+
+    # --- shutdown --------------------------------------------------------------------------
+
+    def shutdown(self) -> None:
+        """Stop intake, drain, learn what fits, checkpoint, close recorders and transport."""
+        shutdown(self)

@@ -1,0 +1,88 @@
+"""The status of one served robot: the protocol's fields plus the daemon's ``info`` map.
+
+``info`` holds the loop's timing, learning and prediction times, inbox, checkpoint, write-ahead
+log, recording, control confirmation and health (``protocols/README.md``, status).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from protocols.messages import Status
+from roger_daemon.robot import RobotRuntime
+
+if TYPE_CHECKING:
+    from roger_daemon.service.loop import Service
+
+__all__ = ["invalid_counts", "robot_status"]
+
+
+def _pct(values: Any, q: float) -> float:
+    return round(float(np.percentile(np.fromiter(values, float), q)), 4) if values else 0.0
+
+
+def invalid_counts(rt: RobotRuntime, unserved: Mapping[str, int]) -> dict[str, int]:
+    """Rejected messages by reason as status and checkpoints report them: the robot's own plus
+    ``unserved``, those no served robot can be blamed for (bad keys, unserved robots)."""
+    invalid = Counter(rt.invalid)
+    invalid.update(unserved)
+    return {k: int(v) for k, v in sorted(invalid.items())}
+
+
+def robot_status(svc: Service, rt: RobotRuntime, now: int) -> Status:
+    """The status message of ``rt`` served by ``svc`` at ``now`` (monotonic ns)."""
+    ck = svc.checkpoints.state[rt.robot]
+    invalid = invalid_counts(rt, svc.unserved)
+    info: dict[str, Any] = {
+        "clock": svc.config.clock,
+        "rate_hz": svc.config.rate_hz,
+        "period_jitter_ms_p50": round(svc.stats.jitter_ms.pct(50), 4),
+        "period_jitter_ms_p99": round(svc.stats.jitter_ms.pct(99), 4),
+        "tick_lateness_ms_p99": round(svc.stats.lateness_ms.pct(99), 4),
+        "missed_ticks": svc.stats.missed_ticks,
+        "learn_ms_p50": round(rt.learn_ms.pct(50), 4),
+        "learn_ms_p99": round(rt.learn_ms.pct(99), 4),
+        "predict_ms_p50": round(rt.predict_ms.pct(50), 4),
+        "unpaired_actions": rt.unpaired,
+        "learn_errors": rt.learn_errors,
+        "predict_errors": rt.predict_errors,
+        "inbox_overflow": svc.inbox.overflow,
+        "inbox_depth": len(svc.inbox),
+        "labels": len(rt.vocab),
+        "checkpoint": ck.path,
+        "checkpoint_updates": ck.updates,
+        "checkpoint_digest": ck.digest,
+        "checkpoints_written": ck.written,
+        "checkpoint_errors": ck.errors,
+        "resumed_from": svc.resumed.get(rt.robot, ""),
+        "recovered_pairs": rt.recovered_pairs,
+        "last_learned_tick": -1 if rt.last_learned_tick is None else rt.last_learned_tick,
+        "recording": rt.robot in svc.recorders,
+        "recording_errors": svc.recorders.errors,
+        "wal": rt.wal is not None,
+        "wal_commits": 0 if rt.wal is None else rt.wal.commits,
+        "wal_commit_ms_p50": _pct(rt.wal.commit_ms, 50) if rt.wal is not None else 0.0,
+        "wal_commit_ms_p99": _pct(rt.wal.commit_ms, 99) if rt.wal is not None else 0.0,
+        "wal_commit_ms_max": 0.0 if rt.wal is None else round(rt.wal.commit_ms_max, 3),
+        "resent_pairs": rt.resent,
+        "workers": "inline",
+        "controls": svc.acks[rt.robot][0],
+        "control_op": svc.acks[rt.robot][1],
+        "control_stamp_ns": svc.acks[rt.robot][2],
+        "level": svc.health[rt.robot].last[0],
+        "level_reasons": svc.health[rt.robot].last[1],
+    }
+    if svc.learners is not None:
+        info.update(svc.learners.info(rt))
+    return Status(
+        rt.robot, rt.last_tick, rt.last_t, daemon=svc.config.id, mode=rt.mode,
+        ticks=rt.ticks, updates=rt.updates, updates_per_s=rt.updates_per_s(now),
+        experts=int(rt.model.n_experts), queue_depth=len(rt.queue), dropped=rt.dropped,
+        invalid=dict(invalid), latency_ms_p50=rt.latency.pct(50),
+        latency_ms_p99=rt.latency.pct(99), uptime_s=(now - svc.started_ns) / 1e9,
+        info=info,
+    )

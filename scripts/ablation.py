@@ -1,0 +1,136 @@
+"""The learner levers of issue 13, each switched against the default, over several seeds.
+
+Usage (after a ``roger experiment goal-scoring`` run, whose stream it reuses)::
+
+    python scripts/ablation.py --stream RUN/training-data.npz --out ablation.json \
+        [--seeds 0,1,2] [--attempts 1] [--only NAME,...]
+
+For every variant (the default configuration, then one lever changed at a time) it trains
+ROGER once per learner seed on the same downsampled demonstration stream, groups the experts
+by majority label, and evaluates ROGER experts + HCC transitioner in-process from the 13 start
+locations on the experiment's evaluation seeds. It prints a markdown table (goals per seed,
+mean success, experts, ARI, purity, failure modes) and writes every row to ``--out`` (JSON).
+The HCC is not re-run; divide by its rate from the experiment's ``results.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections import Counter
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.blas import pin_blas_threads
+
+#: name -> (what it changes, learner parameters replaced, transitioner rule)
+VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
+    "default": ("the default configuration", {}, "support"),
+    "rule-gate": ("transitioner rule gate (highest gate probability)", {}, "gate"),
+    "particles-10": ("10 particles", {"particles": 10}, "support"),
+    "particles-30": ("30 particles", {"particles": 30}, "support"),
+    "min-support-0": ("no minimum support (every expert's gate competes)",
+                      {"min_support": 0}, "support"),
+    "sticky-5": ("temporal stickiness kappa = 5", {"sticky_kappa": 5.0}, "support"),
+    "prior-zero": ("zero GP prior mean (instead of each expert's mean)",
+                   {"gp_prior_mean": "zero"}, "support"),
+    "tail-kept": ("tail inputs kept (input weights all 1)", {"input_weights": None}, "support"),
+    "noise-1e-3": ("GP noise theta_n = 1e-3", {"theta_n": 1e-3}, "support"),
+}
+
+
+def _variant_rows(name: str, stream: Any, seeds: list[int], attempts: int) -> dict[str, Any]:
+    from roger_daemon.labels import majority_labels
+    from roger_daemon.learner import Roger
+    from simulator.experiment import goal_scoring as gs
+    from simulator.experiment import inprocess as ip
+    from simulator.experiment.metrics import segmentation_scores
+    from simulator.experiment.pipeline import evaluate_in_process, make_hcc
+    from simulator.experiment.training import train
+
+    what, changes, rule = VARIANTS[name]
+    parser = argparse.ArgumentParser()
+    gs.configure(parser)
+    argv = ["--out", "unused", "--in-process", "--attempts", str(attempts), "--rule", rule]
+    plan = gs.plan_from_args(parser.parse_args(argv))
+    params = replace(gs.learner_params(plan), **changes)  # validated again by the dataclass
+    per_seed = []
+    for seed in seeds:
+        model = Roger(d_x=stream["x"].shape[1], d_y=stream["y"].shape[1], params=params,
+                      seed=seed)
+        train(model, stream["x"], stream["y"])
+        assignments = np.asarray(model.assignments())
+        groups = majority_labels(assignments.tolist(), stream["labels"])
+        seg = segmentation_scores(assignments.tolist(), stream["labels"])
+        ctrl = {"roger": ip.TransitionerController(make_hcc(plan), model, groups, rule)}
+        eps = evaluate_in_process(plan, ctrl)["roger"]
+        modes = Counter(ip.failure_mode(e["outcome"], e, e.get("path_m")) for e in eps)
+        per_seed.append({"seed": seed, "goals": sum(bool(e["success"]) for e in eps),
+                         "episodes": len(eps), "experts": seg.experts, "ari": seg.ari,
+                         "purity": seg.purity, "failure_modes": dict(modes)})
+        print(f"  {name} seed {seed}: {per_seed[-1]['goals']}/{len(eps)}", flush=True)
+    goals = sum(r["goals"] for r in per_seed)
+    trials = sum(r["episodes"] for r in per_seed)
+    modes_all: Counter[str] = Counter()
+    for r in per_seed:
+        modes_all.update(r["failure_modes"])
+    return {"variant": name, "what": what, "changes": changes, "rule": rule,
+            "goals": goals, "trials": trials, "success_rate": goals / trials,
+            "seeds": per_seed, "failure_modes": dict(modes_all)}
+
+
+def _joined(seeds: list[dict[str, Any]], key: str) -> str:
+    return " / ".join(f"{x[key]:.2f}" for x in seeds)
+
+
+def _markdown(rows: list[dict[str, Any]]) -> str:
+    lines = ["| variant | goals per seed | success | experts | ARI | purity | failure modes |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        s = r["seeds"]
+        modes = ", ".join(f"{n} {k}" for k, n in sorted(r["failure_modes"].items(),
+                                                         key=lambda kv: -kv[1]) if k != "goal")
+        lines.append(
+            f"| {r['what']} | {' / '.join(str(x['goals']) for x in s)} of "
+            f"{s[0]['episodes']} | {r['goals']}/{r['trials']} = {100 * r['success_rate']:.0f} % "
+            f"| {' / '.join(str(x['experts']) for x in s)} "
+            f"| {_joined(s, 'ari')} | {_joined(s, 'purity')} | {modes} |")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--stream", type=Path, required=True,
+                    help="training-data.npz of a goal-scoring run (x, y, labels)")
+    ap.add_argument("--out", type=Path, required=True, help="JSON file to write")
+    ap.add_argument("--seeds", default="0,1,2", help="learner seeds (default 0,1,2)")
+    ap.add_argument("--attempts", type=int, default=1, help="attempts per location (default 1)")
+    ap.add_argument("--only", default=",".join(VARIANTS), help="variants to run")
+    args = ap.parse_args()
+    pin_blas_threads()
+    names = [n for n in args.only.split(",") if n]
+    bad = sorted(set(names) - set(VARIANTS))
+    if bad:
+        ap.error(f"--only: unknown variants {bad}; expected some of {sorted(VARIANTS)}")
+    if args.out.exists():
+        ap.error(f"--out: {args.out} exists; choose another path")
+    with np.load(args.stream) as data:
+        stream = {"x": data["x"], "y": data["y"], "labels": [str(s) for s in data["labels"]]}
+    seeds = [int(s) for s in args.seeds.split(",")]
+    rows = []
+    t0 = time.monotonic()
+    for name in names:
+        rows.append(_variant_rows(name, stream, seeds, args.attempts))
+        args.out.write_text(json.dumps({"stream": str(args.stream), "seeds": seeds,
+                                        "attempts": args.attempts, "rows": rows,
+                                        "wall_s": round(time.monotonic() - t0, 1)}, indent=1))
+    print(_markdown(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,90 @@
+"""One owner of Zenoh session setup: flags, layering (file, flags, overrides), real sessions."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import pytest
+
+from roger_daemon.console import UsageError
+from roger_daemon.harness import free_port
+from roger_daemon.zenoh_session import (
+    ZenohOverrideError,
+    ZenohSettings,
+    add_zenoh_args,
+    endpoints,
+    open_session,
+    settings_from_args,
+    zenoh_config,
+)
+
+
+def _parse(*argv: str, **defaults: object) -> ZenohSettings:
+    parser = argparse.ArgumentParser()
+    add_zenoh_args(parser, **defaults)  # type: ignore[arg-type]
+    return settings_from_args(parser.parse_args(list(argv)))
+
+
+def _get(cfg: object, key: str) -> object:
+    return json.loads(cfg.get_json(key))  # type: ignore[attr-defined]
+
+
+def test_endpoint_flags_take_comma_lists_and_none() -> None:
+    assert endpoints(["tcp/127.0.0.1:1,tcp/127.0.0.1:2", " tcp/127.0.0.1:3 "]) == (
+        "tcp/127.0.0.1:1", "tcp/127.0.0.1:2", "tcp/127.0.0.1:3")
+    assert endpoints(["none"]) == () and endpoints(["NONE", ""]) == ()
+
+
+def test_without_a_file_the_commands_defaults_apply_and_flags_override_them() -> None:
+    s = _parse(listen=("tcp/127.0.0.1:0",), connect=("tcp/127.0.0.1:7447",), lease_ms=2000,
+               gossip=True)
+    assert s == ZenohSettings(mode="peer", listen=("tcp/127.0.0.1:0",),
+                              connect=("tcp/127.0.0.1:7447",), multicast_scouting=False,
+                              lease_ms=2000, gossip=True)
+    s = _parse("--connect", "none", "--listen", "tcp/127.0.0.1:9", listen=("tcp/127.0.0.1:0",),
+               connect=("tcp/127.0.0.1:7447",))
+    assert s.connect == () and s.listen == ("tcp/127.0.0.1:9",)
+
+
+def test_a_file_is_overridden_only_by_the_flags_given(tmp_path: Path) -> None:
+    f = tmp_path / "z.json5"
+    f.write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:1"] },'
+                 ' listen: { endpoints: ["tcp/127.0.0.1:2"] } }')
+    s = _parse("--zenoh-config", str(f), "--connect", "tcp/127.0.0.1:3",
+               "--zenoh-set", "transport/link/tx/lease=1500",
+               listen=("tcp/127.0.0.1:0",), connect=("tcp/127.0.0.1:7447",), gossip=True)
+    assert (s.config_file, s.mode, s.listen, s.multicast_scouting, s.gossip) == (
+        f, None, None, None, None)
+    cfg = zenoh_config(s)
+    # file, then flags, then overrides
+    assert _get(cfg, "mode") == "client"
+    assert _get(cfg, "listen/endpoints") == ["tcp/127.0.0.1:2"]
+    assert _get(cfg, "connect/endpoints") == ["tcp/127.0.0.1:3"]
+    assert _get(cfg, "transport/link/tx/lease") == 1500
+
+
+def test_bad_files_and_overrides_are_usage_errors(tmp_path: Path) -> None:
+    with pytest.raises(UsageError, match="no such file"):
+        _parse("--zenoh-config", str(tmp_path / "missing.json5"))
+    with pytest.raises(UsageError, match="KEY=JSON5"):
+        _parse("--zenoh-set", "transport/link/tx/lease")
+    with pytest.raises(ZenohOverrideError, match="no/such/key"):
+        zenoh_config(ZenohSettings(overrides=(("no/such/key", "1"),)))
+
+
+@pytest.mark.integration
+def test_sessions_on_loopback_exchange_samples_as_context_managers() -> None:
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    got: list[bytes] = []
+    with open_session(ZenohSettings(listen=(ep,))) as a, \
+            open_session(ZenohSettings(listen=(), connect=(ep,))) as b:
+        a.declare_subscriber("roger/test/**", lambda s: got.append(s.payload.to_bytes()))
+        pub = b.declare_publisher("roger/test/x")
+        end = time.monotonic() + 20
+        while not got and time.monotonic() < end:
+            pub.put(b"hello")
+            time.sleep(0.05)
+    assert got and got[0] == b"hello"
