@@ -169,8 +169,9 @@ class GatePool:
 
     def log_predictive(self, slots: IntArray, x: FloatArray) -> FloatArray:
         """``log t_s(x)`` for every slot in ``slots`` (batched, §3.4)."""
-        return _jit.gate_log_predictive(slots, x, self.mu, self.prec, self.lognorm,
-                                        self.half_nu_d, self.inv_nu_c)
+        out: FloatArray = _jit.gate_log_predictive(slots, x, self.mu, self.prec, self.lognorm,
+                                                   self.half_nu_d, self.inv_nu_c)
+        return out
 
     def prior_log_predictive(self, x: FloatArray) -> float:
         """``log t_0(x)``, the prior predictive of the empty expert."""
@@ -228,12 +229,14 @@ class NIWGate:
     @property
     def mu(self) -> FloatArray:
         """Posterior mean ``mu_n``."""
-        return self._pool.mu[0]
+        mu: FloatArray = self._pool.mu[0]
+        return mu
 
     @property
     def lam(self) -> FloatArray:
         """Posterior scale ``Lambda_n``."""
-        return self._pool.lam[0]
+        lam: FloatArray = self._pool.lam[0]
+        return lam
 
     def update(self, x: FloatArray) -> None:
         """Absorb one input (§3.2)."""

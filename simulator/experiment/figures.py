@@ -8,12 +8,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import numpy.typing as npt  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import numpy.typing as npt
 
-from protocols.aibo import SUBTASKS  # noqa: E402
-from roger_daemon.labels import majority_labels  # noqa: E402
+from protocols.aibo import SUBTASKS
+from roger_daemon.labels import majority_labels
 
 __all__ = [
     "SUBTASK_COLOURS",

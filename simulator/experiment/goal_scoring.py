@@ -88,6 +88,7 @@ class Plan:
     preset: str | None = None
 
     def to_json(self) -> dict[str, Any]:
+        """The plan as plain JSON (paths as strings)."""
         d = asdict(self)
         d["out"] = str(self.out)
         d["locations"] = list(self.locations)

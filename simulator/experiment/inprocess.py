@@ -130,9 +130,11 @@ class TransitionerController:
         self.counts: Counter[str] = Counter()
 
     def reset(self) -> None:
+        """Start an episode: the FSM back to its initial state."""
         self.hcc.reset()
 
     def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        """One tick: the FSM's subtask, the chosen expert's mean as the command."""
         _, subtask = self.hcc.decide(x)
         multimap = tuple(
             ExpertOutput(expert=int(e.expert_id), p=float(e.gate_prob), mean=e.mean, var=e.var,
@@ -156,9 +158,11 @@ class OracleController:
         self.counts: Counter[str] = Counter()
 
     def reset(self) -> None:
+        """Start an episode: the FSM back to its initial state."""
         self.hcc.reset()
 
     def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        """One tick: the FSM's subtask, that subtask's GP mean as the command."""
         y_hcc, subtask = self.hcc.decide(x)
         gp = self.gps.get(subtask)
         if gp is None:  # a subtask never demonstrated: hold still (counted)
@@ -179,9 +183,11 @@ class MeanController:
         self.counts: Counter[str] = Counter()
 
     def reset(self) -> None:
+        """Start an episode (the unimap GP keeps no episode state)."""
         pass
 
     def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        """One tick: the unimap GP's mean as the command, no subtask."""
         y = np.asarray(self.model.predict_one(x).mean, dtype=np.float64)
         return _finite(y, x, self.counts), ""
 
@@ -202,9 +208,11 @@ class EpisodeRecord:
 
     @property
     def failure_mode(self) -> str:
+        """How the episode ended, in words (:func:`failure_mode`)."""
         return failure_mode(self.outcome, self.counters, self.path_m)
 
     def to_json(self) -> dict[str, Any]:
+        """Plain JSON record of the episode."""
         return {
             "location": self.location, "repetition": self.repetition, "outcome": self.outcome,
             "success": self.success, "sim_time_s": round(self.sim_time_s, 3),

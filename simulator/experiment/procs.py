@@ -105,8 +105,9 @@ class ProcessGroup:
         self.procs: dict[str, _Proc] = {}
 
     def start(self, name: str, argv: Sequence[str]) -> _Proc:
+        """Start process ``name`` with its output in ``WORKDIR/NAME.log``."""
         log = self.workdir / f"{name}.log"
-        handle = open(log, "wb")  # noqa: SIM115 - closed in close()
+        handle = open(log, "wb")
         popen = subprocess.Popen(
             list(argv), stdout=handle, stderr=subprocess.STDOUT, env=self.env,
             stdin=subprocess.DEVNULL,
@@ -116,6 +117,7 @@ class ProcessGroup:
         return proc
 
     def log_text(self, name: str) -> str:
+        """Process ``name``'s log so far ('' if unreadable)."""
         try:
             return self.procs[name].log.read_text(encoding="utf-8", errors="replace")
         except OSError:
@@ -154,6 +156,7 @@ class ProcessGroup:
         return int(p.returncode)
 
     def tails(self, lines: int = 15) -> str:
+        """The last ``lines`` lines of every process's log, for an error message."""
         out = []
         for name in self.procs:
             text = self.log_text(name).strip().splitlines()[-lines:]
@@ -161,6 +164,7 @@ class ProcessGroup:
         return "".join(out)
 
     def close(self) -> None:
+        """Kill what still runs and close the logs."""
         for proc in self.procs.values():
             if proc.popen.poll() is None:
                 proc.popen.send_signal(signal.SIGTERM)
@@ -213,10 +217,12 @@ class EpisodeJob:
 
     @property
     def episodes(self) -> int:
+        """Episodes this job runs (locations x attempts)."""
         return len(self.locations) * self.attempts
 
     @property
     def sim_log(self) -> Path:
+        """The simulator's log file."""
         return self.workdir / "sim.log"
 
     def spec(self) -> dict[str, Any]:
@@ -300,6 +306,35 @@ def load_finished(job: EpisodeJob) -> JobResult | None:
     return JobResult(job, sim["episodes"], sim["summary"], ctl, mcap, float(done["wall_s"]))
 
 
+def _start_predict_daemon(group: ProcessGroup, job: EpisodeJob, port: int) -> None:
+    """Start ``roger daemon`` in predict mode resumed from the job's trained model."""
+    if job.checkpoint_dir is None:
+        raise ValueError(f"controller {job.controller} needs a checkpoint_dir")
+    ck = job.workdir / "checkpoints"
+    if ck.exists():
+        shutil.rmtree(ck)
+    _link_checkpoints(job.checkpoint_dir, ck)
+    learner = {k: v for k, v in job.learner.items() if v is not None}
+    cfg = write_config(
+        job.workdir / "daemon.toml",
+        port=port,
+        workdir=job.workdir,
+        # predict mode: no learning to move off the loop, so no worker process hop
+        daemon={"mode": "predict", "clock": "lockstep", "seed": job.learner_seed,
+                "workers": "inline"},
+        checkpoint={"dir": ck, "on_shutdown": False, "every_updates": 0, "every_s": 0.0},
+        recording={"enabled": False},
+        learner=learner,
+        # the learner table is fully resolved (scaling included): no robot profile
+        robots=({"id": "aibo", "model": "unimap" if job.controller == "dpa" else "roger",
+                 "profile": "none"},),
+    )
+    group.start("daemon", roger_argv("daemon", "--config", str(cfg)))
+    group.wait_for_log("daemon", " ready: ", 120)
+    if "resumed from" not in group.log_text("daemon"):
+        raise JobError("the daemon did not resume the trained model" + group.tails())
+
+
 def run_job(job: EpisodeJob) -> JobResult:
     """Run one job's processes to completion; return the simulator's and controller's JSON."""
     job.workdir.mkdir(parents=True, exist_ok=True)
@@ -328,33 +363,8 @@ def run_job(job: EpisodeJob) -> JobResult:
             controller = roger_argv("hcc", "--role", "demonstrator")
             peers = 1
         elif job.controller in ("roger", "dpa"):
-            if job.checkpoint_dir is None:
-                raise ValueError(f"controller {job.controller} needs a checkpoint_dir")
             aux_port = free_port()
-            ck = job.workdir / "checkpoints"
-            if ck.exists():
-                shutil.rmtree(ck)
-            _link_checkpoints(job.checkpoint_dir, ck)
-            learner = {k: v for k, v in job.learner.items() if v is not None}
-            cfg = write_config(
-                job.workdir / "daemon.toml",
-                port=aux_port,
-                workdir=job.workdir,
-                # predict mode: no learning to move off the loop, so no worker process hop
-                daemon={"mode": "predict", "clock": "lockstep", "seed": job.learner_seed,
-                        "workers": "inline"},
-                checkpoint={"dir": ck, "on_shutdown": False, "every_updates": 0,
-                            "every_s": 0.0},
-                recording={"enabled": False},
-                learner=learner,
-                # the learner table is fully resolved (scaling included): no robot profile
-                robots=({"id": "aibo", "model": "unimap" if job.controller == "dpa"
-                         else "roger", "profile": "none"},),
-            )
-            group.start("daemon", roger_argv("daemon", "--config", str(cfg)))
-            group.wait_for_log("daemon", " ready: ", 120)
-            if "resumed from" not in group.log_text("daemon"):
-                raise JobError("the daemon did not resume the trained model" + group.tails())
+            _start_predict_daemon(group, job, aux_port)
             if job.controller == "roger":
                 controller = roger_argv("hcc", "--role", "transitioner", "--rule", job.rule)
             else:

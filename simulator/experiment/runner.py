@@ -122,6 +122,7 @@ class Runner:
 
 
 def progress_bars(console: Any) -> Any:
+    """Rich progress bars for the phases of a run."""
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -137,6 +138,7 @@ def progress_bars(console: Any) -> Any:
 
 
 def json_default(o: Any) -> Any:
+    """JSON encoder fallback for numpy scalars, arrays and paths."""
     if isinstance(o, np.integer):
         return int(o)
     if isinstance(o, np.floating):
@@ -149,6 +151,7 @@ def json_default(o: Any) -> Any:
 
 
 def machine() -> dict[str, Any]:
+    """The machine, package versions and BLAS of this run (for results.json)."""
     from importlib.metadata import PackageNotFoundError, version
 
     from roger_daemon.blas import blas_info

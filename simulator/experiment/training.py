@@ -58,6 +58,7 @@ class Demonstrations:
         return len(self.labels)
 
     def subset(self, idx: npt.NDArray[np.int64]) -> Demonstrations:
+        """The demonstrations at indices ``idx``, in that order."""
         return Demonstrations(self.x[idx], self.y[idx], [self.labels[i] for i in idx],
                               self.location[idx], self.tick[idx], self.unpaired)
 

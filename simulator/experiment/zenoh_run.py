@@ -60,6 +60,7 @@ class ZenohRun:
         self.timings[name] = round(time.monotonic() - t0, 2)
 
     def run(self) -> dict[str, Any] | None:
+        """Run every phase over Zenoh; the results, or None if a phase failed."""
         from simulator.experiment.goal_scoring import _demo_jobs
         from simulator.experiment.pipeline import downsample, train_models
         from simulator.experiment.training import load_demonstrations
