@@ -75,7 +75,8 @@ COMMANDS = CommandTable({
 
 # roger bench NAME -> (module, one-line help); each module has configure() and run()
 BENCHES = CommandTable({
-    "learner": ("roger_daemon.bench.learner", "learner updates/s and latency, synthetic stream"),
+    "learner": ("roger_daemon.bench.learner",
+                "learner updates/s and latency (synthetic or AIBO stream; --compare REF)"),
     "recorder": ("roger_daemon.recording.bench", "recorder write+poll cost, SIGKILL loss"),
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
     "fleet": ("roger_daemon.bench.fleet", "N robots x 30 Hz against one daemon, per robot"),

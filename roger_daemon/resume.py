@@ -60,7 +60,9 @@ def load_robot(
 ) -> tuple[RobotRuntime, Checkpoint | None]:
     """The runtime of one robot and the checkpoint it resumed from (None: fresh model)."""
     from roger_daemon.learner import load_model
+    from roger_daemon.learner.jit import warm_up
 
+    warm_up()  # the learner's compiled kernels now, not in the robot's first update
     dims = Dims(robot.x_dim, robot.y_dim)
     loaded: dict[str, Any] = {}
 

@@ -57,7 +57,8 @@ class RobotRuntime:
         Perception / action sizes.
     model
         An object following ``docs/learner-api.md`` (``learn_one``, ``predict_one``,
-        ``predict_multimap``, ``assignments``, ``n_experts``, ``n_learned``, ``state_dict``).
+        ``predict_multimap``, ``predict_with_multimap``, ``assignments``, ``n_experts``,
+        ``n_learned``, ``state_dict``).
     make_model
         Builds a fresh model (used by the ``reset`` control).
     mode
@@ -290,8 +291,7 @@ class RobotRuntime:
     def predict(self, perc: Perception, recv_ns: int, now_ns: Callable[[], int]) -> Prediction:
         """The prediction for ``perc`` with the model as it is now."""
         t0 = time.perf_counter_ns()
-        p = self.model.predict_one(perc.x)
-        mm = self.model.predict_multimap(perc.x)
+        p, mm = self.model.predict_with_multimap(perc.x)  # gates and GPs evaluated once
         labels = self.expert_labels() if mm else {}
         multimap = tuple(
             ExpertOutput(

@@ -1,10 +1,15 @@
-"""``roger bench learner``: learner throughput and latency on the shipped synthetic stream.
+"""``roger bench learner``: learner throughput and latency on a shipped stream.
 
-The stream (:func:`roger_daemon.learner.synthetic.subtask_stream`) has 4,000 points, 23-D
-inputs, 9-D outputs and 4 subtasks with overlapping inputs; the model uses the paper's
-parameters unless ``--param`` overrides one.  Every update is timed; every ``--predict-every``
-steps ``predict_multimap`` and ``predict_one`` are timed on the next input.  The unimap baseline
-learns the same stream in the same run.  ``--json`` prints one JSON object.
+``--stream synthetic`` (default, :func:`roger_daemon.learner.synthetic.subtask_stream`): 4,000
+points, 23-D inputs, 9-D outputs and 4 subtasks with overlapping inputs, with the paper's
+parameters.  ``--stream aibo``: the first 1,500 pairs of the goal-scoring experiment's AIBO
+demonstrations (``roger_daemon/bench/data``), with the daemon's default configuration (the
+``default`` preset and the AIBO profile).  ``--param`` overrides a parameter of either.  Every
+update is timed; every ``--predict-every`` steps ``predict_multimap``, ``predict_one`` and
+``predict_with_multimap`` (both in one pass, the daemon's call) are timed on the next input.
+The unimap baseline learns the same stream in the same run.
+``--compare REF`` runs git revision REF's learner beside this one instead
+(:mod:`.learner_compare`).  ``--json`` prints one JSON object.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ import os
 import platform
 import sys
 import time
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,16 +29,24 @@ import numpy as np
 from roger_daemon.blas import blas_info
 from roger_daemon.console import UsageError
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
+from roger_daemon.learner.jit import warm_up
 from roger_daemon.learner.params import ParameterError
 from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
 
-__all__ = ["configure", "run"]
+_AIBO = Path(__file__).with_name("data") / "aibo-demonstrations.npz"
+STREAMS = ("synthetic", "aibo")
+
+__all__ = ["BenchStream", "configure", "load_stream", "machine_info", "measure", "run"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger bench learner``."""
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--points", type=int, default=4000, help="stream length (default 4000)")
+    parser.add_argument("--stream", choices=STREAMS, default="synthetic",
+                        help="synthetic: 4,000 points, paper parameters (default); aibo: 1,500 "
+                             "AIBO demonstration pairs, the daemon's default configuration")
+    parser.add_argument("--points", type=int, default=None,
+                        help="points learned (default: the whole stream)")
     parser.add_argument("--seed", type=int, default=0, help="model seed (default 0)")
     parser.add_argument("--stream-seed", type=int, default=BENCH_SEED,
                         help=f"stream seed (default {BENCH_SEED}, the shipped stream)")
@@ -40,9 +55,41 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                         help="override a RogerParams field (VALUE as JSON), repeatable")
     parser.add_argument("--no-unimap", action="store_true", help="skip the unimap baseline")
+    parser.add_argument("--compare", metavar="REF", default=None,
+                        help="instead, time git revision REF's learner (e.g. main, HEAD~3) "
+                             "and this one in this process, one update of each in turn on the "
+                             "same stream, and print both and the speed ratio (needs the git "
+                             "checkout)")
 
 
-def _params(overrides: list[str]) -> RogerParams:
+@dataclass(frozen=True)
+class BenchStream:
+    """A benchmark stream and the parameters it is learned with."""
+
+    name: str
+    x: np.ndarray
+    y: np.ndarray
+    labels: np.ndarray
+    params: RogerParams
+
+
+def load_stream(name: str, points: int | None, stream_seed: int,
+                overrides: list[str]) -> BenchStream:
+    """The named stream (first ``points`` pairs) with its base parameters and ``overrides``."""
+    if name == "aibo":
+        from roger_daemon.config import parse_config
+
+        with np.load(_AIBO) as data:
+            x, y, labels = data["x"], data["y"], data["labels"].astype(np.int64)
+        base = parse_config({}).robots[0].params  # the daemon's default for the AIBO
+    else:
+        stream = subtask_stream(4000 if points is None else points, seed=stream_seed)
+        x, y, labels, base = stream.x, stream.y, stream.labels, RogerParams()
+    n = x.shape[0] if points is None else min(points, x.shape[0])
+    return BenchStream(name, x[:n], y[:n], labels[:n], _params(base, overrides))
+
+
+def _params(base: RogerParams, overrides: list[str]) -> RogerParams:
     mapping: dict[str, Any] = {}
     for item in overrides:
         key, sep, value = item.partition("=")
@@ -53,12 +100,13 @@ def _params(overrides: list[str]) -> RogerParams:
         except json.JSONDecodeError:
             mapping[key] = value
     try:
-        return RogerParams.from_mapping({**RogerParams().to_mapping(), **mapping})
+        return RogerParams.from_mapping({**base.to_mapping(), **mapping})
     except ParameterError as exc:
         raise UsageError(f"--param: {exc}") from None
 
 
-def _machine() -> dict[str, Any]:
+def machine_info() -> dict[str, Any]:
+    """CPU, cores, load average, Python, numpy, platform and BLAS of this run."""
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as fh:
@@ -77,6 +125,10 @@ def _machine() -> dict[str, Any]:
         "platform": platform.platform(),
         "blas": blas_info(),
     }
+
+
+NOTE = ("wall-clock timings on a shared machine: other processes compete for the cores "
+        "(see machine.load_avg_*)")
 
 
 def _ms(samples: list[int], q: float) -> float:
@@ -108,16 +160,19 @@ def _ari(a: np.ndarray, b: np.ndarray) -> float:
     return 1.0 if top == expected else (index - expected) / (top - expected)
 
 
-def measure(points: int, seed: int, stream_seed: int, predict_every: int, params: RogerParams,
+def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int,
             unimap: bool) -> dict[str, Any]:
     """Run the benchmark and return the result object."""
-    machine = _machine()
-    stream = subtask_stream(points, seed=stream_seed)
-    d_x, d_y = stream.x.shape[1], stream.y.shape[1]
+    machine = machine_info()
+    params = stream.params
+    points, d_x = stream.x.shape
+    d_y = stream.y.shape[1]
+    warm_up()
     model = Roger(d_x, d_y, params, seed=seed)
     upd: list[int] = []
     pm: list[int] = []
     po: list[int] = []
+    pw: list[int] = []
     clock = time.perf_counter_ns
     start = time.perf_counter()
     for i in range(points):
@@ -132,12 +187,16 @@ def measure(points: int, seed: int, stream_seed: int, predict_every: int, params
             t0 = clock()
             model.predict_one(q)
             po.append(clock() - t0)
+            t0 = clock()
+            model.predict_with_multimap(q)  # the daemon's one call per tick
+            pw.append(clock() - t0)
     wall = time.perf_counter() - start
     upd_arr = np.asarray(upd) * 1e-9
     quarters = [round(len(c) / float(c.sum()), 1) for c in np.array_split(upd_arr, 4) if c.size]
     assign = model.assignments()
     out: dict[str, Any] = {
         "bench": "learner",
+        "stream": stream.name,
         "points": points,
         "d_x": d_x,
         "d_y": d_y,
@@ -150,6 +209,7 @@ def measure(points: int, seed: int, stream_seed: int, predict_every: int, params
         "predict_multimap_p50_ms": _ms(pm, 50),
         "predict_multimap_p99_ms": _ms(pm, 99),
         "predict_one_p99_ms": _ms(po, 99),
+        "predict_with_multimap_p99_ms": _ms(pw, 99),
         "experts": model.n_experts,
         "expert_sizes": sorted(model.expert_sizes().values(), reverse=True),
         "unique_experts": model.n_unique_experts,
@@ -173,14 +233,13 @@ def measure(points: int, seed: int, stream_seed: int, predict_every: int, params
     out["params"] = params.to_mapping()
     machine["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
     out["machine"] = machine
-    out["note"] = ("wall-clock timings on a shared machine: other processes compete for the "
-                   "cores (see machine.load_avg_*)")
+    out["note"] = NOTE
     return out
 
 
 def _table(res: dict[str, Any]) -> str:
     rows = [
-        ("points", res["points"]),
+        ("stream, points", f"{res['stream']}, {res['points']}"),
         ("updates/s (mean)", res["updates_per_s"]),
         ("updates/s by quarter", res["updates_per_s_by_quarter"]),
         ("update p50 / p99 / max ms",
@@ -188,6 +247,7 @@ def _table(res: dict[str, Any]) -> str:
         ("predict_multimap p50 / p99 ms",
          f"{res['predict_multimap_p50_ms']} / {res['predict_multimap_p99_ms']}"),
         ("predict_one p99 ms", res["predict_one_p99_ms"]),
+        ("predict_with_multimap p99 ms", res["predict_with_multimap_p99_ms"]),
         ("experts (MAP particle)", res["experts"]),
         ("expert sizes", res["expert_sizes"][:12]),
         ("unique experts / particles", f"{res['unique_experts']} / {res['particles']}"),
@@ -207,10 +267,20 @@ def _table(res: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``roger bench learner``."""
-    if args.points < 1:
+    if args.points is not None and args.points < 1:
         print("--points must be >= 1", file=sys.stderr)
         return 2
-    res = measure(args.points, args.seed, args.stream_seed, args.predict_every,
-                  _params(args.param), not args.no_unimap)
+    stream = load_stream(args.stream, args.points, args.stream_seed, args.param)
+    if args.compare is not None:
+        from roger_daemon.bench.learner_compare import compare, compare_table
+        from roger_daemon.bench.reference import RevisionError
+
+        try:
+            res = compare(stream, args.compare, args.seed)
+        except RevisionError as exc:
+            raise UsageError(f"--compare: {exc}") from None
+        print(json.dumps(res) if args.json else compare_table(res))
+        return 0
+    res = measure(stream, args.seed, args.stream_seed, args.predict_every, not args.no_unimap)
     print(json.dumps(res) if args.json else _table(res))
     return 0

@@ -23,6 +23,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import gammaln
 
+from roger_daemon.learner import jit as _jit
+
 __all__ = ["GatePool", "NIWGate", "niw_update"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -146,25 +148,14 @@ class GatePool:
         precision follows by Sherman-Morrison, ``log|Lambda|`` by the determinant lemma, and
         both are recomputed by Cholesky every 32 updates of a gate.
         """
-        kappa = self.kappa[slots]
-        u = x - self.mu[slots]
-        kp1 = kappa + 1.0
-        uw = u * (kappa / kp1)[:, None]  # w u
-        self.lam[slots] += u[:, :, None] * uw[:, None, :]
-        self.mu[slots] += u / kp1[:, None]  # (kappa mu + x) / (kappa + 1)
-        self.kappa[slots] = kp1
-        nu = self.nu[slots] + 1.0
-        self.nu[slots] = nu
-        count = self.count[slots] + 1
-        self.count[slots] = count
         # Sherman-Morrison and the determinant lemma: t = w u^T P u,
         # P' = P - w (P u)(P u)^T / (1 + t), log|Lambda'| = log|Lambda| + log(1 + t)
-        prec = self.prec[slots]
-        pu = np.matmul(prec, u[:, :, None])[:, :, 0]
-        t = np.einsum("si,si->s", uw, pu)
-        prec -= pu[:, :, None] * (pu * ((kappa / kp1) / (1.0 + t))[:, None])[:, None, :]
-        self.prec[slots] = prec
-        self.logdet[slots] += np.log1p(t)
+        _jit.gate_update(slots, x, self.kappa, self.nu, self.mu, self.lam, self.prec,
+                         self.logdet)  # compiled, one pass per slot
+        kp1 = self.kappa[slots]
+        nu = self.nu[slots]
+        count = self.count[slots] + 1
+        self.count[slots] = count
         for slot in slots[count % _REFRESH == 0].tolist():  # bound the round-off
             self.prec[slot], self.logdet[slot] = _precision(self.lam[slot])
         # Student-t constants (§3.3)
@@ -178,9 +169,9 @@ class GatePool:
 
     def log_predictive(self, slots: IntArray, x: FloatArray) -> FloatArray:
         """``log t_s(x)`` for every slot in ``slots`` (batched, §3.4)."""
-        diff = x - self.mu[slots]
-        delta = np.einsum("si,sij,sj->s", diff, self.prec[slots], diff)
-        return self.lognorm[slots] - self.half_nu_d[slots] * np.log1p(delta * self.inv_nu_c[slots])
+        out: FloatArray = _jit.gate_log_predictive(slots, x, self.mu, self.prec, self.lognorm,
+                                                   self.half_nu_d, self.inv_nu_c)
+        return out
 
     def prior_log_predictive(self, x: FloatArray) -> float:
         """``log t_0(x)``, the prior predictive of the empty expert."""
@@ -238,12 +229,14 @@ class NIWGate:
     @property
     def mu(self) -> FloatArray:
         """Posterior mean ``mu_n``."""
-        return self._pool.mu[0]
+        mu: FloatArray = self._pool.mu[0]
+        return mu
 
     @property
     def lam(self) -> FloatArray:
         """Posterior scale ``Lambda_n``."""
-        return self._pool.lam[0]
+        lam: FloatArray = self._pool.lam[0]
+        return lam
 
     def update(self, x: FloatArray) -> None:
         """Absorb one input (§3.2)."""

@@ -53,7 +53,8 @@ class RBFKernel:
         """
         diff = basis - x
         if diff.ndim != 2:
-            return np.exp(-self.gamma * np.einsum("...ij,...ij->...i", diff, diff))
+            batched: FloatArray = np.exp(-self.gamma * np.einsum("...ij,...ij->...i", diff, diff))
+            return batched
         np.square(diff, out=diff)
         out: FloatArray = diff @ self._ones(diff.shape[1])  # row sums by BLAS gemv
         out *= -self.gamma
@@ -68,4 +69,5 @@ class RBFKernel:
     def gram(self, a: FloatArray, b: FloatArray) -> FloatArray:
         """Kernel matrix ``K[i, j] = k(a_i, b_j)`` for (n, d_x) and (m, d_x) inputs."""
         diff = a[:, None, :] - b[None, :, :]
-        return np.exp(-self.gamma * np.einsum("ijk,ijk->ij", diff, diff))
+        gram: FloatArray = np.exp(-self.gamma * np.einsum("ijk,ijk->ij", diff, diff))
+        return gram

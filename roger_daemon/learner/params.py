@@ -94,7 +94,8 @@ def _integer(name: str, value: object, *, low: int) -> int:
         ok, value = True, int(value)
     if not ok or int(value) < low:  # type: ignore[call-overload]
         raise ParameterError(f"{name} must be an integer >= {low}, got {value!r}")
-    return int(value)  # type: ignore[call-overload]
+    out: int = int(value)  # type: ignore[call-overload]
+    return out
 
 
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:

@@ -30,6 +30,8 @@ class Learner(Protocol):
       ``expert_id == -1``); with the default ``expert_choice="argmax"`` it changes nothing.
     * ``predict_multimap(x)``: every expert of the MAP particle, gate probabilities summing
       to at most 1 (the rest is the empty expert's share).
+    * ``predict_with_multimap(x)``: both answers from one pass (one call per control tick),
+      equal to ``predict_one(x)`` then ``predict_multimap(x)``.
     * ``state_dict()`` / ``from_state_dict()``: named arrays without object dtype; the restored
       model continues exactly as the original would.
     """
@@ -39,25 +41,48 @@ class Learner(Protocol):
     d_y: int
 
     @property
-    def n_learned(self) -> int: ...
+    def n_learned(self) -> int:
+        """Pairs learned so far."""
+        ...
 
     @property
-    def n_experts(self) -> int: ...
+    def n_experts(self) -> int:
+        """Experts of the MAP particle (1 for the unimap baseline once it has learned)."""
+        ...
 
-    def learn_one(self, x: npt.ArrayLike, y: npt.ArrayLike) -> None: ...
+    def learn_one(self, x: npt.ArrayLike, y: npt.ArrayLike) -> None:
+        """Learn one pair; ``ValueError`` and no change on a bad shape or value."""
+        ...
 
-    def predict_one(self, x: npt.ArrayLike) -> Prediction: ...
+    def predict_one(self, x: npt.ArrayLike) -> Prediction:
+        """The chosen expert's prediction for ``x``."""
+        ...
 
-    def predict_multimap(self, x: npt.ArrayLike) -> list[ExpertPrediction]: ...
+    def predict_multimap(self, x: npt.ArrayLike) -> list[ExpertPrediction]:
+        """Every expert of the MAP particle at ``x``."""
+        ...
 
-    def assignments(self) -> npt.NDArray[np.int64]: ...
+    def predict_with_multimap(self, x: npt.ArrayLike
+                              ) -> tuple[Prediction, list[ExpertPrediction]]:
+        """``(predict_one(x), predict_multimap(x))`` from one pass."""
+        ...
 
-    def expert_sizes(self) -> dict[int, int]: ...
+    def assignments(self) -> npt.NDArray[np.int64]:
+        """The MAP particle's expert id of every learned point, in order."""
+        ...
 
-    def state_dict(self) -> dict[str, np.ndarray]: ...
+    def expert_sizes(self) -> dict[int, int]:
+        """``{expert_id: points}`` of the MAP particle."""
+        ...
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Named arrays (no object dtype) from which the model continues exactly."""
+        ...
 
     @classmethod
-    def from_state_dict(cls, state: Mapping[str, np.ndarray]) -> Any: ...
+    def from_state_dict(cls, state: Mapping[str, np.ndarray]) -> Any:
+        """The model :meth:`state_dict` describes."""
+        ...
 
 
 #: Every learner the project ships; the conformance suite runs over each.

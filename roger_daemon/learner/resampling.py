@@ -19,6 +19,8 @@ are returned in log space so that tiny survivors do not underflow.  ``M <= P`` k
 from __future__ import annotations
 
 import math
+from functools import partial
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -70,7 +72,7 @@ def _decision_margin(ws: FloatArray, n_keep: int, n_top: int, inv_c: float, u0: 
 
 
 def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Generator,
-                       diagnostics: dict[str, float] | None = None
+                       diagnostics: dict[str, Any] | None = None, *, lazy: bool = False
                        ) -> tuple[IntArray, FloatArray]:
     """Choose at most ``n_keep`` distinct putatives; return ``(indices, log_weights)``.
 
@@ -82,7 +84,9 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Gene
     decision of this call was from going the other way: a weight against the keep-outright
     threshold, or a cumulative weight against a stratified point ``U0 + j/c`` (``inf`` when
     every putative is kept). Round-off of another BLAS kernel can only flip a decision whose
-    margin is of the order of the floats' relative error (docs/reproducibility.md).
+    margin is of the order of the floats' relative error (docs/reproducibility.md).  With
+    ``lazy``, ``"margin"`` is a function of no argument that computes it (a diagnostic that
+    the daemon rarely reads costs nothing until it is read).
 
     Raises
     ------
@@ -112,7 +116,8 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Gene
         return keep_all, lv - lse
     w = expw / total
     order = np.argsort(-w, kind="stable")  # ties broken by index
-    inv_c, n_top = _threshold(w[order], n_keep)
+    ws = w[order]
+    inv_c, n_top = _threshold(ws, n_keep)
     if inv_c <= 0.0:  # fewer than P weights survive exp(): resample the rest in log space
         sel, out = _underflow_resample(lv, lse, order[:n_top], n_keep, rng)
         return (sel if valid is None else valid[sel]), out
@@ -125,7 +130,8 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Gene
     cum = np.cumsum(w[rest])
     crossings = np.ceil((cum - u0) / inv_c)
     if diagnostics is not None:
-        diagnostics["margin"] = _decision_margin(w[order], n_keep, n_top, inv_c, u0, cum)
+        margin = partial(_decision_margin, ws, n_keep, n_top, inv_c, u0, cum)
+        diagnostics["margin"] = margin if lazy else margin()
     np.maximum(crossings, 0.0, out=crossings)
     picked = np.empty(rest.size, dtype=bool)
     picked[0] = crossings[0] > 0.0

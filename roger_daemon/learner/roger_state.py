@@ -63,6 +63,7 @@ def roger_state_dict(model: Roger) -> dict[str, np.ndarray]:
 
 
 def load_roger_state(model: Roger, state: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+    """Set ``model`` (freshly built from the same params) to the saved ``state``."""
     model._learn_rng = generator_from_state(meta["rng_learn"])
     model._predict_rng = generator_from_state(meta["rng_predict"])
     gps = unpack_experts(state, model._new_gp)

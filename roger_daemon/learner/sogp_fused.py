@@ -18,6 +18,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.linalg.blas import dgemm as _dgemm
 
+from roger_daemon.learner import jit as _jit
+
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
 
@@ -139,16 +141,14 @@ def fused_add_delete(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray
     diag += np.einsum("ukn,uk->un", cols_c * cols_c, coef_c)
     diag += np.einsum("ukn,uk->un", cols_q * cols_q, coef_q)
     for j, gp in enumerate(gps):
+        i = -1
         if old[j]:
             i = int(idx[j])
-            for mat in (gp._C, gp._Q):
-                mat[i, :] = 0.0
-                mat[:, i] = 0.0
             gp._B[i] = x
             gp._K[i, :] = ks[j]  # the new basis vector's kernel row replaces row i
             gp._K[:, i] = ks[j]
             gp._K[i, i] = gp.kernel.k_star
         gp._A[:n] = a_stack[j]
-        add_lowrank(gp._C, n, cols_c[j].T, coef_c[j])
-        add_lowrank(gp._Q, n, cols_q[j].T, coef_q[j])
+        # zero row and column i of C and Q, then the rank-3 and rank-2 updates: one pass
+        _jit.rank_update_cq(gp._C, gp._Q, n, i, cols_c[j], coef_c[j], cols_q[j], coef_q[j])
         gp._dg = diag[j].copy()

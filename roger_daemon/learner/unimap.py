@@ -108,6 +108,15 @@ class UnimapGP:
         return [ExpertPrediction(expert_id=0, gate_prob=1.0, mean=pred.mean, var=pred.var,
                                  n_points=self._gp.n_points)]
 
+    def predict_with_multimap(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
+                              ) -> tuple[Prediction, list[ExpertPrediction]]:
+        """``(predict_one(x), predict_multimap(x))`` from one GP evaluation."""
+        pred = self.predict_one(x, rng=rng)
+        if not self._gp.n_points:
+            return pred, []
+        return pred, [ExpertPrediction(expert_id=0, gate_prob=1.0, mean=pred.mean, var=pred.var,
+                                       n_points=self._gp.n_points)]
+
     def assignments(self) -> IntArray:
         """All zeros: every point belongs to the one expert."""
         return np.zeros(self._gp.n_points, dtype=np.int64)

@@ -83,8 +83,7 @@ def behaviour(model: Any, probes: Sequence[Any]) -> dict[str, Any]:
         "probes": [],
     }
     for x in probes:
-        p = model.predict_one(np.asarray(x, dtype=np.float64))
-        mm = model.predict_multimap(np.asarray(x, dtype=np.float64))
+        p, mm = model.predict_with_multimap(np.asarray(x, dtype=np.float64))
         out["probes"].append({
             "x": _floats(x),
             "mean": _floats(p.mean),

@@ -4,8 +4,8 @@
 It reads the session with :func:`~roger_daemon.recording.session_read.read_timeline`, rebuilds the
 model with the recorded params and seed, learns the recorded pairs in the daemon's order, and
 recomputes every recorded prediction from the model at the same ``updates`` count (predictions
-are evaluated in ``updates`` order, then file order, calling ``predict_one`` then
-``predict_multimap`` as the daemon does). No Zenoh is involved.
+are evaluated in ``updates`` order, then file order, calling
+``predict_with_multimap`` as the daemon does). No Zenoh is involved.
 """
 
 from __future__ import annotations
@@ -77,8 +77,7 @@ def _compare(
     model: Model,
     labels_now: dict[int, str] | None,
 ) -> PredictionDiff:
-    pred = model.predict_one(rec.x)
-    mm = list(model.predict_multimap(rec.x))
+    pred, mm = model.predict_with_multimap(rec.x)  # as the daemon does, one call per tick
     rep_ids = [int(e.expert_id) for e in mm]
     rec_ids = [int(e.expert) for e in rec.multimap]
     ids_match = sorted(rep_ids) == sorted(rec_ids)

@@ -177,8 +177,7 @@ def record_synthetic_session(
             if model.n_learned in checkpoint_at:
                 out.checkpoints[model.n_learned] = model.state_dict()
         if mode in ("predict", "learn+predict") and t % predict_every == 0:
-            p = model.predict_one(x[t])
-            mm = model.predict_multimap(x[t])
+            p, mm = model.predict_with_multimap(x[t])  # as the daemon does
             if learned_labels:
                 a = np.asarray(model.assignments())[-len(learned_labels):]
                 names = majority_labels(a, learned_labels)

@@ -52,3 +52,33 @@ def test_benchmark_stream_is_deterministic_and_shaped() -> None:
     hidden2 = np.all(a.x[a.labels == 2, :18] < -0.9, axis=0)
     np.testing.assert_array_equal(hidden0, hidden2)
     assert not np.array_equal(hidden0, np.all(a.x[a.labels == 1, :18] < -0.9, axis=0))
+
+
+def test_bench_aibo_stream_is_shipped_and_learned_with_the_daemon_defaults(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "learner", "--stream", "aibo", "--json", "--points", "25",
+                 "--no-unimap", "--predict-every", "0"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["stream"] == "aibo" and res["points"] == 25 and res["d_x"] == 23
+    assert res["params"]["theta_w"] == 10.0 and res["params"]["gp_prior_mean"] == "expert"
+    assert res["params"]["input_weights"][-2:] == [0.0, 0.0]  # the AIBO profile
+
+
+def test_bench_compare_runs_a_git_revision_beside_this_learner(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from roger_daemon.bench.reference import RevisionError, load_reference
+
+    try:
+        load_reference("HEAD")
+    except RevisionError as exc:  # not a git checkout (an installed wheel)
+        pytest.skip(str(exc))
+    assert main(["bench", "learner", "--stream", "aibo", "--points", "6", "--compare", "HEAD",
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["bench"] == "learner-compare" and res["points"] == 6
+    assert res["ref"]["updates_per_s"] > 0 and res["new"]["updates_per_s"] > 0
+    assert res["speedup"] > 0 and isinstance(res["same_segmentation"], bool)
+    assert main(["bench", "learner", "--points", "4", "--compare", "HEAD"]) == 0
+    assert "speedup (new / REF updates/s)" in capsys.readouterr().out
+    assert main(["bench", "learner", "--points", "4", "--compare", "no-such-revision-xyz"]) == 2
+    assert "--compare" in capsys.readouterr().err

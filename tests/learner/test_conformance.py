@@ -123,3 +123,31 @@ def test_state_dict_round_trips_without_pickle_and_continues_exactly(cls: Any) -
     assert _same_state(model.state_dict(), restored.state_dict())
     q = xs[0]
     assert np.array_equal(model.predict_one(q).mean, restored.predict_one(q).mean)
+
+
+@models
+def test_predict_with_multimap_is_both_calls_in_one(cls: Any) -> None:
+    # float for float and draw for draw: two identically seeded models, one asked twice
+    for params in (PARAMS, PARAMS.replace(expert_choice="sample", predict_empty_expert=True)):
+        a = cls(D_X, D_Y, params=params, seed=3)
+        b = cls(D_X, D_Y, params=params, seed=3)
+        queries = _stream(8, seed=6)[0]
+        for model in (a, b):
+            for x, y in zip(*_stream(50), strict=True):
+                model.learn_one(x, y)
+        for q in queries:
+            pred, mm = a.predict_with_multimap(q)
+            assert _same_prediction(pred, b.predict_one(q))
+            assert [_fields(e) for e in mm] == [_fields(e) for e in b.predict_multimap(q)]
+    empty = _fresh(cls)
+    pred, mm = empty.predict_with_multimap(np.zeros(D_X))
+    assert pred.expert_id == -1 and mm == []
+
+
+def _fields(e: Any) -> tuple[Any, ...]:
+    return (e.expert_id, e.gate_prob, e.mean.tolist(), e.var.tolist(), e.n_points)
+
+
+def _same_prediction(a: Any, b: Any) -> bool:
+    return (a.expert_id, a.gate_prob, a.mean.tolist(), a.var.tolist()) == (
+        b.expert_id, b.gate_prob, b.mean.tolist(), b.var.tolist())

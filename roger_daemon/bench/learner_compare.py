@@ -1,0 +1,97 @@
+"""``roger bench learner --compare REF``: this learner and revision REF's, side by side.
+
+Both models learn the same stream in one process, one update of each in turn (REF's, then
+this one's, for every pair), so both see the same machine load at the same moment; each update
+is timed on its own.  REF's learner comes from git (:mod:`.reference`).  Reported per
+implementation: updates/s, update p50/p99; then ``speedup`` = this updates/s / REF's, and
+whether both ended with the same segmentation (MAP assignments) and the largest difference of
+their final predictions (a float change in the learner shows up there).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.bench.learner import NOTE, BenchStream, _ms, machine_info
+from roger_daemon.bench.reference import load_reference
+from roger_daemon.learner import Roger
+from roger_daemon.learner.jit import warm_up
+
+__all__ = ["compare", "compare_table"]
+
+
+def _summary(samples: list[int]) -> dict[str, float]:
+    return {"updates_per_s": round(len(samples) / (float(np.sum(samples)) * 1e-9), 1),
+            "update_p50_ms": _ms(samples, 50), "update_p99_ms": _ms(samples, 99)}
+
+
+def compare(stream: BenchStream, rev: str, seed: int) -> dict[str, Any]:
+    """Learn ``stream`` with revision ``rev``'s Roger and this Roger, interleaved."""
+    machine = machine_info()
+    ref_pkg, sha = load_reference(rev)
+    points, d_x = stream.x.shape
+    d_y = stream.y.shape[1]
+    ref_params = ref_pkg.RogerParams.from_mapping(stream.params.to_mapping())
+    warm_up()
+    for model in (ref_pkg.Roger(d_x, d_y, ref_params, seed=seed),
+                  Roger(d_x, d_y, stream.params, seed=seed)):  # any compilation, untimed
+        for i in range(min(3, points)):
+            model.learn_one(stream.x[i], stream.y[i])
+    ref = ref_pkg.Roger(d_x, d_y, ref_params, seed=seed)
+    new = Roger(d_x, d_y, stream.params, seed=seed)
+    t_ref: list[int] = []
+    t_new: list[int] = []
+    clock = time.perf_counter_ns
+    for i in range(points):
+        x, y = stream.x[i], stream.y[i]
+        t0 = clock()
+        ref.learn_one(x, y)
+        t1 = clock()
+        new.learn_one(x, y)
+        t2 = clock()
+        t_ref.append(t1 - t0)
+        t_new.append(t2 - t1)
+    a, b = _summary(t_ref), _summary(t_new)
+    probe = stream.x[-1]
+    pa, pb = ref.predict_one(probe), new.predict_one(probe)
+    machine["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
+    return {
+        "bench": "learner-compare",
+        "stream": stream.name,
+        "points": points,
+        "ref": {"rev": rev, "sha": sha, **a, "experts": ref.n_experts},
+        "new": {"rev": "working tree", **b, "experts": new.n_experts},
+        "speedup": round(b["updates_per_s"] / a["updates_per_s"], 2),
+        "same_segmentation": bool(np.array_equal(ref.assignments(), new.assignments())),
+        "prediction_max_abs_diff": float(np.max(np.abs(pa.mean - pb.mean))),
+        "seed": seed,
+        "params": stream.params.to_mapping(),
+        "machine": machine,
+        "note": NOTE,
+    }
+
+
+def compare_table(res: dict[str, Any]) -> str:
+    """The comparison as an aligned text table."""
+    ref, new = res["ref"], res["new"]
+    rows = [("", f"REF {ref['rev']} ({ref['sha'][:10]})", "new (working tree)")]
+    for key, label in (("updates_per_s", "updates/s (mean)"), ("update_p50_ms", "update p50 ms"),
+                       ("update_p99_ms", "update p99 ms"), ("experts", "experts (MAP)")):
+        rows.append((label, str(ref[key]), str(new[key])))
+    w0 = max(len(r[0]) for r in rows)
+    w1 = max(len(r[1]) for r in rows)
+    lines = [f"{r[0]:<{w0}}  {r[1]:<{w1}}  {r[2]}" for r in rows]
+    m = res["machine"]
+    lines += [
+        f"stream {res['stream']}, {res['points']} points, one update of each in turn",
+        f"speedup (new / REF updates/s): {res['speedup']}x",
+        f"same segmentation: {res['same_segmentation']}; final prediction max |diff|: "
+        f"{res['prediction_max_abs_diff']:.3g}",
+        f"machine: {m['cpu']}, {m['cores']} cores, load "
+        f"{m['load_avg_1m_start']}->{m['load_avg_1m_end']}",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,57 @@
+"""The learner's compiled kernels (:mod:`.jit_kernels`), loaded on first use.
+
+Importing numba takes about a second, so commands that import the learner without learning
+(configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
+kernel here imports :mod:`.jit_kernels` and binds its functions into this module, so later
+accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles every kernel
+(or loads it from numba's on-disk cache) before a timed or latency-bound first step.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["KERNELS", "SMALL", "warm_up"]
+
+#: up to this many basis vectors an expert is evaluated entirely in a compiled kernel; above,
+#: ``C k`` is one BLAS matrix-vector product
+SMALL = 64
+
+KERNELS = ("cholesky_inverse", "expert_terms", "gate_log_predictive", "gate_update",
+           "kernel_vector", "rank_update_cq")
+
+
+def _load() -> None:
+    from roger_daemon.learner import jit_kernels
+
+    for name in KERNELS:
+        globals()[name] = getattr(jit_kernels, name)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in KERNELS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    _load()
+    return globals()[name]
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel now, not inside a first step."""
+    from roger_daemon.learner import jit_kernels as k
+
+    _load()
+    n = 2
+    basis = np.zeros((n, 1))
+    mat = np.eye(n)
+    k.kernel_vector(basis, np.zeros(1), 1.0, n)
+    k.expert_terms(basis, mat, np.zeros((n, 1)), np.zeros(1), 1.0, n)
+    k.rank_update_cq(mat.copy(), mat.copy(), n, 0, np.zeros((3, n)), np.zeros(3),
+                     np.zeros((2, n)), np.zeros(2))
+    k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
+    slots = np.zeros(1, dtype=np.int64)
+    vec, cube = np.ones(1), np.ones((1, 1, 1))
+    k.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
+                  cube.copy(), vec.copy())
+    k.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)

@@ -1,0 +1,229 @@
+"""Compiled inner loops of the learner (numba), for the per-expert hot path.
+
+Imported through :mod:`.jit`, which loads this module (and numba, ~1 s) on first use only.
+
+Every learner step evaluates each unique expert once (kernel vector, ``C k``, ``k^T C k``, mean)
+and updates the chosen ones; with small experts (the AIBO experiment's broad kernel keeps ~15
+basis vectors) the cost was numpy's per-call overhead, not arithmetic.  These kernels do one
+expert's work in one call:
+
+* :func:`expert_terms`: ``k``, ``C k``, ``k^T C k`` and ``k^T A`` in one pass (small experts;
+  large ones use :func:`kernel_vector` and BLAS for the matrix-vector product);
+* :func:`rank_update_cq`: the fused hot path's rank-3 update of ``C`` and rank-2 update of
+  ``Q`` in one pass over the two buffers, with row and column ``i`` zeroed first;
+* :func:`cholesky_inverse`: ``K^{-1}`` of a small SPD matrix (Cholesky, then the inverse from
+  the factor), the re-inversion of ``Q`` without LAPACK's per-call overhead;
+* :func:`gate_update`, :func:`gate_log_predictive`: the NIW gates' rank-1 updates and
+  Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each.
+
+Reductions may be reassociated (``fastmath={"reassoc", "contract"}``: no NaN/inf assumptions), so
+the floats differ from numpy's in the last bits, like another BLAS kernel's; the compiled code
+is fixed, so one machine gives the same floats every run (docs/reproducibility.md).  Each
+routine is tested against a numpy oracle (tests/learner/test_jit.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit
+
+__all__ = ["cholesky_inverse", "expert_terms", "gate_log_predictive", "gate_update",
+           "kernel_vector", "rank_update_cq"]
+
+FloatArray = npt.NDArray[np.float64]
+F = TypeVar("F", bound=Callable[..., Any])
+
+_FM = {"reassoc", "contract"}
+
+
+def _compiled(**options: Any) -> Callable[[F], F]:
+    """``numba.njit(cache=True, **options)``; without the on-disk cache where no cache
+    directory is writable (a read-only install with no usable home: numba then refuses
+    ``cache=True`` when decorating), so the kernels are compiled in every process instead.
+    A hardened service sets ``NUMBA_CACHE_DIR`` to a writable path (configs/systemd)."""
+
+    def wrap(fn: F) -> F:
+        try:
+            return cast(F, njit(cache=True, **options)(fn))
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            return cast(F, njit(**options)(fn))
+
+    return wrap
+
+
+@_compiled(fastmath=_FM, nogil=True)
+def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> FloatArray:
+    """``exp(-gamma |b_i - x|^2)`` for the first ``n`` rows of ``basis`` (explicit differences)."""
+    d = basis.shape[1]
+    k = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(d):
+            t = basis[i, j] - x[j]
+            s += t * t
+        k[i] = math.exp(-gamma * s)
+    return k
+
+
+@_compiled(fastmath=_FM, nogil=True)
+def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatArray,
+                 gamma: float, n: int) -> FloatArray:
+    """``[k, C k, k^T C k, k^T A]`` over the live ``n`` rows (every column of ``A``), packed in
+    one array of length ``2 n + 1 + cols`` (one boxed result: each costs a numba unpickle)."""
+    cols = coef.shape[1]
+    out = np.zeros(2 * n + 1 + cols)
+    d = basis.shape[1]
+    for i in range(n):
+        s = 0.0
+        for j in range(d):
+            t = basis[i, j] - x[j]
+            s += t * t
+        out[i] = math.exp(-gamma * s)
+    kck = 0.0
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += cov[i, j] * out[j]
+        out[n + i] = s
+        kck += out[i] * s
+    out[2 * n] = kck
+    base = 2 * n + 1
+    for i in range(n):
+        ki = out[i]
+        for c in range(cols):
+            out[base + c] += ki * coef[i, c]
+    return out
+
+
+@_compiled(fastmath={"contract"}, nogil=True)
+def rank_update_cq(cmat: FloatArray, qmat: FloatArray, n: int, i: int, uc: FloatArray,
+                   cc: FloatArray, uq: FloatArray, cq: FloatArray) -> None:
+    """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
+    ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks, in place, one pass each.
+
+    ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.
+    """
+    if i >= 0:
+        for a in range(n):
+            cmat[i, a] = 0.0
+            cmat[a, i] = 0.0
+            qmat[i, a] = 0.0
+            qmat[a, i] = 0.0
+    for a in range(n):
+        v0 = cc[0] * uc[0, a]
+        v1 = cc[1] * uc[1, a]
+        v2 = cc[2] * uc[2, a]
+        for b in range(n):
+            cmat[a, b] += v0 * uc[0, b] + v1 * uc[1, b] + v2 * uc[2, b]
+    for a in range(n):
+        w0 = cq[0] * uq[0, a]
+        w1 = cq[1] * uq[1, a]
+        for b in range(n):
+            qmat[a, b] += w0 * uq[0, b] + w1 * uq[1, b]
+
+
+@_compiled(nogil=True)
+def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -> bool:
+    """``out[:n, :n] = (K + jitter I)^{-1}`` for the SPD ``K = gram[:n, :n]``; False (``out``
+    untouched) if the Cholesky factorisation fails.  The result is exactly symmetric."""
+    low = np.zeros((n, n))
+    for j in range(n):
+        s = gram[j, j] + jitter
+        for p in range(j):
+            s -= low[j, p] * low[j, p]
+        if not s > 0.0:
+            return False
+        d = math.sqrt(s)
+        low[j, j] = d
+        for r in range(j + 1, n):
+            t = gram[r, j]
+            for p in range(j):
+                t -= low[r, p] * low[j, p]
+            low[r, j] = t / d
+    # W = L^{-1} (lower triangular), then K^{-1} = W^T W
+    inv = np.zeros((n, n))
+    for j in range(n):
+        inv[j, j] = 1.0 / low[j, j]
+        for r in range(j + 1, n):
+            t = 0.0
+            for p in range(j, r):
+                t -= low[r, p] * inv[p, j]
+            inv[r, j] = t / low[r, r]
+    for a in range(n):
+        for b in range(a + 1):
+            t = 0.0
+            for p in range(a, n):
+                t += inv[p, a] * inv[p, b]
+            out[a, b] = t
+            out[b, a] = t
+    return True
+
+
+@_compiled(nogil=True)
+def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, nu: FloatArray,
+                mu: FloatArray, lam: FloatArray, prec: FloatArray, logdet: FloatArray) -> None:
+    """NIW rank-1 updates of the gates in ``slots`` (docs/learner-math.md §3.2), in place.
+
+    ``Lambda += w u u^T`` with ``u = x - mu``, ``w = kappa / (kappa + 1)``; the precision by
+    Sherman-Morrison, ``log|Lambda|`` by the determinant lemma (:class:`.gate.GatePool`).
+    """
+    d = x.shape[0]
+    u = np.empty(d)
+    uw = np.empty(d)
+    pu = np.empty(d)
+    puf = np.empty(d)
+    for s in slots:
+        kp = kappa[s]
+        kp1 = kp + 1.0
+        w = kp / kp1
+        for a in range(d):
+            u[a] = x[a] - mu[s, a]
+            uw[a] = u[a] * w
+        for a in range(d):
+            t = 0.0
+            for b in range(d):
+                t += prec[s, a, b] * u[b]
+            pu[a] = t
+        t = 0.0
+        for a in range(d):
+            t += uw[a] * pu[a]
+        f = w / (1.0 + t)
+        for a in range(d):
+            puf[a] = pu[a] * f
+        for a in range(d):
+            ua = u[a]
+            pa = pu[a]
+            for b in range(d):
+                lam[s, a, b] += ua * uw[b]
+                prec[s, a, b] -= pa * puf[b]
+            mu[s, a] += u[a] / kp1
+        kappa[s] = kp1
+        nu[s] += 1.0
+        logdet[s] += math.log1p(t)
+
+
+@_compiled(nogil=True)
+def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatArray,
+                        prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
+                        inv_nu_c: FloatArray) -> FloatArray:
+    """``log t_s(x)`` of the Student-t predictive of every gate in ``slots`` (§3.3)."""
+    d = x.shape[0]
+    out = np.empty(slots.shape[0])
+    diff = np.empty(d)
+    for j in range(slots.shape[0]):
+        s = slots[j]
+        for a in range(d):
+            diff[a] = x[a] - mu[s, a]
+        delta = 0.0
+        for a in range(d):
+            t = 0.0
+            for b in range(d):
+                t += prec[s, a, b] * diff[b]
+            delta += diff[a] * t
+        out[j] = lognorm[s] - half_nu_d[s] * math.log1p(delta * inv_nu_c[s])
+    return out

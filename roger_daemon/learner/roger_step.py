@@ -1,0 +1,228 @@
+"""One ROGER learning step (paper Algorithm 1, docs/learner-math.md §4), on a :class:`.Roger`.
+
+:func:`putatives` computes the log weight of every putative (each particle's experts plus one
+new empty expert) from predictive quantities only, touching no expert; after resampling,
+:func:`instantiate` builds the survivors and incorporates the point into each chosen expert
+once (copy-on-write of the slots shared with survivors that keep the old version).  Split from
+:mod:`.roger`, whose private state these functions read and write.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
+
+if TYPE_CHECKING:
+    from roger_daemon.learner.roger import Roger
+
+__all__ = ["instantiate", "putatives"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+Terms = tuple[FloatArray, FloatArray, FloatArray, float]
+
+_NEW = np.array([-1], dtype=np.int64)  # the "+1" empty expert in a putative list
+_STAGE1 = 4  # experts evaluated first to sharpen the pruning bound
+
+
+def putatives(model: Roger, xs: FloatArray, ys: FloatArray
+               ) -> tuple[FloatArray, IntArray, IntArray, IntArray, dict[int, Terms]]:
+    """Log weights of all putatives (Algorithm 1, inner loops), touching no expert.
+
+    Putative ``j`` assigns the point to expert slot ``flat_slots[j]`` (``-1``: a new one)
+    of particle ``flat_part[j]``; particle ``p``'s putatives start at ``offsets[p]``.
+    """
+    p = model.params
+    parts = model._particles
+    sizes = np.fromiter((a.size + 1 for a in parts), dtype=np.int64, count=len(parts))
+    flat_slots = np.concatenate([a for s in parts for a in (s, _NEW)])
+    flat_part = np.repeat(np.arange(len(parts)), sizes)
+    offsets = np.cumsum(sizes) - sizes
+    is_new = flat_slots < 0
+    old_slots = flat_slots[~is_new]
+    cap = len(model._gps)
+
+    # gates of all unique experts, batched (§3.4); CRP prior n_k (N + alpha dropped, §4)
+    live = np.flatnonzero(model._ref > 0)
+    slot_gate = np.zeros(cap)
+    slot_gate[live] = model._gates.log_predictive(live, xs)
+    slot_gate[live] += np.log(model._npts[live])
+    base = model._logw[flat_part]
+    base[is_new] += model._log_alpha + model._gates.prior_log_predictive(xs)
+    base[~is_new] += slot_gate[old_slots]
+    if p.sticky_kappa > 0.0 and model.n_learned > 0:
+        add_stickiness(model, base, flat_part, flat_slots, is_new)
+
+    # GP factor: the empty expert analytically, the others once per unique expert
+    ll_new = float(gaussian_log_likelihood(float(ys @ ys), model._empty_var, model.d_y,
+                                           p.likelihood_normaliser))
+    slot_ll, terms = gp_factors(model, xs, ys, live, base, is_new, old_slots, ll_new, cap)
+    lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])
+    return lw, flat_part, flat_slots, offsets, terms
+
+
+def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slots: IntArray,
+                    is_new: npt.NDArray[np.bool_]) -> None:
+    """Sticky CRP (Fox et al. 2008; paper section V): the expert of the previous point in
+    each particle weighs ``n_k + kappa`` instead of ``n_k``; with ``kappa = inf`` every
+    other putative of that particle gets weight 0.  The common normaliser
+    ``N + alpha + kappa`` is dropped like ``N + alpha`` (docs/learner-math.md)."""
+    kappa = model.params.sticky_kappa
+    prev_ids = model._hist_eid[model.n_learned - 1]  # chosen expert id of each particle
+    ids = np.where(is_new, -2, model._ids[np.where(is_new, 0, flat_slots)])
+    is_prev = ids == prev_ids[flat_part]
+    if math.isinf(kappa):
+        base[~is_prev] = -np.inf
+    else:
+        base[is_prev] += np.log1p(kappa / model._npts[flat_slots[is_prev]])
+
+
+def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
+                is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
+                ) -> tuple[FloatArray, dict[int, Terms]]:
+    """``log N(y; mu_s(x), s_s^2 I)`` per slot, ``-inf`` where provably negligible."""
+    slot_ll = np.full(cap, -np.inf)
+    terms: dict[int, Terms] = {}
+    if live.size == 0:
+        return slot_ll, terms
+    margin = model.params.prune_log_margin
+    if math.isinf(margin):
+        cand = live
+        order: IntArray = cand
+    else:
+        # best (particle weight + CRP + gate) over the putatives of each slot
+        best = np.full(cap, -np.inf)
+        np.maximum.at(best, old_slots, base[~is_new])
+        known = float(np.max(base[is_new])) + ll_new  # exact, from the empty expert
+        upper = best[live] + model._gp_bound
+        cand = live[upper >= known - margin]
+        order = cand[np.argsort(-best[cand], kind="stable")]
+    gps = model._gps
+
+    p = model.params
+
+    def evaluate(slots: IntArray) -> None:
+        if slots.size == 0:
+            return
+        batch = []
+        for s in slots.tolist():
+            gp = gps[s]
+            assert gp is not None
+            t = gp.terms(xs)
+            terms[s] = t
+            batch.append(t)
+        diff = ys - np.stack([t[2] for t in batch])
+        var = p.theta_n + np.array([t[3] for t in batch])
+        slot_ll[slots] = gaussian_log_likelihood(np.einsum("ij,ij->i", diff, diff), var,
+                                                 model.d_y, p.likelihood_normaliser)
+
+    if math.isinf(margin) or order.size <= _STAGE1:
+        evaluate(order)
+        return slot_ll, terms
+    first, rest = order[:_STAGE1], order[_STAGE1:]
+    evaluate(first)
+    known = max(known, float(np.max(best[first] + slot_ll[first])))
+    evaluate(rest[best[rest] + model._gp_bound >= known - margin])
+    return slot_ll, terms
+
+
+def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: IntArray,
+                 flat_slots: IntArray, offsets: IntArray, xs: FloatArray, ys: FloatArray,
+                 terms: dict[int, Terms]) -> float:
+    """Build the surviving particles; update each chosen expert once (copy-on-write).
+
+    Returns the smallest novelty-test margin of the updated experts (``inf``: none).
+    """
+    parts = model._particles
+    surv_parent = flat_part[keep]
+    surv_slot = flat_slots[keep]
+    surv_pos = keep - offsets[surv_parent]
+    cap = len(model._gps)
+    # how many survivors contain each slot, and how many of them chose it
+    contains = np.bincount(np.concatenate([parts[i] for i in surv_parent.tolist()]),
+                           minlength=cap)
+    chose = np.bincount(surv_slot[surv_slot >= 0], minlength=cap)
+    target: dict[int, int] = {}
+    upd_gps: list[SparseOnlineGP] = []
+    upd_terms: list[Terms | None] = []
+    upd_slots: list[int] = []
+    for s in np.unique(surv_slot).tolist():
+        if s < 0:  # a new expert, shared by every survivor that opened one this step
+            t = model._alloc_slot()
+            gp = model._new_gp()
+            gp.update(xs, ys)
+            model._gps[t] = gp
+            model._gates.set_prior_updated(t, xs)
+            model._ids[t] = model._next_id
+            model._next_id += 1
+            model._npts[t] = 1
+        else:
+            src = model._gps[s]
+            assert src is not None
+            if contains[s] == chose[s]:  # nobody keeps the old version: update in place
+                t, gp = s, src
+            else:
+                t = model._alloc_slot()
+                gp = src.copy()
+                model._gps[t] = gp
+                model._gates.copy_slot(t, s)
+                model._ids[t] = model._ids[s]
+            upd_gps.append(gp)
+            upd_terms.append(terms.get(s))
+            upd_slots.append(t)
+            model._npts[t] = model._npts[s] + 1
+        target[s] = t
+    # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
+    update_many(upd_gps, xs, ys, upd_terms)
+    if upd_slots:
+        model._gates.update_many(np.array(upd_slots, dtype=np.int64), xs)
+    new_parts: list[IntArray] = []
+    chosen_ids = np.empty(keep.size, dtype=np.int64)
+    for j, (i, s, pos) in enumerate(zip(surv_parent.tolist(), surv_slot.tolist(),
+                                        surv_pos.tolist(), strict=True)):
+        t = target[s]
+        arr = parts[i]
+        if s < 0:
+            arr = np.append(arr, t)
+        elif t != s:
+            arr = arr.copy()
+            arr[pos] = t
+        new_parts.append(arr)  # particle arrays are never mutated: sharing is safe
+        chosen_ids[j] = model._ids[t]
+    # reference counts; free the slots no survivor holds
+    cap = len(model._gps)
+    new_ref = np.bincount(np.concatenate(new_parts), minlength=cap)
+    for s in np.flatnonzero((model._ref > 0) & (new_ref == 0)).tolist():
+        model._gps[s] = None
+        model._ids[s] = -1
+        model._npts[s] = 0
+        model._free.append(s)
+    model._free.sort(reverse=True)
+    model._ref = new_ref
+    model._particles = new_parts
+    model._logw = new_logw
+    record(model, surv_parent, chosen_ids)
+    model.n_learned += 1
+    return min((gp.novelty_margin for gp in upd_gps), default=math.inf)
+
+
+def record(model: Roger, ancestors: IntArray, expert_ids: IntArray) -> None:
+    """Append one row of segmentation history (O(P) per step)."""
+    t = model.n_learned
+    if t >= model._hist_anc.shape[0]:
+        grow = max(64, model._hist_anc.shape[0])
+        width = model.params.particles
+        model._hist_anc = np.concatenate(
+            [model._hist_anc, np.full((grow, width), -1, dtype=np.int32)])
+        model._hist_eid = np.concatenate(
+            [model._hist_eid, np.full((grow, width), -1, dtype=np.int64)])
+    n = ancestors.size
+    model._hist_anc[t, :n] = ancestors
+    model._hist_anc[t, n:] = -1
+    model._hist_eid[t, :n] = expert_ids
+    model._hist_eid[t, n:] = -1

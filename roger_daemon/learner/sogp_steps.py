@@ -1,0 +1,207 @@
+"""The sparse online GP's matrix steps: projection and full updates, deletion, clean-up, and
+the re-inversion of ``Q`` (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5-§2.7).
+
+A base class of :class:`.sogp.SparseOnlineGP`, split from it: these methods change the buffers
+``_B``, ``_A``, ``_C``, ``_Q``, ``_K`` in place; the class there owns them, predicts and
+dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from scipy.linalg.lapack import dpotrf as _dpotrf
+from scipy.linalg.lapack import dpotri as _dpotri
+
+from roger_daemon.learner import jit as _jit
+from roger_daemon.learner.kernel import RBFKernel
+from roger_daemon.learner.sogp_fused import add_lowrank as _add_lowrank
+
+__all__ = ["GAMMA_FLOOR", "NEAR_DEPENDENT", "SOGPSteps"]
+
+FloatArray = npt.NDArray[np.float64]
+
+GAMMA_FLOOR = 1e-12  # projection residuals below this count as 0 (learner-math.md §2.5 step 3)
+# Q = K_B^-1 is kept by rank-1 updates and drifts when K_B is ill-conditioned (pitfall 6: a
+# broad kernel and a small novelty threshold admit near-duplicate basis vectors). Two O(n)
+# consistency checks that exact arithmetic guarantees trigger a re-inversion from the basis:
+# gamma = k* - k^T Q k >= 0 (a squared distance), and Q_ii >= 1/K_ii = 1/k*.
+_Q_DRIFT_TOL = 1e-6
+NEAR_DEPENDENT = 1e-3  # a basis vector added with gamma below this (x k*) re-inverts Q
+_Q_JITTER = 1e-10  # times k*: first jitter tried if K_B's Cholesky factorisation fails
+
+
+class SOGPSteps:
+    """The in-place matrix steps of a sparse online GP (state: :class:`.sogp.SparseOnlineGP`)."""
+
+    __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
+                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_K", "_dg", "q_refreshes",
+                 "prior_mean", "_m", "novelty_margin")
+    kernel: RBFKernel
+    capacity: int | None
+    novelty_threshold: float
+    fused: bool
+    d_y: int
+    n: int
+    q_refreshes: int
+    _B: FloatArray
+    _A: FloatArray
+    _C: FloatArray
+    _Q: FloatArray
+    _K: FloatArray
+    _dg: FloatArray | None
+
+    def q_inconsistent(self, gamma: float) -> bool:
+        """True when ``Q`` has visibly drifted from ``K_B^-1`` (see ``_Q_DRIFT_TOL``)."""
+        kstar = self.kernel.k_star
+        if gamma < -_Q_DRIFT_TOL * kstar:
+            return True
+        diag = np.diagonal(self._Q)[: self.n]
+        return bool(diag.size and float(diag.min()) * kstar < 1.0 - _Q_DRIFT_TOL)
+
+    def refresh_inverse_gram(self) -> None:
+        """Re-invert ``Q = K_B^-1`` by Cholesky (docs/learner-math.md, matrix drift).
+
+        Only ``Q`` is a function of the basis alone; ``A`` and ``C`` carry the data and are kept.
+        ``K_B`` is the kept copy (no Gram matrix is recomputed); LAPACK ``dpotrf`` then
+        ``dpotri`` (the inverse from the factor, lower triangle mirrored, so ``Q`` is exactly
+        symmetric).  Counted in :attr:`q_refreshes`.
+        """
+        n = self.n
+        jitter = 0.0
+        if n <= _jit.SMALL:  # compiled: no LAPACK call overhead at this size
+            while not _jit.cholesky_inverse(self._K, n, jitter, self._Q):
+                jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
+            self._dg = None
+            self.q_refreshes += 1
+            return
+        gram = self._K[:n, :n]
+        while True:  # K_B is SPD in exact arithmetic; add jitter only if round-off says no
+            factor, info = _dpotrf(gram if jitter == 0.0 else gram + jitter * np.eye(n),
+                                   lower=1, clean=0)
+            if info == 0:
+                break
+            jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
+        inv, _ = _dpotri(factor, lower=1, overwrite_c=1)
+        low = np.tril(inv)
+        self._Q[:n, :n] = low + np.tril(low, -1).T
+        self._dg = None
+        self.q_refreshes += 1
+
+    def _diag_cq(self) -> FloatArray:
+        """``diag(C) + diag(Q)`` (cached by the fused hot path, else read off the matrices)."""
+        if self._dg is not None:
+            return self._dg
+        n = self.n
+        return np.diagonal(self._C)[:n] + np.diagonal(self._Q)[:n]
+
+    def _fusable(self) -> bool:
+        """Full and contiguous: the fused add-then-delete hot path applies."""
+        return (self.fused and self.capacity is not None and self.n == self.capacity
+                and self._C.shape[0] == self.n)
+
+    def _sparse_update(self, ck: FloatArray, e_hat: FloatArray, gamma: float, r: float,
+                       q: FloatArray) -> None:
+        """Step 4a: projection update, BV set unchanged; ``eta = 1/(1 + gamma r)``."""
+        n = self.n
+        self._dg = None
+        eta = 1.0 / (1.0 + gamma * r)
+        s_hat = ck + e_hat
+        self._A[:n] += np.outer(s_hat, q) * eta
+        _add_lowrank(self._C, n, s_hat[:, None], np.array([r * eta]))
+
+    def _clean_up(self) -> None:
+        """Steps 5 and 6: ``while n > beta`` delete; geometric clean-up (Csató)."""
+        if self.capacity is not None:
+            while self.n > self.capacity:
+                self.delete(self._deletion_choice())
+        floor = self.novelty_threshold * 1e-3
+        while self.n > 1 and floor > 0.0:
+            diag = np.diagonal(self._Q)[: self.n]
+            i = int(np.argmax(diag))
+            if 1.0 / diag[i] >= floor:
+                break
+            self.delete(i)
+
+    def _full_update(self, x: FloatArray, k: FloatArray, ck: FloatArray, e_hat: FloatArray,
+                     gamma: float, r: float, q: FloatArray) -> None:
+        """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
+        n = self.n
+        self._dg = None
+        self._grow(n + 1)
+        self._B[n] = x
+        s = np.empty(n + 1)
+        s[:n] = ck
+        s[n] = 1.0
+        self._A[n] = 0.0
+        self._A[: n + 1] += np.outer(s, q)
+        e = np.empty(n + 1)
+        e[:n] = e_hat
+        e[n] = -1.0
+        for mat in (self._C, self._Q):
+            mat[n, : n + 1] = 0.0
+            mat[:n, n] = 0.0
+        self._K[n, :n] = k
+        self._K[:n, n] = k
+        self._K[n, n] = self.kernel.k_star
+        _add_lowrank(self._C, n + 1, s[:, None], np.array([r]))
+        _add_lowrank(self._Q, n + 1, e[:, None], np.array([1.0 / gamma]))
+        self.n = n + 1
+
+    def _deletion_choice(self) -> int:
+        """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
+        n = self.n
+        a = self._A[:n, : self.d_y]  # the centred columns (not a1)
+        den = np.diagonal(self._Q)[:n] + np.diagonal(self._C)[:n]
+        # Q_ii + C_ii > 0 in exact arithmetic (a diagonal of K^-1 Sigma_post K^-1); guard it
+        score = np.einsum("ij,ij->i", a, a) / np.maximum(den, 1e-300)
+        return int(np.argmin(score))
+
+    def delete(self, i: int) -> None:
+        """Remove basis vector ``i`` with the rank-1 corrections of thesis App. G(g) (§2.7)."""
+        n = self.n
+        self._dg = None
+        j = n - 1
+        if i != j:  # permute i to the end
+            idx = [i, j]
+            rev = [j, i]
+            for mat in (self._C, self._Q, self._K):
+                v = mat[:n, :n]
+                v[idx] = v[rev]
+                v[:, idx] = v[:, rev]
+            self._A[idx] = self._A[rev]
+            self._B[idx] = self._B[rev]
+        a_star = self._A[j].copy()
+        c_star = float(self._C[j, j])
+        q_star = float(self._Q[j, j])
+        q_v = self._Q[:j, j].copy()
+        w = q_v + self._C[:j, j]
+        den = q_star + c_star
+        inv_den = 1.0 / den if den > 0.0 else 0.0  # broken: Q-only (marginal) removal
+        self._A[:j] -= np.outer(w, a_star) * inv_den
+        cols = np.empty((j, 2), order="F")
+        cols[:, 0] = q_v
+        cols[:, 1] = w
+        _add_lowrank(self._C, j, cols, np.array([1.0 / q_star, -inv_den]))
+        _add_lowrank(self._Q, j, cols[:, :1], np.array([-1.0 / q_star]))
+        self.n = j
+
+    def _grow(self, need: int) -> None:
+        alloc = self._C.shape[0]
+        if need <= alloc:
+            return
+        new = max(8, (alloc * 3) // 2)
+        if self.capacity is not None:
+            new = min(new, self.capacity)
+        new = max(new, need)
+        n = self.n
+        for name in ("_B", "_A"):
+            old = getattr(self, name)
+            buf = np.zeros((new, old.shape[1]))
+            buf[:n] = old[:n]
+            setattr(self, name, buf)
+        for name in ("_C", "_Q", "_K"):
+            old = getattr(self, name)
+            buf = np.zeros((new, new))
+            buf[:n, :n] = old[:n, :n]
+            setattr(self, name, buf)
