@@ -29,7 +29,7 @@ import numpy as np
 
 from protocols import ExpertOutput
 from protocols.aibo import DIMS
-from simulator.episodes import SoccerSim, StartLocation, run_episode
+from simulator.episodes import EpisodeResult, SoccerSim, StartLocation, run_episode
 from simulator.experiment.training import Demonstrations
 from simulator.hcc import HCC
 from simulator.hcc_node import transition_command
@@ -64,8 +64,7 @@ def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, 
         for shot in range(shots):
             rec = _Recorder(hcc)
             res = run_episode(sim, rec, loc, seed, shot, start=_start(starts, loc))
-            records.append(EpisodeRecord(loc, shot, res.outcome, res.success, res.sim_time_s,
-                                         res.ticks, dict(res.counters)))
+            records.append(EpisodeRecord.of(res))
             xs.extend(rec.x)
             ys.extend(rec.y)
             labels.extend(rec.labels)
@@ -206,6 +205,12 @@ class EpisodeRecord:
     path_m: float = 0.0
     ball_path_m: float = 0.0
 
+    @classmethod
+    def of(cls, res: EpisodeResult) -> EpisodeRecord:
+        """The record of a finished episode of the simulator."""
+        return cls(res.location, res.repetition, res.outcome, res.success, res.sim_time_s,
+                   res.ticks, dict(res.counters), res.path_m, res.ball_path_m)
+
     @property
     def failure_mode(self) -> str:
         """How the episode ended, in words (:func:`failure_mode`)."""
@@ -278,8 +283,7 @@ def evaluate(sim: SoccerSim, controller: Any, locations: Sequence[int], attempts
     for loc in locations:
         for rep in range(attempts):
             res = run_episode(sim, controller, loc, seed, rep, start=_start(starts, loc))
-            rec = EpisodeRecord(loc, rep, res.outcome, res.success, res.sim_time_s, res.ticks,
-                                dict(res.counters), res.path_m, res.ball_path_m)
+            rec = EpisodeRecord.of(res)
             out.append(rec)
             if on_episode is not None:
                 on_episode(rec)
