@@ -155,6 +155,7 @@ class SoccerSim:
         self.repetition = 0
         self.path_m = 0.0
         self.ball_path_m = 0.0
+        self._xy = (0.0, 0.0, 0.0, 0.0)  # robot x, y and ball x, y after the last step
         self._vision_rng = np.random.default_rng(0)
 
     @property
@@ -190,6 +191,7 @@ class SoccerSim:
         self.outcome = None
         self.location, self.seed, self.repetition = location, seed, repetition
         self.path_m = self.ball_path_m = 0.0
+        self._xy = self._positions()
         return self.perceive()
 
     def perceive(self) -> np.ndarray:
@@ -203,15 +205,18 @@ class SoccerSim:
         """Execute command ``y`` for one tick; returns the outcome if the episode just ended."""
         if self.outcome is not None:
             raise RuntimeError("episode is over; call reset()")
-        rx, ry, _ = self.world.robot_pose()
-        bx, by, _ = self.world.ball_position()
         self.world.step(np.asarray(y, dtype=np.float64))
-        rx2, ry2, _ = self.world.robot_pose()
-        bx2, by2, _ = self.world.ball_position()
-        self.path_m += math.hypot(rx2 - rx, ry2 - ry)
-        self.ball_path_m += math.hypot(bx2 - bx, by2 - by)
+        rx, ry, bx, by = self._xy
+        self._xy = self._positions()
+        self.path_m += math.hypot(self._xy[0] - rx, self._xy[1] - ry)
+        self.ball_path_m += math.hypot(self._xy[2] - bx, self._xy[3] - by)
         self.outcome = self._check()
         return self.outcome
+
+    def _positions(self) -> tuple[float, float, float, float]:
+        rx, ry, _ = self.world.robot_pose()
+        bx, by, _ = self.world.ball_position()
+        return rx, ry, bx, by
 
     def stop(self) -> None:
         """End the episode early (shutdown)."""
