@@ -126,6 +126,14 @@ def test_quick_evaluation_ran_each_controller_cleanly(
     assert tr["roger:0"]["controller_label"] + tr["roger:0"]["controller_fallback_top"] > 0
     # the DPA node forwarded one command per simulator tick
     assert tr["dpa"]["sim_ticks"] > 0
+    # ... and traced every tick it commanded: the averaging measure covers its episodes
+    from simulator.experiment.dpa_node import read_trace
+
+    traced = [len(x) for d in sorted((out / "work" / "eval" / "dpa").iterdir())
+              for _, _, x, _ in read_trace(d / "dpa-trace.npz")]
+    assert sum(traced) == sum(e["ticks"] for e in r["episodes"]["dpa"])
+    for e in r["episodes"]["dpa"]:
+        assert 0.0 <= e["averaged_share"] <= e["aliased_share"] <= 1.0
     for name in ("fig7_pca", "fig8_experts", "success_per_location"):
         assert Path(r["figures"][name]).read_bytes()[:8] == PNG
     assert (out / "models" / "roger-0" / "aibo").is_dir()

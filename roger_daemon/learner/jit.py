@@ -20,7 +20,7 @@ __all__ = ["KERNELS", "SMALL", "warm_up"]
 SMALL = 64
 
 KERNELS = ("cholesky_inverse", "expert_terms", "gate_log_predictive", "gate_update",
-           "kernel_vector", "rank_update_cq")
+           "kernel_vector", "rank_update_cq", "trace_assignments")
 
 
 def _load() -> None:
@@ -55,3 +55,4 @@ def warm_up() -> None:
     k.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
                   cube.copy(), vec.copy())
     k.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
+    k.trace_assignments(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1, 0)

@@ -14,7 +14,10 @@ expert's work in one call:
 * :func:`cholesky_inverse`: ``K^{-1}`` of a small SPD matrix (Cholesky, then the inverse from
   the factor), the re-inversion of ``Q`` without LAPACK's per-call overhead;
 * :func:`gate_update`, :func:`gate_log_predictive`: the NIW gates' rank-1 updates and
-  Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each.
+  Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each;
+* :func:`trace_assignments`: the MAP particle's expert per learned point, chased back through
+  the stored ancestors (integers only: exact).  The daemon labels its experts at every tick
+  of ``learn+predict``, so this runs once per pair over the whole history.
 
 Reductions may be reassociated (``fastmath={"reassoc", "contract"}``: no NaN/inf assumptions), so
 the floats differ from numpy's in the last bits, like another BLAS kernel's; the compiled code
@@ -33,7 +36,7 @@ import numpy.typing as npt
 from numba import njit
 
 __all__ = ["cholesky_inverse", "expert_terms", "gate_log_predictive", "gate_update",
-           "kernel_vector", "rank_update_cq"]
+           "kernel_vector", "rank_update_cq", "trace_assignments"]
 
 FloatArray = npt.NDArray[np.float64]
 F = TypeVar("F", bound=Callable[..., Any])
@@ -226,4 +229,18 @@ def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatAr
                 t += prec[s, a, b] * diff[b]
             delta += diff[a] * t
         out[j] = lognorm[s] - half_nu_d[s] * math.log1p(delta * inv_nu_c[s])
+    return out
+
+
+@_compiled(nogil=True)
+def trace_assignments(ancestors: npt.NDArray[np.int32], experts: npt.NDArray[np.int64], n: int,
+                      last: int) -> npt.NDArray[np.int64]:
+    """``out[t] = experts[t, j_t]`` with ``j_{n-1} = last`` and ``j_{t-1} = ancestors[t, j_t]``:
+    the expert of every learned point along one particle's lineage (paper Algorithm 1's
+    stored choices, read back from the final particle)."""
+    out = np.empty(n, dtype=np.int64)
+    j = last
+    for t in range(n - 1, -1, -1):
+        out[t] = experts[t, j]
+        j = ancestors[t, j]
     return out

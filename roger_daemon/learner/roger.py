@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner import jit
 from roger_daemon.learner.gate import GatePool
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
@@ -278,18 +279,15 @@ class Roger:
     def assignments(self) -> IntArray:
         """The MAP particle's expert id for every learned point, in order.
 
-        Traced back through the stored (ancestor, chosen expert) of each step: O(N) per call,
-        O(P) memory per step.
+        Traced back through the stored (ancestor, chosen expert) of each step: O(N) per call in
+        a compiled loop (:func:`.jit_kernels.trace_assignments`), O(P) memory per step.
         """
         n = self.n_learned
-        anc = self._hist_anc[:n].tolist()  # plain lists: the pointer chase stays in Python
-        eid = self._hist_eid[:n].tolist()
-        out = [0] * n
-        j = int(np.argmax(self._logw))
-        for t in range(n - 1, -1, -1):
-            out[t] = eid[t][j]
-            j = anc[t][j]
-        return np.array(out, dtype=np.int64)
+        if n == 0:
+            return np.zeros(0, dtype=np.int64)
+        out: IntArray = jit.trace_assignments(self._hist_anc, self._hist_eid, n,
+                                              int(np.argmax(self._logw)))
+        return out
 
     def distinct_experts(self) -> list[SparseOnlineGP]:
         """The distinct SOGPs held by the particles (for inspection and tests)."""

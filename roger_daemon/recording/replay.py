@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from roger_daemon.labels import majority_labels
+from roger_daemon.labels import majority_labels, majority_labels_coded
 from roger_daemon.recording.compare import max_abs_diff, rel_err
 from roger_daemon.recording.replay_checkpoint import (
     load_checkpoint,
@@ -162,6 +162,10 @@ def _replay_segment(
     """
     preds = sorted(seg.predictions, key=lambda p: p.updates)  # stable: file order within a count
     labels: list[str] = []
+    # the labels as codes into ``vocab`` too, so that labelling the experts at each prediction
+    # is one vectorised pass (the rule is :func:`majority_labels_coded`'s either way)
+    vocab: dict[str, int] = {}
+    codes = np.zeros(len(seg.pairs), dtype=np.int64)
     unreplayable = 0
     errors = 0
     pi = 0
@@ -177,8 +181,9 @@ def _replay_segment(
                 continue
             labels_now = None
             if label_budget and rec.multimap and labels:
-                labels_now = majority_labels(np.asarray(model.assignments())[-len(labels):],
-                                             labels)
+                labels_now = majority_labels_coded(
+                    np.asarray(model.assignments())[-len(labels):], codes[:len(labels)],
+                    list(vocab))
             diffs.append(_compare(seg_no, rec, model, labels_now))
 
     learned = seg.start_updates
@@ -190,6 +195,7 @@ def _replay_segment(
             errors += 1
         else:
             learned += 1
+            codes[len(labels)] = vocab.setdefault(pair.label, len(vocab))
             labels.append(pair.label)
             step = getattr(model, "last_margins", None)
             if margins is not None and step:

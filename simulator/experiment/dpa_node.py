@@ -12,19 +12,27 @@ prediction(t), and a re-sent perception gets a second prediction of the same tic
 node forwards again (the simulator counts the duplicate as stale). With ``--exit-when-done``
 the node exits on the simulator's final ``end`` event; it prints its counters as one JSON line
 (also to ``--stats FILE``).
+
+With ``--trace FILE`` it also keeps, per tick, the perception and the command it sent, and the
+episodes' first ticks, and writes them at exit as one ``.npz`` (``tick``, ``x``, ``y``,
+``start_tick``, ``start_location``, ``start_repetition``; no pickled objects): the experiment
+measures from it how much of each episode averaged the multimap
+(:mod:`simulator.experiment.averaging`).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from protocols import Command, EpisodeEvent, Prediction, keys
+from protocols import Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
 from simulator.transport import (
@@ -39,7 +47,7 @@ from simulator.transport import (
     wait_for,
 )
 
-__all__ = ["configure", "run"]
+__all__ = ["CommandTrace", "configure", "read_trace", "run"]
 
 log = logging.getLogger("roger.dpa")
 
@@ -58,6 +66,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="exit after this many seconds without a prediction (0: never)",
     )
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
+    parser.add_argument("--trace", default=None,
+                        help="write each tick's perception and command (.npz) here at exit")
     add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
 
 
@@ -71,10 +81,13 @@ class DPANode:
         self.invalid = InvalidCounter("dpa")
         self.counts = {"predictions": 0, "commands": 0, "repeated_ticks": 0, "episodes": 0}
         self.last_tick = -1
+        self.trace = CommandTrace() if args.trace else None
 
     def run(self, session: Any) -> dict[str, Any]:
         preds = Inbox(session, self.robot, "prediction", DIMS, self.invalid, capacity=256)
         events = Inbox(session, self.robot, "episode", None, self.invalid, capacity=256)
+        percs = (Inbox(session, self.robot, "perception", DIMS, self.invalid, capacity=256)
+                 if self.trace is not None else None)
         pub = publisher(session, keys.command(self.robot))
         source = f"dpa:{self.args.model}"
         last_seen = time.monotonic()
@@ -85,6 +98,8 @@ class DPANode:
                 assert isinstance(ev, EpisodeEvent)
                 if ev.event == "start":
                     self.counts["episodes"] += 1
+                    if self.trace is not None:
+                        self.trace.start(ev.data)
                 if ev.event == "end" and ev.data.get("run_complete") and self.args.exit_when_done:
                     done = True
             if msg is None:
@@ -98,10 +113,18 @@ class DPANode:
             if msg.tick == self.last_tick:
                 self.counts["repeated_ticks"] += 1
             self.last_tick = msg.tick
-            put(pub, Command(self.robot, msg.tick, msg.t, y=np.asarray(msg.mean), source=source))
+            y = np.asarray(msg.mean)
+            put(pub, Command(self.robot, msg.tick, msg.t, y=y, source=source))
             self.counts["commands"] += 1
+            if self.trace is not None and percs is not None:
+                self.trace.perceptions(percs.drain())
+                self.trace.command(msg.tick, y)
         preds.close()
         events.close()
+        if self.trace is not None and percs is not None:
+            self.trace.perceptions(percs.drain())
+            percs.close()
+            self.trace.write(self.args.trace)
         return {
             "role": "dpa",
             "robot": self.robot,
@@ -109,6 +132,55 @@ class DPANode:
             "invalid_messages": self.invalid.total(),
             "invalid_by_reason": dict(self.invalid.counts),
         }
+
+
+class CommandTrace:
+    """Perception and command per tick, and the episodes' starts (``--trace``)."""
+
+    def __init__(self) -> None:
+        self._x: dict[int, np.ndarray] = {}
+        self._y: dict[int, np.ndarray] = {}  # a re-sent tick: its last command
+        self._starts: list[tuple[int, int, int]] = []
+
+    def start(self, data: Mapping[str, Any]) -> None:
+        """An episode's ``start`` event (its first tick, location and repetition)."""
+        self._starts.append((int(data.get("tick", 0)), int(data.get("location", -1)),
+                             int(data.get("repetition", -1))))
+
+    def perceptions(self, msgs: list[Any]) -> None:
+        """Perceptions received (a job's few episodes: kept whole, joined at :meth:`write`)."""
+        for m in msgs:
+            assert isinstance(m, Perception)
+            self._x[m.tick] = np.asarray(m.x, dtype=np.float64)
+
+    def command(self, tick: int, y: np.ndarray) -> None:
+        """The command sent for ``tick``."""
+        self._y[tick] = np.asarray(y, dtype=np.float64)
+
+    def write(self, path: str) -> None:
+        """One ``.npz`` (the module docstring's arrays), written whole or not at all."""
+        ticks = np.array(sorted(set(self._x) & set(self._y)), dtype=np.int64)
+        xs = np.array([self._x[int(t)] for t in ticks]).reshape(len(ticks), DIMS.x)
+        ys = np.array([self._y[int(t)] for t in ticks]).reshape(len(ticks), DIMS.y)
+        starts = np.array(self._starts, dtype=np.int64).reshape(-1, 3)
+        tmp = f"{path}.tmp.npz"
+        np.savez(tmp, tick=ticks, x=xs, y=ys, start_tick=starts[:, 0],
+                 start_location=starts[:, 1], start_repetition=starts[:, 2])
+        os.replace(tmp, path)
+
+
+def read_trace(path: str | os.PathLike[str]) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """``(location, repetition, x, y)`` per episode of a ``--trace`` file."""
+    with np.load(path, allow_pickle=False) as f:
+        tick, x, y = f["tick"], f["x"], f["y"]
+        starts = list(zip(f["start_tick"].tolist(), f["start_location"].tolist(),
+                          f["start_repetition"].tolist(), strict=True))
+    out = []
+    for k, (first, loc, rep) in enumerate(starts):
+        end = starts[k + 1][0] if k + 1 < len(starts) else np.iinfo(np.int64).max
+        sel = (tick >= first) & (tick < end)
+        out.append((int(loc), int(rep), x[sel], y[sel]))
+    return out
 
 
 def run(args: argparse.Namespace) -> int:

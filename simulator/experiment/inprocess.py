@@ -30,6 +30,7 @@ import numpy as np
 from protocols import ExpertOutput
 from protocols.aibo import DIMS
 from simulator.episodes import EpisodeResult, SoccerSim, StartLocation, run_episode
+from simulator.experiment.averaging import MultimapNeighbourhood
 from simulator.experiment.training import Demonstrations
 from simulator.hcc import HCC
 from simulator.hcc_node import transition_command
@@ -175,20 +176,37 @@ class OracleController:
 
 
 class MeanController:
-    """The unimap GP's predictive mean is the command (``roger experiment dpa``)."""
+    """The unimap GP's predictive mean is the command (``roger experiment dpa``).
 
-    def __init__(self, model: Any) -> None:
+    With ``neighbourhood`` (the demonstrations it learned) it keeps the episode's perceptions
+    and commands and :meth:`averaging` says how much of the episode averaged the multimap
+    (:mod:`simulator.experiment.averaging`)."""
+
+    def __init__(self, model: Any, neighbourhood: MultimapNeighbourhood | None = None) -> None:
         self.model = model
+        self.neighbourhood = neighbourhood
         self.counts: Counter[str] = Counter()
+        self._xs: list[np.ndarray] = []
+        self._commands: list[np.ndarray] = []
 
     def reset(self) -> None:
-        """Start an episode (the unimap GP keeps no episode state)."""
-        pass
+        """Start an episode (the unimap GP keeps no episode state; the trace restarts)."""
+        self._xs.clear()
+        self._commands.clear()
 
     def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
         """One tick: the unimap GP's mean as the command, no subtask."""
-        y = np.asarray(self.model.predict_one(x).mean, dtype=np.float64)
-        return _finite(y, x, self.counts), ""
+        y = _finite(np.asarray(self.model.predict_one(x).mean, dtype=np.float64), x, self.counts)
+        if self.neighbourhood is not None:
+            self._xs.append(np.array(x, dtype=np.float64))
+            self._commands.append(y)
+        return y, ""
+
+    def averaging(self) -> dict[str, float]:
+        """``aliased_share``/``averaged_share`` of the episode so far ({} without data)."""
+        if self.neighbourhood is None or not self._xs:
+            return {}
+        return self.neighbourhood.episode_summary(np.array(self._xs), np.array(self._commands))
 
 
 @dataclass
@@ -204,12 +222,16 @@ class EpisodeRecord:
     counters: dict[str, int] = field(default_factory=dict)
     path_m: float = 0.0
     ball_path_m: float = 0.0
+    #: the DPA's averaging measure (:mod:`simulator.experiment.averaging`), when measured
+    averaging: dict[str, float] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, res: EpisodeResult) -> EpisodeRecord:
+    def of(cls, res: EpisodeResult, averaging: Mapping[str, float] | None = None
+           ) -> EpisodeRecord:
         """The record of a finished episode of the simulator."""
         return cls(res.location, res.repetition, res.outcome, res.success, res.sim_time_s,
-                   res.ticks, dict(res.counters), res.path_m, res.ball_path_m)
+                   res.ticks, dict(res.counters), res.path_m, res.ball_path_m,
+                   dict(averaging or {}))
 
     @property
     def failure_mode(self) -> str:
@@ -223,7 +245,7 @@ class EpisodeRecord:
             "success": self.success, "sim_time_s": round(self.sim_time_s, 3),
             "ticks": self.ticks, **{k: int(v) for k, v in self.counters.items()},
             "path_m": round(self.path_m, 3), "ball_path_m": round(self.ball_path_m, 3),
-            "failure_mode": self.failure_mode,
+            "failure_mode": self.failure_mode, **self.averaging,
         }
 
 
@@ -283,7 +305,8 @@ def evaluate(sim: SoccerSim, controller: Any, locations: Sequence[int], attempts
     for loc in locations:
         for rep in range(attempts):
             res = run_episode(sim, controller, loc, seed, rep, start=_start(starts, loc))
-            rec = EpisodeRecord.of(res)
+            averaging = controller.averaging() if hasattr(controller, "averaging") else None
+            rec = EpisodeRecord.of(res, averaging)
             out.append(rec)
             if on_episode is not None:
                 on_episode(rec)

@@ -23,6 +23,7 @@ import numpy as np
 from roger_daemon.labels import majority_labels
 from simulator.episodes import SoccerSim, StartLocation
 from simulator.experiment import inprocess as ip
+from simulator.experiment.averaging import MultimapNeighbourhood
 from simulator.experiment.metrics import downsample_per_label
 from simulator.experiment.training import Demonstrations, train
 from simulator.hcc import HCC
@@ -109,7 +110,7 @@ def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[in
             out[f"roger:{k}"] = ip.TransitionerController(make_hcc(plan), model, groups,
                                                           plan.rule)
     if "dpa" in plan.controllers:
-        out["dpa"] = ip.MeanController(unimap)
+        out["dpa"] = ip.MeanController(unimap, MultimapNeighbourhood(stream.x, stream.y))
     return out
 
 

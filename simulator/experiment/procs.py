@@ -34,6 +34,7 @@ from roger_daemon.harness import free_port as _free_port
 from roger_daemon.harness import write_config
 
 __all__ = [
+    "DPA_TRACE",
     "EpisodeJob",
     "JobError",
     "JobResult",
@@ -44,6 +45,10 @@ __all__ = [
     "roger_argv",
     "run_job",
 ]
+
+#: the DPA controller's per-tick perceptions and commands in its job's directory
+#: (``roger experiment dpa --trace``; :mod:`simulator.experiment.averaging` reads it)
+DPA_TRACE = "dpa-trace.npz"
 
 _PORT_LOCK = threading.Lock()
 _PORTS_USED: set[int] = set()
@@ -338,7 +343,7 @@ def _start_predict_daemon(group: ProcessGroup, job: EpisodeJob, port: int) -> No
 def run_job(job: EpisodeJob) -> JobResult:
     """Run one job's processes to completion; return the simulator's and controller's JSON."""
     job.workdir.mkdir(parents=True, exist_ok=True)
-    for stale in ("job.json", "sim.json", "controller.json"):
+    for stale in ("job.json", "sim.json", "controller.json", DPA_TRACE):
         (job.workdir / stale).unlink(missing_ok=True)
     if (job.workdir / "mcap").exists():
         shutil.rmtree(job.workdir / "mcap")
@@ -368,7 +373,8 @@ def run_job(job: EpisodeJob) -> JobResult:
             if job.controller == "roger":
                 controller = roger_argv("hcc", "--role", "transitioner", "--rule", job.rule)
             else:
-                controller = roger_argv("experiment", "dpa")
+                controller = roger_argv("experiment", "dpa", "--trace",
+                                        str(job.workdir / DPA_TRACE))
             peers = 2
         else:
             raise ValueError(f"unknown controller {job.controller!r}")

@@ -55,9 +55,36 @@ def controller_block(episodes: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
     modes = [e.get("failure_mode") or failure_mode(e["outcome"], e, e.get("path_m"))
              for e in episodes]
-    return {**success_rate([bool(e["success"]) for e in episodes]).to_json(),
-            "outcomes": dict(Counter(e["outcome"] for e in episodes)),
-            "failure_modes": dict(Counter(modes))}
+    out = {**success_rate([bool(e["success"]) for e in episodes]).to_json(),
+           "outcomes": dict(Counter(e["outcome"] for e in episodes)),
+           "failure_modes": dict(Counter(modes))}
+    averaging = averaging_block(episodes, modes)
+    if averaging:
+        out["averaging"] = averaging
+    return out
+
+
+def averaging_block(episodes: Sequence[dict[str, Any]], modes: Sequence[str]) -> dict[str, Any]:
+    """How many failed episodes averaged the multimap (:mod:`.averaging`), by failure mode;
+    {} when no episode was measured."""
+    from simulator.experiment.averaging import AVERAGED_EPISODE_SHARE
+
+    rows = [(m, float(e["averaged_share"])) for e, m in zip(episodes, modes, strict=True)
+            if "averaged_share" in e and not e["success"]]
+    if not rows:
+        return {}
+    by_mode: dict[str, list[float]] = {}
+    for m, share in rows:
+        by_mode.setdefault(m, []).append(share)
+    return {
+        "threshold": AVERAGED_EPISODE_SHARE,
+        "failed_episodes_measured": len(rows),
+        "failed_by_averaging": sum(share >= AVERAGED_EPISODE_SHARE for _, share in rows),
+        "by_failure_mode": {m: {"episodes": len(v),
+                                "by_averaging": sum(x >= AVERAGED_EPISODE_SHARE for x in v),
+                                "mean_averaged_share": round(sum(v) / len(v), 3)}
+                            for m, v in sorted(by_mode.items())},
+    }
 
 
 def _ratio(a: float | None, b: float | None) -> float | None:
@@ -225,6 +252,11 @@ def print_report(console: Any, results: dict[str, Any]) -> None:
                 t.add_row(f"  learner seed {row['learner_seed']}",
                           f"{row['successes']} / {row['trials']}", _pct(row["success_rate"]),
                           f"ratio {row['ratio_to_hcc'] or 0:.2f}, ARI {row['ari']:.2f}", "")
+        if c == "dpa" and b.get("averaging"):
+            a = b["averaging"]
+            t.add_row("  failures that average the multimap",
+                      f"{a['failed_by_averaging']} / {a['failed_episodes_measured']}", "",
+                      f">= {100 * a['threshold']:.0f}% of ticks", "")
     ratio = results.get("ratio_roger_to_hcc")
     t.add_row("ratio ROGER / HCC", "", "-" if ratio is None else f"{ratio:.2f}", "",
               f"{paper['ratio']:.2f}")

@@ -22,7 +22,7 @@ import numpy as np
 from simulator.experiment.procs import JobResult
 from simulator.experiment.runner import Runner, controller_stats, progress_bars
 
-__all__ = ["ZenohRun", "compare_paths"]
+__all__ = ["ZenohRun", "add_averaging", "compare_paths"]
 
 
 def compare_paths(zenoh: dict[str, list[dict[str, Any]]],
@@ -41,6 +41,25 @@ def compare_paths(zenoh: dict[str, list[dict[str, Any]]],
                          "zenoh": None if z is None else z["outcome"],
                          "zenoh_ticks": None if z is None else z["ticks"], "same": same})
     return {"episodes": rows, "all_same": bool(rows) and all(r["same"] for r in rows)}
+
+
+def add_averaging(episodes: list[dict[str, Any]], workdirs: list[Any], stream: Any) -> None:
+    """Each DPA episode's ``aliased_share``/``averaged_share`` from its job's trace
+    (:mod:`simulator.experiment.averaging`); an episode without a trace gets none."""
+    from simulator.experiment.averaging import MultimapNeighbourhood
+    from simulator.experiment.dpa_node import read_trace
+    from simulator.experiment.procs import DPA_TRACE
+
+    hood = MultimapNeighbourhood(stream.x, stream.y)
+    by_episode = {(e["location"], e["repetition"]): e for e in episodes}
+    for d in workdirs:
+        path = d / DPA_TRACE
+        if not path.is_file():
+            continue
+        for loc, rep, x, y in read_trace(path):
+            ep = by_episode.get((loc, rep))
+            if ep is not None and len(x):
+                ep.update(hood.episode_summary(x, y))
 
 
 class ZenohRun:
@@ -198,6 +217,9 @@ class ZenohRun:
         episodes: dict[str, list[dict[str, Any]]] = {}
         for r in ev:
             episodes.setdefault(r.job.key, []).extend(r.episodes)
+        if "dpa" in episodes:
+            add_averaging(episodes["dpa"], [r.job.workdir for r in ev if r.job.key == "dpa"],
+                          stream)
         if oracle_eps:
             episodes["oracle"] = oracle_eps
         results = build_results(
