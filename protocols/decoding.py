@@ -142,6 +142,44 @@ def _expert(e: Any, dim: int | None) -> ExpertOutput:
     )
 
 
+def _experts(mm: list[Any], dim: int | None) -> tuple[ExpertOutput, ...]:
+    """Every multimap entry, validated as :func:`_expert` does: the vectors of all entries in
+    one array pass when they are well formed (the transitioner decodes one multimap per tick);
+    otherwise entry by entry, which raises the entry's own error."""
+    vectors = _well_formed_vectors(mm, dim)
+    if vectors is None:
+        return tuple(_expert(e, dim) for e in mm)
+    means, variances = vectors
+    kind = "prediction.multimap[]"
+    return tuple(
+        ExpertOutput(expert=_int(e, "expert", kind, lo=-1), p=_float(e, "p", kind),
+                     mean=means[i], var=variances[i], n=_int(e, "n", kind, lo=0),
+                     label=_str(e, "label", kind))
+        for i, e in enumerate(mm)
+    )
+
+
+def _well_formed_vectors(mm: list[Any], dim: int | None
+                         ) -> tuple[FloatArray, FloatArray] | None:
+    """(means, variances) as 2-D arrays if every entry's are finite numbers of one length
+    (``dim`` if given; variances > 0), else ``None``."""
+    if not mm or not all(type(e) is dict for e in mm):
+        return None
+    rows = [e.get("mean") for e in mm] + [e.get("var") for e in mm]
+    width = len(rows[0]) if type(rows[0]) is list else -1
+    if width < 0 or (dim is not None and width != dim) or width > MAX_VECTOR:
+        return None
+    if not all(type(r) is list and len(r) == width for r in rows):
+        return None
+    if not all(type(v) is float or type(v) is int for r in rows for v in r):
+        return None
+    arr = np.array(rows, dtype=np.float64).reshape(len(rows), width)
+    half = len(mm)
+    if not np.isfinite(arr).all() or not (arr[half:] > 0).all():
+        return None
+    return arr[:half], arr[half:]
+
+
 def _unpack(kind: str, payload: bytes | bytearray | memoryview, max_bytes: int
             ) -> dict[Any, Any]:
     """Bounded msgpack parse of one payload; the top level must be a map."""
@@ -241,7 +279,7 @@ def decode(
             mean=_vector(m, "mean", kind, dy),
             var=_vector(m, "var", kind, dy, positive=True),
             expert=_int(m, "expert", kind, lo=-1),
-            multimap=tuple(_expert(e, dy) for e in mm),
+            multimap=_experts(mm, dy),
             latency_ms=_float(m, "latency_ms", kind),
             mode=_str(m, "mode", kind, choices=MODES),
             updates=_int(m, "updates", kind, lo=0),

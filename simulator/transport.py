@@ -5,9 +5,13 @@
 * :func:`add_zenoh_args` / :func:`config_from_args`: ``--listen``, ``--connect``,
   ``--zenoh-config``, ``--zenoh-set`` on a command line; session setup itself is
   :mod:`roger_daemon.zenoh_session`'s (``open_session`` is re-exported here).
-* :class:`Inbox`: a subscriber on a zenoh ``RingChannel`` (the callback side only enqueues,
-  inside zenoh; nothing of ours runs on zenoh threads) that decodes and validates every sample,
-  counting and logging once per kind the ones that fail, never raising.
+* :class:`Inbox`: a subscriber whose zenoh callback only appends the sample to a bounded deque
+  (the oldest dropped on overflow) and rings the process's :class:`Doorbell`; the loop decodes
+  and validates every sample, counting and logging once per kind the ones that fail, never
+  raising.
+* :func:`wait_for`: the loop sleeps on the doorbell until a sample arrives (no polling: in
+  lockstep most of the six or so processes of an episode are waiting at any moment, and on a
+  2-core machine polling wake-ups took the CPU the working one needed).
 * :class:`StopFlag`: SIGTERM/SIGINT set a flag that the one loop of the process checks.
 * :func:`publisher`: a msgpack publisher with ``express=True`` and the default DROP congestion
   control (a stalled peer never blocks the loop).
@@ -27,8 +31,9 @@ import argparse
 import json
 import logging
 import signal
+import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
@@ -44,6 +49,7 @@ from roger_daemon.zenoh_session import add_zenoh_args as add_session_args
 __all__ = [
     "EPHEMERAL",
     "MSGPACK",
+    "Doorbell",
     "Inbox",
     "InvalidCounter",
     "StopFlag",
@@ -120,11 +126,41 @@ class InvalidCounter:
         return sum(self.counts.values())
 
 
-class Inbox:
-    """Decoded, validated messages of one kind for one robot, from a zenoh RingChannel.
+class Doorbell:
+    """Rung by subscriber callbacks, waited on by the process's loop (one per process)."""
 
-    ``capacity`` bounds the backlog; when it overflows zenoh drops the oldest samples (a
-    lockstep peer never has more than a few in flight).
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._rings = 0
+
+    @property
+    def rings(self) -> int:
+        """How many times it has rung (read before polling, then :meth:`wait_after` it)."""
+        return self._rings
+
+    def ring(self) -> None:
+        """A sample arrived (any thread)."""
+        with self._cond:
+            self._rings += 1
+            self._cond.notify_all()
+
+    def wait_after(self, seen: int, timeout: float) -> None:
+        """Return once it has rung more than ``seen`` times, or after ``timeout`` s."""
+        with self._cond:
+            if self._rings == seen and timeout > 0:
+                self._cond.wait(timeout)
+
+
+#: The doorbell of this process's inboxes (each node runs one loop).
+DOORBELL = Doorbell()
+
+
+class Inbox:
+    """Decoded, validated messages of one kind for one robot.
+
+    ``capacity`` bounds the backlog; on overflow the oldest samples are dropped (a lockstep
+    peer never has more than a few in flight). Zenoh's callback thread only appends the
+    sample and rings ``doorbell``.
     """
 
     def __init__(
@@ -135,21 +171,28 @@ class Inbox:
         dims: Dims | None,
         invalid: InvalidCounter,
         capacity: int = 256,
+        doorbell: Doorbell = DOORBELL,
     ) -> None:
         self.robot = robot
         self.kind = kind
         self.dims = dims
         self.invalid = invalid
         self.received = 0
-        self._sub = session.declare_subscriber(
-            keys.key(robot, kind), zenoh.handlers.RingChannel(capacity)
-        )
+        self.doorbell = doorbell
+        self._samples: deque[zenoh.Sample] = deque(maxlen=capacity)
+
+        def arrived(sample: zenoh.Sample) -> None:
+            self._samples.append(sample)  # deque.append is atomic; maxlen drops the oldest
+            doorbell.ring()
+
+        self._sub = session.declare_subscriber(keys.key(robot, kind), arrived)
 
     def poll(self) -> Message | None:
         """The next valid message, or ``None`` when none is waiting (never blocks)."""
         while True:
-            sample = self._sub.try_recv()
-            if sample is None:
+            try:
+                sample = self._samples.popleft()
+            except IndexError:
                 return None
             self.received += 1
             try:
@@ -178,23 +221,24 @@ class Inbox:
 
 
 def wait_for(
-    poll: Callable[[], T | None], timeout: float, stop: StopFlag | None = None
+    poll: Callable[[], T | None], timeout: float, stop: StopFlag | None = None,
+    doorbell: Doorbell = DOORBELL,
 ) -> T | None:
     """Call ``poll`` until it returns non-``None`` or ``timeout`` seconds pass (then ``None``).
 
-    Polls with a short backoff (50 us growing to 0.5 ms) so that a lockstep round trip costs
-    well under a millisecond without spinning a core.
+    Between calls it sleeps on ``doorbell`` (rung by every :class:`Inbox` of the process),
+    waking at least every 50 ms to check ``stop``.
     """
     deadline = time.monotonic() + timeout
-    sleep = 5e-5
     while True:
+        seen = doorbell.rings
         got = poll()
         if got is not None:
             return got
-        if (stop is not None and stop.stopped) or time.monotonic() >= deadline:
+        left = deadline - time.monotonic()
+        if (stop is not None and stop.stopped) or left <= 0:
             return None
-        time.sleep(sleep)
-        sleep = min(sleep * 1.5, 5e-4)
+        doorbell.wait_after(seen, min(left, 0.05))
 
 
 class StopFlag:

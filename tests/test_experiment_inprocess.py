@@ -166,3 +166,24 @@ def test_compare_paths_reports_any_difference() -> None:
     assert not other["all_same"] and other["episodes"][0]["zenoh_ticks"] == 10
     missing = compare_paths({}, {"hcc": [ep]})
     assert not missing["all_same"]
+
+
+def test_the_in_process_path_writes_results_figures_and_the_dpas_averaging(
+        tmp_path: Path) -> None:
+    """``--in-process --quick`` end to end (one location): results.json, the three figures,
+    and every DPA episode measured for averaging (simulator/experiment/averaging.py)."""
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "roger_daemon", "experiment", "goal-scoring", "--quick",
+         "--in-process", "--locations", "0", "--out", str(out)],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    r = json.loads((out / "results.json").read_text())
+    assert r["path"] == "in-process"
+    for name in ("fig7_pca", "fig8_experts", "success_per_location"):
+        assert Path(r["figures"][name]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    (dpa,) = r["episodes"]["dpa"]
+    assert 0.0 <= dpa["averaged_share"] <= dpa["aliased_share"] <= 1.0
+    if not dpa["success"]:
+        assert r["dpa"]["averaging"]["failed_episodes_measured"] == 1

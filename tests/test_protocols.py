@@ -106,3 +106,50 @@ def test_random_bytes_never_crash(payload: bytes) -> None:
             decode(kind, payload, dims=D)
         except ProtocolError:
             pass
+
+
+def _multimap_payload(entries: list[dict[str, object]]) -> bytes:
+    pred = Prediction("aibo", 1, 0.5, mean=np.zeros(9), var=np.ones(9), expert=0, latency_ms=1.0,
+                      multimap=())
+    m = pred.to_map()
+    m["multimap"] = entries
+    out: bytes = msgpack.packb(m)
+    return out
+
+
+def _entry(i: int, **over: object) -> dict[str, object]:
+    e: dict[str, object] = {"expert": i, "p": 0.5, "mean": [float(i)] * 8 + [1],
+                            "var": [0.5] * 9, "n": 3, "label": "aim"}
+    e.update(over)
+    return e
+
+
+def test_a_multimap_decodes_in_one_pass_to_what_each_entry_decodes_to() -> None:
+    """The batch path of the prediction decoder against the entry-by-entry oracle."""
+    from protocols.decoding import _expert
+
+    entries = [_entry(i) for i in range(24)]
+    got = decode("prediction", _multimap_payload(entries), dims=D, robot="aibo").multimap
+    want = tuple(_expert(e, 9) for e in entries)
+    assert [g.to_map() for g in got] == [w.to_map() for w in want]
+    assert all(not g.mean.flags.writeable and g.mean.shape == (9,) for g in got)
+
+
+@pytest.mark.parametrize(
+    ("bad", "reason", "needle"),
+    [
+        ({"mean": [0.0] * 8}, "wrong_dimension", "'mean' must have 9 entries"),
+        ({"var": [0.5] * 8 + [0.0]}, "bad_value", "'var' must be > 0"),
+        ({"mean": [math.nan] + [0.0] * 8}, "not_finite", "'mean' contains NaN"),
+        ({"mean": [True] + [0.0] * 8}, "wrong_type", "'mean' must contain only numbers"),
+        ({"expert": "x"}, "wrong_type", "expert"),
+        ({"mean": None}, "wrong_type", "'mean' must be an array"),
+    ],
+)
+def test_a_bad_multimap_entry_among_good_ones_is_named(bad: dict[str, object], reason: str,
+                                                       needle: str) -> None:
+    entries = [_entry(i) for i in range(5)]
+    entries[3] = _entry(3, **bad)
+    with pytest.raises(ProtocolError) as err:
+        decode("prediction", _multimap_payload(entries), dims=D, robot="aibo")
+    assert err.value.reason == reason and needle in str(err.value)

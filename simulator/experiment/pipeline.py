@@ -143,7 +143,7 @@ def run_in_process(plan: Any, params: Any, console: Any,
 
     ``context`` (if given) receives the stream, the models and the oracle (for
     ``--start-poses``)."""
-    from simulator.experiment.report import build_results
+    from simulator.experiment.report import build_results, write_figures
 
     timings: dict[str, float] = {}
     t_all = t0 = time.monotonic()
@@ -173,5 +173,7 @@ def run_in_process(plan: Any, params: Any, console: Any,
     results = build_results(plan=plan, params=params, demos=demos, data=data, stream=stream,
                             models=models, episodes=episodes, check=None, train_s=train_s,
                             errors=[])
+    results["figures"] = write_figures(plan.out, stream, np.asarray(models[0][1].assignments()),
+                                       results)
     results["timings_s"] = {**timings, "total": round(time.monotonic() - t_all, 2)}
     return results
