@@ -77,30 +77,30 @@ def test_bad_shapes_are_refused() -> None:
         MultimapNeighbourhood(xs, ys).averaged_ticks(x, np.zeros((3, DIMS.y)))
 
 
-def test_the_dpa_trace_splits_episodes_by_their_first_tick(tmp_path: Path) -> None:
+def test_the_dpa_trace_splits_episodes_where_the_episode_clock_restarts(tmp_path: Path
+                                                                         ) -> None:
     trace = CommandTrace()
     sent = {}
-    for ep, (first, loc, rep) in enumerate(((0, 4, 0), (10, 4, 1))):
-        trace.start({"tick": first, "location": loc, "repetition": rep})
-        for t in range(first, first + 10):
-            x = np.full(DIMS.x, float(t))
-            y = np.full(DIMS.y, float(-t))
-            if t != 13:  # a perception never received: that tick is left out
-                trace.perceptions([Perception("aibo", t, 0.0, x=x)])
-            trace.command(t, y + 1.0)
-            trace.command(t, y)  # a re-sent tick: its last command counts
-            sent[t] = (ep, x, y)
+    tick = 0
+    for _episode in range(2):
+        for k in range(10):
+            x = np.full(DIMS.x, float(tick))
+            y = np.full(DIMS.y, float(-tick))
+            if tick != 13:  # a perception never received: that tick is left out
+                trace.perceptions([Perception("aibo", tick, k / 30.0, x=x)])
+            trace.command(tick, y + 1.0)
+            trace.command(tick, y)  # a re-sent tick: its last command counts
+            sent[tick] = (x, y)
+            tick += 1
     path = tmp_path / "trace.npz"
     trace.write(str(path))
     episodes = read_trace(path)
-    assert [(loc, rep) for loc, rep, _, _ in episodes] == [(4, 0), (4, 1)]
-    assert [len(x) for _, _, x, _ in episodes] == [10, 9]
-    for _, _, x, y in episodes:
+    assert [len(x) for x, _ in episodes] == [10, 9]
+    for x, y in episodes:
         for row_x, row_y in zip(x, y, strict=True):
-            _, want_x, want_y = sent[int(row_x[0])]
+            want_x, want_y = sent[int(row_x[0])]
             np.testing.assert_array_equal(row_x, want_x)
             np.testing.assert_array_equal(row_y, want_y)
-    assert not list(tmp_path.glob("*.tmp*"))
 
 
 def test_the_dpa_node_accepts_a_trace_path() -> None:

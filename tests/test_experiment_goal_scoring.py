@@ -130,7 +130,7 @@ def test_quick_evaluation_ran_each_controller_cleanly(
     from simulator.experiment.dpa_node import read_trace
 
     traced = [len(x) for d in sorted((out / "work" / "eval" / "dpa").iterdir())
-              for _, _, x, _ in read_trace(d / "dpa-trace.npz")]
+              for x, _ in read_trace(d / "dpa-trace.npz")]
     assert sum(traced) == sum(e["ticks"] for e in r["episodes"]["dpa"])
     for e in r["episodes"]["dpa"]:
         assert 0.0 <= e["averaged_share"] <= e["aliased_share"] <= 1.0

@@ -13,27 +13,27 @@ node forwards again (the simulator counts the duplicate as stale). With ``--exit
 the node exits on the simulator's final ``end`` event; it prints its counters as one JSON line
 (also to ``--stats FILE``).
 
-With ``--trace FILE`` it also keeps, per tick, the perception and the command it sent, and the
-episodes' first ticks, and writes them at exit as one ``.npz`` (``tick``, ``x``, ``y``,
-``start_tick``, ``start_location``, ``start_repetition``; no pickled objects): the experiment
-measures from it how much of each episode averaged the multimap
+With ``--trace FILE`` it also keeps, per tick, the perception and the command it sent, and
+writes them at exit as one ``.npz`` (``tick``, ``t``, ``x``, ``y``; no pickled objects): the
+experiment measures from it how much of each episode averaged the multimap
 (:mod:`simulator.experiment.averaging`).
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import logging
 import os
 import sys
 import time
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from protocols import Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
+from roger_daemon.atomic import write_bytes
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
 from simulator.transport import (
     EPHEMERAL,
@@ -98,8 +98,6 @@ class DPANode:
                 assert isinstance(ev, EpisodeEvent)
                 if ev.event == "start":
                     self.counts["episodes"] += 1
-                    if self.trace is not None:
-                        self.trace.start(ev.data)
                 if ev.event == "end" and ev.data.get("run_complete") and self.args.exit_when_done:
                     done = True
             if msg is None:
@@ -135,52 +133,41 @@ class DPANode:
 
 
 class CommandTrace:
-    """Perception and command per tick, and the episodes' starts (``--trace``)."""
+    """Perception and command per tick (``--trace``); an episode starts at a perception with
+    ``t == 0`` (the simulator's episode clock), as :mod:`simulator.hcc_node` detects it."""
 
     def __init__(self) -> None:
-        self._x: dict[int, np.ndarray] = {}
+        self._x: dict[int, tuple[float, np.ndarray]] = {}
         self._y: dict[int, np.ndarray] = {}  # a re-sent tick: its last command
-        self._starts: list[tuple[int, int, int]] = []
-
-    def start(self, data: Mapping[str, Any]) -> None:
-        """An episode's ``start`` event (its first tick, location and repetition)."""
-        self._starts.append((int(data.get("tick", 0)), int(data.get("location", -1)),
-                             int(data.get("repetition", -1))))
 
     def perceptions(self, msgs: list[Any]) -> None:
         """Perceptions received (a job's few episodes: kept whole, joined at :meth:`write`)."""
         for m in msgs:
             assert isinstance(m, Perception)
-            self._x[m.tick] = np.asarray(m.x, dtype=np.float64)
+            self._x[m.tick] = (float(m.t), np.asarray(m.x, dtype=np.float64))
 
     def command(self, tick: int, y: np.ndarray) -> None:
         """The command sent for ``tick``."""
         self._y[tick] = np.asarray(y, dtype=np.float64)
 
     def write(self, path: str) -> None:
-        """One ``.npz`` (the module docstring's arrays), written whole or not at all."""
+        """One ``.npz`` (``tick``, ``t``, ``x``, ``y``), written atomically."""
         ticks = np.array(sorted(set(self._x) & set(self._y)), dtype=np.int64)
-        xs = np.array([self._x[int(t)] for t in ticks]).reshape(len(ticks), DIMS.x)
-        ys = np.array([self._y[int(t)] for t in ticks]).reshape(len(ticks), DIMS.y)
-        starts = np.array(self._starts, dtype=np.int64).reshape(-1, 3)
-        tmp = f"{path}.tmp.npz"
-        np.savez(tmp, tick=ticks, x=xs, y=ys, start_tick=starts[:, 0],
-                 start_location=starts[:, 1], start_repetition=starts[:, 2])
-        os.replace(tmp, path)
+        ts = np.array([self._x[int(k)][0] for k in ticks], dtype=np.float64)
+        xs = np.array([self._x[int(k)][1] for k in ticks]).reshape(len(ticks), DIMS.x)
+        ys = np.array([self._y[int(k)] for k in ticks]).reshape(len(ticks), DIMS.y)
+        buf = io.BytesIO()
+        np.savez(buf, tick=ticks, t=ts, x=xs, y=ys)
+        write_bytes(path, buf.getvalue())
 
 
-def read_trace(path: str | os.PathLike[str]) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
-    """``(location, repetition, x, y)`` per episode of a ``--trace`` file."""
+def read_trace(path: str | os.PathLike[str]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(x, y)`` per episode of a ``--trace`` file, in the order they ran."""
     with np.load(path, allow_pickle=False) as f:
-        tick, x, y = f["tick"], f["x"], f["y"]
-        starts = list(zip(f["start_tick"].tolist(), f["start_location"].tolist(),
-                          f["start_repetition"].tolist(), strict=True))
-    out = []
-    for k, (first, loc, rep) in enumerate(starts):
-        end = starts[k + 1][0] if k + 1 < len(starts) else np.iinfo(np.int64).max
-        sel = (tick >= first) & (tick < end)
-        out.append((int(loc), int(rep), x[sel], y[sel]))
-    return out
+        t, x, y = f["t"], f["x"], f["y"]
+    starts = [int(i) for i in np.flatnonzero(t == 0.0)]
+    bounds = [*starts, len(t)]
+    return [(x[a:b], y[a:b]) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def run(args: argparse.Namespace) -> int:

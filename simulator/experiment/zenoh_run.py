@@ -43,22 +43,22 @@ def compare_paths(zenoh: dict[str, list[dict[str, Any]]],
     return {"episodes": rows, "all_same": bool(rows) and all(r["same"] for r in rows)}
 
 
-def add_averaging(episodes: list[dict[str, Any]], workdirs: list[Any], stream: Any) -> None:
+def add_averaging(jobs: list[JobResult], stream: Any) -> None:
     """Each DPA episode's ``aliased_share``/``averaged_share`` from its job's trace
-    (:mod:`simulator.experiment.averaging`); an episode without a trace gets none."""
+    (:mod:`simulator.experiment.averaging`); a job whose trace is missing or does not hold
+    its episodes gets none."""
     from simulator.experiment.averaging import MultimapNeighbourhood
     from simulator.experiment.dpa_node import read_trace
     from simulator.experiment.procs import DPA_TRACE
 
     hood = MultimapNeighbourhood(stream.x, stream.y)
-    by_episode = {(e["location"], e["repetition"]): e for e in episodes}
-    for d in workdirs:
-        path = d / DPA_TRACE
-        if not path.is_file():
+    for r in jobs:
+        path = r.job.workdir / DPA_TRACE
+        traced = read_trace(path) if path.is_file() else []
+        if len(traced) != len(r.episodes):
             continue
-        for loc, rep, x, y in read_trace(path):
-            ep = by_episode.get((loc, rep))
-            if ep is not None and len(x):
+        for ep, (x, y) in zip(r.episodes, traced, strict=True):
+            if len(x):
                 ep.update(hood.episode_summary(x, y))
 
 
@@ -217,9 +217,7 @@ class ZenohRun:
         episodes: dict[str, list[dict[str, Any]]] = {}
         for r in ev:
             episodes.setdefault(r.job.key, []).extend(r.episodes)
-        if "dpa" in episodes:
-            add_averaging(episodes["dpa"], [r.job.workdir for r in ev if r.job.key == "dpa"],
-                          stream)
+        add_averaging([r for r in ev if r.job.key == "dpa"], stream)
         if oracle_eps:
             episodes["oracle"] = oracle_eps
         results = build_results(
