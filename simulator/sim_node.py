@@ -57,7 +57,8 @@ __all__ = ["DAEMON_ENDPOINT", "DEFAULT_LISTEN", "configure", "run"]
 log = logging.getLogger("roger.sim")
 
 RESEND_S = 0.25
-LINGER_S = 0.5
+#: After the final episode event, wait at most this long (s) for its subscribers to leave.
+LINGER_S = 2.0
 
 
 def _matching(pub: Any) -> bool:
@@ -96,7 +97,7 @@ class SimNode:
     def run(self, session: Any) -> dict[str, Any]:
         args = self.args
         self.pub_x = publisher(session, keys.perception(self.robot))
-        self.pub_ep = publisher(session, keys.episode(self.robot))
+        self.pub_ep = publisher(session, keys.episode(self.robot), never_drop=True)
         self.cmds = Inbox(session, self.robot, "command", DIMS, self.invalid, capacity=256)
         t_wait = time.monotonic()
         while not self.stop.stopped and time.monotonic() - t_wait < args.wait_subscribers:
@@ -145,9 +146,13 @@ class SimNode:
                 },
             ),
         )
-        # Linger so that the final event leaves before the session closes (closing drops what
-        # is still queued; a controller with --exit-when-done waits for this event).
-        time.sleep(LINGER_S)
+        # Linger so that the final event reaches the controller before the session closes
+        # (closing drops what is still queued; a controller with --exit-when-done waits for
+        # this event and then leaves): until no subscriber of the episode events is left, at
+        # most LINGER_S (a recorder stays to the end).
+        deadline = time.monotonic() + LINGER_S
+        while self.pub_ep.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.02)
         self.cmds.close()
         return {
             "schema": "roger.sim.results/1",

@@ -97,9 +97,13 @@ def config_from_args(args: argparse.Namespace) -> zenoh.Config:
     return zenoh_config(settings_from_args(args))
 
 
-def publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
-    """An express msgpack publisher (DROP congestion control: never blocks)."""
-    return session.declare_publisher(key, encoding=MSGPACK, express=True)
+def publisher(session: zenoh.Session, key: str, *, never_drop: bool = False) -> zenoh.Publisher:
+    """An express msgpack publisher. DROP congestion control by default (a stalled peer never
+    blocks the loop); ``never_drop`` blocks instead, for the rare messages a peer must see
+    (the episode events: a controller with ``--exit-when-done`` waits for the final one)."""
+    congestion = zenoh.CongestionControl.BLOCK if never_drop else zenoh.CongestionControl.DROP
+    return session.declare_publisher(key, encoding=MSGPACK, express=True,
+                                     congestion_control=congestion)
 
 
 def put(pub: zenoh.Publisher, msg: Message) -> None:
