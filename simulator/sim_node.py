@@ -46,6 +46,7 @@ from simulator.transport import (
     InvalidCounter,
     StopFlag,
     config_from_args,
+    has_subscribers,
     open_session,
     publisher,
     put,
@@ -151,7 +152,7 @@ class SimNode:
         # this event and then leaves): until no subscriber of the episode events is left, at
         # most LINGER_S (a recorder stays to the end).
         deadline = time.monotonic() + LINGER_S
-        while self.pub_ep.matching_status.matching and time.monotonic() < deadline:
+        while has_subscribers(self.pub_ep) and time.monotonic() < deadline:
             time.sleep(0.02)
         self.cmds.close()
         return {

@@ -55,6 +55,7 @@ __all__ = [
     "StopFlag",
     "add_zenoh_args",
     "config_from_args",
+    "has_subscribers",
     "loopback_config",
     "open_session",
     "publisher",
@@ -104,6 +105,13 @@ def publisher(session: zenoh.Session, key: str, *, never_drop: bool = False) -> 
     congestion = zenoh.CongestionControl.BLOCK if never_drop else zenoh.CongestionControl.DROP
     return session.declare_publisher(key, encoding=MSGPACK, express=True,
                                      congestion_control=congestion)
+
+
+def has_subscribers(pub: zenoh.Publisher) -> bool:
+    """Whether any subscriber matches ``pub``'s key now (zenoh's ``MatchingStatus``; its type
+    stub says ``bool``, the object has ``.matching``)."""
+    status: Any = pub.matching_status
+    return bool(status.matching)
 
 
 def put(pub: zenoh.Publisher, msg: Message) -> None:
