@@ -175,7 +175,7 @@ def test_the_in_process_path_writes_results_figures_and_the_dpas_averaging(
     out = tmp_path / "run"
     proc = subprocess.run(
         [sys.executable, "-m", "roger_daemon", "experiment", "goal-scoring", "--quick",
-         "--in-process", "--locations", "0", "--out", str(out)],
+         "--in-process", "--locations", "0", "--time-limit", "10", "--out", str(out)],
         capture_output=True, text=True, timeout=600,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
