@@ -12,6 +12,7 @@ from protocols.errors import ProtocolError
 
 __all__ = [
     "KINDS",
+    "ROBOT_ID_PATTERN",
     "ROOT",
     "action",
     "all_of_kind",
@@ -31,7 +32,9 @@ __all__ = [
 
 ROOT = "roger"
 KINDS = ("perception", "action", "command", "prediction", "episode", "status", "control")
-_ID = re.compile(r"^[A-Za-z0-9_\-]{1,64}$")
+#: a robot (or daemon) id: 1-64 of ``[A-Za-z0-9_-]`` (also the schemas' ``robot`` pattern)
+ROBOT_ID_PATTERN = r"^[A-Za-z0-9_\-]{1,64}$"
+_ID = re.compile(ROBOT_ID_PATTERN)
 
 
 def validate_robot_id(robot: str) -> str:

@@ -1,7 +1,10 @@
 """The message types of the ROGER wire (frozen dataclasses), their limits, and ``encode``.
 
 The field tables live in ``protocols/README.md``; decoding and validation are in
-:mod:`protocols.decoding`; :mod:`protocols.messages` has both.
+:mod:`protocols.decoding`; :mod:`protocols.messages` has both. Each field's description and
+constraints sit next to it (``field(metadata=spec(...))``, :mod:`protocols.field_specs`), and
+each class's ``DESCRIPTION`` describes its kind: the MCAP files' JSON Schemas are generated from
+them (``roger_daemon.recording.schemas``).
 """
 
 from __future__ import annotations
@@ -14,6 +17,9 @@ from typing import Any, ClassVar
 import msgpack
 import numpy as np
 import numpy.typing as npt
+
+from protocols.field_specs import spec
+from protocols.keys import ROBOT_ID_PATTERN
 
 __all__ = [
     "CONTROL_OPS",
@@ -77,14 +83,24 @@ def as_vector(values: Any) -> FloatArray:
 
 @dataclass(frozen=True, eq=False)
 class Message:
-    """Header shared by every message."""
+    """Header shared by every message.
 
-    robot: str
-    tick: int
-    t: float
-    stamp_ns: int = field(default_factory=now_ns, kw_only=True)
+    Every field carries its description and constraints (:class:`~protocols.field_specs.FieldSpec`)
+    in its metadata; ``DESCRIPTION`` describes the kind (both go into the JSON Schemas).
+    """
+
+    robot: str = field(metadata=spec(
+        "robot id, the same as in the key expression roger/<robot>/<kind>",
+        pattern=ROBOT_ID_PATTERN))
+    tick: int = field(metadata=spec(
+        "control tick the message belongs to (the MCAP sequence field)"))
+    t: float = field(metadata=spec("simulation (or robot) time in seconds"))
+    stamp_ns: int = field(default_factory=now_ns, kw_only=True, metadata=spec(
+        "sender's wall clock, ns since the Unix epoch (the MCAP publish_time)"))
 
     KIND: ClassVar[str] = ""
+    DESCRIPTION: ClassVar[str] = ""
+    VERSION_DESCRIPTION: ClassVar[str] = "schema version of the ROGER wire"
 
     def header(self) -> dict[str, Any]:
         """The header fields as a msgpack-ready map."""
@@ -109,9 +125,11 @@ class Message:
 class Perception(Message):
     """What the robot senses at ``tick``: ``x``, ``Dims.x`` floats."""
 
-    x: FloatArray
+    x: FloatArray = field(metadata=spec("perception vector, Dims.x floats"))
 
     KIND: ClassVar[str] = "perception"
+    DESCRIPTION: ClassVar[str] = (
+        "What the robot senses at `tick` (23 floats for the AIBO; see protocols/aibo.py).")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "x", as_vector(self.x))
@@ -128,10 +146,13 @@ class Action(Message):
     The label is ground truth for evaluation and for grouping experts; it never enters the learner.
     """
 
-    y: FloatArray
-    label: str = ""
+    y: FloatArray = field(metadata=spec("action vector, Dims.y floats"))
+    label: str = field(default="", metadata=spec("the demonstrator's subtask label"))
 
     KIND: ClassVar[str] = "action"
+    DESCRIPTION: ClassVar[str] = (
+        "The demonstrator's action for the perception of the same tick, with its subtask label "
+        "(evaluation only; never enters the learner).")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "y", as_vector(self.y))
@@ -145,10 +166,11 @@ class Action(Message):
 class Command(Message):
     """What the robot is told to do at ``tick``; ``source`` names the controller."""
 
-    y: FloatArray
-    source: str = ""
+    y: FloatArray = field(metadata=spec("command vector, Dims.y floats"))
+    source: str = field(default="", metadata=spec("the controller that produced it"))
 
     KIND: ClassVar[str] = "command"
+    DESCRIPTION: ClassVar[str] = "What the robot is told to do at `tick`."
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "y", as_vector(self.y))
@@ -162,12 +184,16 @@ class Command(Message):
 class ExpertOutput:
     """One expert of the MAP particle, as seen from one query perception."""
 
-    expert: int
-    p: float
-    mean: FloatArray
-    var: FloatArray
-    n: int
-    label: str = ""
+    expert: int = field(metadata=spec("expert id, unique over the life of the model", minimum=-1))
+    p: float = field(metadata=spec("gate probability of this expert for the query perception"))
+    mean: FloatArray = field(metadata=spec("predictive mean of this expert (action units)"))
+    var: FloatArray = field(metadata=spec("predictive variance of this expert, > 0",
+                                          positive=True))
+    n: int = field(metadata=spec("training points assigned to this expert"))
+    label: str = field(default="", metadata=spec(
+        "majority subtask label of the expert's points ('' if none)"))
+
+    DESCRIPTION: ClassVar[str] = "one expert of the MAP particle, as seen from the query perception"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mean", as_vector(self.mean))
@@ -196,15 +222,19 @@ class Prediction(Message):
     can recompute it from the same model state).
     """
 
-    mean: FloatArray
-    var: FloatArray
-    expert: int
-    multimap: tuple[ExpertOutput, ...] = ()
-    latency_ms: float = 0.0
-    mode: str = "learn+predict"
-    updates: int = 0
+    mean: FloatArray = field(metadata=spec("chosen expert's predictive mean (action units)"))
+    var: FloatArray = field(metadata=spec("chosen expert's predictive variance, > 0",
+                                          positive=True))
+    expert: int = field(metadata=spec("chosen expert id, -1 before any learning", minimum=-1))
+    multimap: tuple[ExpertOutput, ...] = field(default=(), metadata=spec(
+        "every expert of the MAP particle"))
+    latency_ms: float = field(default=0.0, metadata=spec("from perception receipt to publish, ms"))
+    mode: str = field(default="learn+predict", metadata=spec("daemon mode", choices=MODES))
+    updates: int = field(default=0, metadata=spec(
+        "training pairs the model had learned when it computed this prediction"))
 
     KIND: ClassVar[str] = "prediction"
+    DESCRIPTION: ClassVar[str] = "The learner's answer for the perception of `tick`."
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mean", as_vector(self.mean))
@@ -228,11 +258,13 @@ class Prediction(Message):
 class EpisodeEvent(Message):
     """An episode event from the simulator; ``data`` holds small named values (pose, location)."""
 
-    event: str
-    episode: int
-    data: Mapping[str, Any] = field(default_factory=dict)
+    event: str = field(metadata=spec("what happened", choices=EPISODE_EVENTS))
+    episode: int = field(metadata=spec("episode number"))
+    data: Mapping[str, Any] = field(default_factory=dict, metadata=spec(
+        "small named values (pose, location, ...)"))
 
     KIND: ClassVar[str] = "episode"
+    DESCRIPTION: ClassVar[str] = "An episode event from the simulator."
 
     def body(self) -> dict[str, Any]:
         """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
@@ -243,21 +275,25 @@ class EpisodeEvent(Message):
 class Status(Message):
     """Daemon health for one robot, published at 1 Hz."""
 
-    daemon: str
-    mode: str
-    ticks: int
-    updates: int
-    updates_per_s: float
-    experts: int
-    queue_depth: int
-    dropped: int
-    invalid: Mapping[str, int] = field(default_factory=dict)
-    latency_ms_p50: float = 0.0
-    latency_ms_p99: float = 0.0
-    uptime_s: float = 0.0
-    info: Mapping[str, Any] = field(default_factory=dict)
+    daemon: str = field(metadata=spec("daemon id"))
+    mode: str = field(metadata=spec("daemon mode", choices=MODES))
+    ticks: int = field(metadata=spec("loop ticks so far"))
+    updates: int = field(metadata=spec("training pairs learned so far"))
+    updates_per_s: float = field(metadata=spec("learning rate, pairs per second"))
+    experts: int = field(metadata=spec("experts in the MAP particle"))
+    queue_depth: int = field(metadata=spec("messages waiting in the daemon's queues"))
+    dropped: int = field(metadata=spec("messages dropped so far"))
+    invalid: Mapping[str, int] = field(default_factory=dict, metadata=spec(
+        "invalid messages by ProtocolError reason"))
+    latency_ms_p50: float = field(default=0.0, metadata=spec("median prediction latency, ms"))
+    latency_ms_p99: float = field(default=0.0, metadata=spec(
+        "99th percentile prediction latency, ms"))
+    uptime_s: float = field(default=0.0, metadata=spec("seconds since the daemon started"))
+    info: Mapping[str, Any] = field(default_factory=dict, metadata=spec(
+        "free-form extra health values"))
 
     KIND: ClassVar[str] = "status"
+    DESCRIPTION: ClassVar[str] = "Daemon health for one robot, 1 Hz."
 
     def body(self) -> dict[str, Any]:
         """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
@@ -282,10 +318,12 @@ class Status(Message):
 class Control(Message):
     """A request to the daemon: ``op`` is ``mode`` (with ``mode``), ``reset`` or ``checkpoint``."""
 
-    op: str
-    mode: str = ""
+    op: str = field(metadata=spec("the request", choices=CONTROL_OPS))
+    mode: str = field(default="", metadata=spec("the new mode for op 'mode', else ''"))
 
     KIND: ClassVar[str] = "control"
+    DESCRIPTION: ClassVar[str] = (
+        "A request to the daemon: op 'mode' (with mode), 'reset' or 'checkpoint'.")
 
     def body(self) -> dict[str, Any]:
         """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""

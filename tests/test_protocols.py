@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import msgpack
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from test_recording import _samples
 
 from protocols import (
     Action,
@@ -26,6 +28,8 @@ from protocols import (
     keys,
 )
 from protocols.aibo import DIMS
+from protocols.field_specs import FieldSpec, field_spec
+from protocols.keys import KINDS
 
 D = Dims(23, 9)
 
@@ -153,3 +157,44 @@ def test_a_bad_multimap_entry_among_good_ones_is_named(bad: dict[str, object], r
     with pytest.raises(ProtocolError) as err:
         decode("prediction", _multimap_payload(entries), dims=D, robot="aibo")
     assert err.value.reason == reason and needle in str(err.value)
+
+
+# -- the field specs (the schemas' source) are the decoder's rules -------------------------
+
+def _violation(sp: FieldSpec, value: object) -> object | None:
+    """A value that breaks the field's spec, or None if the spec constrains nothing."""
+    if sp.choices:
+        return "zzz"
+    if sp.pattern:
+        return "not a robot id!"
+    if sp.positive:
+        return [0.0] * len(value)  # type: ignore[arg-type]
+    if isinstance(value, int) and sp.minimum is not None:
+        return sp.minimum - 1
+    return None
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_decoder_enforces_every_field_spec(kind: str) -> None:
+    """The constraints the schemas are generated from are the decoder's: breaking any one of
+    them (an enum, the robot pattern, a minimum, positivity; also inside a multimap entry) is a
+    ``bad_value``."""
+    msg = _samples()[kind]
+    m = msgpack.unpackb(encode(msg), raw=False)  # type: ignore[arg-type]
+    cases: list[dict[str, object]] = []
+    for f in dataclasses.fields(type(msg)):
+        bad = _violation(field_spec(f), m[f.name])
+        if bad is not None:
+            cases.append(dict(m, **{f.name: bad}))
+    if kind == "prediction":
+        for f in dataclasses.fields(ExpertOutput):
+            entry = m["multimap"][0]
+            bad = _violation(field_spec(f), entry[f.name])
+            if bad is not None:
+                cases.append(dict(m, multimap=[dict(entry, **{f.name: bad})]))
+    assert cases  # every kind has the header's robot pattern and minimums
+    for case in cases:
+        with pytest.raises(ProtocolError) as err:
+            decode(kind, msgpack.packb(case))
+        assert err.value.reason == "bad_value", case
+

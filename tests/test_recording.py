@@ -123,6 +123,15 @@ def test_schema_rejects_wrong_payloads() -> None:
         jsonschema.validate(dict(m, mode="sleep"), schema("prediction"))
 
 
+def test_schema_bytes_are_pinned() -> None:
+    """The schemas are generated from the message classes' fields; their bytes are those of
+    every MCAP file written so far (tests/data/schemas.json), byte for byte, kind by kind."""
+    golden = json.loads((Path(__file__).parent / "data" / "schemas.json").read_text("utf-8"))
+    assert sorted(golden) == sorted(KINDS)
+    for kind in KINDS:
+        assert schema_bytes(kind) == golden[kind].encode("utf-8"), kind
+
+
 # -- metadata --------------------------------------------------------------------------------
 
 

@@ -5,25 +5,31 @@ These are the documentation schemas registered in every MCAP file (schema encodi
 the same data model as JSON for these messages (maps with string keys, arrays, numbers, strings),
 so the same schema describes the msgpack payload and the JSON that ``roger log export`` writes.
 
-The field lists are the executable ones of :mod:`protocols.messages` (``Message.to_map``); a test
-checks that every kind's ``properties`` are exactly the keys that ``to_map`` produces and that
-encoded messages validate.
+The schemas are generated from the message dataclasses of :mod:`protocols.message_types`: each
+field's type gives its JSON type, its :class:`~protocols.field_specs.FieldSpec` (the field's
+metadata) its description and constraints, and the class's ``DESCRIPTION`` the kind's. Tests check
+that every kind's ``properties`` are exactly the keys that ``to_map`` produces, that encoded
+messages validate, and that the bytes stay those of ``tests/data/schemas.json``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import typing
+from collections.abc import Mapping
+from functools import cache
 from typing import Any
 
+from protocols.field_specs import field_spec
 from protocols.keys import KINDS
-from protocols.messages import (
-    CONTROL_OPS,
-    EPISODE_EVENTS,
+from protocols.message_types import (
     MAX_MULTIMAP,
     MAX_STR,
     MAX_VECTOR,
-    MODES,
     SCHEMA_VERSION,
+    TYPES,
+    FloatArray,
 )
 
 __all__ = ["SCHEMA_ENCODING", "SCHEMA_PREFIX", "schema", "schema_bytes", "schema_name"]
@@ -31,143 +37,75 @@ __all__ = ["SCHEMA_ENCODING", "SCHEMA_PREFIX", "schema", "schema_bytes", "schema
 SCHEMA_ENCODING = "jsonschema"
 SCHEMA_PREFIX = "roger."
 _DRAFT = "https://json-schema.org/draft/2020-12/schema"
+_SCALARS = {int: "integer", float: "number", str: "string"}
+
+assert set(TYPES) == set(KINDS)
 
 
-def _num(desc: str) -> dict[str, Any]:
-    return {"type": "number", "description": desc}
-
-
-def _int(desc: str, minimum: int | None = 0) -> dict[str, Any]:
-    out: dict[str, Any] = {"type": "integer", "description": desc}
-    if minimum is not None:
-        out["minimum"] = minimum
+def _scalar(hint: Any, f: dataclasses.Field[Any]) -> dict[str, Any]:
+    """An integer (with its minimum), number or string (bounded, or a pattern; enum) field."""
+    sp = field_spec(f)
+    out: dict[str, Any] = {"type": _SCALARS[hint], "description": sp.description}
+    if hint is int and sp.minimum is not None:
+        out["minimum"] = sp.minimum
+    if hint is str:
+        if sp.pattern:
+            out["pattern"] = sp.pattern
+        else:
+            out["maxLength"] = MAX_STR
+        if sp.choices:
+            out["enum"] = list(sp.choices)
     return out
 
 
-def _str(desc: str, enum: tuple[str, ...] = ()) -> dict[str, Any]:
-    out: dict[str, Any] = {"type": "string", "maxLength": MAX_STR, "description": desc}
-    if enum:
-        out["enum"] = list(enum)
-    return out
+def _field(hint: Any, f: dataclasses.Field[Any]) -> dict[str, Any]:
+    """The schema of one field from its type hint and :class:`FieldSpec`."""
+    if hint in _SCALARS:
+        return _scalar(hint, f)
+    sp = field_spec(f)
+    if hint == FloatArray:
+        item: dict[str, Any] = {"type": "number"}
+        if sp.positive:
+            item["exclusiveMinimum"] = 0
+        return {"type": "array", "items": item, "maxItems": MAX_VECTOR,
+                "description": sp.description}
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Mapping:
+        out: dict[str, Any] = {"type": "object", "description": sp.description}
+        if args[1] in _SCALARS:
+            out["additionalProperties"] = {"type": _SCALARS[args[1]]}
+        return out
+    if origin is tuple and isinstance(args[0], type) and dataclasses.is_dataclass(args[0]):
+        return {"type": "array", "items": _record(args[0]), "maxItems": MAX_MULTIMAP,
+                "description": sp.description}
+    raise TypeError(f"no JSON Schema for field {f.name!r} of type {hint!r}")
 
 
-def _vec(desc: str, *, positive: bool = False) -> dict[str, Any]:
-    item: dict[str, Any] = {"type": "number"}
-    if positive:
-        item["exclusiveMinimum"] = 0
-    return {"type": "array", "items": item, "maxItems": MAX_VECTOR, "description": desc}
+def _properties(cls: type) -> dict[str, dict[str, Any]]:
+    """The schema of every dataclass field of ``cls``, in field order."""
+    hints = typing.get_type_hints(cls)
+    return {f.name: _field(hints[f.name], f) for f in dataclasses.fields(cls)}
 
 
-def _obj(desc: str) -> dict[str, Any]:
-    return {"type": "object", "description": desc}
+def _record(cls: type) -> dict[str, Any]:
+    """A closed object schema of a nested record (an entry of ``multimap``)."""
+    props = _properties(cls)
+    return {
+        "type": "object",
+        "description": cls.DESCRIPTION,  # type: ignore[attr-defined]
+        "properties": props,
+        "required": list(props),
+        "additionalProperties": False,
+    }
 
 
-_HEADER: dict[str, dict[str, Any]] = {
-    "v": {"const": SCHEMA_VERSION, "description": "schema version of the ROGER wire"},
-    "robot": {
-        "type": "string",
-        "pattern": "^[A-Za-z0-9_\\-]{1,64}$",
-        "description": "robot id, the same as in the key expression roger/<robot>/<kind>",
-    },
-    "tick": _int("control tick the message belongs to (the MCAP sequence field)"),
-    "t": _num("simulation (or robot) time in seconds"),
-    "stamp_ns": _int("sender's wall clock, ns since the Unix epoch (the MCAP publish_time)"),
-}
-
-_EXPERT: dict[str, Any] = {
-    "type": "object",
-    "description": "one expert of the MAP particle, as seen from the query perception",
-    "properties": {
-        "expert": _int("expert id, unique over the life of the model", minimum=-1),
-        "p": _num("gate probability of this expert for the query perception"),
-        "mean": _vec("predictive mean of this expert (action units)"),
-        "var": _vec("predictive variance of this expert, > 0", positive=True),
-        "n": _int("training points assigned to this expert"),
-        "label": _str("majority subtask label of the expert's points ('' if none)"),
-    },
-    "required": ["expert", "p", "mean", "var", "n", "label"],
-    "additionalProperties": False,
-}
-
-_BODIES: dict[str, tuple[str, dict[str, dict[str, Any]]]] = {
-    "perception": (
-        "What the robot senses at `tick` (23 floats for the AIBO; see protocols/aibo.py).",
-        {"x": _vec("perception vector, Dims.x floats")},
-    ),
-    "action": (
-        "The demonstrator's action for the perception of the same tick, with its subtask label "
-        "(evaluation only; never enters the learner).",
-        {
-            "y": _vec("action vector, Dims.y floats"),
-            "label": _str("the demonstrator's subtask label"),
-        },
-    ),
-    "command": (
-        "What the robot is told to do at `tick`.",
-        {
-            "y": _vec("command vector, Dims.y floats"),
-            "source": _str("the controller that produced it"),
-        },
-    ),
-    "prediction": (
-        "The learner's answer for the perception of `tick`.",
-        {
-            "mean": _vec("chosen expert's predictive mean (action units)"),
-            "var": _vec("chosen expert's predictive variance, > 0", positive=True),
-            "expert": _int("chosen expert id, -1 before any learning", minimum=-1),
-            "multimap": {
-                "type": "array",
-                "items": _EXPERT,
-                "maxItems": MAX_MULTIMAP,
-                "description": "every expert of the MAP particle",
-            },
-            "latency_ms": _num("from perception receipt to publish, ms"),
-            "mode": _str("daemon mode", MODES),
-            "updates": _int(
-                "training pairs the model had learned when it computed this prediction"
-            ),
-        },
-    ),
-    "episode": (
-        "An episode event from the simulator.",
-        {
-            "event": _str("what happened", EPISODE_EVENTS),
-            "episode": _int("episode number"),
-            "data": _obj("small named values (pose, location, ...)"),
-        },
-    ),
-    "status": (
-        "Daemon health for one robot, 1 Hz.",
-        {
-            "daemon": _str("daemon id"),
-            "mode": _str("daemon mode", MODES),
-            "ticks": _int("loop ticks so far"),
-            "updates": _int("training pairs learned so far"),
-            "updates_per_s": _num("learning rate, pairs per second"),
-            "experts": _int("experts in the MAP particle"),
-            "queue_depth": _int("messages waiting in the daemon's queues"),
-            "dropped": _int("messages dropped so far"),
-            "invalid": {
-                "type": "object",
-                "additionalProperties": {"type": "integer"},
-                "description": "invalid messages by ProtocolError reason",
-            },
-            "latency_ms_p50": _num("median prediction latency, ms"),
-            "latency_ms_p99": _num("99th percentile prediction latency, ms"),
-            "uptime_s": _num("seconds since the daemon started"),
-            "info": _obj("free-form extra health values"),
-        },
-    ),
-    "control": (
-        "A request to the daemon: op 'mode' (with mode), 'reset' or 'checkpoint'.",
-        {
-            "op": _str("the request", CONTROL_OPS),
-            "mode": _str("the new mode for op 'mode', else ''"),
-        },
-    ),
-}
-
-assert set(_BODIES) == set(KINDS)
+@cache
+def _message_properties(kind: str) -> str:
+    """The header ``v`` and every field of a message kind, as JSON (parsed afresh per call)."""
+    cls = TYPES[kind]
+    props = {"v": {"const": SCHEMA_VERSION, "description": cls.VERSION_DESCRIPTION},
+             **_properties(cls)}
+    return json.dumps(props)
 
 
 def schema_name(kind: str) -> str:
@@ -177,17 +115,17 @@ def schema_name(kind: str) -> str:
 
 def schema(kind: str) -> dict[str, Any]:
     """The JSON Schema of one message kind (a fresh dict)."""
-    if kind not in _BODIES:
+    if kind not in TYPES:
         raise KeyError(f"no schema for message kind {kind!r}; kinds are {KINDS}")
-    desc, body = _BODIES[kind]
-    props = {**_HEADER, **body}
+    cls = TYPES[kind]
+    props = json.loads(_message_properties(kind))
     return {
         "$schema": _DRAFT,
         "$id": f"urn:roger:schema:{kind}:v{SCHEMA_VERSION}",
         "title": schema_name(kind),
-        "description": desc,
+        "description": cls.DESCRIPTION,
         "type": "object",
-        "properties": json.loads(json.dumps(props)),
+        "properties": props,
         "required": list(props),
         "additionalProperties": False,
     }
