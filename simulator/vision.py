@@ -26,6 +26,7 @@ The robot's own body occludes but is never a blob.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pybullet as p
@@ -163,8 +164,27 @@ def _box_patches(
     return np.array(pts), np.array(nrm), np.array(area)
 
 
+def _cross3(a: tuple[float, ...], b: tuple[float, ...]) -> np.ndarray:
+    """``np.cross`` of two 3-vectors with the same operations in the same order (bit-equal)."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
+_UP = (0.0, 0.0, 1.0)
+_CYL_OFFS = [(s, t) for s in (-2 / 3, 0.0, 2 / 3) for t in (-0.5, 0.5)]
+
+Patches = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
 class FastVision(Vision):
-    """Analytic projection of surface patches with ray-cast occlusion (no rendering)."""
+    """Analytic projection of surface patches with ray-cast occlusion (no rendering).
+
+    Per tick it only computes what moves (ball and beacon-band patches, which face the
+    camera); the goals' patches, per-instance constants and the order of all patches are
+    cached. Every float is computed with the same operations in the same order as the plain
+    per-patch loops it replaces, so the blobs are bit-identical to them.
+    """
 
     name = "fast"
 
@@ -172,84 +192,107 @@ class FastVision(Vision):
         super().__init__(world, cam)
         self.spacing = spacing
         self._static_for: tuple[int, ...] = ()
-        self._static: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._static: Patches = _no_patches()
+        self._dyn_for: list[Any] | None = None
+        self._fn2 = self.fn**2
 
     def _prepare_static(self) -> None:
-        self._static = []
+        """The goals' patches, once per scene (keyed by the instances' body ids)."""
+        parts: list[Patches] = []
         for k, ins in enumerate(self.world.instances):
             if ins.shape == "boxes":
-                parts = [_box_patches(c, h, self.spacing) for c, h in ins.boxes]
-                self._static.append(
-                    (
-                        k,
-                        np.concatenate([q[0] for q in parts]),
-                        np.concatenate([q[1] for q in parts]),
-                        np.concatenate([q[2] for q in parts]),
-                    )
-                )
+                boxes = [_box_patches(c, h, self.spacing) for c, h in ins.boxes]
+                a = np.concatenate([q[2] for q in boxes])
+                parts.append((np.concatenate([q[0] for q in boxes]),
+                              np.concatenate([q[1] for q in boxes]), a,
+                              np.full(len(a), k), np.full(len(a), 0.01)))
+        self._static = _concat(parts)
         self._static_for = tuple(i.body for i in self.world.instances)
 
-    def _patches(
-        self, eye: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """All candidate patches: points, normals, areas, instance index, ray-end extension."""
-        pts, nrm, area, owner, ext = [], [], [], [], []
-        for k, q, n, a in self._static:
-            pts.append(q)
-            nrm.append(n)
-            area.append(a)
-            owner.append(np.full(len(a), k))
-            ext.append(np.full(len(a), 0.01))
-        for k, ins in enumerate(self.world.instances):
-            if ins.shape == "sphere":
-                centre = np.asarray(self.world.ball_position())
-                r = ins.radius
-                d = centre - eye
-                dist = float(np.linalg.norm(d))
-                if dist <= r:
-                    continue
-                dn = d / dist
-                u = np.cross(dn, (0.0, 0.0, 1.0))
-                if np.linalg.norm(u) < 1e-6:
-                    u = np.array([1.0, 0.0, 0.0])
-                u /= np.linalg.norm(u)
-                v = np.cross(u, dn)
-                q = centre + r * (_DISC[:, :1] * u + _DISC[:, 1:] * v)
-                pts.append(q)
-                nrm.append(np.tile(-dn, (len(q), 1)))
-                area.append(np.full(len(q), math.pi * r * r / len(q)))
-                owner.append(np.full(len(q), k))
-                ext.append(np.full(len(q), r + 0.01))
-            elif ins.shape == "cylinder":
-                centre = np.asarray(ins.centre)
-                d = centre - eye
-                dh = np.array([d[0], d[1], 0.0])
-                nh = float(np.linalg.norm(dh))
-                if nh < 1e-6:
-                    continue
-                dh /= nh
-                perp = np.array([-dh[1], dh[0], 0.0])
-                r, hh = ins.radius, ins.half_height
-                offs = [(s, t) for s in (-2 / 3, 0.0, 2 / 3) for t in (-0.5, 0.5)]
-                q = np.array(
-                    [centre + s * r * perp + np.array([0, 0, t * hh * 2]) for s, t in offs]
-                )
-                pts.append(q)
-                nrm.append(np.tile(-dh, (len(q), 1)))
-                area.append(np.full(len(q), 4 * r * hh / len(q)))
-                owner.append(np.full(len(q), k))
-                ext.append(np.full(len(q), r + 0.01))
-        if not pts:
-            z3 = np.zeros((0, 3))
-            z1 = np.zeros(0)
-            return z3, z3, z1, z1.astype(np.int64), z1
-        return (
-            np.concatenate(pts),
-            np.concatenate(nrm),
-            np.concatenate(area),
-            np.concatenate(owner).astype(np.int64),
-            np.concatenate(ext),
-        )
+    def _prepare_dynamic(self) -> None:
+        """Per-instance constants of the current instance list (rebuilt when the world
+        replaces the list, i.e. on every reset)."""
+        inst = self.world.instances
+        self._dyn_for = inst
+        self._body = np.array([i.body for i in inst], dtype=np.float64)
+        self._link = np.array([i.link for i in inst], dtype=np.float64)
+        self._is_box = np.array([i.shape == "boxes" for i in inst], dtype=bool)
+        cyl = [(k, i) for k, i in enumerate(inst) if i.shape == "cylinder"]
+        self._cyl_k = np.array([k for k, _ in cyl], dtype=np.int64)
+        self._cyl_c = np.array([np.asarray(i.centre) for _, i in cyl], dtype=np.float64)
+        self._cyl_c = self._cyl_c.reshape(-1, 3)
+        self._cyl_sr = np.array([[s * i.radius for s, _ in _CYL_OFFS] for _, i in cyl])
+        self._cyl_off = np.array(
+            [[[0, 0, t * i.half_height * 2] for _, t in _CYL_OFFS] for _, i in cyl]
+        ).reshape(-1, len(_CYL_OFFS), 3)
+        n = len(_CYL_OFFS)
+        self._cyl_a = np.array([np.full(n, 4 * i.radius * i.half_height / n) for _, i in cyl])
+        self._cyl_e = np.array([np.full(n, i.radius + 0.01) for _, i in cyl])
+        self._cyl_own = np.array([np.full(n, k) for k, _ in cyl], dtype=np.int64)
+        self._sph = [(k, i.radius) for k, i in enumerate(inst) if i.shape == "sphere"]
+        # cylinders before spheres: the patches need no reordering into instance order
+        self._dyn_sorted = not cyl or not self._sph or cyl[-1][0] < self._sph[0][0]
+
+    def _cylinder_patches(self, eye: np.ndarray) -> Patches:
+        """Six patches per beacon band facing the camera, bands in instance order."""
+        if len(self._cyl_k) == 0:
+            return _no_patches()
+        dh = self._cyl_c - eye
+        dh[:, 2] = 0.0
+        nh = np.array([math.sqrt(row.dot(row)) for row in dh])  # = np.linalg.norm per row
+        c, sr, off, area, own, ext = (self._cyl_c, self._cyl_sr, self._cyl_off, self._cyl_a,
+                                      self._cyl_own, self._cyl_e)
+        ok = nh >= 1e-6
+        if not ok.all():
+            dh, nh, c, sr, off = dh[ok], nh[ok], c[ok], sr[ok], off[ok]
+            area, own, ext = area[ok], own[ok], ext[ok]
+        dh /= nh[:, None]
+        perp = np.zeros_like(dh)
+        perp[:, 0] = -dh[:, 1]
+        perp[:, 1] = dh[:, 0]
+        q = c[:, None, :] + sr[:, :, None] * perp[:, None, :]
+        q += off
+        nrm = np.repeat(-dh, len(_CYL_OFFS), axis=0)
+        return q.reshape(-1, 3), nrm, area.ravel(), own.ravel(), ext.ravel()
+
+    def _sphere_patches(self, eye: np.ndarray) -> list[Patches]:
+        """Seven patches on the disc of the ball facing the camera, per sphere."""
+        out = []
+        for k, r in self._sph:
+            centre = np.asarray(self.world.ball_position())
+            d = centre - eye
+            dist = math.sqrt(d.dot(d))  # = np.linalg.norm(d)
+            if dist <= r:
+                continue
+            dn = d / dist
+            u = _cross3(tuple(dn.tolist()), _UP)
+            nu = math.sqrt(u.dot(u))
+            if nu < 1e-6:
+                u = np.array([1.0, 0.0, 0.0])
+                nu = math.sqrt(u.dot(u))
+            u /= nu
+            v = _cross3(tuple(u.tolist()), tuple(dn.tolist()))
+            q = centre + r * (_DISC[:, :1] * u + _DISC[:, 1:] * v)
+            m = len(q)
+            out.append((q, np.repeat(-dn[None, :], m, axis=0), np.full(m, math.pi * r * r / m),
+                        np.full(m, k), np.full(m, r + 0.01)))
+        return out
+
+    def _patches(self, eye: np.ndarray) -> Patches:
+        """All candidate patches: points, normals, areas, instance index, ray-end extension.
+
+        The goals' patches come first, then the moving ones in instance order.
+        """
+        if self._dyn_for is not self.world.instances:
+            self._prepare_dynamic()
+        parts = [self._static, self._cylinder_patches(eye), *self._sphere_patches(eye)]
+        out = _concat(parts)
+        if self._dyn_sorted:
+            return out
+        n = len(self._static[0])
+        perm = np.concatenate([np.arange(n), n + np.argsort(out[3][n:], kind="stable")])
+        pts, nrm, area, owner, ext = (c[perm] for c in out)
+        return pts, nrm, area, owner, ext
 
     def blobs(self) -> np.ndarray:
         """``(6, 3)`` array of (x, y, size) per colour class, from projected surface patches."""
@@ -278,34 +321,57 @@ class FastVision(Vision):
         hits = p.rayTestBatch(
             [eye.tolist()] * len(sel), ends.tolist(), physicsClientId=self.world.client
         )
-        inst = self.world.instances
-        seen_area = np.zeros(len(inst))
-        sum_x = np.zeros(len(inst))
-        sum_y = np.zeros(len(inst))
-        for j, (i, hit) in enumerate(zip(sel, hits, strict=True)):
-            k = owner[i]
-            ins = inst[k]
-            if hit[0] != ins.body or hit[1] != ins.link:
-                continue
-            if ins.shape == "boxes":
-                hit_dist = hit[2] * (dist[j] + ext[i])
-                if hit_dist < dist[j] - 0.015:
-                    continue  # another part of the same goal is in front of this patch
-            cos_inc = abs(float(nrm[i] @ dn[j]))
-            a = self.fn**2 * area[i] * cos_inc * dist[j] / z[i] ** 3
-            seen_area[k] += a
-            sum_x[k] += a * x[i]
-            sum_y[k] += a * y[i]
+        j = self._visible(sel, hits, owner, ext, dist)
+        i = sel[j]
+        cos_inc = np.abs((nrm[i] * dn[j]).sum(axis=1))  # exact for the goals' axis normals
+        for m in np.flatnonzero(~self._is_box[owner[i]]):
+            cos_inc[m] = abs(float(nrm[i[m]] @ dn[j[m]]))
+        z3 = np.array([zi**3 for zi in z[i]])
+        a = self._fn2 * area[i] * cos_inc * dist[j] / z3
+        n = len(self.world.instances)
+        seen_area = np.bincount(owner[i], weights=a, minlength=n)  # sequential, in order
+        sum_x = np.bincount(owner[i], weights=a * x[i], minlength=n)
+        sum_y = np.bincount(owner[i], weights=a * y[i], minlength=n)
+        return self._largest(out, seen_area, sum_x, sum_y)
+
+    def _visible(self, sel: np.ndarray, hits: tuple[Any, ...], owner: np.ndarray, ext: np.ndarray,
+                 dist: np.ndarray) -> np.ndarray:
+        """Indices into ``sel`` of the patches whose ray hits their own instance first."""
+        h = np.array([hit[:3] for hit in hits], dtype=np.float64).reshape(-1, 3)
+        k = owner[sel]
+        ok = (h[:, 0] == self._body[k]) & (h[:, 1] == self._link[k])
+        hit_dist = h[:, 2] * (dist + ext[sel])
+        # a goal patch with another part of the same goal in front of it is hidden
+        ok &= ~(self._is_box[k] & (hit_dist < dist - 0.015))
+        return np.flatnonzero(ok)
+
+    def _largest(self, out: np.ndarray, seen_area: np.ndarray, sum_x: np.ndarray,
+                 sum_y: np.ndarray) -> np.ndarray:
+        """Fill ``out`` with the largest blob per class (area-weighted centroid, size)."""
         # normalised image area is 2 x 2*ymax; pixel fraction = a / (4 * ymax)
         total = 4.0 * self.ymax
         best = np.zeros(_N)
-        for k, ins in enumerate(inst):
+        for k, ins in enumerate(self.world.instances):
             frac = min(1.0, seen_area[k] / total)
             if frac <= 0 or frac < self.cam.min_area_fraction or frac <= best[ins.cls]:
                 continue
             best[ins.cls] = frac
             out[ins.cls] = (sum_x[k] / seen_area[k], sum_y[k] / seen_area[k], math.sqrt(frac))
         return out
+
+
+def _no_patches() -> Patches:
+    z3 = np.zeros((0, 3))
+    z1 = np.zeros(0)
+    return z3, z3, z1, z1.astype(np.int64), z1
+
+
+def _concat(parts: list[Patches]) -> Patches:
+    """Row-wise concatenation of patch sets (owner as int64)."""
+    if not parts:
+        return _no_patches()
+    pts, nrm, area, owner, ext = (np.concatenate(c) for c in zip(*parts, strict=True))
+    return pts, nrm, area, owner.astype(np.int64), ext
 
 
 def make_vision(world: World, cam: CameraConfig, kind: str) -> Vision:
