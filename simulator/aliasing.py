@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from protocols.aibo import blob_slice, decode_indicator
 
-__all__ = ["ACTION_SCALE", "conflicting", "main", "measure_aliasing"]
+__all__ = ["ACTION_SCALE", "conflict_within", "conflicting", "main", "measure_aliasing"]
 
 #: Scale of each action entry for the conflict test: walk limits (m/s, rad/s), half the head
 #: and tail joint ranges (rad), 1 for the indicator.
@@ -48,14 +48,29 @@ ACTION_SCALE = np.array(
 )
 
 
+def _indicators(values: np.ndarray) -> np.ndarray:
+    """The decoded action indicator (``kick``/``trap``/``none``) of each value, same shape."""
+    v = np.asarray(values, dtype=np.float64)
+    return np.array([decode_indicator(float(e)) for e in v.reshape(-1)]).reshape(v.shape)
+
+
 def conflicting(ya: np.ndarray, yb: np.ndarray, conflict: float = 0.5) -> np.ndarray:
     """Row-wise: do actions ``ya[i]`` and ``yb[i]`` conflict?"""
     ya = np.atleast_2d(ya)
     yb = np.atleast_2d(yb)
     big = np.max(np.abs(ya[:, :8] - yb[:, :8]) / ACTION_SCALE[:8], axis=1) > conflict
-    ia = np.array([decode_indicator(float(v)) for v in ya[:, 8]])
-    ib = np.array([decode_indicator(float(v)) for v in yb[:, 8]])
-    out: np.ndarray = big | (ia != ib)
+    out: np.ndarray = big | (_indicators(ya[:, 8]) != _indicators(yb[:, 8]))
+    return out
+
+
+def conflict_within(sets: np.ndarray, conflict: float = 0.5) -> np.ndarray:
+    """Per set of actions ``sets[i]`` (shape ``(sets, members, 9)``): do any two members
+    conflict by :func:`conflicting`'s rule? (Some entry's range over the set exceeds
+    ``conflict`` of its scale, or the members' indicators decode differently.)"""
+    s = np.asarray(sets, dtype=np.float64)
+    spread = (s[:, :, :8].max(axis=1) - s[:, :, :8].min(axis=1)) / ACTION_SCALE[:8]
+    names = _indicators(s[:, :, 8])
+    out: np.ndarray = (spread.max(axis=1) > conflict) | (names != names[:, :1]).any(axis=1)
     return out
 
 

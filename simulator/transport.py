@@ -190,7 +190,6 @@ class Inbox:
         self.dims = dims
         self.invalid = invalid
         self.received = 0
-        self.doorbell = doorbell
         self._samples: deque[zenoh.Sample] = deque(maxlen=capacity)
 
         def arrived(sample: zenoh.Sample) -> None:

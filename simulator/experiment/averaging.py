@@ -27,8 +27,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from protocols.aibo import decode_indicator
-from simulator.aliasing import ACTION_SCALE, conflicting
+from simulator.aliasing import conflict_within, conflicting
 
 __all__ = ["AVERAGED_EPISODE_SHARE", "MultimapNeighbourhood"]
 
@@ -50,7 +49,6 @@ class MultimapNeighbourhood:
         self.k = min(int(k), len(self.x))
         self.conflict = float(conflict)
         self._tree = cKDTree(self.x)
-        self._codes = np.array([_indicator_code(v) for v in self.y[:, 8]])
 
     def averaged_ticks(self, xs: FloatArray, commands: FloatArray
                        ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
@@ -64,9 +62,7 @@ class MultimapNeighbourhood:
         _, idx = self._tree.query(xs, k=self.k, p=np.inf)
         idx = np.asarray(idx).reshape(len(xs), self.k)
         near = self.y[idx]  # (ticks, k, 9)
-        spread = (near[:, :, :8].max(axis=1) - near[:, :, :8].min(axis=1)) / ACTION_SCALE[:8]
-        codes = self._codes[idx]
-        aliased = (spread.max(axis=1) > self.conflict) | (codes.min(axis=1) != codes.max(axis=1))
+        aliased = conflict_within(near, self.conflict)
         repeated = np.repeat(cmds, self.k, axis=0)
         off = conflicting(repeated, near.reshape(-1, near.shape[2]), self.conflict)
         averaged = aliased & off.reshape(len(xs), self.k).all(axis=1)
@@ -78,7 +74,3 @@ class MultimapNeighbourhood:
         n = max(len(aliased), 1)
         return {"aliased_share": round(float(aliased.sum()) / n, 3),
                 "averaged_share": round(float(averaged.sum()) / n, 3)}
-
-
-def _indicator_code(value: float) -> int:
-    return ("none", "kick", "trap").index(decode_indicator(float(value)))
