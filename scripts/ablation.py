@@ -31,6 +31,9 @@ from roger_daemon.blas import pin_blas_threads
 VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
     "default": ("the default configuration", {}, "support"),
     "rule-gate": ("transitioner rule gate (highest gate probability)", {}, "gate"),
+    "rule-variance": ("transitioner rule variance (lowest predictive variance)", {}, "variance"),
+    "rule-mixture": ("transitioner rule mixture (gate-weighted mean of the subtask's experts)",
+                     {}, "mixture"),
     "particles-10": ("10 particles", {"particles": 10}, "support"),
     "particles-30": ("30 particles", {"particles": 30}, "support"),
     "min-support-0": ("no minimum support (every expert's gate competes)",
@@ -40,6 +43,12 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
                    {"gp_prior_mean": "zero"}, "support"),
     "tail-kept": ("tail inputs kept (input weights all 1)", {"input_weights": None}, "support"),
     "noise-1e-3": ("GP noise theta_n = 1e-3", {"theta_n": 1e-3}, "support"),
+    "particles-100": ("100 particles", {"particles": 100}, "support"),
+    "sticky-20": ("temporal stickiness kappa = 20", {"sticky_kappa": 20.0}, "support"),
+    "lambda0-10": ("gate prior scatter lambda0 = 10", {"lambda0": 10.0}, "support"),
+    "lambda0-100": ("gate prior scatter lambda0 = 100", {"lambda0": 100.0}, "support"),
+    "lambda0-100-gate": ("gate prior scatter lambda0 = 100, rule gate", {"lambda0": 100.0},
+                         "gate"),
 }
 
 

@@ -37,11 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from protocols import Action, Command, EpisodeEvent, ExpertOutput, Perception, Prediction, keys
+from protocols import Action, Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
 from simulator.config import load_config
 from simulator.hcc import HCC, HCCParams, HeadModel
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
+from simulator.transitioner import RULES, transition_command
 from simulator.transport import (
     EPHEMERAL,
     Inbox,
@@ -54,7 +55,7 @@ from simulator.transport import (
     wait_for,
 )
 
-__all__ = ["RULES", "choose_expert", "configure", "hcc_from_config", "run", "transition_command"]
+__all__ = ["configure", "hcc_from_config", "run"]
 
 log = logging.getLogger("roger.hcc")
 
@@ -104,54 +105,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
     add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
-
-
-#: How the transitioner picks among the experts of the current subtask (``--rule``).
-RULES = ("support", "variance", "gate")
-
-
-def choose_expert(
-    multimap: tuple[ExpertOutput, ...], subtask: str, rule: str = "support"
-) -> tuple[ExpertOutput | None, str]:
-    """The expert the transitioner uses for ``subtask``, and how it was chosen.
-
-    Among the experts labelled ``subtask`` (majority label of their data, paper section IV.A):
-    ``rule = "support"`` (default) takes the expert holding the most points (the broadest fit
-    of the subtask; measured best, docs/goal-scoring.md), ``"variance"`` the lowest
-    predictive variance at this perception, ``"gate"`` the highest gate probability; either
-    way ``"label"``. If none carries the label, the highest-probability expert overall
-    (``"fallback_top"``); ``(None, "fallback_mean")`` for an empty multimap. Remaining ties go to
-    the higher gate probability, then the lower expert id.
-    """
-    if rule not in RULES:
-        raise ValueError(f"transitioner rule must be one of {RULES}, got {rule!r}")
-    if not multimap:
-        return None, "fallback_mean"
-    ranked = sorted(multimap, key=lambda e: (-e.p, e.expert))
-    mine = [e for e in ranked if e.label == subtask]
-    if not mine:
-        return ranked[0], "fallback_top"
-    if rule == "variance":
-        return min(mine, key=lambda e: float(np.sum(e.var))), "label"
-    if rule == "support":
-        return max(mine, key=lambda e: e.n), "label"
-    return mine[0], "label"
-
-
-def transition_command(
-    multimap: tuple[ExpertOutput, ...], mean: np.ndarray | None, subtask: str, rule: str
-) -> tuple[np.ndarray, str, int]:
-    """The transitioner's command for ``subtask``: (9-D command, how, expert id or -1).
-
-    The chosen expert's mean (:func:`choose_expert`); with an empty multimap the prediction's
-    own ``mean``. Shared by this node and the in-process evaluation
-    (``simulator.experiment.inprocess``), so both act identically.
-    """
-    expert, how = choose_expert(multimap, subtask, rule)
-    if expert is None:
-        y = np.zeros(DIMS.y) if mean is None else np.array(mean, dtype=np.float64)
-        return y, how, -1
-    return np.array(expert.mean, dtype=np.float64), how, int(expert.expert)
 
 
 def hcc_from_config(path: str | None) -> HCC:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from simulator.config import CameraConfig, RobotConfig
+from simulator.linalg3 import matmul3, matvec3, norm3
 
 __all__ = ["HeadModel"]
 
@@ -44,16 +45,16 @@ class HeadModel:
         """Camera position (body frame, z from the floor) and rotation (columns fwd, left, up)."""
         r = self.robot
         r_tilt = _rot_pitch(tilt)
-        r_head = r_tilt @ _rot_yaw(pan) @ _rot_pitch(nod)
+        r_head = matmul3(matmul3(r_tilt, _rot_yaw(pan)), _rot_pitch(nod))
         base = np.array([r.neck_base[0], 0.0, r.trunk_height + r.neck_base[1]])
         off = np.array([r.camera_offset[0], 0.0, r.camera_offset[1]])
-        pos = base + r_tilt @ np.array([0.0, 0.0, r.neck_length]) + r_head @ off
+        pos = base + matvec3(r_tilt, [0.0, 0.0, r.neck_length]) + matvec3(r_head, off)
         return pos, r_head
 
     def ray(self, bx: float, by: float, rot: np.ndarray) -> np.ndarray:
         """Unit direction (body frame) through image point (bx, by) of the encoding."""
-        d: np.ndarray = rot @ np.array([1.0, -bx / self.fn, by / self.fn])
-        unit: np.ndarray = d / float(np.linalg.norm(d))
+        d = matvec3(rot, [1.0, -bx / self.fn, by / self.fn])
+        unit: np.ndarray = d / norm3(d)
         return unit
 
     def bearing(self, bx: float, by: float, tilt: float, pan: float, nod: float) -> float:

@@ -33,6 +33,7 @@ import pybullet as p
 
 from protocols.aibo import COLOURS, NOT_SEEN
 from simulator.config import CameraConfig, VisionNoiseConfig
+from simulator.linalg3 import dot3, norm3, rows_dot3
 from simulator.world import World
 
 __all__ = ["FastVision", "RenderedVision", "Vision", "apply_noise", "make_vision"]
@@ -239,7 +240,7 @@ class FastVision(Vision):
             return _no_patches()
         dh = self._cyl_c - eye
         dh[:, 2] = 0.0
-        nh = np.array([math.sqrt(row.dot(row)) for row in dh])  # = np.linalg.norm per row
+        nh = np.array([norm3(row) for row in dh])  # = np.linalg.norm per row, BLAS-free
         c, sr, off, area, own, ext = (self._cyl_c, self._cyl_sr, self._cyl_off, self._cyl_a,
                                       self._cyl_own, self._cyl_e)
         ok = nh >= 1e-6
@@ -261,15 +262,15 @@ class FastVision(Vision):
         for k, r in self._sph:
             centre = np.asarray(self.world.ball_position())
             d = centre - eye
-            dist = math.sqrt(d.dot(d))  # = np.linalg.norm(d)
+            dist = norm3(d)  # = np.linalg.norm(d), BLAS-free
             if dist <= r:
                 continue
             dn = d / dist
             u = _cross3(tuple(dn.tolist()), _UP)
-            nu = math.sqrt(u.dot(u))
+            nu = norm3(u)
             if nu < 1e-6:
                 u = np.array([1.0, 0.0, 0.0])
-                nu = math.sqrt(u.dot(u))
+                nu = norm3(u)
             u /= nu
             v = _cross3(tuple(u.tolist()), tuple(dn.tolist()))
             q = centre + r * (_DISC[:, :1] * u + _DISC[:, 1:] * v)
@@ -305,17 +306,19 @@ class FastVision(Vision):
         if len(pts) == 0:
             return out
         d = pts - eye
-        z = d @ fwd
-        facing = np.einsum("ij,ij->i", nrm, -d) > 0
+        # products written out (simulator/linalg3.py): the same bits on every CPU and BLAS
+        z = rows_dot3(d, fwd)
+        facing = (nrm[:, 0] * -d[:, 0] + nrm[:, 1] * -d[:, 1] + nrm[:, 2] * -d[:, 2]) > 0
         zs = np.where(z > self.cam.near, z, 1.0)
-        x = -self.fn * (d @ left) / zs
-        y = self.fn * (d @ up) / zs
+        x = -self.fn * rows_dot3(d, left) / zs
+        y = self.fn * rows_dot3(d, up) / zs
         keep = facing & (z > self.cam.near) & (z < self.cam.far)
         keep &= (np.abs(x) <= 1.0) & (np.abs(y) <= self.ymax)
         sel = np.flatnonzero(keep)
         if len(sel) == 0:
             return out
-        dist = np.linalg.norm(d[sel], axis=1)
+        ds = d[sel]
+        dist = np.sqrt(ds[:, 0] * ds[:, 0] + ds[:, 1] * ds[:, 1] + ds[:, 2] * ds[:, 2])
         dn = d[sel] / dist[:, None]
         ends = pts[sel] + dn * ext[sel][:, None]
         hits = p.rayTestBatch(
@@ -325,7 +328,7 @@ class FastVision(Vision):
         i = sel[j]
         cos_inc = np.abs((nrm[i] * dn[j]).sum(axis=1))  # exact for the goals' axis normals
         for m in np.flatnonzero(~self._is_box[owner[i]]):
-            cos_inc[m] = abs(float(nrm[i[m]] @ dn[j[m]]))
+            cos_inc[m] = abs(dot3(nrm[i[m]], dn[j[m]]))
         z3 = np.array([zi**3 for zi in z[i]])
         a = self._fn2 * area[i] * cos_inc * dist[j] / z3
         n = len(self.world.instances)

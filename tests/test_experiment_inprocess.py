@@ -23,7 +23,7 @@ from simulator.experiment.start_poses import (
 )
 from simulator.experiment.training import Demonstrations, model_fingerprint
 from simulator.experiment.zenoh_run import compare_paths
-from simulator.hcc_node import choose_expert, transition_command
+from simulator.transitioner import choose_expert, transition_command
 
 GOOD_TOML = """
 [[pose]]

@@ -12,7 +12,7 @@ from protocols.aibo import NOT_SEEN, blob_slice, decode_indicator
 from simulator.aliasing import conflicting, measure_aliasing
 from simulator.episodes import SoccerSim, Trace, run_episode
 from simulator.hcc import HCC, LABELS, HeadModel, coarse_label
-from simulator.hcc_node import choose_expert
+from simulator.transitioner import choose_expert
 
 LOOK = math.radians(-15.0)
 

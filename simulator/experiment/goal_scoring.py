@@ -35,6 +35,7 @@ from typing import Any
 from roger_daemon.atomic import write_json
 from simulator.experiment.procs import EpisodeJob
 from simulator.experiment.runner import json_default, machine
+from simulator.transitioner import RULES
 
 __all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "plan_from_args", "run"]
 
@@ -57,6 +58,10 @@ DEFAULT_VISION = "fast"
 #: the particle filter finds better partitions of this stream (ablation in the README:
 #: 10 particles 17/39 goals over learner seeds 0-2, 30 particles 31/39).
 TASK_LEARNER_OVERRIDES = ("learner.novelty_threshold=1e-3", "learner.particles=30")
+#: Start locations per evaluation job (one simulator, controller and daemon run them all):
+#: each job's processes cost a few seconds to start and stop, so fewer, longer jobs; an
+#: episode does not depend on the job it runs in (``paths_agree`` compares episode by episode).
+EVAL_LOCATIONS_PER_JOB = 5
 #: Offsets of the derived seeds (all derived from ``--seed``; every one is in results.json).
 _EVAL_SEED_OFFSET = 1_000_003
 
@@ -139,7 +144,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--learner-seeds", type=int, default=None,
                         help="ROGER models trained with seeds SEED..SEED+N-1, each evaluated "
                         "(default 3; --quick: 1)")
-    parser.add_argument("--rule", choices=("support", "variance", "gate"), default="support",
+    parser.add_argument("--rule", choices=RULES, default="support",
                         help="transitioner rule among the subtask's experts (default support)")
     parser.add_argument("--preset", default=None,
                         help="learner preset (e.g. 'paper': the paper's literal numbers, every "
@@ -224,6 +229,17 @@ def _demo_jobs(plan: Plan) -> list[EpisodeJob]:
     ]
 
 
+def location_chunks(locations: tuple[int, ...], size: int) -> list[tuple[int, ...]]:
+    """``locations`` in consecutive chunks of at most ``size``, as even as possible.
+
+    >>> location_chunks(tuple(range(13)), 5)
+    [(0, 1, 2, 3), (4, 5, 6, 7, 8), (9, 10, 11, 12)]
+    """
+    n = max(1, -(-len(locations) // size))
+    bounds = [round(i * len(locations) / n) for i in range(n + 1)]
+    return [locations[a:b] for a, b in zip(bounds, bounds[1:], strict=False) if b > a]
+
+
 def _eval_jobs(plan: Plan, models: Path, params: Any,
                digests: dict[str, str]) -> list[EpisodeJob]:
     from simulator.experiment.training import learner_table
@@ -234,13 +250,14 @@ def _eval_jobs(plan: Plan, models: Path, params: Any,
         keys += [("roger", f"roger:{k}") for k in range(plan.learner_seeds)]
     if "hcc" in plan.controllers:
         keys.append(("hcc", "hcc"))
-    # Longest first (learned controllers run longest), locations interleaved.
-    for loc in plan.locations:
+    # Longest first (learned controllers run longest), location chunks interleaved.
+    for locs in location_chunks(plan.locations, EVAL_LOCATIONS_PER_JOB):
         for c, key in keys:
             k = int(key.split(":")[1]) if ":" in key else 0
+            name = "-".join(f"{loc:02d}" for loc in (locs[0], locs[-1]))
             jobs.append(EpisodeJob(
-                c, (loc,), plan.attempts, plan.seeds["eval_sim"], plan.time_limit, plan.vision,
-                plan.out / "work" / "eval" / key.replace(":", "-") / f"loc-{loc:02d}",
+                c, locs, plan.attempts, plan.seeds["eval_sim"], plan.time_limit, plan.vision,
+                plan.out / "work" / "eval" / key.replace(":", "-") / f"loc-{name}",
                 checkpoint_dir=models / key.replace(":", "-") if c != "hcc" else None,
                 learner=learner_table(params), learner_seed=plan.seeds["learner"] + k,
                 task_config=plan.task_config, model_digest=digests.get(key, ""),

@@ -2,7 +2,7 @@
 
 Same simulator (:class:`simulator.episodes.SoccerSim`), same demonstrator
 (:class:`simulator.hcc.HCC`), same learners and the same transitioner rule
-(:func:`simulator.hcc_node.choose_expert`) as the Zenoh path of ``roger experiment
+(:func:`simulator.transitioner.choose_expert`) as the Zenoh path of ``roger experiment
 goal-scoring``; the only difference is that perceptions, predictions and commands are function
 calls instead of messages. Given the same seeds both paths give the same episodes (a test
 checks it on a shared subset), so this path serves iteration and ablations
@@ -33,7 +33,7 @@ from simulator.episodes import EpisodeResult, SoccerSim, StartLocation, run_epis
 from simulator.experiment.averaging import MultimapNeighbourhood
 from simulator.experiment.training import Demonstrations
 from simulator.hcc import HCC
-from simulator.hcc_node import transition_command
+from simulator.transitioner import transition_command
 
 __all__ = [
     "EpisodeRecord",

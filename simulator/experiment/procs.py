@@ -340,6 +340,30 @@ def _start_predict_daemon(group: ProcessGroup, job: EpisodeJob, port: int) -> No
         raise JobError("the daemon did not resume the trained model" + group.tails())
 
 
+def _wait_sim(group: ProcessGroup, timeout: float) -> int:
+    """Wait for the simulator; stop the daemon as soon as the controller has left.
+
+    The controller exits on the simulator's final event (``--exit-when-done``), and the
+    simulator lingers until every subscriber of its episode events has left
+    (``simulator.sim_node``, at most 2 s); the daemon subscribes to them too, so stopping it
+    then lets the simulator close at once instead of after the whole linger. A controller
+    that fails ends the job at once.
+    """
+    sim = group.procs["sim"].popen
+    ctl = group.procs["controller"].popen
+    end = time.monotonic() + timeout
+    while sim.poll() is None:
+        code = ctl.poll()
+        if code is not None and code != 0:
+            raise JobError(f"controller exited with {code}" + group.tails())
+        if code == 0 and "daemon" in group.procs and group.procs["daemon"].popen.poll() is None:
+            group.stop("daemon")
+        if time.monotonic() > end:
+            raise JobError(f"sim still running after {timeout:.0f} s" + group.tails())
+        time.sleep(0.02)
+    return int(sim.returncode)
+
+
 def run_job(job: EpisodeJob) -> JobResult:
     """Run one job's processes to completion; return the simulator's and controller's JSON."""
     job.workdir.mkdir(parents=True, exist_ok=True)
@@ -385,7 +409,7 @@ def run_job(job: EpisodeJob) -> JobResult:
         group.start("controller", [*controller, *connect, "--exit-when-done", "--idle-exit",
                                    "120", "--stats", stats, *extra])
         group.start("sim", _sim_argv(job, sim_port, aux_port, peers))
-        code = group.wait("sim", job.timeout_s())
+        code = _wait_sim(group, job.timeout_s())
         if code != 0:
             raise JobError(f"sim exited with {code}" + group.tails())
         group.wait("controller", 60)

@@ -109,9 +109,18 @@ class ZenohRun:
                              + ", ".join(f"seed {s}: {m.n_experts} experts"
                                          for s, m in models))
             self.context.update(stream=stream, models=models, unimap=unimap)
-            check = self._check(stream, models[0][1], progress)
+            # the daemon check feeds a daemon process in lockstep (mostly waiting on it): it
+            # runs beside the checkpoints and the evaluation instead of before them
+            checked: dict[str, Any] = {}
+            checker = threading.Thread(
+                target=lambda: checked.update(check=self._check(stream, models[0][1],
+                                                                 progress)),
+                name="daemon-check", daemon=True)
+            checker.start()
             digests = self._checkpoints(stream, models, unimap)
             ev, oracle_eps = self._evaluate(runner, progress, stream, models, unimap, digests)
+            checker.join()
+            check = checked.get("check")
             self.reused = runner.reused
         return self._results(demo_results, data, stream, models, unimap, ev, oracle_eps,
                              check, train_s)
