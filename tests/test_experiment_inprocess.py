@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from protocols import ExpertOutput
+from roger_daemon.labels import majority_labels
 from roger_daemon.learner import RogerParams
 from simulator.experiment import inprocess as ip
 from simulator.experiment.pipeline import fit_segmentation_oracle, train_models
@@ -157,6 +158,33 @@ def test_segmentation_oracle_has_one_gp_per_true_subtask() -> None:
     assert np.all(mean_a > 0.5)  # learned branch "a" (outputs near +1), not the average
 
 
+def test_merged_expert_groups_learn_the_points_of_each_group_of_roger_experts() -> None:
+    """fit_expert_groups: per majority label, one GP trained, in stream order, on exactly the
+    points ROGER assigned to that label's experts (an exact oracle: the same GP fitted by
+    hand on those points predicts bit for bit the same)."""
+    from roger_daemon.learner import Roger, UnimapGP
+    from simulator.experiment.pipeline import fit_expert_groups
+
+    labels = ["a"] * 20 + ["b"] * 15 + ["a"] * 5
+    s = _stream(40, np.random.default_rng(2), labels)
+    params = RogerParams(nu0=4.0, theta_w=1.0, particles=3)
+    model = Roger(d_x=3, d_y=2, params=params, seed=1)
+    for x, y in zip(s.x, s.y, strict=True):
+        model.learn_one(x, y)
+    gps = fit_expert_groups(s, model, params, seed=0)
+    assignments = np.asarray(model.assignments()).tolist()
+    groups = majority_labels(assignments, labels)
+    assert sorted(gps) == sorted(set(groups.values()))
+    for name, gp in gps.items():
+        mine = [i for i, k in enumerate(assignments) if groups[k] == name]
+        assert gp.n_learned == len(mine)
+        by_hand = UnimapGP(d_x=3, d_y=2, params=params, seed=0)
+        for i in mine:
+            by_hand.learn_one(s.x[i], s.y[i])
+        q = np.array([0.3, -0.2, 0.1])
+        assert np.array_equal(gp.predict_one(q).mean, by_hand.predict_one(q).mean)
+
+
 def test_compare_paths_reports_any_difference() -> None:
     ep = {"location": 0, "repetition": 0, "outcome": "goal", "ticks": 10, "traps": 1,
           "kicks": 1}
@@ -184,6 +212,8 @@ def test_the_in_process_path_writes_results_figures_and_the_dpas_averaging(
     for name in ("fig7_pca", "fig8_experts", "success_per_location"):
         assert Path(r["figures"][name]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     (dpa,) = r["episodes"]["dpa"]
+    (merged,) = r["episodes"]["groups:0"]  # ROGER's experts merged per group, in-process
+    assert r["groups"]["trials"] == 1 and merged["location"] == 0
     assert 0.0 <= dpa["averaged_share"] <= dpa["aliased_share"] <= 1.0
     if not dpa["success"]:
         assert r["dpa"]["averaging"]["failed_episodes_measured"] == 1

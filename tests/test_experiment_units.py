@@ -31,7 +31,7 @@ def test_plan_defaults_are_the_papers_protocol() -> None:
     plan = plan_from_args(_args())
     assert plan.locations == tuple(range(13)) and plan.attempts == 3
     assert plan.per_subtask == 1000 and plan.time_limit == 60.0 and plan.vision == "fast"
-    assert plan.controllers == ("hcc", "roger", "dpa", "oracle") and plan.daemon_check
+    assert plan.controllers == ("hcc", "roger", "dpa", "oracle", "groups") and plan.daemon_check
     assert plan.shots == 10 and plan.learner_seeds == 3 and plan.rule == "support"
     assert not plan.in_process
     assert plan.seeds["master"] == 0 and plan.seeds["eval_sim"] != plan.seeds["demo_sim"]
@@ -193,3 +193,16 @@ def test_dpa_node_executes_the_prediction_mean(tmp_path: Path) -> None:
     stats = json.loads(out.strip().splitlines()[-1])
     assert stats["commands"] == stats["predictions"] >= 1
     assert json.loads((tmp_path / "dpa.json").read_text()) == stats
+
+
+def test_evaluation_jobs_cover_every_controller_and_location_once() -> None:
+    from simulator.experiment.goal_scoring import EVAL_LOCATIONS_PER_JOB, _eval_jobs
+
+    plan = plan_from_args(_args())
+    jobs = _eval_jobs(plan, Path("models"), learner_params(plan), {})
+    seen = [(j.key, loc) for j in jobs for loc in j.locations]
+    keys = {"dpa", "hcc", "roger:0", "roger:1", "roger:2"}
+    assert sorted(seen) == sorted((k, loc) for k in keys for loc in range(13))
+    assert all(1 <= len(j.locations) <= EVAL_LOCATIONS_PER_JOB for j in jobs)
+    assert len({j.workdir for j in jobs}) == len(jobs)  # one directory per job
+    assert len(jobs) == 5 * 3  # 13 locations in 3 chunks per controller

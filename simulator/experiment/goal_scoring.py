@@ -39,12 +39,13 @@ from simulator.transitioner import RULES
 
 __all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "plan_from_args", "run"]
 
-CONTROLLERS = ("hcc", "roger", "dpa", "oracle")
+CONTROLLERS = ("hcc", "roger", "dpa", "oracle", "groups")
 CONTROLLER_NAMES = {
     "hcc": "HCC (hand-coded controller)",
     "oracle": "segmentation oracle (GP per true subtask)",
     "roger": "ROGER experts + HCC transitioner",
     "dpa": "unimap GP (DPA)",
+    "groups": "ROGER experts merged per group + HCC transitioner",
 }
 #: The paper's numbers (section IV.A): success rates, experts, ratio learned/HCC.
 PAPER = {"hcc": 0.69, "roger": 0.31, "dpa": 0.0, "experts": 85, "ratio": 0.45}
@@ -120,11 +121,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--per-subtask", type=int, default=None,
                         help="downsample to at most this many points per subtask (default 1000)")
     parser.add_argument("--time-limit", type=float, default=None,
-                        help="simulated seconds per episode (default 150, the paper's)")
+                        help=f"simulated seconds per episode (default {DEFAULT_TIME_LIMIT:g}; the "
+                        "paper's was 150)")
     parser.add_argument("--vision", choices=("rendered", "fast"), default=None,
-                        help="simulator vision (default rendered; --quick: fast)")
+                        help=f"simulator vision (default {DEFAULT_VISION})")
     parser.add_argument("--controllers", default=",".join(CONTROLLERS),
-                        help="controllers to evaluate (default hcc,roger,dpa)")
+                        help="controllers to evaluate (default all: "
+                        + ",".join(CONTROLLERS) + ")")
     parser.add_argument("--no-daemon-check", dest="daemon_check", action="store_false",
                         help="skip feeding the stream to a daemon and replaying its log")
     parser.add_argument("--config", default=None,

@@ -32,7 +32,9 @@ __all__ = [
     "controllers_for",
     "downsample",
     "evaluate_in_process",
+    "fit_expert_groups",
     "fit_segmentation_oracle",
+    "group_controllers",
     "make_hcc",
     "make_sim",
     "run_in_process",
@@ -96,8 +98,28 @@ def fit_segmentation_oracle(stream: Demonstrations, params: Any, seed: int) -> d
     return ip.fit_oracle(stream, lambda _y: UnimapGP(d_x=d_x, d_y=d_y, params=params, seed=seed))
 
 
+def fit_expert_groups(stream: Demonstrations, model: Any, params: Any,
+                      seed: int) -> dict[str, Any]:
+    """ROGER's experts merged per group: one sparse online GP per majority label, learning the
+    points the MAP particle assigned to that group's experts (docs/goal-scoring.md).
+
+    The paper groups experts by the subtask that generated most of their data (section IV.A)
+    and lets the transitioner pick within a group; here each group's experts become one GP
+    (same learner parameters). ROGER's partition chooses the points; the labels only name
+    each expert's group, as for the transitioner.
+    """
+    from roger_daemon.learner import UnimapGP
+
+    assignments = np.asarray(model.assignments()).tolist()
+    groups = majority_labels(assignments, stream.labels)
+    d_x, d_y = stream.x.shape[1], stream.y.shape[1]
+    return ip.fit_per_group(stream, [groups[k] for k in assignments],
+                            lambda _y: UnimapGP(d_x=d_x, d_y=d_y, params=params, seed=seed))
+
+
 def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[int, Any]],
-                    unimap: Any, oracle: Mapping[str, Any] | None) -> dict[str, Any]:
+                    unimap: Any, oracle: Mapping[str, Any] | None,
+                    params: Any = None) -> dict[str, Any]:
     """Controller key -> in-process controller, for the plan's controllers."""
     out: dict[str, Any] = {}
     if "hcc" in plan.controllers:
@@ -111,7 +133,18 @@ def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[in
                                                           plan.rule)
     if "dpa" in plan.controllers:
         out["dpa"] = ip.MeanController(unimap, MultimapNeighbourhood(stream.x, stream.y))
+    out.update(group_controllers(plan, stream, models, params))
     return out
+
+
+def group_controllers(plan: Any, stream: Demonstrations, models: Sequence[tuple[int, Any]],
+                      params: Any) -> dict[str, Any]:
+    """``groups:K`` -> ROGER model K's merged expert groups with the HCC's transitions."""
+    if "groups" not in plan.controllers or params is None:
+        return {}
+    return {f"groups:{k}": ip.OracleController(make_hcc(plan),
+                                               fit_expert_groups(stream, model, params, seed))
+            for k, (seed, model) in enumerate(models)}
 
 
 def evaluate_in_process(plan: Any, controllers: Mapping[str, Any],
@@ -161,12 +194,12 @@ def run_in_process(plan: Any, params: Any, console: Any,
     oracle = fit_segmentation_oracle(stream, params, plan.seeds["learner"])
     timings["training"] = round(time.monotonic() - t0, 2)
     if context is not None:
-        context.update(stream=stream, models=models, unimap=unimap, oracle=oracle)
+        context.update(stream=stream, models=models, unimap=unimap, oracle=oracle, params=params)
     console.log(f"learned {len(stream)} pairs: "
                 + ", ".join(f"seed {s}: {m.n_experts} experts" for s, m in models))
     t0 = time.monotonic()
     episodes = evaluate_in_process(
-        plan, controllers_for(plan, stream, models, unimap, oracle),
+        plan, controllers_for(plan, stream, models, unimap, oracle, params),
         on_episode=lambda k, r: console.log(f"{k:>8} location {r.location} "
                                             f"#{r.repetition}: {r.failure_mode}"))
     timings["evaluation"] = round(time.monotonic() - t0, 2)

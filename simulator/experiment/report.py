@@ -104,8 +104,12 @@ def _seed_blocks(episodes: dict[str, list[dict[str, Any]]], models: Sequence[tup
         seg = segmentation_scores(a, labels)
         coarse = segmentation_scores(a, [coarse_label(s) for s in labels])
         block = controller_block(episodes.get(f"roger:{k}", []))
+        merged = controller_block(episodes.get(f"groups:{k}", []))
         rows.append({"learner_seed": seed, **block,
                      "ratio_to_hcc": _ratio(block["success_rate"], hcc_rate),
+                     "groups": {"successes": merged["successes"], "trials": merged["trials"],
+                                "success_rate": merged["success_rate"],
+                                "ratio_to_hcc": _ratio(merged["success_rate"], hcc_rate)},
                      "experts": seg.experts, "ari": seg.ari, "nmi": seg.nmi,
                      "purity": seg.purity, "ari_paper_subtasks": coarse.ari,
                      "experts_per_subtask": seg.experts_per_subtask})
@@ -144,18 +148,22 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
             "experiment": plan.to_json(),
         },
     }
-    roger_eps = [e for k in range(len(models)) for e in episodes.get(f"roger:{k}", [])]
+    pooled = {c: [e for k in range(len(models)) for e in episodes.get(f"{c}:{k}", [])]
+              for c in ("roger", "groups")}
     blocks = {"hcc": episodes.get("hcc"), "dpa": episodes.get("dpa"),
-              "oracle": episodes.get("oracle"), "roger": roger_eps if roger_eps else None}
+              "oracle": episodes.get("oracle"), **{c: e or None for c, e in pooled.items()}}
     for c, eps in blocks.items():
         if eps is not None:
             out[c] = controller_block(eps)
     if "oracle" in out:
         out["oracle"]["name"] = "segmentation oracle (one sparse online GP per true subtask)"
+    if "groups" in out:
+        out["groups"]["name"] = ("ROGER experts merged per group (one sparse online GP per "
+                                 "majority label, on ROGER's partition)")
     hcc_rate = out.get("hcc", {}).get("success_rate")
     out["roger_seeds"] = _seed_blocks(episodes, models, stream.labels, hcc_rate)
-    out["ratio_roger_to_hcc"] = _ratio(out.get("roger", {}).get("success_rate"), hcc_rate)
-    out["ratio_oracle_to_hcc"] = _ratio(out.get("oracle", {}).get("success_rate"), hcc_rate)
+    for c in ("roger", "oracle", "groups"):
+        out[f"ratio_{c}_to_hcc"] = _ratio(out.get(c, {}).get("success_rate"), hcc_rate)
     dpa_rate = out.get("dpa", {}).get("success_rate")
     out["dpa_above_aliasing_limit"] = (
         None if dpa_rate is None or math.isnan(dpa_rate) else bool(dpa_rate > DPA_ALIASING_LIMIT)
@@ -240,18 +248,20 @@ def print_report(console: Any, results: dict[str, Any]) -> None:
     t = Table(title="Goal scoring (paper section IV)", show_lines=False)
     for col in ("controller", "goals / trials", "success", "95% CI (Wilson)", "paper"):
         t.add_column(col, justify="left" if col == "controller" else "right")
-    for c in ("hcc", "oracle", "roger", "dpa"):
+    for c in ("hcc", "oracle", "roger", "groups", "dpa"):
         b = results.get(c)
         if not b:
             continue
         t.add_row(CONTROLLER_NAMES[c], f"{b['successes']} / {b['trials']}",
                   _pct(b["success_rate"]),
                   f"{_pct(b['ci95_low'])} - {_pct(b['ci95_high'])}", _pct(paper.get(c)))
-        if c == "roger" and len(results.get("roger_seeds", [])) > 1:
+        if c in ("roger", "groups") and len(results.get("roger_seeds", [])) > 1:
             for row in results["roger_seeds"]:
+                r = row if c == "roger" else row.get("groups", {})
                 t.add_row(f"  learner seed {row['learner_seed']}",
-                          f"{row['successes']} / {row['trials']}", _pct(row["success_rate"]),
-                          f"ratio {row['ratio_to_hcc'] or 0:.2f}, ARI {row['ari']:.2f}", "")
+                          f"{r.get('successes')} / {r.get('trials')}",
+                          _pct(r.get("success_rate", math.nan)),
+                          f"ratio {r.get('ratio_to_hcc') or 0:.2f}, ARI {row['ari']:.2f}", "")
         if c == "dpa" and b.get("averaging"):
             a = b["averaging"]
             t.add_row("  failures that average the multimap",
@@ -260,9 +270,10 @@ def print_report(console: Any, results: dict[str, Any]) -> None:
     ratio = results.get("ratio_roger_to_hcc")
     t.add_row("ratio ROGER / HCC", "", "-" if ratio is None else f"{ratio:.2f}", "",
               f"{paper['ratio']:.2f}")
-    oratio = results.get("ratio_oracle_to_hcc")
-    if oratio is not None:
-        t.add_row("ratio segmentation oracle / HCC", "", f"{oratio:.2f}", "", "-")
+    for c, what in (("oracle", "segmentation oracle"), ("groups", "merged groups")):
+        r = results.get(f"ratio_{c}_to_hcc")
+        if r is not None:
+            t.add_row(f"ratio {what} / HCC", "", f"{r:.2f}", "", "-")
     console.print(t)
 
     s = Table(title="Segmentation of the training stream (MAP particle)")

@@ -4,7 +4,8 @@ Demonstrations (``roger sim`` + ``roger hcc`` + ``roger record``, one job per lo
 MCAP per job), training (:mod:`simulator.experiment.pipeline`), the daemon check of the first
 model (:func:`simulator.experiment.training.daemon_check`), checkpoints, and evaluation jobs
 (``hcc``; ``roger:K`` = daemon resumed from learner seed K's model + ``roger hcc --role
-transitioner``; ``dpa``). The segmentation oracle has no daemon model kind, so it is evaluated
+transitioner``; ``dpa``). The segmentation oracle and ROGER's merged expert groups have no
+daemon model kind, so they are evaluated
 in this process (the same code as ``--in-process``) while the Zenoh jobs run; a shared subset
 is re-run in-process and compared episode by episode (``results["paths_agree"]``).
 """
@@ -108,7 +109,7 @@ class ZenohRun:
             self.console.log(f"ROGER learned {len(stream)} pairs in {train_s:.1f} s: "
                              + ", ".join(f"seed {s}: {m.n_experts} experts"
                                          for s, m in models))
-            self.context.update(stream=stream, models=models, unimap=unimap)
+            self.context.update(stream=stream, models=models, unimap=unimap, params=self.params)
             # the daemon check feeds a daemon process in lockstep (mostly waiting on it): it
             # runs beside the checkpoints and the evaluation instead of before them
             checked: dict[str, Any] = {}
@@ -118,11 +119,11 @@ class ZenohRun:
                 name="daemon-check", daemon=True)
             checker.start()
             digests = self._checkpoints(stream, models, unimap)
-            ev, oracle_eps = self._evaluate(runner, progress, stream, models, unimap, digests)
+            ev, local_eps = self._evaluate(runner, progress, stream, models, unimap, digests)
             checker.join()
             check = checked.get("check")
             self.reused = runner.reused
-        return self._results(demo_results, data, stream, models, unimap, ev, oracle_eps,
+        return self._results(demo_results, data, stream, models, unimap, ev, local_eps,
                              check, train_s)
 
     def _check(self, stream: Any, model: Any, progress: Any) -> dict[str, Any] | None:
@@ -177,13 +178,15 @@ class ZenohRun:
 
     def _evaluate(self, runner: Runner, progress: Any, stream: Any,
                   models: list[tuple[int, Any]], unimap: Any, digests: dict[str, str]
-                  ) -> tuple[list[JobResult], list[dict[str, Any]]]:
-        """Zenoh jobs on the pool; the segmentation oracle in a thread meanwhile."""
+                  ) -> tuple[list[JobResult], dict[str, list[dict[str, Any]]]]:
+        """Zenoh jobs on the pool; meanwhile, in a thread, the controllers that have no daemon
+        model kind: the segmentation oracle and ROGER's merged expert groups (in-process)."""
         from simulator.experiment.goal_scoring import _eval_jobs
         from simulator.experiment.pipeline import (
             controllers_for,
             evaluate_in_process,
             fit_segmentation_oracle,
+            group_controllers,
         )
 
         plan = self.plan
@@ -192,32 +195,32 @@ class ZenohRun:
         n = len(plan.locations) * plan.attempts
         tasks = {k: progress.add_task(f"5 evaluation: {k}", total=n)
                  for k in dict.fromkeys(j.key for j in jobs)}
-        oracle_eps: list[dict[str, Any]] = []
-        thread = None
-        if "oracle" in plan.controllers:
-            o_task = progress.add_task("5 evaluation: oracle (in-process)", total=n)
+        local_eps: dict[str, list[dict[str, Any]]] = {}
 
-            def oracle() -> None:
+        def local() -> None:
+            ctl: dict[str, Any] = {}
+            if "oracle" in plan.controllers:
                 gps = fit_segmentation_oracle(stream, self.params, plan.seeds["learner"])
                 self.context["oracle"] = gps
-                ctl = controllers_for(replace(plan, controllers=("oracle",)), stream, [],
-                                      None, gps)
-                eps = evaluate_in_process(plan, ctl,
-                                          on_episode=lambda k, r: progress.advance(o_task, 1))
-                oracle_eps.extend(eps.get("oracle", []))
+                ctl.update(controllers_for(replace(plan, controllers=("oracle",)), stream, [],
+                                           None, gps))
+            ctl.update(group_controllers(plan, stream, models, self.params))
+            local_tasks = {k: progress.add_task(f"5 evaluation: {k} (in-process)", total=n)
+                           for k in ctl}
+            local_eps.update(evaluate_in_process(
+                plan, ctl, on_episode=lambda k, r: progress.advance(local_tasks[k], 1)))
 
-            thread = threading.Thread(target=oracle, name="oracle", daemon=True)
-            thread.start()
+        thread = threading.Thread(target=local, name="in-process", daemon=True)
+        thread.start()
         ev = runner.run(jobs, tasks)
-        if thread is not None:
-            thread.join()
+        thread.join()
         self._phase("evaluation", t0)
         self.errors += runner.errors
-        return [r for r in ev if r is not None], oracle_eps
+        return [r for r in ev if r is not None], local_eps
 
     def _results(self, demo_results: list[JobResult], data: Any, stream: Any,
                  models: list[tuple[int, Any]], unimap: Any, ev: list[JobResult],
-                 oracle_eps: list[dict[str, Any]], check: dict[str, Any] | None,
+                 local_eps: dict[str, list[dict[str, Any]]], check: dict[str, Any] | None,
                  train_s: float) -> dict[str, Any]:
         from simulator.experiment.report import build_results, write_figures
 
@@ -227,8 +230,7 @@ class ZenohRun:
         for r in ev:
             episodes.setdefault(r.job.key, []).extend(r.episodes)
         add_averaging([r for r in ev if r.job.key == "dpa"], stream)
-        if oracle_eps:
-            episodes["oracle"] = oracle_eps
+        episodes.update(local_eps)
         results = build_results(
             plan=plan, params=self.params, demos=[e for r in demo_results for e in r.episodes],
             data=data, stream=stream, models=models, episodes=episodes, check=check,
@@ -242,13 +244,13 @@ class ZenohRun:
         results["transport"] = {
             "demo": controller_stats(demo_results),
             **{k: controller_stats([r for r in ev if r.job.key == k]) for k in episodes
-               if k != "oracle"},
+               if k not in local_eps},
         }
         results["resumed_jobs"] = self.reused
         results["jobs_wall_s"] = {
             "demo": round(sum(r.wall_s for r in demo_results), 1),
             **{k: round(sum(r.wall_s for r in ev if r.job.key == k), 1) for k in episodes
-               if k != "oracle"},
+               if k not in local_eps},
         }
         self._phase("report", t0)
         return results
