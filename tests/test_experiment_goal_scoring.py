@@ -57,8 +57,8 @@ def test_quick_run_writes_the_full_schema(
     assert plan["locations"] == [0, 6] and plan["attempts"] == 1
     # the learner parameters the run used
     learner = r["config"]["learner"]
-    # the paper's alpha and beta; 30 particles is the task's setting (TASK_LEARNER_OVERRIDES)
-    assert (learner["alpha"], learner["beta"], learner["particles"]) == (0.5, 300, 30)
+    # the paper's alpha and beta; 100 particles is the task's setting (TASK_LEARNER_OVERRIDES)
+    assert (learner["alpha"], learner["beta"], learner["particles"]) == (0.5, 300, 100)
     assert r["paper"] == {"hcc": 0.69, "roger": 0.31, "dpa": 0.0, "experts": 85, "ratio": 0.45}
     for c in ("hcc", "roger", "dpa", "oracle"):
         assert r[c]["trials"] == 2

@@ -39,7 +39,7 @@ def test_plan_defaults_are_the_papers_protocol() -> None:
 
     # the daemon's defaults, with the task's coarser novelty test (docs/goal-scoring.md)
     daemon = parse_config({}).robots[0].params
-    assert learner_params(plan) == daemon.replace(novelty_threshold=1e-3, particles=30)
+    assert learner_params(plan) == daemon.replace(novelty_threshold=1e-3, particles=100)
 
 
 def test_quick_presets_and_overrides() -> None:
