@@ -119,7 +119,7 @@ def plot_experts_histogram(assignments: Sequence[int], labels: Sequence[str], ou
     ax.set_xlabel("expert id (MAP particle)")
     ax.set_ylabel("data points")
     ax.set_title(f"Data per expert, coloured by subtask ({len(uniq)} experts)")
-    ax.legend()
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -135,8 +135,14 @@ def plot_success(
 ) -> Path:
     """Success rate per start location, one bar group per location, one bar per controller.
 
-    ``locations`` labels the groups (default 0, 1, ...).
+    ``locations`` labels the groups (default 0, 1, ...). Keys ``NAME:K`` (one model per
+    learner seed, equal attempts) are pooled into one bar ``NAME`` (their mean rate).
     """
+    families: dict[str, list[Sequence[float]]] = {}
+    for key, vals in per_location.items():
+        families.setdefault(key.split(":")[0], []).append(vals)
+    per_location = {(f"{n} ({len(v)} seeds)" if len(v) > 1 else n):
+                    list(np.mean(np.asarray(v, dtype=float), axis=0)) for n, v in families.items()}
     names = list(per_location)
     n_loc = max((len(v) for v in per_location.values()), default=0)
     fig, ax = plt.subplots(figsize=(max(7.0, 0.7 * n_loc + 3), 4))
@@ -153,7 +159,7 @@ def plot_success(
     ax.set_ylabel("success rate")
     ax.set_ylim(0, 1.12)
     ax.set_title(title or "Success per start location")
-    ax.legend()
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
