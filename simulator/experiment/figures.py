@@ -139,18 +139,21 @@ def plot_success(
     learner seed, equal attempts) are pooled into one bar ``NAME`` (their mean rate).
     """
     families: dict[str, list[Sequence[float]]] = {}
-    for key, vals in per_location.items():
-        families.setdefault(key.split(":")[0], []).append(vals)
-    per_location = {(f"{n} ({len(v)} seeds)" if len(v) > 1 else n):
-                    list(np.mean(np.asarray(v, dtype=float), axis=0)) for n, v in families.items()}
-    names = list(per_location)
-    n_loc = max((len(v) for v in per_location.values()), default=0)
+    for key, rates in per_location.items():
+        families.setdefault(key.split(":")[0], []).append(rates)
+    pooled: dict[str, list[float]] = {
+        (f"{n} ({len(v)} seeds)" if len(v) > 1 else n):
+        [float(r) for r in np.mean(np.asarray(v, dtype=float), axis=0)]
+        for n, v in families.items()}
+    names = list(pooled)
+    n_loc = max((len(v) for v in pooled.values()), default=0)
     fig, ax = plt.subplots(figsize=(max(7.0, 0.7 * n_loc + 3), 4))
     width = 0.8 / max(1, len(names))
     for i, name in enumerate(names):
-        vals = np.asarray(per_location[name], dtype=float)
-        bars = ax.bar(np.arange(len(vals)) + i * width, vals, width=width, label=name)
-        ax.bar_label(bars, labels=[f"{100 * v:.0f}%" for v in vals], fontsize=7, padding=1)
+        bars = ax.bar(np.arange(len(pooled[name])) + i * width, pooled[name], width=width,
+                      label=name)
+        ax.bar_label(bars, labels=[f"{100 * v:.0f}%" for v in pooled[name]], fontsize=7,
+                     padding=1)
     ax.set_xticks(np.arange(n_loc) + 0.4 - width / 2)
     labels = [str(v) for v in locations] if locations is not None else []
     labels += [str(i) for i in range(len(labels), n_loc)]
