@@ -151,3 +151,40 @@ def test_resume_reuses_finished_jobs_and_reproduces_the_results(
     assert again["models"] == first["models"]  # same model digests: training is deterministic
     # nothing was re-run: jobs were reused, each with the process time of its first run
     assert again["resumed_jobs"] > 0 and again["jobs_wall_s"] == first["jobs_wall_s"]
+
+
+def _processes_naming(text: str) -> list[str]:
+    """Command lines of running processes that contain ``text`` (from /proc)."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if text in cmd:
+            found.append(cmd)
+    return found
+
+
+@pytest.mark.parametrize(("signum", "code"), [(15, 143), (2, 130)])
+def test_a_stopped_experiment_leaves_no_process_behind(tmp_path: Path, signum: int,
+                                                       code: int) -> None:
+    """SIGTERM or Ctrl-C while the demonstrations run: the command exits 143 or 130, and
+    none of its jobs' processes (whose command lines name the output directory) survive."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([*ROGER, "experiment", "goal-scoring", "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        end = time.monotonic() + 240
+        while not list((out / "work" / "demo").glob("loc-*/sim.log")):
+            assert proc.poll() is None and time.monotonic() < end, "no job started"
+            time.sleep(0.1)
+        assert _processes_naming(str(out))  # a job's processes are running
+        proc.send_signal(signum)
+        assert proc.wait(120) == code
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert _processes_naming(str(out)) == []

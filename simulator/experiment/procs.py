@@ -34,7 +34,9 @@ from roger_daemon.harness import free_port as _free_port
 from roger_daemon.harness import write_config
 
 __all__ = [
+    "CHILDREN",
     "DPA_TRACE",
+    "Children",
     "EpisodeJob",
     "JobError",
     "JobResult",
@@ -93,6 +95,54 @@ class JobError(RuntimeError):
     """A job's processes failed; the message carries the tails of their logs."""
 
 
+class Children:
+    """Every child process the experiment has running, so that a stop reaches them all.
+
+    Job threads start and reap their own processes; on SIGTERM or Ctrl-C the command calls
+    :meth:`stop_all` (``simulator.experiment.goal_scoring.run``), which refuses new starts and
+    terminates what runs, instead of leaving the jobs' simulators, controllers and daemons
+    running after the experiment has gone.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._live: set[subprocess.Popen[bytes]] = set()
+        self.stopping = False
+
+    def add(self, popen: subprocess.Popen[bytes]) -> None:
+        """Track ``popen`` (terminated at once if a stop has begun)."""
+        with self._lock:
+            self._live.add(popen)
+            stopping = self.stopping
+        if stopping:
+            popen.terminate()
+
+    def discard(self, popen: subprocess.Popen[bytes]) -> None:
+        """Stop tracking ``popen`` (it has been reaped)."""
+        with self._lock:
+            self._live.discard(popen)
+
+    def stop_all(self, grace: float = 10.0) -> int:
+        """SIGTERM every tracked child, KILL those still running after ``grace`` seconds;
+        returns how many were running."""
+        with self._lock:
+            self.stopping = True
+            live = [p for p in self._live if p.poll() is None]
+        for p in live:
+            p.terminate()
+        end = time.monotonic() + grace
+        for p in live:
+            try:
+                p.wait(max(0.0, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+        return len(live)
+
+
+#: the experiment's children (one process, one registry)
+CHILDREN = Children()
+
+
 @dataclass
 class _Proc:
     name: str
@@ -111,12 +161,15 @@ class ProcessGroup:
 
     def start(self, name: str, argv: Sequence[str]) -> _Proc:
         """Start process ``name`` with its output in ``WORKDIR/NAME.log``."""
+        if CHILDREN.stopping:
+            raise JobError(f"not starting {name}: the experiment is stopping")
         log = self.workdir / f"{name}.log"
         handle = open(log, "wb")
         popen = subprocess.Popen(
             list(argv), stdout=handle, stderr=subprocess.STDOUT, env=self.env,
             stdin=subprocess.DEVNULL,
         )
+        CHILDREN.add(popen)
         proc = _Proc(name, popen, log, handle)
         self.procs[name] = proc
         return proc
@@ -179,6 +232,7 @@ class ProcessGroup:
             except subprocess.TimeoutExpired:
                 proc.popen.kill()
                 proc.popen.wait(10)
+            CHILDREN.discard(proc.popen)
             proc.handle.close()
 
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from simulator.experiment.procs import (
+    CHILDREN,
     EpisodeJob,
     JobError,
     JobResult,
@@ -108,7 +109,7 @@ class Runner:
                 return run_job(job)
             except (JobError, OSError, ValueError, KeyError) as exc:
                 last = exc
-                if k < self.plan.retries:
+                if k < self.plan.retries and not CHILDREN.stopping:
                     self.console.log(f"[yellow]retrying[/yellow] {job.controller} locations "
                                      f"{list(job.locations)} after: {str(exc)[:300]}")
         assert last is not None

@@ -211,7 +211,7 @@ def daemon_check(
     from roger_daemon.labels import majority_labels, majority_labels_coded
     from roger_daemon.learner import load_model
     from roger_daemon.recording import list_session_files, replay_session
-    from simulator.experiment.procs import child_env, free_port
+    from simulator.experiment.procs import CHILDREN, child_env, free_port
 
     if workdir.exists():
         shutil.rmtree(workdir)  # one session, one checkpoint: what this check produced
@@ -231,6 +231,7 @@ def daemon_check(
         robots=({"id": "aibo", "model": "roger", "profile": "none"},),
     )
     daemon = DaemonProcess(cfg, args=["--fresh"], log=workdir / "daemon.log", env=child_env())
+    CHILDREN.add(daemon.proc)  # a stop of the experiment reaches it (procs.Children)
     client = None
     try:
         daemon.wait_ready(120)
@@ -254,6 +255,7 @@ def daemon_check(
         if client is not None:
             client.close()
         daemon.kill()
+        CHILDREN.discard(daemon.proc)
     feed_s = time.perf_counter() - t0
     ck = load_newest(workdir / "checkpoints", "aibo")
     if ck is None:
