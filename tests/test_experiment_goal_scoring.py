@@ -60,11 +60,11 @@ def test_quick_run_writes_the_full_schema(
     # the paper's alpha and beta; 100 particles is the task's setting (TASK_LEARNER_OVERRIDES)
     assert (learner["alpha"], learner["beta"], learner["particles"]) == (0.5, 300, 100)
     assert r["paper"] == {"hcc": 0.69, "roger": 0.31, "dpa": 0.0, "experts": 85, "ratio": 0.45}
-    for c in ("hcc", "roger", "dpa", "oracle"):
+    for c in ("hcc", "roger", "dpa", "oracle", "groups"):
         assert r[c]["trials"] == 2
         assert 0.0 <= r[c]["ci95_low"] <= r[c]["success_rate"] <= r[c]["ci95_high"] <= 1.0
         assert sum(r[c]["failure_modes"].values()) == 2
-    for c in ("hcc", "roger:0", "dpa", "oracle"):
+    for c in ("hcc", "roger:0", "dpa", "oracle", "groups:0"):
         assert [row["location"] for row in r["per_location"][c]] == [0, 6]
         assert all(row["attempts"] == 1 for row in r["per_location"][c])
         assert len(r["episodes"][c]) == 2
@@ -74,7 +74,7 @@ def test_quick_run_writes_the_full_schema(
     # the in-process path re-ran the first location and met the same episodes
     agree = r["paths_agree"]
     assert agree["all_same"] and {e["controller"] for e in agree["episodes"]} == {
-        "hcc", "roger:0", "dpa"}
+        "hcc", "roger:0", "groups:0", "dpa"}
     # which BLAS computed, pinned to one thread (roger_daemon/blas.py)
     assert r["machine"]["blas"] and all(b["threads"] == 1 for b in r["machine"]["blas"])
     for phase in ("demonstrations", "training", "daemon_check", "evaluation", "total"):
@@ -117,13 +117,16 @@ def test_quick_evaluation_ran_each_controller_cleanly(
 ) -> None:
     out, r, _, _ = quick
     tr = r["transport"]
-    for c in ("hcc", "roger:0", "dpa"):
+    for c in ("hcc", "roger:0", "groups:0", "dpa"):
         assert tr[c]["sim_command_timeouts"] == 0, tr[c]
         assert tr[c]["sim_hold_ticks"] == 0, tr[c]
         assert tr[c]["sim_invalid_messages"] == 0, tr[c]
     # the transitioner got a prediction for every tick and chose experts by their labels
     assert tr["roger:0"]["controller_no_prediction"] == 0
     assert tr["roger:0"]["controller_label"] + tr["roger:0"]["controller_fallback_top"] > 0
+    # merged groups, served by a daemon: one expert per group, each named by its group
+    assert tr["groups:0"]["controller_no_prediction"] == 0
+    assert tr["groups:0"]["controller_label"] > 0
     # the DPA node forwarded one command per simulator tick
     assert tr["dpa"]["sim_ticks"] > 0
     # ... and traced every tick it commanded: the averaging measure covers its episodes
@@ -137,6 +140,7 @@ def test_quick_evaluation_ran_each_controller_cleanly(
     for name in ("fig7_pca", "fig8_experts", "success_per_location"):
         assert Path(r["figures"][name]).read_bytes()[:8] == PNG
     assert (out / "models" / "roger-0" / "aibo").is_dir()
+    assert (out / "models" / "groups-0" / "aibo").is_dir()
     assert (out / "training-data.npz").is_file()
 
 

@@ -159,11 +159,11 @@ def test_segmentation_oracle_has_one_gp_per_true_subtask() -> None:
 
 
 def test_merged_expert_groups_learn_the_points_of_each_group_of_roger_experts() -> None:
-    """fit_expert_groups: per majority label, one GP trained, in stream order, on exactly the
-    points ROGER assigned to that label's experts (an exact oracle: the same GP fitted by
-    hand on those points predicts bit for bit the same)."""
+    """merge_expert_groups: one expert per majority label, learning, in stream order, exactly
+    the points ROGER assigned to that label's experts (oracle: a unimap GP fed those points by
+    hand predicts the same), named by its group."""
     from roger_daemon.learner import Roger, UnimapGP
-    from simulator.experiment.pipeline import fit_expert_groups
+    from simulator.experiment.pipeline import merge_expert_groups
 
     labels = ["a"] * 20 + ["b"] * 15 + ["a"] * 5
     s = _stream(40, np.random.default_rng(2), labels)
@@ -171,18 +171,21 @@ def test_merged_expert_groups_learn_the_points_of_each_group_of_roger_experts() 
     model = Roger(d_x=3, d_y=2, params=params, seed=1)
     for x, y in zip(s.x, s.y, strict=True):
         model.learn_one(x, y)
-    gps = fit_expert_groups(s, model, params, seed=0)
+    merged = merge_expert_groups(s, model, params, seed=0)
     assignments = np.asarray(model.assignments()).tolist()
     groups = majority_labels(assignments, labels)
-    assert sorted(gps) == sorted(set(groups.values()))
-    for name, gp in gps.items():
-        mine = [i for i, k in enumerate(assignments) if groups[k] == name]
-        assert gp.n_learned == len(mine)
+    assert merged.group_of_point == [groups[k] for k in assignments]
+    assert sorted(merged.labels.values()) == sorted(set(groups.values()))
+    sizes = merged.model.expert_sizes()
+    q = np.array([0.3, -0.2, 0.1])
+    for expert, name in merged.labels.items():
+        mine = [i for i, g in enumerate(merged.group_of_point) if g == name]
+        assert sizes[expert] == len(mine)
         by_hand = UnimapGP(d_x=3, d_y=2, params=params, seed=0)
         for i in mine:
             by_hand.learn_one(s.x[i], s.y[i])
-        q = np.array([0.3, -0.2, 0.1])
-        assert np.array_equal(gp.predict_one(q).mean, by_hand.predict_one(q).mean)
+        ours = {e.expert_id: e for e in merged.model.predict_multimap(q)}[expert]
+        np.testing.assert_allclose(ours.mean, by_hand.predict_one(q).mean, rtol=1e-9)
 
 
 def test_compare_paths_reports_any_difference() -> None:

@@ -201,8 +201,13 @@ def test_evaluation_jobs_cover_every_controller_and_location_once() -> None:
     plan = plan_from_args(_args())
     jobs = _eval_jobs(plan, Path("models"), learner_params(plan), {})
     seen = [(j.key, loc) for j in jobs for loc in j.locations]
-    keys = {"dpa", "hcc", "roger:0", "roger:1", "roger:2"}
+    keys = {"dpa", "hcc", "roger:0", "roger:1", "roger:2", "groups:0", "groups:1", "groups:2"}
     assert sorted(seen) == sorted((k, loc) for k in keys for loc in range(13))
     assert all(1 <= len(j.locations) <= EVAL_LOCATIONS_PER_JOB for j in jobs)
     assert len({j.workdir for j in jobs}) == len(jobs)  # one directory per job
-    assert len(jobs) == 5 * 3  # 13 locations in 3 chunks per controller
+    assert len(jobs) == 8 * 3  # 13 locations in 3 chunks per controller
+    # merged groups are one-particle ROGER models, served by the daemon like ROGER's experts
+    merged = [j for j in jobs if j.key.startswith("groups:")]
+    assert {j.controller for j in merged} == {"roger"}
+    assert {j.learner["particles"] for j in merged} == {1}
+    assert {j.checkpoint_dir for j in merged} == {Path("models") / f"groups-{k}" for k in range(3)}

@@ -28,7 +28,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -252,6 +252,8 @@ def _eval_jobs(plan: Plan, models: Path, params: Any,
     keys = [("dpa", "dpa")] if "dpa" in plan.controllers else []
     if "roger" in plan.controllers:
         keys += [("roger", f"roger:{k}") for k in range(plan.learner_seeds)]
+    if "groups" in plan.controllers:  # served by the daemon like ROGER's own experts
+        keys += [("roger", f"groups:{k}") for k in range(plan.learner_seeds)]
     if "hcc" in plan.controllers:
         keys.append(("hcc", "hcc"))
     # Longest first (learned controllers run longest), location chunks interleaved.
@@ -263,7 +265,9 @@ def _eval_jobs(plan: Plan, models: Path, params: Any,
                 c, locs, plan.attempts, plan.seeds["eval_sim"], plan.time_limit, plan.vision,
                 plan.out / "work" / "eval" / key.replace(":", "-") / f"loc-{name}",
                 checkpoint_dir=models / key.replace(":", "-") if c != "hcc" else None,
-                learner=learner_table(params), learner_seed=plan.seeds["learner"] + k,
+                learner=learner_table(replace(params, particles=1) if key.startswith("groups")
+                                      else params),
+                learner_seed=plan.seeds["learner"] + k,
                 task_config=plan.task_config, model_digest=digests.get(key, ""),
                 name=key, rule=plan.rule,
             ))

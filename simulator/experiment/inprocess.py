@@ -11,13 +11,11 @@ checks it on a shared subset), so this path serves iteration and ablations
 Controllers (all act on the 23-D perception only):
 
 * :class:`TransitionerController`: the HCC decides the subtask, the learned experts act (paper
-  section IV: "the HCC's transition model ... selects among the learned experts").
+  section IV: "the HCC's transition model ... selects among the learned experts"); also for
+  ROGER's experts merged per group (:func:`simulator.experiment.pipeline.merge_expert_groups`).
 * :class:`OracleController`: the **segmentation oracle**: one sparse online GP per true
   subtask (trained on that subtask's demonstrations), the same HCC transitions. The
   demonstrator's labels group its data, so it is a ceiling for ROGER, never part of ROGER.
-  The same class runs ROGER's **merged expert groups**: one GP per group of ROGER experts
-  (experts grouped by majority label, as the transitioner groups them), trained on the points
-  ROGER assigned to the group's experts; ROGER's segmentation, not the labels, picks the points.
 * :class:`MeanController`: the unimap GP's mean drives the robot (the paper's DPA).
 """
 
@@ -47,7 +45,6 @@ __all__ = [
     "evaluate",
     "failure_mode",
     "fit_oracle",
-    "fit_per_group",
 ]
 
 
@@ -105,32 +102,21 @@ class _Recorder:
         return y, label
 
 
-def fit_per_group(stream: Demonstrations, groups: Sequence[str],
-                  make_gp: Callable[[np.ndarray], Any]) -> dict[str, Any]:
-    """One GP per group name, each learning its group's points in stream order.
+def fit_oracle(stream: Demonstrations, make_gp: Callable[[np.ndarray], Any]) -> dict[str, Any]:
+    """The segmentation oracle: one GP per true subtask, learning that subtask's points in order.
 
-    ``groups[i]`` names the group of point ``i``: its true subtask for the segmentation
-    oracle, the majority label of its ROGER expert for the merged expert groups
-    (:func:`simulator.experiment.pipeline.fit_expert_groups`). ``make_gp(y_of_group)`` builds
-    an empty GP (it may use the group's outputs, e.g. for a prior mean).
+    ``make_gp(y_of_subtask)`` builds an empty GP (it may use the subtask's outputs, e.g. for a
+    prior mean); labels only group the data here, as in the paper's section IV.A grouping.
     """
-    lab = np.asarray(groups)
-    if len(lab) != len(stream.x):
-        raise ValueError(f"groups: {len(lab)} names for {len(stream.x)} points")
+    lab = np.asarray(stream.labels)
     gps: dict[str, Any] = {}
-    for label in sorted(set(lab.tolist())):
+    for label in sorted(set(stream.labels)):
         idx = np.flatnonzero(lab == label)
         gp = make_gp(stream.y[idx])
         for i in idx:
             gp.learn_one(stream.x[i], stream.y[i])
         gps[label] = gp
     return gps
-
-
-def fit_oracle(stream: Demonstrations, make_gp: Callable[[np.ndarray], Any]) -> dict[str, Any]:
-    """The segmentation oracle: one GP per true subtask, learning that subtask's points in order
-    (labels only group the data here, as in the paper's section IV.A grouping)."""
-    return fit_per_group(stream, stream.labels, make_gp)
 
 
 class TransitionerController:
@@ -165,8 +151,7 @@ class TransitionerController:
 
 
 class OracleController:
-    """One GP per subtask, chosen by the HCC's current subtask: the segmentation oracle (one GP
-    per true subtask) and ROGER's merged expert groups (one GP per group of experts)."""
+    """One GP per true subtask, chosen by the HCC's current subtask (the segmentation oracle)."""
 
     def __init__(self, hcc: HCC, gps: Mapping[str, Any]) -> None:
         self.hcc = hcc

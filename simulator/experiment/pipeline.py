@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -32,7 +32,9 @@ __all__ = [
     "controllers_for",
     "downsample",
     "evaluate_in_process",
-    "fit_expert_groups",
+    "MergedGroups",
+    "merge_all",
+    "merge_expert_groups",
     "fit_segmentation_oracle",
     "group_controllers",
     "make_hcc",
@@ -98,28 +100,41 @@ def fit_segmentation_oracle(stream: Demonstrations, params: Any, seed: int) -> d
     return ip.fit_oracle(stream, lambda _y: UnimapGP(d_x=d_x, d_y=d_y, params=params, seed=seed))
 
 
-def fit_expert_groups(stream: Demonstrations, model: Any, params: Any,
-                      seed: int) -> dict[str, Any]:
-    """ROGER's experts merged per group: one sparse online GP per majority label, learning the
-    points the MAP particle assigned to that group's experts (docs/goal-scoring.md).
+@dataclass(frozen=True)
+class MergedGroups:
+    """ROGER model K's experts merged per group (:func:`merge_expert_groups`)."""
+
+    seed: int
+    model: Any  # a one-particle Roger whose experts are the groups
+    group_of_point: list[str]  # the group (majority label of its ROGER expert) of each point
+    labels: dict[int, str]  # merged expert id -> group name
+
+
+def merge_expert_groups(stream: Demonstrations, model: Any, params: Any,
+                        seed: int) -> MergedGroups:
+    """ROGER's experts merged per group: a one-particle ROGER model
+    (:func:`roger_daemon.learner.partition.fit_partition`) whose expert for each majority label
+    learns, in stream order, the points the MAP particle assigned to that label's experts
+    (docs/goal-scoring.md, "merged groups").
 
     The paper groups experts by the subtask that generated most of their data (section IV.A)
-    and lets the transitioner pick within a group; here each group's experts become one GP
-    (same learner parameters). ROGER's partition chooses the points; the labels only name
-    each expert's group, as for the transitioner.
+    and lets the transitioner pick within a group; here each group's experts become one expert
+    (same learner parameters, one particle). ROGER's partition picks the points; the labels
+    only name each expert's group, as for the transitioner.
     """
-    from roger_daemon.learner import UnimapGP
+    from roger_daemon.learner.partition import fit_partition
 
     assignments = np.asarray(model.assignments()).tolist()
-    groups = majority_labels(assignments, stream.labels)
-    d_x, d_y = stream.x.shape[1], stream.y.shape[1]
-    return ip.fit_per_group(stream, [groups[k] for k in assignments],
-                            lambda _y: UnimapGP(d_x=d_x, d_y=d_y, params=params, seed=seed))
+    names = majority_labels(assignments, stream.labels)
+    group_of_point = [names[k] for k in assignments]
+    merged = fit_partition(stream.x, stream.y, group_of_point, params=params, seed=seed)
+    labels = majority_labels(np.asarray(merged.assignments()).tolist(), group_of_point)
+    return MergedGroups(seed, merged, group_of_point, labels)
 
 
 def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[int, Any]],
                     unimap: Any, oracle: Mapping[str, Any] | None,
-                    params: Any = None) -> dict[str, Any]:
+                    merged: Sequence[MergedGroups] = ()) -> dict[str, Any]:
     """Controller key -> in-process controller, for the plan's controllers."""
     out: dict[str, Any] = {}
     if "hcc" in plan.controllers:
@@ -133,18 +148,26 @@ def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[in
                                                           plan.rule)
     if "dpa" in plan.controllers:
         out["dpa"] = ip.MeanController(unimap, MultimapNeighbourhood(stream.x, stream.y))
-    out.update(group_controllers(plan, stream, models, params))
+    out.update(group_controllers(plan, merged))
     return out
 
 
-def group_controllers(plan: Any, stream: Demonstrations, models: Sequence[tuple[int, Any]],
-                      params: Any) -> dict[str, Any]:
-    """``groups:K`` -> ROGER model K's merged expert groups with the HCC's transitions."""
-    if "groups" not in plan.controllers or params is None:
+def group_controllers(plan: Any, merged: Sequence[MergedGroups]) -> dict[str, Any]:
+    """``groups:K`` -> ROGER model K's merged groups, chosen by the HCC's transitions (the same
+    transitioner as ROGER's experts; each subtask has one expert)."""
+    if "groups" not in plan.controllers:
         return {}
-    return {f"groups:{k}": ip.OracleController(make_hcc(plan),
-                                               fit_expert_groups(stream, model, params, seed))
-            for k, (seed, model) in enumerate(models)}
+    return {f"groups:{k}": ip.TransitionerController(make_hcc(plan), m.model, m.labels,
+                                                     plan.rule)
+            for k, m in enumerate(merged)}
+
+
+def merge_all(stream: Demonstrations, models: Sequence[tuple[int, Any]], params: Any,
+              plan: Any) -> list[MergedGroups]:
+    """Every ROGER model's merged groups (none unless the plan evaluates ``groups``)."""
+    if "groups" not in plan.controllers:
+        return []
+    return [merge_expert_groups(stream, model, params, seed) for seed, model in models]
 
 
 def evaluate_in_process(plan: Any, controllers: Mapping[str, Any],
@@ -192,14 +215,16 @@ def run_in_process(plan: Any, params: Any, console: Any,
     t0 = time.monotonic()
     models, unimap, train_s = train_models(stream, params, plan)
     oracle = fit_segmentation_oracle(stream, params, plan.seeds["learner"])
+    merged = merge_all(stream, models, params, plan)
     timings["training"] = round(time.monotonic() - t0, 2)
     if context is not None:
-        context.update(stream=stream, models=models, unimap=unimap, oracle=oracle, params=params)
+        context.update(stream=stream, models=models, unimap=unimap, oracle=oracle,
+                       merged=merged)
     console.log(f"learned {len(stream)} pairs: "
                 + ", ".join(f"seed {s}: {m.n_experts} experts" for s, m in models))
     t0 = time.monotonic()
     episodes = evaluate_in_process(
-        plan, controllers_for(plan, stream, models, unimap, oracle, params),
+        plan, controllers_for(plan, stream, models, unimap, oracle, merged),
         on_episode=lambda k, r: console.log(f"{k:>8} location {r.location} "
                                             f"#{r.repetition}: {r.failure_mode}"))
     timings["evaluation"] = round(time.monotonic() - t0, 2)

@@ -120,7 +120,7 @@ def evaluate_held_out(plan: Any, context: dict[str, Any], starts: list[StartLoca
     locs = list(range(len(starts)))
     sub = replace(plan, controllers=tuple(c for c in plan.controllers if c != "dpa"))
     ctl = controllers_for(sub, context["stream"], context["models"], None,
-                          context.get("oracle"), context.get("params"))
+                          context.get("oracle"), context.get("merged", []))
     episodes = evaluate_in_process(sub, ctl, locations=locs, starts=starts)
     out: dict[str, Any] = {
         "file": plan.start_poses,

@@ -4,8 +4,8 @@ Demonstrations (``roger sim`` + ``roger hcc`` + ``roger record``, one job per lo
 MCAP per job), training (:mod:`simulator.experiment.pipeline`), the daemon check of the first
 model (:func:`simulator.experiment.training.daemon_check`), checkpoints, and evaluation jobs
 (``hcc``; ``roger:K`` = daemon resumed from learner seed K's model + ``roger hcc --role
-transitioner``; ``dpa``). The segmentation oracle and ROGER's merged expert groups have no
-daemon model kind, so they are evaluated
+transitioner``; ``groups:K`` = the same with model K's experts merged per group; ``dpa``). The
+segmentation oracle has no daemon model kind, so it is evaluated
 in this process (the same code as ``--in-process``) while the Zenoh jobs run; a shared subset
 is re-run in-process and compared episode by episode (``results["paths_agree"]``).
 """
@@ -82,7 +82,7 @@ class ZenohRun:
     def run(self) -> dict[str, Any] | None:
         """Run every phase over Zenoh; the results, or None if a phase failed."""
         from simulator.experiment.goal_scoring import _demo_jobs
-        from simulator.experiment.pipeline import downsample, train_models
+        from simulator.experiment.pipeline import downsample, merge_all, train_models
         from simulator.experiment.training import load_demonstrations
 
         plan = self.plan
@@ -109,7 +109,8 @@ class ZenohRun:
             self.console.log(f"ROGER learned {len(stream)} pairs in {train_s:.1f} s: "
                              + ", ".join(f"seed {s}: {m.n_experts} experts"
                                          for s, m in models))
-            self.context.update(stream=stream, models=models, unimap=unimap, params=self.params)
+            merged = merge_all(stream, models, self.params, plan)
+            self.context.update(stream=stream, models=models, unimap=unimap, merged=merged)
             # the daemon check feeds a daemon process in lockstep (mostly waiting on it): it
             # runs beside the checkpoints and the evaluation instead of before them
             checked: dict[str, Any] = {}
@@ -118,12 +119,12 @@ class ZenohRun:
                                                                  progress)),
                 name="daemon-check", daemon=True)
             checker.start()
-            digests = self._checkpoints(stream, models, unimap)
+            digests = self._checkpoints(stream, models, unimap, merged)
             ev, local_eps = self._evaluate(runner, progress, stream, models, unimap, digests)
             checker.join()
             check = checked.get("check")
             self.reused = runner.reused
-        return self._results(demo_results, data, stream, models, unimap, ev, local_eps,
+        return self._results(demo_results, data, stream, models, merged, unimap, ev, local_eps,
                              check, train_s)
 
     def _check(self, stream: Any, model: Any, progress: Any) -> dict[str, Any] | None:
@@ -150,23 +151,27 @@ class ZenohRun:
             self.errors.append(f"daemon check failed: {json.dumps(check)[:2000]}")
         return check
 
-    def _checkpoints(self, stream: Any, models: list[tuple[int, Any]],
-                     unimap: Any) -> dict[str, str]:
-        """Write every model as a daemon checkpoint (models/roger-K, models/dpa)."""
+    def _checkpoints(self, stream: Any, models: list[tuple[int, Any]], unimap: Any,
+                     merged: list[Any]) -> dict[str, str]:
+        """Write every model as a daemon checkpoint (models/roger-K, models/groups-K,
+        models/dpa); a merged model's points carry their group's name, so that the daemon
+        names each merged expert by its group."""
         from simulator.experiment.training import write_model_checkpoint
 
         plan = self.plan
         t0 = time.monotonic()
         root = plan.out / "models"
-        todo = [(f"roger:{k}", m, "roger", s) for k, (s, m) in enumerate(models)]
-        todo.append(("dpa", unimap, "unimap", plan.seeds["learner"]))
+        todo = [(f"roger:{k}", m, "roger", s, stream.labels) for k, (s, m) in enumerate(models)]
+        todo += [(f"groups:{k}", g.model, "roger", g.seed, g.group_of_point)
+                 for k, g in enumerate(merged)]
+        todo.append(("dpa", unimap, "unimap", plan.seeds["learner"], stream.labels))
         digests = {}
-        for key, model, kind, seed in todo:
+        for key, model, kind, seed, labels in todo:
             d = root / key.replace(":", "-")
             for f in (d / "aibo").glob("ckpt-*.npz") if (d / "aibo").is_dir() else []:
                 f.unlink()
-            _, meta = write_model_checkpoint(d, model, stream.labels, model_kind=kind,
-                                             seed=seed, params=self.params)
+            _, meta = write_model_checkpoint(d, model, labels, model_kind=kind,
+                                             seed=seed, params=model.params)
             digests[key] = str(meta["model_digest"])
         np.savez_compressed(
             plan.out / "training-data.npz", x=stream.x, y=stream.y,
@@ -179,14 +184,13 @@ class ZenohRun:
     def _evaluate(self, runner: Runner, progress: Any, stream: Any,
                   models: list[tuple[int, Any]], unimap: Any, digests: dict[str, str]
                   ) -> tuple[list[JobResult], dict[str, list[dict[str, Any]]]]:
-        """Zenoh jobs on the pool; meanwhile, in a thread, the controllers that have no daemon
-        model kind: the segmentation oracle and ROGER's merged expert groups (in-process)."""
+        """Zenoh jobs on the pool; the segmentation oracle (no daemon model kind) in a thread
+        meanwhile, in-process."""
         from simulator.experiment.goal_scoring import _eval_jobs
         from simulator.experiment.pipeline import (
             controllers_for,
             evaluate_in_process,
             fit_segmentation_oracle,
-            group_controllers,
         )
 
         plan = self.plan
@@ -204,7 +208,6 @@ class ZenohRun:
                 self.context["oracle"] = gps
                 ctl.update(controllers_for(replace(plan, controllers=("oracle",)), stream, [],
                                            None, gps))
-            ctl.update(group_controllers(plan, stream, models, self.params))
             local_tasks = {k: progress.add_task(f"5 evaluation: {k} (in-process)", total=n)
                            for k in ctl}
             local_eps.update(evaluate_in_process(
@@ -219,7 +222,8 @@ class ZenohRun:
         return [r for r in ev if r is not None], local_eps
 
     def _results(self, demo_results: list[JobResult], data: Any, stream: Any,
-                 models: list[tuple[int, Any]], unimap: Any, ev: list[JobResult],
+                 models: list[tuple[int, Any]], merged: list[Any], unimap: Any,
+                 ev: list[JobResult],
                  local_eps: dict[str, list[dict[str, Any]]], check: dict[str, Any] | None,
                  train_s: float) -> dict[str, Any]:
         from simulator.experiment.report import build_results, write_figures
@@ -235,7 +239,7 @@ class ZenohRun:
             plan=plan, params=self.params, demos=[e for r in demo_results for e in r.episodes],
             data=data, stream=stream, models=models, episodes=episodes, check=check,
             train_s=train_s, errors=[], mcap=[str(p) for r in demo_results for p in r.mcap])
-        results["paths_agree"] = self._shared_subset(stream, models, unimap, episodes)
+        results["paths_agree"] = self._shared_subset(stream, models, merged, unimap, episodes)
         if not results["paths_agree"]["all_same"]:
             self.errors.append("in-process and Zenoh episodes differ on the shared subset")
         assignments = np.asarray(models[0][1].assignments())
@@ -255,14 +259,16 @@ class ZenohRun:
         self._phase("report", t0)
         return results
 
-    def _shared_subset(self, stream: Any, models: list[tuple[int, Any]], unimap: Any,
-                       episodes: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    def _shared_subset(self, stream: Any, models: list[tuple[int, Any]], merged: list[Any],
+                       unimap: Any, episodes: dict[str, list[dict[str, Any]]]
+                       ) -> dict[str, Any]:
         """Re-run the first location's first attempt in-process; compare with Zenoh."""
         from simulator.experiment.pipeline import controllers_for, evaluate_in_process
 
         plan = self.plan
         sub = replace(plan, attempts=1)
-        ctl = {k: c for k, c in controllers_for(sub, stream, models[:1], unimap, None).items()
-               if k in ("hcc", "roger:0", "dpa")}
+        ctl = {k: c for k, c in controllers_for(sub, stream, models[:1], unimap, None,
+                                                 merged[:1]).items()
+               if k in ("hcc", "roger:0", "groups:0", "dpa")}
         local = evaluate_in_process(sub, ctl, locations=plan.locations[:1])
         return compare_paths(episodes, local)
