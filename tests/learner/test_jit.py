@@ -38,6 +38,26 @@ def test_kernel_vector_and_expert_terms_match_numpy(n: int) -> None:
     np.testing.assert_allclose(packed[2 * n + 1:], k @ coef[:n], rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("n", [1, 40, 300])
+def test_matvec_and_large_expert_terms_match_numpy(n: int) -> None:
+    """Both compiled products also serve beta = 300 experts (no BLAS branch above 64 BVs)."""
+    rng = np.random.default_rng(n + 7)
+    alloc = n + 2
+    mat = np.zeros((alloc, alloc))
+    mat[:n, :n] = _spd(n, rng, cond=1e6)
+    v = rng.normal(size=n)
+    np.testing.assert_allclose(jit.matvec(mat, v, n), mat[:n, :n] @ v, rtol=1e-11, atol=1e-13)
+    kernel = RBFKernel(0.9, d_x=3)
+    basis = rng.normal(size=(alloc, 3))
+    coef = rng.normal(size=(alloc, 2))
+    x = rng.normal(size=3)
+    k = kernel.gram(basis[:n], x[None])[:, 0]
+    packed = jit.expert_terms(basis, -mat, coef, x, kernel.gamma, n)
+    ck = -mat[:n, :n] @ k
+    np.testing.assert_allclose(packed[n:2 * n], ck, rtol=1e-11, atol=1e-13)
+    np.testing.assert_allclose(packed[2 * n], k @ ck, rtol=1e-11, atol=1e-13)
+
+
 @pytest.mark.parametrize("i", [-1, 0, 6])
 def test_rank_update_cq_is_zeroing_then_two_low_rank_terms(i: int) -> None:
     rng = np.random.default_rng(7)
