@@ -135,3 +135,19 @@ def test_trace_assignments_matches_the_python_pointer_chase() -> None:
         got = trace_assignments(anc, eid, n, last)
         assert got.dtype == np.int64
         np.testing.assert_array_equal(got, expected)
+
+
+def test_fused_step_keeps_the_gram_matrix_and_the_diagonal_cache_consistent() -> None:
+    """After compiled fused steps (issue 11): ``K_B`` is the Gram matrix of the basis and the
+    cached ``diag(C) + diag(Q)`` is the matrices' diagonal, up to round-off."""
+    from roger_daemon.learner.sogp import SparseOnlineGP
+
+    rng = np.random.default_rng(11)
+    kernel = RBFKernel(0.5, d_x=3)
+    gp = SparseOnlineGP(3, 2, kernel, noise=0.05, capacity=15)
+    for _ in range(200):
+        gp.update(rng.uniform(-1, 1, 3), rng.normal(size=2))
+    assert gp.n == 15 and gp._dg is not None
+    np.testing.assert_allclose(gp._K[:15, :15], kernel.gram(gp.B, gp.B), rtol=1e-13)
+    diag = np.diagonal(gp.C) + np.diagonal(gp.Q)
+    np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
