@@ -2,9 +2,14 @@
 
 The daemon runs as a subprocess on a free loopback port and serves robots ``r0`` .. ``r<N-1>``
 (each with its own model and seed); this process plays every robot with one Zenoh session.
-Each robot feeds its own slice of the shipped synthetic stream
-(:func:`roger_daemon.learner.synthetic.subtask_stream`, 23-D perception, 9-D actions with
-subtask labels). Two phases, each with a fresh daemon (``--clock both``, the default):
+Each robot feeds its own slice (offset by ``len / N``) of a shipped stream, cycled:
+``--stream aibo`` (default) the 1,500 recorded AIBO demonstration pairs of
+``roger bench learner --stream aibo`` (23-D perception, 9-D actions, subtask labels), the
+realistic workload for the daemon's default configuration (AIBO profile), where ``beta`` and the
+experts the data supports bound the model; ``--stream synthetic`` the 4,000-point synthetic
+stream (:func:`roger_daemon.learner.synthetic.subtask_stream`), whose inputs lie outside the
+AIBO profile's ranges, so the default configuration keeps opening experts (129-159 per robot
+after a minute).  Two phases, each with a fresh daemon (``--clock both``, the default):
 
 - **realtime**: a sender thread publishes perception(t) and action(t) of every robot at
   ``--rate`` Hz (robots in a rotating order, so that no robot is always sent first); the
@@ -40,9 +45,9 @@ from typing import Any
 import numpy as np
 
 from protocols import Action, Perception, decode, encode, keys
-from protocols.aibo import DIMS, SUBTASKS
+from protocols.aibo import DIMS
+from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
 from roger_daemon.harness import DaemonProcess, free_port, write_config
-from roger_daemon.learner.synthetic import subtask_stream
 
 __all__ = ["FleetClient", "child_pids", "configure", "feed", "proc_cpu_s", "run"]
 
@@ -58,6 +63,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=30.0, help="feed rate per robot (Hz)")
     parser.add_argument("--warmup", type=float, default=2.0,
                         help="unmeasured seconds at the start of each phase (default 2)")
+    parser.add_argument("--stream", choices=FLEET_STREAMS, default="aibo",
+                        help="aibo: the recorded AIBO demonstrations, cycled (default); "
+                             "synthetic: the 4,000-point synthetic stream")
     parser.add_argument("--clock", choices=("both", "realtime", "lockstep"), default="both",
                         help="which phases to run (default both)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
@@ -180,12 +188,13 @@ class FleetClient:
         self.session.close()
 
 
-def _stream_of(stream: Any, i: int, n: int, tick: int) -> tuple[np.ndarray, np.ndarray, str]:
+def _stream_of(stream: FeedStream, i: int, n: int, tick: int
+               ) -> tuple[np.ndarray, np.ndarray, str]:
     k = (tick + i * (len(stream.x) // max(n, 1))) % len(stream.x)
-    return stream.x[k], stream.y[k], SUBTASKS[int(stream.labels[k]) % len(SUBTASKS)]
+    return stream.x[k], stream.y[k], stream.labels[k]
 
 
-def feed(fleet: FleetClient, stream: Any, args: argparse.Namespace, lockstep: bool,
+def feed(fleet: FleetClient, stream: FeedStream, args: argparse.Namespace, lockstep: bool,
           stop_at: float) -> int:
     """Publish at ``args.rate`` until ``stop_at``; in lockstep actions follow predictions."""
     n = len(fleet.robots)
@@ -246,7 +255,8 @@ def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, A
     return out
 
 
-def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: Any) -> dict[str, Any]:
+def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStream
+           ) -> dict[str, Any]:
     robots = [f"r{i}" for i in range(args.robots)]
     port = free_port()
     cfg = write_config(
@@ -358,7 +368,7 @@ def run(args: argparse.Namespace) -> int:
     if args.robots < 1 or args.seconds <= 0 or args.rate <= 0:
         print("roger bench fleet: --robots >= 1, --seconds > 0 and --rate > 0 are required")
         return 2
-    stream = subtask_stream(4000)
+    stream = feed_stream(args.stream)
     load_before = os.getloadavg()
     clocks = ("realtime", "lockstep") if args.clock == "both" else (args.clock,)
     phases: dict[str, Any] = {}
@@ -369,7 +379,8 @@ def run(args: argparse.Namespace) -> int:
             phases[clock] = _phase(workdir, args, clock, stream)
     result = {
         "phases": phases, "summary": _summary(phases), "targets": TARGETS,
-        "settings": {"robots": args.robots, "seconds": args.seconds, "rate_hz": args.rate,
+        "settings": {"stream": args.stream, "robots": args.robots, "seconds": args.seconds,
+                     "rate_hz": args.rate,
                      "warmup_s": args.warmup, "recording": not args.no_recording,
                      "overrides": list(args.overrides)},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

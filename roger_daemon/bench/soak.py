@@ -2,7 +2,9 @@
 
 A real daemon subprocess (realtime clock, write-ahead log, recording and periodic
 checkpoints as configured by default) serves ``--robots`` robots; this process feeds each
-with perception/action pairs at ``--rate`` Hz (a 20,000-point synthetic stream, cycled), and
+with perception/action pairs at ``--rate`` Hz (``--stream aibo``, the default: the recorded AIBO
+demonstrations, cycled, the realistic workload of the default configuration; ``synthetic``: a
+20,000-point synthetic stream, cycled, which keeps opening experts), and
 every ``--interval`` seconds samples the resident set size (``VmRSS`` in ``/proc``) of the
 daemon's process and of its children (the learner workers), with the model size from status.
 
@@ -28,9 +30,9 @@ from pathlib import Path
 from typing import Any
 
 from roger_daemon.bench.fleet import FleetClient, child_pids, feed
+from roger_daemon.bench.streams import FLEET_STREAMS, feed_stream
 from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.harness import DaemonProcess, free_port, write_config
-from roger_daemon.learner.synthetic import subtask_stream
 
 __all__ = ["checkpoint_profile", "configure", "rss_mb", "run"]
 
@@ -44,6 +46,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="growth is measured from here (default 10, or a third of the run "
                              "if shorter than 30 minutes)")
     parser.add_argument("--robots", type=int, default=1, help="robots fed (default 1)")
+    parser.add_argument("--stream", choices=FLEET_STREAMS, default="aibo",
+                        help="aibo: the recorded AIBO demonstrations, cycled (default); "
+                             "synthetic: a 20,000-point synthetic stream")
     parser.add_argument("--rate", type=float, default=30.0, help="feed rate per robot (Hz)")
     parser.add_argument("--interval", type=float, default=10.0,
                         help="seconds between RSS samples (default 10)")
@@ -124,7 +129,7 @@ def _soak(workdir: Path, args: argparse.Namespace) -> dict[str, Any]:
         time.sleep(1.0)
         t0 = time.monotonic()
         end = t0 + args.minutes * 60.0
-        stream = subtask_stream(20000)
+        stream = feed_stream(args.stream, 20000)
         feeder = threading.Thread(target=feed, args=(fleet, stream, args, False, end),
                                   daemon=True)
         feeder.start()
@@ -176,7 +181,8 @@ def run(args: argparse.Namespace) -> int:
         "updates_at_warmup": at_warm["updates"], "updates_end": samples[-1]["updates"],
         "target_growth_pct": TARGET_GROWTH_PCT,
         "checkpoints": out["checkpoints"], "samples": samples, "exit_code": out["exit_code"],
-        "settings": {"minutes": args.minutes, "warmup_minutes": warm, "robots": args.robots,
+        "settings": {"stream": args.stream, "minutes": args.minutes, "warmup_minutes": warm,
+                     "robots": args.robots,
                      "rate_hz": args.rate, "interval_s": args.interval,
                      "overrides": list(args.overrides)},
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

@@ -15,12 +15,14 @@ import numpy as np
 
 __all__ = ["KERNELS", "SMALL", "warm_up"]
 
-#: up to this many basis vectors an expert is evaluated entirely in a compiled kernel; above,
-#: ``C k`` is one BLAS matrix-vector product
+#: up to this many basis vectors ``Q`` is re-inverted by the compiled Cholesky
+#: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK.  (Expert evaluation and ``Q k``
+#: are compiled at every size since issue 11's second pass.)
 SMALL = 64
 
-KERNELS = ("cholesky_inverse", "expert_terms", "gate_log_predictive", "gate_update",
-           "kernel_vector", "rank_update_cq", "trace_assignments")
+KERNELS = ("cholesky_inverse", "expert_terms", "fused_delete_index", "fused_step",
+           "gate_log_predictive", "gate_update", "kernel_vector", "matvec", "rank_update_cq",
+           "trace_assignments")
 
 
 def _load() -> None:
@@ -46,10 +48,14 @@ def warm_up() -> None:
     basis = np.zeros((n, 1))
     mat = np.eye(n)
     k.kernel_vector(basis, np.zeros(1), 1.0, n)
+    k.matvec(mat, np.zeros(n), n)
     k.expert_terms(basis, mat, np.zeros((n, 1)), np.zeros(1), 1.0, n)
     k.rank_update_cq(mat.copy(), mat.copy(), n, 0, np.zeros((3, n)), np.zeros(3),
                      np.zeros((2, n)), np.zeros(2))
     k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
+    vn, one = np.ones(n), np.ones(1)
+    k.fused_step(basis.copy(), np.zeros((n, 1)), -mat.copy(), mat.copy(), mat.copy(), 2 * vn,
+                 np.zeros(1), 0.5 * vn, -0.1 * vn, 0.5 * vn, one, one, -0.5, 0.5, 1.0)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
     k.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),

@@ -174,15 +174,10 @@ class SparseOnlineGP(SOGPSteps):
         if n == 0:
             empty = np.zeros(0)
             return empty, empty, self._m.copy(), self.kernel.k_star
-        if n <= _jit.SMALL:  # one compiled call: kernel, C k, k^T C k, k^T A
-            packed = _jit.expert_terms(self._B, self._C, self._A, x, self.kernel.gamma, n)
-            k, ck, mean = packed[:n], packed[n: 2 * n], packed[2 * n + 1:]
-            kck = float(packed[2 * n])
-        else:  # C k by BLAS
-            k = _jit.kernel_vector(self._B, x, self.kernel.gamma, n)
-            ck = self._C[:n, :n] @ k
-            kck = float(k @ ck)
-            mean = k @ self._A[:n]
+        # one compiled call: kernel, C k, k^T C k, k^T A (one pass over C, no BLAS)
+        packed = _jit.expert_terms(self._B, self._C, self._A, x, self.kernel.gamma, n)
+        k, ck, mean = packed[:n], packed[n: 2 * n], packed[2 * n + 1:]
+        kck = float(packed[2 * n])
         latent = max(self.kernel.k_star + kck, LATENT_FLOOR)
         if not self.prior_mean:
             return k, ck, mean, latent
@@ -257,11 +252,11 @@ class SparseOnlineGP(SOGPSteps):
         r = -1.0 / (s0 + latent)
         q = (y - mean) / (s0 + latent)
         # step 3: novelty, the projection residual gamma = k* - k^T Q k
-        e_hat = self._Q[:n, :n] @ k
+        e_hat = _jit.matvec(self._Q, k, n)
         gamma = kstar - float(k @ e_hat)
         if self.q_inconsistent(gamma):
             self.refresh_inverse_gram()
-            e_hat = self._Q[:n, :n] @ k
+            e_hat = _jit.matvec(self._Q, k, n)
             gamma = kstar - float(k @ e_hat)
         if gamma < _GAMMA_FLOOR:
             gamma = 0.0

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner import jit as _jit
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
 from roger_daemon.learner.sogp_steps import GAMMA_FLOOR as _GAMMA_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
@@ -55,12 +56,13 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
         a1k = np.array([float(k @ gp._A[:, gp.d_y]) for gp, k in zip(full, ks, strict=True)])
         means = np.concatenate([means, a1k[:, None]], axis=1)
     latents = np.array([t[3] for t in full_terms])
-    e_hat = np.stack([gp._Q @ k for gp, k in zip(full, ks, strict=True)])  # step 3: Q k
+    e_hat = np.stack([_jit.matvec(gp._Q, k, gp.n)  # step 3: Q k
+                      for gp, k in zip(full, ks, strict=True)])
     gamma = kstar - np.einsum("un,un->u", ks, e_hat)
     for j, gp in enumerate(full):
         if gp.q_inconsistent(float(gamma[j])):
             gp.refresh_inverse_gram()
-            e_hat[j] = gp._Q @ ks[j]
+            e_hat[j] = _jit.matvec(gp._Q, ks[j], gp.n)
             gamma[j] = kstar - float(ks[j] @ e_hat[j])
     gamma[gamma < _GAMMA_FLOOR] = 0.0
     thresholds = np.array([g.novelty_threshold for g in full]) * kstar

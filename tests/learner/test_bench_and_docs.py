@@ -82,3 +82,23 @@ def test_bench_compare_runs_a_git_revision_beside_this_learner(
     assert "speedup (new / REF updates/s)" in capsys.readouterr().out
     assert main(["bench", "learner", "--points", "4", "--compare", "no-such-revision-xyz"]) == 2
     assert "--compare" in capsys.readouterr().err
+
+
+def test_fleet_and_soak_feed_the_aibo_demonstrations_by_default() -> None:
+    """``roger bench fleet`` and ``soak`` feed the recorded AIBO stream unless told otherwise."""
+    import argparse
+
+    from roger_daemon.bench import fleet, soak
+    from roger_daemon.bench.streams import feed_stream
+
+    for module in (fleet, soak):
+        parser = argparse.ArgumentParser()
+        module.configure(parser)
+        assert parser.parse_args([]).stream == "aibo"
+    aibo = feed_stream("aibo")
+    assert aibo.x.shape == (1500, 23) and aibo.y.shape == (1500, 9)
+    assert len(aibo.labels) == 1500 and {"kick", "trap"} <= set(aibo.labels)
+    synthetic = feed_stream("synthetic", 50)
+    assert synthetic.x.shape == (50, 23) and len(synthetic.labels) == 50
+    with pytest.raises(ValueError, match="unknown stream"):
+        feed_stream("nope")

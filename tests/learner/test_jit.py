@@ -38,6 +38,26 @@ def test_kernel_vector_and_expert_terms_match_numpy(n: int) -> None:
     np.testing.assert_allclose(packed[2 * n + 1:], k @ coef[:n], rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("n", [1, 40, 300])
+def test_matvec_and_large_expert_terms_match_numpy(n: int) -> None:
+    """Both compiled products also serve beta = 300 experts (no BLAS branch above 64 BVs)."""
+    rng = np.random.default_rng(n + 7)
+    alloc = n + 2
+    mat = np.zeros((alloc, alloc))
+    mat[:n, :n] = _spd(n, rng, cond=1e6)
+    v = rng.normal(size=n)
+    np.testing.assert_allclose(jit.matvec(mat, v, n), mat[:n, :n] @ v, rtol=1e-11, atol=1e-13)
+    kernel = RBFKernel(0.9, d_x=3)
+    basis = rng.normal(size=(alloc, 3))
+    coef = rng.normal(size=(alloc, 2))
+    x = rng.normal(size=3)
+    k = kernel.gram(basis[:n], x[None])[:, 0]
+    packed = jit.expert_terms(basis, -mat, coef, x, kernel.gamma, n)
+    ck = -mat[:n, :n] @ k
+    np.testing.assert_allclose(packed[n:2 * n], ck, rtol=1e-11, atol=1e-13)
+    np.testing.assert_allclose(packed[2 * n], k @ ck, rtol=1e-11, atol=1e-13)
+
+
 @pytest.mark.parametrize("i", [-1, 0, 6])
 def test_rank_update_cq_is_zeroing_then_two_low_rank_terms(i: int) -> None:
     rng = np.random.default_rng(7)
@@ -115,3 +135,19 @@ def test_trace_assignments_matches_the_python_pointer_chase() -> None:
         got = trace_assignments(anc, eid, n, last)
         assert got.dtype == np.int64
         np.testing.assert_array_equal(got, expected)
+
+
+def test_fused_step_keeps_the_gram_matrix_and_the_diagonal_cache_consistent() -> None:
+    """After compiled fused steps (issue 11): ``K_B`` is the Gram matrix of the basis and the
+    cached ``diag(C) + diag(Q)`` is the matrices' diagonal, up to round-off."""
+    from roger_daemon.learner.sogp import SparseOnlineGP
+
+    rng = np.random.default_rng(11)
+    kernel = RBFKernel(0.5, d_x=3)
+    gp = SparseOnlineGP(3, 2, kernel, noise=0.05, capacity=15)
+    for _ in range(200):
+        gp.update(rng.uniform(-1, 1, 3), rng.normal(size=2))
+    assert gp.n == 15 and gp._dg is not None
+    np.testing.assert_allclose(gp._K[:15, :15], kernel.gram(gp.B, gp.B), rtol=1e-13)
+    diag = np.diagonal(gp.C) + np.diagonal(gp.Q)
+    np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
