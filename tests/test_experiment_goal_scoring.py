@@ -172,17 +172,22 @@ def _processes_naming(text: str) -> list[str]:
     return found
 
 
-@pytest.mark.parametrize(("signum", "code"), [(15, 143), (2, 130)])
-def test_a_stopped_experiment_leaves_no_process_behind(tmp_path: Path, signum: int,
-                                                       code: int) -> None:
-    """SIGTERM or Ctrl-C while the demonstrations run: the command exits 143 or 130, and
-    none of its jobs' processes (whose command lines name the output directory) survive."""
+@pytest.mark.parametrize(("command", "started", "signum", "code"), [
+    (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 15, 143),
+    (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 2, 130),
+    (("demo",), "demonstration/*.log", 15, 143),
+])
+def test_a_stopped_run_leaves_no_process_behind(tmp_path: Path, command: tuple[str, ...],
+                                                started: str, signum: int, code: int) -> None:
+    """SIGTERM or Ctrl-C while the demonstrations run: ``roger experiment goal-scoring`` and
+    ``roger demo`` exit 143 or 130, and none of their processes (whose command lines name the
+    output directory) survive."""
     out = tmp_path / "run"
-    proc = subprocess.Popen([*ROGER, "experiment", "goal-scoring", "--out", str(out)],
+    proc = subprocess.Popen([*ROGER, *command, "--out", str(out)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         end = time.monotonic() + 240
-        while not list((out / "work" / "demo").glob("loc-*/sim.log")):
+        while not list(out.glob(started)):
             assert proc.poll() is None and time.monotonic() < end, "no job started"
             time.sleep(0.1)
         assert _processes_naming(str(out))  # a job's processes are running

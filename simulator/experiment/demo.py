@@ -76,7 +76,13 @@ class _Demo:
     def _run(self) -> int:
         from roger_daemon.harness import Client, DaemonProcess, write_config
         from simulator.episodes import START_LOCATIONS, parse_locations
-        from simulator.experiment.procs import ProcessGroup, child_env, free_port, roger_argv
+        from simulator.experiment.procs import (
+            CHILDREN,
+            ProcessGroup,
+            child_env,
+            free_port,
+            roger_argv,
+        )
 
         args, console, out = self.args, self.console, self.out
         locations = parse_locations(args.locations)
@@ -97,6 +103,7 @@ class _Demo:
                       f"then the learned experts from location {args.test_location}; "
                       f"output in {out}")
         daemon = DaemonProcess(cfg, args=["--fresh"], log=out / "daemon.log", env=child_env())
+        CHILDREN.add(daemon.proc)  # a stop reaches it (procs.stop_children_on_signals)
         summary: dict[str, Any] = {}
         try:
             daemon.wait_ready(120)
@@ -274,8 +281,10 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from roger_daemon.atomic import OutputDirError
+    from simulator.experiment.procs import stop_children_on_signals
 
     console = Console()
+    stop_children_on_signals()
     try:
         return _Demo(args, console).run()
     except OutputDirError as exc:

@@ -289,25 +289,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({**plan.to_json(), "learner": params.to_mapping()}, indent=1))
         return 0
     console = Console(stderr=False)
-    _stop_children_on_signals()
+    from simulator.experiment.procs import stop_children_on_signals
+
+    stop_children_on_signals()
     return Experiment(plan, params, console, starts).run()
 
-
-def _stop_children_on_signals() -> None:
-    """SIGTERM and Ctrl-C stop every job's processes before the command exits (143, 130);
-    without this the simulators, controllers and daemons of running jobs outlive it."""
-    import signal
-
-    from simulator.experiment.procs import CHILDREN
-
-    def stop(signum: int, _frame: Any) -> None:
-        CHILDREN.stop_all()
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        raise SystemExit(128 + signum)
-
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
 
 
 def _load_starts(plan: Plan) -> list[Any] | None:

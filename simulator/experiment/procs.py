@@ -46,6 +46,7 @@ __all__ = [
     "load_finished",
     "roger_argv",
     "run_job",
+    "stop_children_on_signals",
 ]
 
 #: the DPA controller's per-tick perceptions and commands in its job's directory
@@ -141,6 +142,20 @@ class Children:
 
 #: the experiment's children (one process, one registry)
 CHILDREN = Children()
+
+
+def stop_children_on_signals() -> None:
+    """SIGTERM and Ctrl-C stop every tracked child before the command exits (143, 130);
+    without this the simulators, controllers and daemons of running jobs outlive it."""
+
+    def stop(signum: int, _frame: Any) -> None:
+        CHILDREN.stop_all()
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
 
 
 @dataclass
