@@ -30,9 +30,9 @@ def choose_expert(
     Among the experts labelled ``subtask`` (majority label of their data, paper section IV.A):
     ``rule = "support"`` (default) takes the expert holding the most points (the broadest fit
     of the subtask; no rule was better over the streams measured, docs/goal-scoring.md),
-    ``"variance"`` the lowest
-    predictive variance at this perception, ``"gate"`` the highest gate probability; either
-    way ``"label"``. If none carries the label, the highest-probability expert overall
+    ``"variance"`` the lowest predictive variance at this perception, ``"gate"`` the highest
+    gate probability (``"mixture"`` too: its command, from :func:`transition_command`, is the
+    gate-weighted mean of these experts); either way ``"label"``. If none carries the label, the highest-probability expert overall
     (``"fallback_top"``); ``(None, "fallback_mean")`` for an empty multimap. Remaining ties go to
     the higher gate probability, then the lower expert id.
     """
