@@ -32,9 +32,10 @@ def choose_expert(
     of the subtask; no rule was better over the streams measured, docs/goal-scoring.md),
     ``"variance"`` the lowest predictive variance at this perception, ``"gate"`` the highest
     gate probability (``"mixture"`` too: its command, from :func:`transition_command`, is the
-    gate-weighted mean of these experts); either way ``"label"``. If none carries the label, the highest-probability expert overall
-    (``"fallback_top"``); ``(None, "fallback_mean")`` for an empty multimap. Remaining ties go to
-    the higher gate probability, then the lower expert id.
+    gate-weighted mean of these experts); either way ``"label"``. If none carries the label,
+    the highest-probability expert overall (``"fallback_top"``); ``(None, "fallback_mean")``
+    for an empty multimap. Remaining ties go to the higher gate probability, then the lower
+    expert id.
     """
     if rule not in RULES:
         raise ValueError(f"transitioner rule must be one of {RULES}, got {rule!r}")
