@@ -158,8 +158,8 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
     if "oracle" in out:
         out["oracle"]["name"] = "segmentation oracle (one sparse online GP per true subtask)"
     if "groups" in out:
-        out["groups"]["name"] = ("ROGER experts merged per group (one sparse online GP per "
-                                 "majority label, on ROGER's partition)")
+        out["groups"]["name"] = ("ROGER experts merged per group (one expert per majority "
+                                 "label, learning ROGER's partition of that group)")
     hcc_rate = out.get("hcc", {}).get("success_rate")
     out["roger_seeds"] = _seed_blocks(episodes, models, stream.labels, hcc_rate)
     for c in ("roger", "oracle", "groups"):

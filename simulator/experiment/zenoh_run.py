@@ -200,23 +200,23 @@ class ZenohRun:
         tasks = {k: progress.add_task(f"5 evaluation: {k}", total=n)
                  for k in dict.fromkeys(j.key for j in jobs)}
         local_eps: dict[str, list[dict[str, Any]]] = {}
+        thread = None
+        if "oracle" in plan.controllers:
+            o_task = progress.add_task("5 evaluation: oracle (in-process)", total=n)
 
-        def local() -> None:
-            ctl: dict[str, Any] = {}
-            if "oracle" in plan.controllers:
+            def oracle() -> None:
                 gps = fit_segmentation_oracle(stream, self.params, plan.seeds["learner"])
                 self.context["oracle"] = gps
-                ctl.update(controllers_for(replace(plan, controllers=("oracle",)), stream, [],
-                                           None, gps))
-            local_tasks = {k: progress.add_task(f"5 evaluation: {k} (in-process)", total=n)
-                           for k in ctl}
-            local_eps.update(evaluate_in_process(
-                plan, ctl, on_episode=lambda k, r: progress.advance(local_tasks[k], 1)))
+                ctl = controllers_for(replace(plan, controllers=("oracle",)), stream, [],
+                                      None, gps)
+                local_eps.update(evaluate_in_process(
+                    plan, ctl, on_episode=lambda k, r: progress.advance(o_task, 1)))
 
-        thread = threading.Thread(target=local, name="in-process", daemon=True)
-        thread.start()
+            thread = threading.Thread(target=oracle, name="oracle", daemon=True)
+            thread.start()
         ev = runner.run(jobs, tasks)
-        thread.join()
+        if thread is not None:
+            thread.join()
         self._phase("evaluation", t0)
         self.errors += runner.errors
         return [r for r in ev if r is not None], local_eps
