@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.blas import pin_blas_threads
+from simulator.transitioner import RULES
 
 #: name -> (what it changes, learner parameters replaced, transitioner rule)
 VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
@@ -34,6 +35,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
     "rule-variance": ("transitioner rule variance (lowest predictive variance)", {}, "variance"),
     "rule-mixture": ("transitioner rule mixture (gate-weighted mean of the subtask's experts)",
                      {}, "mixture"),
+    "merged-groups": ("ROGER's experts merged per group (one expert per majority label)", {},
+                      "merged"),
+    "choice-oracle": ("choice oracle: among the subtask's experts, the one closest to the "
+                      "demonstrator's own command (uses the demonstrator; a diagnostic, not a "
+                      "controller)", {}, "choice-oracle"),
     "particles-10": ("10 particles", {"particles": 10}, "support"),
     "particles-30": ("30 particles", {"particles": 30}, "support"),
     "min-support-0": ("no minimum support (every expert's gate competes)",
@@ -52,30 +58,83 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
 }
 
 
-def _variant_rows(name: str, stream: Any, seeds: list[int], attempts: int) -> dict[str, Any]:
+#: (learner parameter changes, seed) -> trained model: variants that only change the
+#: transitioner's rule reuse the model instead of training it again
+_MODELS: dict[tuple[str, int], Any] = {}
+
+
+class _ChoiceOracle:
+    """The transitioner with the demonstrator's help: among the experts labelled with the
+    FSM's subtask, the one whose mean is closest (largest scaled entry) to the HCC's own
+    command.  It tells choice failures (some expert of the subtask has the right action) from
+    learning failures (none has)."""
+
+    def __init__(self, hcc: Any, model: Any, labels: dict[int, str], y_scale: Any) -> None:
+        self.hcc, self.model, self.labels = hcc, model, labels
+        self.y_scale = np.asarray(y_scale, dtype=np.float64)
+
+    def reset(self) -> None:
+        self.hcc.reset()
+
+    def act(self, x: Any) -> tuple[Any, str]:
+        y_hcc, subtask = self.hcc.decide(x)
+        mine = [e for e in self.model.predict_multimap(x)
+                if self.labels.get(int(e.expert_id)) == subtask]
+        if mine:
+            err = [float(np.max(np.abs((np.asarray(e.mean) - y_hcc) / self.y_scale)))
+                   for e in mine]
+            y = np.asarray(mine[int(np.argmin(err))].mean, dtype=np.float64)
+        else:
+            y = np.asarray(self.model.predict_one(x).mean, dtype=np.float64)
+        self.hcc.commit(y)
+        return y, subtask
+
+
+def _controller(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed: int) -> Any:
     from roger_daemon.labels import majority_labels
+    from simulator.experiment import inprocess as ip
+    from simulator.experiment.pipeline import make_hcc, merge_expert_groups
+    from simulator.experiment.training import Demonstrations
+
+    groups = majority_labels(np.asarray(model.assignments()).tolist(), stream["labels"])
+    if rule == "choice-oracle":
+        return _ChoiceOracle(make_hcc(plan), model, groups, params.y_scale)
+    if rule == "merged":
+        n = len(stream["labels"])
+        demos = Demonstrations(x=stream["x"], y=stream["y"], labels=list(stream["labels"]),
+                               location=np.zeros(n, dtype=np.int64),
+                               tick=np.arange(n, dtype=np.int64), unpaired=0)
+        m = merge_expert_groups(demos, model, params, seed)
+        return ip.TransitionerController(make_hcc(plan), m.model, m.labels, "support")
+    return ip.TransitionerController(make_hcc(plan), model, groups, rule)
+
+
+def _variant_rows(name: str, stream: Any, seeds: list[int], attempts: int) -> dict[str, Any]:
     from roger_daemon.learner import Roger
     from simulator.experiment import goal_scoring as gs
     from simulator.experiment import inprocess as ip
     from simulator.experiment.metrics import segmentation_scores
-    from simulator.experiment.pipeline import evaluate_in_process, make_hcc
+    from simulator.experiment.pipeline import evaluate_in_process
     from simulator.experiment.training import train
 
     what, changes, rule = VARIANTS[name]
     parser = argparse.ArgumentParser()
     gs.configure(parser)
-    argv = ["--out", "unused", "--in-process", "--attempts", str(attempts), "--rule", rule]
+    argv = ["--out", "unused", "--in-process", "--attempts", str(attempts)]
+    argv += ["--rule", rule] if rule in RULES else []
     plan = gs.plan_from_args(parser.parse_args(argv))
     params = replace(gs.learner_params(plan), **changes)  # validated again by the dataclass
     per_seed = []
     for seed in seeds:
-        model = Roger(d_x=stream["x"].shape[1], d_y=stream["y"].shape[1], params=params,
-                      seed=seed)
-        train(model, stream["x"], stream["y"])
+        key = (json.dumps(changes, sort_keys=True), seed)
+        if key not in _MODELS:
+            _MODELS[key] = Roger(d_x=stream["x"].shape[1], d_y=stream["y"].shape[1],
+                                 params=params, seed=seed)
+            train(_MODELS[key], stream["x"], stream["y"])
+        model = _MODELS[key]
         assignments = np.asarray(model.assignments())
-        groups = majority_labels(assignments.tolist(), stream["labels"])
         seg = segmentation_scores(assignments.tolist(), stream["labels"])
-        ctrl = {"roger": ip.TransitionerController(make_hcc(plan), model, groups, rule)}
+        ctrl = {"roger": _controller(rule, plan, model, stream, params, seed)}
         eps = evaluate_in_process(plan, ctrl)["roger"]
         modes = Counter(ip.failure_mode(e["outcome"], e, e.get("path_m")) for e in eps)
         per_seed.append({"seed": seed, "goals": sum(bool(e["success"]) for e in eps),

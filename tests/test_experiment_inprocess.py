@@ -220,3 +220,6 @@ def test_the_in_process_path_writes_results_figures_and_the_dpas_averaging(
     assert 0.0 <= dpa["averaged_share"] <= dpa["aliased_share"] <= 1.0
     if not dpa["success"]:
         assert r["dpa"]["averaging"]["failed_episodes_measured"] == 1
+    with np.load(out / "training-data.npz") as data:  # what scripts/ablation.py reads
+        assert data["x"].shape == (r["training"]["pairs"], 23)
+        assert data["assignments"].shape == (r["training"]["pairs"],)

@@ -40,6 +40,7 @@ __all__ = [
     "make_hcc",
     "make_sim",
     "run_in_process",
+    "save_training_data",
     "train_models",
 ]
 
@@ -193,6 +194,17 @@ def evaluate_in_process(plan: Any, controllers: Mapping[str, Any],
     return out
 
 
+def save_training_data(out: Any, stream: Demonstrations, model: Any) -> None:
+    """``OUT/training-data.npz``: the downsampled stream both paths trained on (x, y, labels,
+    location, tick) and the first learner seed's assignments; ``scripts/ablation.py`` reads
+    it."""
+    np.savez_compressed(
+        out / "training-data.npz", x=stream.x, y=stream.y,
+        labels=np.array(stream.labels, dtype=np.str_), location=stream.location,
+        tick=stream.tick, assignments=np.asarray(model.assignments()),
+    )
+
+
 def run_in_process(plan: Any, params: Any, console: Any,
                    context: dict[str, Any] | None = None) -> dict[str, Any]:
     """The whole experiment in this process; returns ``results.json``'s content.
@@ -217,6 +229,7 @@ def run_in_process(plan: Any, params: Any, console: Any,
     oracle = fit_segmentation_oracle(stream, params, plan.seeds["learner"])
     merged = merge_all(stream, models, params, plan)
     timings["training"] = round(time.monotonic() - t0, 2)
+    save_training_data(plan.out, stream, models[0][1])
     if context is not None:
         context.update(stream=stream, models=models, unimap=unimap, oracle=oracle,
                        merged=merged)

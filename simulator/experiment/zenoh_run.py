@@ -156,6 +156,7 @@ class ZenohRun:
         """Write every model as a daemon checkpoint (models/roger-K, models/groups-K,
         models/dpa); a merged model's points carry their group's name, so that the daemon
         names each merged expert by its group."""
+        from simulator.experiment.pipeline import save_training_data
         from simulator.experiment.training import write_model_checkpoint
 
         plan = self.plan
@@ -173,11 +174,7 @@ class ZenohRun:
             _, meta = write_model_checkpoint(d, model, labels, model_kind=kind,
                                              seed=seed, params=model.params)
             digests[key] = str(meta["model_digest"])
-        np.savez_compressed(
-            plan.out / "training-data.npz", x=stream.x, y=stream.y,
-            labels=np.array(stream.labels, dtype=np.str_), location=stream.location,
-            tick=stream.tick, assignments=np.asarray(models[0][1].assignments()),
-        )
+        save_training_data(plan.out, stream, models[0][1])
         self._phase("grouping", t0)
         return digests
 
