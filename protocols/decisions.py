@@ -113,7 +113,8 @@ class ModelDigest(Message):
     segment: int = field(metadata=spec("resets before this model in the session"))
     digest: str = field(metadata=spec("SHA-256 of the model's arrays (hex)", pattern=_HEX64))
     chain: str = field(metadata=spec(
-        "SHA-256 of the previous record's chain (none: '') and this digest (hex)",
+        "SHA-256 of the previous record's chain (the first: the session's start_model_digest) "
+        "and this digest (hex)",
         pattern=_HEX64))
 
     KIND: ClassVar[str] = "daemon.model"

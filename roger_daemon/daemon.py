@@ -24,6 +24,7 @@ from types import FrameType
 from typing import Any
 
 from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION
+from roger_daemon.checkpoint import array_digest
 from roger_daemon.config import ConfigError, DaemonConfig, load_config
 from roger_daemon.resume import (
     Resumed,
@@ -103,6 +104,7 @@ def open_recorders(
             restored_queued_pairs=len(rt.queue),
             resumed_session=where.session or "", resumed_segment=where.segment,
             decisions=True,  # the service attaches each robot's DecisionLog
+            start_model_digest=array_digest(dict(rt.model.state_dict())),
             extra={"daemon": cfg.id, "clock": cfg.clock, "rate_hz": repr(cfg.rate_hz),
                    "schema_version": str(SCHEMA_VERSION),
                    "recovered_pairs": str(where.recovered_pairs),

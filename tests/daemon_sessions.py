@@ -87,7 +87,7 @@ class _Tap(DecisionLog):
     """The robot's real decision log, also keeping each pair the daemon learned."""
 
     def __init__(self, inner: DecisionLog, pairs: list[tuple[int, Any, Any, str]]) -> None:
-        super().__init__(inner.recorders, inner.wall_ns)
+        super().__init__(inner.recorders, inner.wall_ns, inner.chain)
         self.pairs = pairs
 
     def learned(self, rt: RobotRuntime, pair: Pair) -> None:

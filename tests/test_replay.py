@@ -90,8 +90,10 @@ def test_replay_reproduces_the_recorded_model(busy, tmp_path: Path) -> None:  # 
     tl = res.timeline
     assert tl.decisions and tl.invalid["not_msgpack"] == 1
     assert res.seed == 7 and res.model_kind == "roger"
-    # the checkpoint's model digest the daemon recorded is reproduced
-    assert res.digests and all(c.match for c in res.digests) and res.bit_identical()
+    # the start model's and the checkpoint's digests the daemon recorded are reproduced
+    assert [c.updates for c in res.digests] == [0, 50] and all(c.match for c in res.digests)
+    assert res.bit_identical() and res.summary(TOL)["model_digests"] == {"checked": 2,
+                                                                         "matched": 2}
     # read as a daemon without decision records wrote it, the inputs give the same pairs
     old = replay_session(as_version_1(busy.paths[0], tmp_path / "v1.mcap"))
     assert old.ok(TOL) and not old.timeline.decisions and len(old.diffs) == len(res.diffs)
@@ -148,6 +150,13 @@ def test_replay_with_other_params_from_a_config_mismatches(
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check"]) == 1
     cfg.write_text("[daemon]\nrate_hz = \"fast\"\n")
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg)]) == 2
+
+
+def test_the_recorded_model_digests_catch_another_model(busy) -> None:  # type: ignore[no-untyped-def]
+    """Another seed: the start model is not the session's, nor is the checkpoint's model."""
+    res = replay_session(busy.paths, seed=8)
+    assert [c.match for c in res.digests] == [False, False] and not res.bit_identical()
+    assert any("recorded checkpoint digests" in w for w in res.warnings)
 
 
 def test_replay_across_reset_and_rotated_parts(tmp_path: Path,

@@ -120,6 +120,7 @@ def session_metadata(
     resumed_segment: int = 0,
     created_by: str = "roger daemon",
     decisions: bool = False,
+    start_model_digest: str = "",
     extra: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
     """Build the ``roger.session`` metadata map (all values are strings).
@@ -162,6 +163,10 @@ def session_metadata(
     decisions
         The writer records the daemon's decisions (format :data:`FORMAT`, version 2); else
         the file holds inputs and outputs only (:data:`FORMAT_INPUTS_ONLY`, version 1).
+    start_model_digest
+        SHA-256 of the arrays of the model the session starts with
+        (``roger_daemon.checkpoint.array_digest``): the first link of the chain of the
+        checkpoints' model digests in the decision records, which replay checks.
     extra
         More string keys (they must not collide with the standard ones).
     """
@@ -184,6 +189,7 @@ def session_metadata(
         "pair_window": "" if pair_window is None else str(int(pair_window)),
         "queue_size": "" if queue_size is None else str(int(queue_size)),
         "restored_queued_pairs": str(int(restored_queued_pairs)),
+        "start_model_digest": start_model_digest,
         "hostname": socket.gethostname(),
         "platform": platform.platform(),
         "git_commit": git_commit(),

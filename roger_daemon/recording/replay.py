@@ -186,6 +186,14 @@ class _Replay:
         evaluate(rt.updates)
         self.unreplayable += len(preds) - pi  # computed after pairs the log does not have
 
+    def check_start(self, tl: Timeline) -> None:
+        """Is the model the replay starts from the one the session started with? (Its
+        digest, metadata ``start_model_digest``; not recorded by older daemons.)"""
+        want = tl.info.raw.get("start_model_digest", "")
+        if want:
+            seg = tl.segments[0]
+            self._check_digest(0, ModelCheck(seg.start_updates, want, ""))
+
     def _check_digest(self, seg_no: int, check: ModelCheck) -> None:
         digest = array_digest(dict(self.rt.model.state_dict()))
         self.digests.append(DigestCheck(seg_no, check.updates, check.digest == digest))
@@ -273,10 +281,12 @@ def replay_timeline(
         elif first is None:
             run.unreplayable += len(seg.predictions)
             continue
+        if i == 0:
+            run.check_start(tl)
         run.segment(i, first or seg)
     _warn(tl, rt, run, warnings)
     last = tl.segments[-1]
-    model = rt.model if rt.model is not None else None
+    model = rt.model
     labels = [p.label for p in last.pairs] if not rt.learn_errors else []
     assignments = (np.asarray(model.assignments(), dtype=np.int64) if model is not None
                    else np.zeros(0, dtype=np.int64))

@@ -219,7 +219,7 @@ class DecisionReading(Reading):
         super().__init__(tl, predictions)
         self.input_ticks: tuple[set[int], set[int]] = (set(), set())
         self.named: set[int] = set()
-        self.chain = ""  # the digest chain as the records so far make it
+        self.chain = tl.info.raw.get("start_model_digest", "")  # as the records so far make it
 
     def perception(self, msg: Perception, t_ns: int) -> None:
         """Noted, to count the ticks no decision names."""

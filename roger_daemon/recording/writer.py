@@ -164,6 +164,11 @@ class SessionRecorder:
         return list(self._paths)
 
     @property
+    def metadata(self) -> dict[str, str]:
+        """The ``roger.session`` map it was given (a copy; each part adds its own keys)."""
+        return dict(self._meta)
+
+    @property
     def session_id(self) -> str:
         """``roger-<robot>-<start>``: the common stem of this session's parts."""
         return self._session_id

@@ -108,8 +108,10 @@ class Service:
         self.notifier = notifier or Notifier(None)
         self.recorders = Recorders(recorders or {}, config.recording)
         for rt in self.robots.values():  # the decision records of each recorded session
-            rt.decisions = (DecisionLog(self.recorders, lambda: self.clock.time_ns())
-                            if rt.robot in self.recorders else None)
+            rec = self.recorders.by_robot.get(rt.robot)
+            start = dict(getattr(rec, "metadata", {})).get("start_model_digest", "")
+            rt.decisions = (DecisionLog(self.recorders, lambda: self.clock.time_ns(), start)
+                            if rec is not None else None)
         self.admission = Admission(self.robots, self.recorders,
                                    count_unserved=config.count_unserved)
         self.clock: Clock = clock or RealClock()

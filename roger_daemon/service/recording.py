@@ -114,13 +114,15 @@ class DecisionLog:
     learned pair, reset and dropped pair; and, from the checkpoint writer, the digest of each
     checkpoint's model chained with the previous one (:mod:`protocols.decisions`). Replay and
     recovery read these instead of re-deriving the decisions (docs/durability.md).
-    ``wall_ns`` is the daemon's wall clock (the records' ``stamp_ns`` and log time).
+    ``wall_ns`` is the daemon's wall clock (the records' ``stamp_ns`` and log time); the chain
+    starts at ``start``, the digest of the model the session started with (its metadata's
+    ``start_model_digest``).
     """
 
-    def __init__(self, recorders: Recorders, wall_ns: Callable[[], int]) -> None:
+    def __init__(self, recorders: Recorders, wall_ns: Callable[[], int], start: str = "") -> None:
         self.recorders = recorders
         self.wall_ns = wall_ns
-        self.chain = ""  # the newest link of the session's digest chain
+        self.chain = start  # the newest link of the session's digest chain
 
     def learned(self, rt: RobotRuntime, pair: Pair) -> None:
         """``pair`` became model pair ``rt.updates - 1``."""
