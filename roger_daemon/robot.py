@@ -8,9 +8,8 @@ the training queue of ``queue_size`` pairs; when it is full the new pair is drop
 ``dropped``, logged, and shown in status. An action whose perception never arrives is
 evicted after ``pair_window`` newer actions and counted as ``unpaired_actions``.
 
-Decisions: every learned pair, reset and dropped pair is also handed to ``decisions`` (a
-:class:`Decisions`, the session recorder's decision log, ``docs/durability.md``) when one is
-attached, so that replay and recovery read what the daemon decided instead of re-deriving it.
+Decisions: each learned pair, reset and dropped pair also goes to ``decisions`` (the session
+log's decision records, docs/durability.md) when one is attached.
 
 Labels: the daemon keeps the subtask label of every learned pair (as a code into a
 vocabulary) and maps the model's ``assignments()`` to the majority label of each expert.
@@ -129,8 +128,7 @@ class RobotRuntime:
         self._reported: set[str] = set()
         # durability (roger_daemon.wal): every learned pair and fresh model is appended
         self.wal: Any = None
-        # the session log's decision records (roger_daemon.service.recording.DecisionLog)
-        self.decisions: Decisions | None = None
+        self.decisions: Decisions | None = None  # roger_daemon.service.recording.DecisionLog
         self.resent = 0  # re-sent copies of the newest pair, not learned twice
         self._newest_pair: tuple[int, bytes, bytes] | None = None  # (tick, x, y) bytes
 
@@ -204,18 +202,20 @@ class RobotRuntime:
             self.resent += 1
             self._warn_once("resent", f"{self.robot}: pair of tick {act.tick} received again "
                             "(re-sent); not learned twice (counted as info.resent_pairs)")
-            if self.decisions is not None:
-                self.decisions.dropped(self, act.tick, "resent")
+            self._dropped(act.tick, "resent")
             return
         self._newest_pair = key
         if len(self.queue) >= self.queue_size:
             self.dropped += 1
             self._warn_once("overflow", f"{self.robot}: training queue full ({self.queue_size}); "
                             f"pair of tick {act.tick} dropped (counted in status 'dropped')")
-            if self.decisions is not None:
-                self.decisions.dropped(self, act.tick, "queue_full")
+            self._dropped(act.tick, "queue_full")
             return
         self.queue.append(Pair(perc.x, act.y, self._label_code(act.label), act.tick, perc.t))
+
+    def _dropped(self, tick: int, reason: str) -> None:
+        if self.decisions is not None:
+            self.decisions.dropped(self, tick, reason)
 
     def enqueue_recovered(self, x: np.ndarray, y: np.ndarray, label: str, tick: int) -> None:
         """Queue a pair read back from the session log (start-up recovery; no size limit)."""
