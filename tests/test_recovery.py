@@ -378,6 +378,7 @@ def test_recovery_by_hand_with_log_recover_and_replay_checkpoint(
                   "--save-checkpoint", str(tmp_path / "ckpt")]) == 0
     out = capsys.readouterr().out
     assert "learned:      10 pairs" in out and "checkpoint:   " in out and "result:       OK" in out
+    assert "result:       OK, bit-identical" in out  # the recorded checkpoint digest too
     saved = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
     assert saved.meta["reason"] == "replay" and saved.meta["updates"] == 50
 

@@ -190,8 +190,8 @@ class _Replay:
         """Is the model the replay starts from the one the session started with? (Its
         digest, metadata ``start_model_digest``; not recorded by older daemons.)"""
         want = tl.info.raw.get("start_model_digest", "")
-        if want:
-            seg = tl.segments[0]
+        seg = tl.segments[0]
+        if want and seg.start_updates == tl.info.start_updates:  # not a mid-session resume
             self._check_digest(0, ModelCheck(seg.start_updates, want, ""))
 
     def _check_digest(self, seg_no: int, check: ModelCheck) -> None:
