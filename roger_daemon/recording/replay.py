@@ -21,7 +21,6 @@ import numpy as np
 
 from protocols.messages import Perception
 from roger_daemon.checkpoint import array_digest
-from roger_daemon.labels import majority_labels
 from roger_daemon.recording.compare import max_abs_diff, rel_err
 from roger_daemon.recording.replay_checkpoint import (
     load_checkpoint,
@@ -59,7 +58,6 @@ __all__ = [
     "ReplayResult",
     "default_model_factory",
     "load_checkpoint",
-    "majority_labels",
     "replay_session",
     "replay_timeline",
     "resume_timeline",
