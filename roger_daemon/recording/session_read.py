@@ -63,8 +63,9 @@ def read_timeline(
 
     ``robot``, ``dims``, ``mode`` and ``start_updates`` override the metadata (needed for files
     from ``roger record``, which has no learner metadata: dims then come from the first valid
-    perception and action). ``predictions=False`` skips the recorded predictions (log-tail
-    catch-up needs only the pairs; predictions are the costliest messages to decode).
+    perception and action; ``mode`` matters to version-1 logs only). ``predictions=False``
+    skips the recorded predictions (log-tail catch-up needs only the pairs; predictions are the
+    costliest messages to decode).
     """
     from roger_daemon.recording.read_inputs import InputsReading
 

@@ -107,14 +107,14 @@ class Service:
         self.robots = dict(robots)
         self.notifier = notifier or Notifier(None)
         self.recorders = Recorders(recorders or {}, config.recording)
-        for rt in self.robots.values():  # the decision records of each recorded session
-            rec = self.recorders.by_robot.get(rt.robot)
-            start = dict(getattr(rec, "metadata", {})).get("start_model_digest", "")
-            rt.decisions = (DecisionLog(self.recorders, lambda: self.clock.time_ns(), start)
-                            if rec is not None else None)
         self.admission = Admission(self.robots, self.recorders,
                                    count_unserved=config.count_unserved)
         self.clock: Clock = clock or RealClock()
+        for rt in self.robots.values():  # the decision records of each recorded session
+            rec = self.recorders.by_robot.get(rt.robot)
+            start = dict(getattr(rec, "metadata", {})).get("start_model_digest", "")
+            rt.decisions = (DecisionLog(self.recorders, self.clock.time_ns, start)
+                            if rec is not None else None)
         self.inbox = Inbox(max(4 * config.queue_size, 1024))
         self.stats = LoopStats()
         self.resumed = dict(resumed or {})
