@@ -25,9 +25,10 @@ from mcap.writer import Writer
 
 from protocols import Action, Control, Perception, Prediction, decode, encode, keys
 from protocols.messages import Dims
-from roger_daemon.checkpoint import write_checkpoint
+from roger_daemon.checkpoint import list_checkpoints, read_checkpoint, write_checkpoint
 from roger_daemon.config import parse_config
 from roger_daemon.daemon import open_recorders
+from roger_daemon.learners import ProcessLearners
 from roger_daemon.recording import METADATA_NAME
 from roger_daemon.recording.mcapio import LogReader
 from roger_daemon.recording.metadata import FORMAT_INPUTS_ONLY
@@ -135,6 +136,7 @@ def record_session(
     checkpoint_at: tuple[int, ...] = (),
     checkpoint_dir: Path | None = None,
     recover: bool = False,
+    workers: bool = False,
     daemon: Mapping[str, Any] | None = None,
 ) -> DaemonSession:
     """Record a session of ``n_ticks`` ticks (from ``tick0``) with the daemon's own code.
@@ -149,6 +151,8 @@ def record_session(
     (``preset = "paper"``), seed ``seed``. ``close=False`` leaves the recorder open, as a
     killed daemon does (what was flushed is on disk). ``recover``: start as ``roger daemon``
     does (``start_robots``: start-up self-recovery from the logs already in ``directory``).
+    ``workers``: the model learns and predicts in a learner worker process
+    (``roger_daemon.learners.ProcessLearners``, ``[daemon] workers = "process"``).
     """
     x, y, labels = synthetic_stream(stream, tick0 + n_ticks, seed=0)
     dims = Dims(int(x.shape[1]), int(y.shape[1]))
@@ -175,9 +179,10 @@ def record_session(
     recorders = open_recorders(cfg, {robot: rt}, {robot: resumed}, dict(options))
     clock = FakeClock(int(options["start_ns"]))
     transport = MemoryTransport(now_ns=clock.monotonic_ns)
+    learners = ProcessLearners({robot: rt}, {robot: robot_cfg}) if workers else None
     service = Service(cfg, transport, {robot: rt}, clock=clock, sync_checkpoints=True,
                       recorders=recorders, resumed={robot: resumed.checkpoint},
-                      checkpoint_meta=lambda _: model_meta(robot_cfg))
+                      checkpoint_meta=lambda _: model_meta(robot_cfg), learners=learners)
     out = DaemonSession(paths=[], dims=dims, service=service, rt=rt, transport=transport,
                         recorder=recorders[robot], checkpoint_dir=ckdir,
                         start_state=start_state)
@@ -203,9 +208,10 @@ def record_session(
             send(kind, msg)
         _settle(service, rt)
         if rt.updates in checkpoint_at and rt.updates not in out.checkpoints:
-            out.checkpoints[rt.updates] = rt.model.state_dict()
             send("control", Control(robot, t, t / 30, op="checkpoint"))
             _settle(service, rt)
+            ck = read_checkpoint(list_checkpoints(ckdir, robot)[0])  # the newest: this one
+            out.checkpoints[int(ck.meta["updates"])] = ck.model
     out.predictions = [_prediction(data, dims, robot) for _, data in transport.take("prediction")]
     if close:
         service.shutdown()
@@ -216,6 +222,9 @@ def record_session(
 def _settle(service: Service, rt: RobotRuntime) -> None:
     for _ in range(1000):
         service.step(0)
+        if service.learners is not None:  # every reply of the worker handled
+            service.learners.drain()
+            service.step(0)
         if not rt.queue and not len(service.inbox):
             return
     raise AssertionError("the loop did not settle")

@@ -159,6 +159,24 @@ def test_the_recorded_model_digests_catch_another_model(busy) -> None:  # type: 
     assert any("recorded checkpoint digests" in w for w in res.warnings)
 
 
+@pytest.mark.integration
+def test_a_daemon_with_learner_workers_records_the_same_decisions(tmp_path: Path) -> None:
+    """The model in a learner worker process (``[daemon] workers = "process"``): the decision
+    records come from the same runtime bookkeeping, so the log replays exactly, digests too,
+    and says what the inline daemon's says."""
+    kw = {"n_ticks": 60, "resets": (30,), "checkpoint_at": (10,)}
+    inline = record_session(tmp_path / "inline", **kw)  # type: ignore[arg-type]
+    workers = record_session(tmp_path / "workers", workers=True, **kw)  # type: ignore[arg-type]
+    res = replay_session(workers.paths)
+    assert res.bit_identical() and len(res.diffs) == 60
+    assert [c.match for c in res.digests] == [True, True]
+    ref = read_timeline(inline.paths)
+    assert [[p.tick for p in seg.pairs] for seg in res.timeline.segments] == [
+        [p.tick for p in seg.pairs] for seg in ref.segments]
+    assert [(p.tick, p.updates, p.expert) for p in workers.predictions] == [
+        (p.tick, p.updates, p.expert) for p in inline.predictions]
+
+
 def test_replay_across_reset_and_rotated_parts(tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     s = record_session(tmp_path, n_ticks=120, resets=(70,),
