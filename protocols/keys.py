@@ -1,7 +1,8 @@
 """Key expressions, built here and nowhere else.
 
 Every robot has seven keys ``roger/<robot>/<kind>``; daemons also declare a liveliness token
-``roger/@daemon/<daemon-id>``.
+``roger/@daemon/<daemon-id>``. The daemon's decision records (``protocols.decisions``) are
+log channels ``roger/<robot>/daemon/<event>``, never published.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import re
 from protocols.errors import ProtocolError
 
 __all__ = [
+    "DECISIONS",
     "KINDS",
     "ROBOT_ID_PATTERN",
     "ROOT",
@@ -19,11 +21,13 @@ __all__ = [
     "command",
     "control",
     "daemon_liveliness",
+    "decision",
     "daemon_liveliness_all",
     "episode",
     "everything",
     "key",
     "parse",
+    "parse_decision",
     "perception",
     "prediction",
     "status",
@@ -32,6 +36,8 @@ __all__ = [
 
 ROOT = "roger"
 KINDS = ("perception", "action", "command", "prediction", "episode", "status", "control")
+#: the daemon's decision records (session-log channels only)
+DECISIONS = ("learned", "reset", "dropped", "model")
 #: a robot (or daemon) id: 1-64 of ``[A-Za-z0-9_-]`` (also the schemas' ``robot`` pattern)
 ROBOT_ID_PATTERN = r"^[A-Za-z0-9_\-]{1,64}$"
 _ID = re.compile(ROBOT_ID_PATTERN)
@@ -116,3 +122,19 @@ def parse(key_expr: str) -> tuple[str, str]:
     if len(parts) != 3 or parts[0] != ROOT or parts[2] not in KINDS or not _ID.match(parts[1]):
         raise ProtocolError("bad_key", f"expected roger/<robot>/<kind>, got {key_expr!r}")
     return parts[1], parts[2]
+
+
+def decision(robot: str, event: str) -> str:
+    """``roger/<robot>/daemon/<event>``: the log channel of one kind of decision record."""
+    if event not in DECISIONS:
+        raise ProtocolError("bad_key", f"event must be one of {DECISIONS}, got {event!r}")
+    return f"{ROOT}/{validate_robot_id(robot)}/daemon/{event}"
+
+
+def parse_decision(key_expr: str) -> tuple[str, str] | None:
+    """``(robot, event)`` of a decision channel, or ``None`` if ``key_expr`` is not one."""
+    parts = str(key_expr).split("/")
+    if (len(parts) != 4 or parts[0] != ROOT or parts[2] != "daemon"
+            or parts[3] not in DECISIONS or not _ID.match(parts[1])):
+        return None
+    return parts[1], parts[3]

@@ -24,6 +24,7 @@ from types import FrameType
 from typing import Any
 
 from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION
+from roger_daemon.checkpoint import array_digest
 from roger_daemon.config import ConfigError, DaemonConfig, load_config
 from roger_daemon.resume import (
     Resumed,
@@ -68,9 +69,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def open_recorders(
-    cfg: DaemonConfig, robots: dict[str, RobotRuntime], resumed: dict[str, Resumed]
+    cfg: DaemonConfig, robots: dict[str, RobotRuntime], resumed: dict[str, Resumed],
+    recorder_options: dict[str, Any] | None = None,
 ) -> dict[str, Recorder]:
-    """One ``SessionRecorder`` per robot, or none (with a warning) if recording is missing."""
+    """One ``SessionRecorder`` per robot, or none (with a warning) if recording is missing.
+
+    ``recorder_options``: more ``SessionRecorder`` settings (rotation, start time; tests).
+    """
     if not cfg.recording.enabled:
         return {}
     try:
@@ -98,12 +103,15 @@ def open_recorders(
             # session (they are in the checkpoint's daemon.queue_* arrays)
             restored_queued_pairs=len(rt.queue),
             resumed_session=where.session or "", resumed_segment=where.segment,
+            decisions=True,  # the service attaches each robot's DecisionLog
+            start_model_digest=array_digest(dict(rt.model.state_dict())),
             extra={"daemon": cfg.id, "clock": cfg.clock, "rate_hz": repr(cfg.rate_hz),
                    "schema_version": str(SCHEMA_VERSION),
                    "recovered_pairs": str(where.recovered_pairs),
                    "recovered_from": ",".join(where.recovered_from)},
         )
-        rec = SessionRecorder(cfg.recording.dir, robot=robot.id, metadata=meta)
+        rec = SessionRecorder(cfg.recording.dir, robot=robot.id, metadata=meta,
+                              **(recorder_options or {}))
         log.info("%s: recording to %s", robot.id, rec.path)
         out[robot.id] = rec
     return out

@@ -2,11 +2,14 @@
 
 Everything here runs on the service loop's thread; nothing is shared with transport threads.
 
-Pairing: perception(t) and action(t) meet by tick in two small insertion-ordered buffers of
-``pair_window`` entries (whichever arrives first waits). A completed pair goes into the
-training queue of ``queue_size`` pairs; when it is full the new pair is dropped, counted in
+Pairing: perception(t) and action(t) meet by tick (:class:`~roger_daemon.pairing.Pairing`,
+windows of ``pair_window`` entries; whichever arrives first waits). A completed pair goes into
+the training queue of ``queue_size`` pairs; when it is full the new pair is dropped, counted in
 ``dropped``, logged, and shown in status. An action whose perception never arrives is
 evicted after ``pair_window`` newer actions and counted as ``unpaired_actions``.
+
+Decisions: each learned pair, reset and dropped pair also goes to ``decisions`` (the session
+log's decision records, docs/durability.md) when one is attached.
 
 Labels: the daemon keeps the subtask label of every learned pair (as a code into a
 vocabulary) and maps the model's ``assignments()`` to the majority label of each expert.
@@ -16,34 +19,46 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import Counter, OrderedDict, deque
+from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from protocols.errors import REASONS
 from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
 from roger_daemon.labels import majority_labels_coded
+from roger_daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
 from roger_daemon.window import Window
 
-__all__ = ["Pair", "RobotRuntime"]
+__all__ = ["Decisions", "Pair", "RobotRuntime"]
 
 log = logging.getLogger(__name__)
-
-LEARN_MODES = ("learn", "learn+predict")
-PREDICT_MODES = ("predict", "learn+predict")
 
 
 @dataclass(frozen=True, slots=True)
 class Pair:
-    """A training pair waiting in the queue."""
+    """A training pair waiting in the queue (``t``: its perception's time, 0 if unknown)."""
 
     x: np.ndarray
     y: np.ndarray
     label: int
     tick: int
+    t: float = 0.0
+
+
+class Decisions(Protocol):
+    """Where a runtime reports its decisions (the session log's decision records)."""
+
+    def learned(self, rt: RobotRuntime, pair: Pair) -> None:
+        """``pair`` became the model's pair number ``rt.updates - 1``."""
+
+    def reset(self, rt: RobotRuntime, forgotten: int) -> None:
+        """The model was replaced by a fresh one, forgetting ``forgotten`` pairs."""
+
+    def dropped(self, rt: RobotRuntime, tick: int, reason: str) -> None:
+        """A completed pair was not queued (``queue_full`` or ``resent``)."""
 
 
 class RobotRuntime:
@@ -84,8 +99,7 @@ class RobotRuntime:
         self.queue_size = queue_size
         self.pair_window = pair_window
         self.queue: deque[Pair] = deque()
-        self._perceptions: OrderedDict[int, Perception] = OrderedDict()
-        self._actions: OrderedDict[int, Action] = OrderedDict()
+        self.pairing = Pairing(pair_window)
         self.vocab: list[str] = []
         self._vocab_index: dict[str, int] = {}
         self._codes = np.zeros(1024, dtype=np.int32)
@@ -114,6 +128,7 @@ class RobotRuntime:
         self._reported: set[str] = set()
         # durability (roger_daemon.wal): every learned pair and fresh model is appended
         self.wal: Any = None
+        self.decisions: Decisions | None = None  # roger_daemon.service.recording.DecisionLog
         self.resent = 0  # re-sent copies of the newest pair, not learned twice
         self._newest_pair: tuple[int, bytes, bytes] | None = None  # (tick, x, y) bytes
 
@@ -153,30 +168,23 @@ class RobotRuntime:
         self.newest = (msg, recv_ns)
         if not self.learning:
             return
-        act = self._actions.pop(msg.tick, None)
-        if act is not None:
-            self._enqueue(msg, act)
-            return
-        self._perceptions[msg.tick] = msg
-        self._perceptions.move_to_end(msg.tick)
-        while len(self._perceptions) > self.pair_window:
-            self._perceptions.popitem(last=False)
+        pair = self.pairing.perception(msg)
+        if pair is not None:
+            self._enqueue(*pair)
 
     def on_action(self, msg: Action) -> None:
         """Take an action: pair it with its tick's perception when learning."""
         if not self.learning:
             return
-        perc = self._perceptions.pop(msg.tick, None)
-        if perc is not None:
-            self._enqueue(perc, msg)
-            return
-        self._actions[msg.tick] = msg
-        self._actions.move_to_end(msg.tick)
-        while len(self._actions) > self.pair_window:
-            tick, _ = self._actions.popitem(last=False)
-            self.unpaired += 1
-            self._warn_once("unpaired", f"{self.robot}: action of tick {tick} never met its "
-                            "perception; dropped (counted as unpaired_actions)")
+        evicted = self.pairing.evicted_actions
+        pair = self.pairing.action(msg)
+        if pair is not None:
+            self._enqueue(*pair)
+        elif self.pairing.evicted_actions > evicted:
+            self.unpaired += self.pairing.evicted_actions - evicted
+            self._warn_once("unpaired", f"{self.robot}: action of tick "
+                            f"{self.pairing.last_evicted_action} never met its perception; "
+                            "dropped (counted as unpaired_actions)")
 
     def _label_code(self, label: str) -> int:
         code = self._vocab_index.get(label)
@@ -194,14 +202,20 @@ class RobotRuntime:
             self.resent += 1
             self._warn_once("resent", f"{self.robot}: pair of tick {act.tick} received again "
                             "(re-sent); not learned twice (counted as info.resent_pairs)")
+            self._dropped(act.tick, "resent")
             return
         self._newest_pair = key
         if len(self.queue) >= self.queue_size:
             self.dropped += 1
             self._warn_once("overflow", f"{self.robot}: training queue full ({self.queue_size}); "
                             f"pair of tick {act.tick} dropped (counted in status 'dropped')")
+            self._dropped(act.tick, "queue_full")
             return
-        self.queue.append(Pair(perc.x, act.y, self._label_code(act.label), act.tick))
+        self.queue.append(Pair(perc.x, act.y, self._label_code(act.label), act.tick, perc.t))
+
+    def _dropped(self, tick: int, reason: str) -> None:
+        if self.decisions is not None:
+            self.decisions.dropped(self, tick, reason)
 
     def enqueue_recovered(self, x: np.ndarray, y: np.ndarray, label: str, tick: int) -> None:
         """Queue a pair read back from the session log (start-up recovery; no size limit)."""
@@ -241,6 +255,8 @@ class RobotRuntime:
         if self.wal is not None:
             self.wal.append_pair(self.updates - 1, pair.tick, pair.x, pair.y,
                                  self.vocab[pair.label])
+        if self.decisions is not None:
+            self.decisions.learned(self, pair)
         self.last_learned_tick = pair.tick
         self.generation += 1
         self.learn_ms.add(ms)
@@ -312,12 +328,12 @@ class RobotRuntime:
 
     def reset(self) -> None:
         """Forget everything learned: a fresh model, no labels, empty queue and buffers."""
+        forgotten = self.updates if self.model is not None else 0
         self.model = self.make_model()
         if self.wal is not None:
             self.wal.append_fresh()
         self.queue.clear()
-        self._perceptions.clear()
-        self._actions.clear()
+        self.pairing.clear()
         self.vocab, self._vocab_index = [], {}
         self.n_codes = 0
         self.generation += 1
@@ -326,6 +342,8 @@ class RobotRuntime:
         self._labels_cache = None
         self._status_updates = 0
         self._newest_pair = None
+        if self.decisions is not None:
+            self.decisions.reset(self, forgotten)
 
     # --- status ----------------------------------------------------------------------------
 

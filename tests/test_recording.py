@@ -30,7 +30,17 @@ from protocols import (
     encode,
     keys,
 )
+from protocols.decisions import (
+    Dropped,
+    Learned,
+    ModelDigest,
+    Reset,
+    chain_digest,
+    decode_decision,
+)
+from protocols.errors import ProtocolError
 from protocols.keys import KINDS
+from protocols.messages import Dims
 from roger_daemon.recording import (
     METADATA_NAME,
     SessionInfo,
@@ -42,6 +52,7 @@ from roger_daemon.recording import (
     recover,
     schema,
     schema_bytes,
+    schema_name,
     session_metadata,
 )
 from roger_daemon.recording.files import group_sessions
@@ -132,6 +143,37 @@ def test_schema_bytes_are_pinned() -> None:
         assert schema_bytes(kind) == golden[kind].encode("utf-8"), kind
 
 
+def _decision_records() -> dict[str, object]:
+    return {
+        "learned": Learned("aibo", 4, 0.13, updates=5, segment=0, x=np.linspace(-1, 1, 23),
+                           y=np.arange(9.0), label="seek", stamp_ns=T0),
+        "reset": Reset("aibo", 4, 0.13, segment=1, forgotten=5, stamp_ns=T0),
+        "dropped": Dropped("aibo", 4, 0.13, reason="queue_full", queue_size=256, dropped=3,
+                           stamp_ns=T0),
+        "model": ModelDigest("aibo", 4, 0.13, updates=5, segment=0, digest="a" * 64,
+                             chain=chain_digest("", "a" * 64), stamp_ns=T0),
+    }
+
+
+@pytest.mark.parametrize("event", keys.DECISIONS)
+def test_decision_records_have_generated_schemas_and_decode(event: str) -> None:
+    """The daemon's decision records (protocols/decisions.py) get their schemas generated from
+    their fields like the wire's messages, and decode back to what was encoded."""
+    rec = _decision_records()[event]
+    sch = schema(f"daemon.{event}")
+    jsonschema.Draft202012Validator.check_schema(sch)
+    m = msgpack.unpackb(encode(rec), raw=False)  # type: ignore[arg-type]
+    assert set(sch["properties"]) == set(m) == set(sch["required"])
+    jsonschema.validate(m, sch)
+    assert decode_decision(event, encode(rec), dims=Dims(23, 9)).to_map() == m  # type: ignore[arg-type]
+    with pytest.raises(ProtocolError):
+        decode_decision(event, msgpack.packb({**m, "tick": -1}))
+    with pytest.raises(ProtocolError):
+        decode_decision(event, msgpack.packb({k: v for k, v in m.items() if k != "robot"}))
+    assert keys.parse_decision(keys.decision("aibo", event)) == ("aibo", event)
+    assert schema_name(f"daemon.{event}") == f"roger.daemon.{event}"  # as older logs name it
+
+
 # -- metadata --------------------------------------------------------------------------------
 
 
@@ -155,6 +197,14 @@ def test_session_metadata_has_config_params_dims_seed_versions() -> None:
         _meta(extra={"seed": "1"})
     with pytest.raises(ValueError, match="mode"):
         _meta(mode="fly")
+
+
+def test_the_format_version_says_whether_the_daemon_recorded_its_decisions() -> None:
+    v2 = SessionInfo.from_metadata(session_metadata(robot="r", decisions=True))
+    assert v2.format_version == 2 and v2.decisions  # the daemon's logs
+    v1 = SessionInfo.from_metadata(session_metadata(robot="r"))  # roger record, hand-made
+    assert v1.format_version == 1 and not v1.decisions
+    assert SessionInfo.from_metadata({}).format_version == 1  # logs older than the key
 
 
 def test_session_metadata_takes_params_objects() -> None:

@@ -105,9 +105,9 @@ def test_roger_record_records_published_messages_and_finishes_on_sigterm(
 
 
 def test_replay_publish_resends_the_recorded_inputs(tmp_path: Path) -> None:
-    from roger_daemon.recording.synthetic import record_synthetic_session
+    from daemon_sessions import record_session
 
-    s = record_synthetic_session(tmp_path / "logs", n_ticks=30, modes={10: "learn+predict"})
+    s = record_session(tmp_path / "logs", n_ticks=30, modes={10: "learn+predict"})
     inputs = [(lm.topic, lm.message.data) for lm in LogReader(s.paths[0]).messages()
               if lm.topic.rsplit("/", 1)[1] in ("perception", "action", "control")]
     port = _free_port()

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from daemon_sessions import as_version_1, daemon_checkpoint, record_session, synthetic_stream
 
 from protocols import Action, Control, Perception, encode, keys
 from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
@@ -30,7 +31,6 @@ from roger_daemon.recording import (
 from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
 from roger_daemon.recording.replay import load_checkpoint
 from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
-from roger_daemon.recording.synthetic import START_NS, record_synthetic_session, synthetic_stream
 from roger_daemon.service import Service
 from roger_daemon.transport import MemoryTransport
 
@@ -301,14 +301,13 @@ def test_corrupt_and_foreign_logs_are_reported_and_skipped(
 def test_a_session_of_another_history_ends_the_walk(tmp_path: Path) -> None:
     """Session B claims to continue a checkpoint of a session that is not in this history."""
     logs = tmp_path / "logs"
-    a = record_synthetic_session(logs, n_ticks=40, checkpoint_at=(20,), close=False)
-    from roger_daemon.learner import load_model
-
-    b = record_synthetic_session(
-        logs, n_ticks=10, tick0=300, start_ns=START_NS + 10**11,
-        initial_model=load_model(a.checkpoints[20]),
-        metadata_extra={"resumed_session": "roger-sim-19990101T000000Z",
-                        "resumed_segment": "0", "checkpoint": "x.npz"})
+    a = record_session(logs, n_ticks=40, checkpoint_at=(20,), close=False,
+                       checkpoint_dir=tmp_path / "ck-a")
+    daemon_checkpoint(tmp_path / "ck-b", "sim", a.checkpoints[20], dims=a.dims,
+                      labels=[p[3] for p in a.pairs[:20]],
+                      session_id="roger-sim-19990101T000000Z", segment=0)
+    b = record_session(logs, n_ticks=10, tick0=300, checkpoint_dir=tmp_path / "ck-b")
+    assert b.recorder.session_id > a.recorder.session_id  # type: ignore[union-attr]
     sid = a.recorder.session_id  # type: ignore[union-attr]
     a.recorder.flush()  # type: ignore[union-attr]
     plan = plan_recovery(logs, "sim", dims=b.dims, checkpoint=CheckpointPosition(
@@ -319,7 +318,7 @@ def test_a_session_of_another_history_ends_the_walk(tmp_path: Path) -> None:
 
 def test_a_log_with_other_dimensions_is_skipped(tmp_path: Path) -> None:
     logs = tmp_path / "logs"
-    a = record_synthetic_session(logs, n_ticks=30, close=False)
+    a = record_session(logs, n_ticks=30, close=False)
     a.recorder.flush()  # type: ignore[union-attr]
     from protocols.messages import Dims
 
@@ -379,6 +378,7 @@ def test_recovery_by_hand_with_log_recover_and_replay_checkpoint(
                   "--save-checkpoint", str(tmp_path / "ckpt")]) == 0
     out = capsys.readouterr().out
     assert "learned:      10 pairs" in out and "checkpoint:   " in out and "result:       OK" in out
+    assert "result:       OK, bit-identical" in out  # the recorded checkpoint digest too
     saved = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
     assert saved.meta["reason"] == "replay" and saved.meta["updates"] == 50
 
@@ -411,7 +411,9 @@ def test_a_session_that_started_with_queued_pairs_is_continued_exactly(tmp_path:
     logs3 = b.crash(tmp_path / "logs3")
     b_id = b.recorders["sim"].session_id  # type: ignore[attr-defined]
     (b_file,) = [sf.path for sf in list_session_files(logs3) if sf.session_id == b_id]
-    tl = read_timeline([b_file])
+    tl = read_timeline([b_file])  # the decision records name the queued pairs it learned
+    assert tl.segments[0].queued == 0 and [p.index for p in tl.pairs] == list(range(12, 25))
+    tl = read_timeline([as_version_1(b_file, tmp_path / "b-v1.mcap")])  # an older daemon's log
     assert tl.segments[0].queued == 8 and [p.index for p in tl.pairs] == list(range(20, 25))
     c = Life(make_cfg(tmp_path, logs3, every=0, mode="learn"))
     assert c.rt.updates == 25 and c.rt.recovered_pairs == 5

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from daemon_sessions import synthetic_stream
 
 from protocols.messages import Dims
 from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
@@ -26,7 +27,6 @@ from roger_daemon.labels import majority_labels_coded as majority_labels
 from roger_daemon.learner import load_model
 from roger_daemon.recording import LogReader, is_complete, list_session_files
 from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
-from roger_daemon.recording.synthetic import synthetic_stream
 
 harness = pytest.importorskip("roger_daemon.harness")
 

@@ -1,4 +1,6 @@
-"""Offline replay and log-tail catch-up on sessions recorded with a real learner."""
+"""Offline replay and log-tail catch-up on sessions recorded by the daemon's own code
+(``tests/daemon_sessions.py``), read from their decision records (format version 2) and, as
+an older daemon would have written them, by re-pairing their inputs (version 1)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
+from daemon_sessions import START_NS, as_version_1, daemon_checkpoint, record_session
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import Writer
 
@@ -17,9 +20,9 @@ from protocols import Action, Perception
 from roger_daemon.cli import main as roger
 from roger_daemon.labels import majority_labels
 from roger_daemon.learner import load_model
+from roger_daemon.pairing import Pairing
 from roger_daemon.recording import (
     CatchUpError,
-    PairTracker,
     is_complete,
     log_tail,
     read_timeline,
@@ -27,7 +30,6 @@ from roger_daemon.recording import (
 )
 from roger_daemon.recording.compare import REL_TOL
 from roger_daemon.recording.mcapio import LogReader
-from roger_daemon.recording.synthetic import START_NS, record_synthetic_session
 
 TOL = REL_TOL
 
@@ -64,15 +66,15 @@ def _rewrite(src: Path, dst: Path, edit: Callable[[str, int, bytes], bytes]) -> 
 @pytest.fixture(scope="module")
 def busy(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
     """A session with mode changes, out-of-order halves, a lost action and a bad payload."""
-    return record_synthetic_session(
+    return record_session(
         tmp_path_factory.mktemp("busy"), n_ticks=150,
         modes={40: "predict", 60: "learn+predict", 90: "learn", 100: "learn+predict",
                120: "pause", 125: "learn+predict"},
-        action_first=(5, 6, 70), drop_action=(10, 111), garbage=(12,),
+        action_first=(5, 6, 70), drop_action=(10, 111), garbage=(12,), checkpoint_at=(50,),
     )
 
 
-def test_replay_reproduces_the_recorded_model(busy) -> None:  # type: ignore[no-untyped-def]
+def test_replay_reproduces_the_recorded_model(busy, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     res = replay_session(busy.paths)
     assert res.ok(TOL), res.summary(TOL)
     assert len(res.diffs) == len(busy.predictions) > 100
@@ -86,10 +88,20 @@ def test_replay_reproduces_the_recorded_model(busy) -> None:  # type: ignore[no-
     assert res.n_learned == busy.model.n_learned
     np.testing.assert_array_equal(res.assignments, busy.model.assignments())
     tl = res.timeline
+    assert tl.decisions and tl.invalid["not_msgpack"] == 1
+    assert res.seed == 7 and res.model_kind == "roger"
+    # the start model's and the checkpoint's digests the daemon recorded are reproduced
+    assert [c.updates for c in res.digests] == [0, 50] and all(c.match for c in res.digests)
+    assert res.bit_identical() and res.summary(TOL)["model_digests"] == {"checked": 2,
+                                                                         "matched": 2}
+    # read as a daemon without decision records wrote it, the inputs give the same pairs
+    old = replay_session(as_version_1(busy.paths[0], tmp_path / "v1.mcap"))
+    assert old.ok(TOL) and not old.timeline.decisions and len(old.diffs) == len(res.diffs)
+    assert [p.tick for p in old.pairs] == [p.tick for p in res.pairs]
+    tl = old.timeline
     assert tl.invalid["not_msgpack"] == 1
     assert tl.ignored_not_learning == 2 * (20 + 5)  # mode predict at 40-59, pause at 120-124
     assert tl.unpaired == (2, 0)  # ticks 10 and 111 never got their action
-    assert res.seed == 7 and res.model_kind == "roger"
 
 
 def test_replay_cli_check_passes_and_fails_on_a_perturbed_prediction(
@@ -140,10 +152,35 @@ def test_replay_with_other_params_from_a_config_mismatches(
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg)]) == 2
 
 
+def test_the_recorded_model_digests_catch_another_model(busy) -> None:  # type: ignore[no-untyped-def]
+    """Another seed: the start model is not the session's, nor is the checkpoint's model."""
+    res = replay_session(busy.paths, seed=8)
+    assert [c.match for c in res.digests] == [False, False] and not res.bit_identical()
+    assert any("recorded checkpoint digests" in w for w in res.warnings)
+
+
+@pytest.mark.integration
+def test_a_daemon_with_learner_workers_records_the_same_decisions(tmp_path: Path) -> None:
+    """The model in a learner worker process (``[daemon] workers = "process"``): the decision
+    records come from the same runtime bookkeeping, so the log replays exactly, digests too,
+    and says what the inline daemon's says."""
+    kw = {"n_ticks": 60, "resets": (30,), "checkpoint_at": (10,)}
+    inline = record_session(tmp_path / "inline", **kw)  # type: ignore[arg-type]
+    workers = record_session(tmp_path / "workers", workers=True, **kw)  # type: ignore[arg-type]
+    res = replay_session(workers.paths)
+    assert res.bit_identical() and len(res.diffs) == 60
+    assert [c.match for c in res.digests] == [True, True]
+    ref = read_timeline(inline.paths)
+    assert [[p.tick for p in seg.pairs] for seg in res.timeline.segments] == [
+        [p.tick for p in seg.pairs] for seg in ref.segments]
+    assert [(p.tick, p.updates, p.expert) for p in workers.predictions] == [
+        (p.tick, p.updates, p.expert) for p in inline.predictions]
+
+
 def test_replay_across_reset_and_rotated_parts(tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
-    s = record_synthetic_session(tmp_path, n_ticks=120, resets=(70,),
-                                 recorder_kwargs={"rotate_bytes": 3000})
+    s = record_session(tmp_path, n_ticks=120, resets=(70,),
+                       recorder_options={"rotate_bytes": 3000})
     assert len(s.paths) >= 3
     res = replay_session(s.paths)
     assert res.ok(TOL) and len(res.timeline.segments) == 2
@@ -155,13 +192,13 @@ def test_replay_across_reset_and_rotated_parts(tmp_path: Path,
 
 
 def test_replay_aibo_sized_stream(tmp_path: Path) -> None:
-    s = record_synthetic_session(tmp_path, n_ticks=40, stream="subtask", robot="aibo")
+    s = record_session(tmp_path, n_ticks=40, stream="subtask", robot="aibo")
     res = replay_session(s.paths[0])
     assert res.ok(TOL) and res.timeline.dims is not None and res.timeline.dims.x == 23
 
 
 def test_replay_of_a_footerless_log_reproduces_what_it_kept(tmp_path: Path) -> None:
-    s = record_synthetic_session(tmp_path / "a", n_ticks=100, close=False)
+    s = record_session(tmp_path / "a", n_ticks=100, close=False)
     cut = tmp_path / "killed.mcap"
     shutil.copyfile(s.paths[0], cut)  # what a SIGKILL leaves: the flushed chunks
     assert s.recorder is not None
@@ -177,13 +214,13 @@ def test_replay_of_a_footerless_log_reproduces_what_it_kept(tmp_path: Path) -> N
 
 @pytest.fixture(scope="module")
 def crash(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
-    """Session A is killed at tick 130 (checkpoint at 60 updates); session B resumes from the
-    checkpoint plus A's log tail."""
+    """Session A is killed at tick 130 (checkpoint at 60 updates); session B is the daemon's
+    next life: it resumes from the checkpoint plus A's log tail (start-up recovery)."""
     root = tmp_path_factory.mktemp("crash")
     logs = root / "logs"
     logs.mkdir()
-    a = record_synthetic_session(root / "a", n_ticks=130, close=False, checkpoint_at=(60,),
-                                 drop_action=(20,))
+    a = record_session(root / "a", n_ticks=130, close=False, checkpoint_at=(60,),
+                       drop_action=(20,))
     shutil.copyfile(a.paths[0], logs / a.paths[0].name)  # the file as the kill left it
     assert a.recorder is not None
     a.recorder.close()
@@ -191,11 +228,11 @@ def crash(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-
     model = load_model(a.checkpoints[60])
     for p in tail.pairs:
         model.learn_one(p.x, p.y)
-    b_start = load_model(model.state_dict())
-    b = record_synthetic_session(logs, n_ticks=60, tick0=130, start_ns=START_NS + 10**11,
-                                 initial_model=load_model(model.state_dict()))
+    b = record_session(logs, n_ticks=60, tick0=130, checkpoint_dir=a.checkpoint_dir,
+                       recover=True)
+    assert b.rt.recovered_pairs == len(tail.pairs)
     return {"a": a, "logs": logs, "tail": tail, "caught_up": model, "b": b,
-            "b_start": b_start}
+            "b_start": load_model(b.start_state)}
 
 
 def test_log_tail_gives_the_pairs_after_the_checkpoint(crash) -> None:  # type: ignore[no-untyped-def]
@@ -269,8 +306,8 @@ def test_replay_of_a_resumed_session_needs_its_checkpoint(crash) -> None:  # typ
 # -- pieces ----------------------------------------------------------------------------------
 
 
-def test_pair_tracker() -> None:
-    tr = PairTracker(max_pending=3)
+def test_pairing() -> None:
+    tr = Pairing(window=3)
     p = [Perception("r", t, 0.0, x=[float(t)]) for t in range(6)]
     a = [Action("r", t, 0.0, y=[float(-t)]) for t in range(6)]
     assert tr.perception(p[0]) is None
@@ -286,9 +323,9 @@ def test_pair_tracker() -> None:
     assert tr.action(a[2]) is None  # a tick pairs once
     for t in range(3, 6):
         tr.perception(p[t])
-    assert tr.dropped_perceptions == 0 and tr.pending == (3, 1)
+    assert tr.evicted_perceptions == 0 and tr.pending == (3, 1)
     tr.perception(Perception("r", 9, 0.0, x=[0.0]))
-    assert tr.dropped_perceptions == 1
+    assert tr.evicted_perceptions == 1
 
 
 def test_majority_labels_ties_go_to_the_first_by_name() -> None:
@@ -389,28 +426,25 @@ def test_replay_of_a_session_resumed_from_a_daemon_checkpoint_with_a_queue(
     crash, tmp_path: Path  # type: ignore[no-untyped-def]
 ) -> None:
     """A daemon checkpoint (model at 60 updates + 8 queued pairs) and the session that resumed
-    from it: ``roger replay --checkpoint`` learns the queue first and reproduces everything."""
-    from roger_daemon.checkpoint import write_checkpoint
-
+    from it: ``roger replay --checkpoint`` reproduces everything. The session's own log names
+    the queued pairs it learned first (decision records); read as version 1, the queue must
+    come from the checkpoint."""
     a = crash["a"]
     queued = a.pairs[60:68]
-    ck_path, _ = write_checkpoint(
-        tmp_path / "ck", "sim", a.checkpoints[60],
-        {"label_vocab": np.array(["seek", "trap"]),
-         "label_codes": np.zeros(60, dtype=np.int32),
-         "queue_x": np.array([q[1] for q in queued]), "queue_y": np.array([q[2] for q in queued]),
-         "queue_labels": np.array([0 if q[3] == "seek" else 1 for q in queued], dtype=np.int32),
-         "queue_ticks": np.array([q[0] for q in queued], dtype=np.int64)},
-        {"updates": 60},
-    )
-    b = record_synthetic_session(tmp_path / "b", n_ticks=40, tick0=300,
-                                 initial_model=load_model(a.checkpoints[60]),
-                                 pre_learn=tuple((q[1], q[2], q[3]) for q in queued))
-    assert roger(["replay", str(b.paths[0]), "--checkpoint", str(ck_path), "--check",
-                  "--no-progress"]) == 0
+    ck_path = daemon_checkpoint(tmp_path / "ck", "sim", a.checkpoints[60], dims=a.dims,
+                                labels=[p[3] for p in a.pairs[:60]], queue=queued)
+    b = record_session(tmp_path / "b", n_ticks=40, tick0=300, checkpoint_dir=tmp_path / "ck")
+    assert b.rt.updates == 60 + 8 + 40 and [t for t, *_ in b.pairs][:8] == [q[0] for q in queued]
     plain = tmp_path / "model.npz"
     np.savez(plain, **a.checkpoints[60])  # the model alone: the queue is missing
+    assert roger(["replay", str(b.paths[0]), "--checkpoint", str(ck_path), "--check",
+                  "--no-progress"]) == 0
     assert roger(["replay", str(b.paths[0]), "--checkpoint", str(plain), "--check",
+                  "--no-progress"]) == 0  # the log names the queued pairs
+    old = as_version_1(b.paths[0], tmp_path / "b-v1.mcap")
+    assert roger(["replay", str(old), "--checkpoint", str(ck_path), "--check",
+                  "--no-progress"]) == 0
+    assert roger(["replay", str(old), "--checkpoint", str(plain), "--check",
                   "--no-progress"]) == 1
     assert roger(["replay", str(b.paths[0]), "--check", "--no-progress"]) == 1
 

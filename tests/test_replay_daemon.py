@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from daemon_sessions import as_version_1, synthetic_stream
 
 from protocols.messages import Dims
 from roger_daemon.recording import is_complete, list_session_files, replay_session
 from roger_daemon.recording.compare import REL_TOL
-from roger_daemon.recording.synthetic import synthetic_stream
 
 harness = pytest.importorskip("roger_daemon.harness")
 
@@ -54,5 +54,12 @@ def test_replay_reproduces_a_real_daemon_session(tmp_path: Path) -> None:
     assert res.ok(REL_TOL), res.summary(REL_TOL)
     assert len(res.diffs) == 160 and len(res.timeline.segments) == 2
     assert res.seed == 5 and res.n_learned == 40  # ticks 120..159 after the reset
-    assert res.timeline.ignored_not_learning == 2 * 20  # ticks 50-69 in mode predict
+    assert res.timeline.decisions and res.digests and res.bit_identical()  # final checkpoint
     np.testing.assert_array_equal([p.tick for p in res.pairs], list(range(120, 160)))
+    # the daemon learned nothing in mode predict (ticks 50-69): its decisions say so, and the
+    # log read as an older daemon's (re-pairing its inputs) agrees
+    first = [p.tick for p in res.timeline.segments[0].pairs]
+    assert first == [t for t in range(120) if t != 33 and not 50 <= t < 70]
+    old = replay_session(as_version_1(files[0].path, tmp_path / "v1.mcap"))
+    assert old.ok(REL_TOL) and [p.tick for p in old.timeline.segments[0].pairs] == first
+    assert old.timeline.ignored_not_learning == 2 * 20  # ticks 50-69 in mode predict

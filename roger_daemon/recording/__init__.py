@@ -27,8 +27,11 @@ new recorder opens (an open session would cut the history)::
 By hand: ``roger log recover FILE --in-place``, then ``roger replay FILE --checkpoint CK
 --save-checkpoint DIR`` (:func:`resume_timeline`, :func:`save_checkpoint`).
 
-Queue drops are named in the log (``roger/<robot>/daemon/dropped``, :mod:`.events`), so replay
-stays exact when the daemon's training queue overflows.
+The daemon's decisions are in the log too (format version 2: a record per learned pair,
+reset, dropped pair and checkpoint digest on ``roger/<robot>/daemon/<event>``,
+:mod:`protocols.decisions`): replay and recovery read the learned pairs from them. Version-1
+logs (older daemons, ``roger record``) are read by re-pairing their inputs with the daemon's
+own rule (:mod:`.read_inputs`).
 
 Nothing here imports Zenoh (only ``cli_record``, ``zenoh_net`` and ``publish`` do).
 """
@@ -37,7 +40,6 @@ from __future__ import annotations
 
 from roger_daemon.recording.catchup import CatchUp, CatchUpError, log_tail
 from roger_daemon.recording.compare import behaviour, behaviour_differences, probe_inputs
-from roger_daemon.recording.events import dropped_topic
 from roger_daemon.recording.files import SessionFile, list_session_files, parse_name
 from roger_daemon.recording.mcapio import LogMessage, LogReader, is_complete, read_metadata
 from roger_daemon.recording.metadata import (
@@ -64,12 +66,7 @@ from roger_daemon.recording.replay import (
 from roger_daemon.recording.schemas import schema, schema_bytes, schema_name
 from roger_daemon.recording.session_read import read_timeline
 from roger_daemon.recording.startup import CheckpointPosition, RecoveryPlan, plan_recovery
-from roger_daemon.recording.timeline import (
-    LearnedPair,
-    PairTracker,
-    RecordedPrediction,
-    Timeline,
-)
+from roger_daemon.recording.timeline import LearnedPair, RecordedPrediction, Timeline
 from roger_daemon.recording.writer import RecorderStats, SessionRecorder, header_fields
 
 __all__ = [
@@ -80,7 +77,6 @@ __all__ = [
     "LearnedPair",
     "LogMessage",
     "LogReader",
-    "PairTracker",
     "PredictionDiff",
     "RecordedPrediction",
     "RecorderStats",
@@ -94,7 +90,6 @@ __all__ = [
     "Timeline",
     "behaviour",
     "behaviour_differences",
-    "dropped_topic",
     "header_fields",
     "is_complete",
     "list_session_files",

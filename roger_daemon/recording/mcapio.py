@@ -13,7 +13,7 @@ catch-up, so they all agree on what a damaged file contains.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,7 +36,6 @@ __all__ = [
     "LogMessage",
     "LogReader",
     "is_complete",
-    "iter_files",
     "not_an_mcap_file",
     "read_metadata",
     "topics_of",
@@ -184,15 +183,6 @@ class LogReader:
                 schema = self.schemas.get(ch.schema_id) if ch.schema_id else None
                 yield LogMessage(ch, schema, rec)
 
-    def session_metadata(self) -> dict[str, str]:
-        """The first ``roger.session`` record seen so far ({} if none)."""
-        from roger_daemon.recording.metadata import METADATA_NAME
-
-        for m in self.metadata:
-            if m.name == METADATA_NAME:
-                return dict(m.metadata)
-        return {}
-
     @staticmethod
     def _describe(exc: BaseException) -> str:
         name = type(exc).__name__
@@ -243,11 +233,3 @@ def is_complete(path: str | Path) -> bool:
             return f.read(8) == b"\x89MCAP0\r\n"
     except Exception:
         return False
-
-
-def iter_files(paths: Iterable[str | Path]) -> Iterator[tuple[LogReader, LogMessage]]:
-    """Messages of several files (e.g. the parts of a session) in order, with their reader."""
-    for p in paths:
-        reader = LogReader(Path(p))
-        for lm in reader.messages():
-            yield reader, lm

@@ -23,6 +23,7 @@ from roger_daemon.blas import blas_info
 
 __all__ = [
     "FORMAT",
+    "FORMAT_INPUTS_ONLY",
     "METADATA_NAME",
     "SessionInfo",
     "git_commit",
@@ -32,8 +33,12 @@ __all__ = [
 
 #: Name of the metadata record in every file.
 METADATA_NAME = "roger.session"
-#: Value of the ``format`` key: bump when the meaning of the log changes.
-FORMAT = "roger-session/1"
+#: Value of the ``format`` key: bump when the meaning of the log changes. Version 2: the log
+#: holds the daemon's decision records (``roger/<robot>/daemon/*``, :mod:`protocols.decisions`),
+#: which replay and recovery read; version 1 (older daemons, ``roger record``, files without
+#: decisions): only what was received and published, so the learned pairs are re-derived.
+FORMAT = "roger-session/2"
+FORMAT_INPUTS_ONLY = "roger-session/1"
 
 _DISTRIBUTIONS = {
     "roger": "roger",
@@ -114,6 +119,8 @@ def session_metadata(
     resumed_session: str | None = None,
     resumed_segment: int = 0,
     created_by: str = "roger daemon",
+    decisions: bool = False,
+    start_model_digest: str = "",
     extra: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
     """Build the ``roger.session`` metadata map (all values are strings).
@@ -153,6 +160,13 @@ def session_metadata(
         keys out. Log-tail catch-up follows this chain to tell which sessions continue which.
     created_by
         Which program wrote the file.
+    decisions
+        The writer records the daemon's decisions (format :data:`FORMAT`, version 2); else
+        the file holds inputs and outputs only (:data:`FORMAT_INPUTS_ONLY`, version 1).
+    start_model_digest
+        SHA-256 of the arrays of the model the session starts with
+        (``roger_daemon.checkpoint.array_digest``): the first link of the chain of the
+        checkpoints' model digests in the decision records, which replay checks.
     extra
         More string keys (they must not collide with the standard ones).
     """
@@ -161,7 +175,7 @@ def session_metadata(
     if isinstance(dims, tuple):
         dims = Dims(*dims)
     out: dict[str, str] = {
-        "format": FORMAT,
+        "format": FORMAT if decisions else FORMAT_INPUTS_ONLY,
         "robot": robot,
         "created_by": created_by,
         "config": config_text,
@@ -175,6 +189,7 @@ def session_metadata(
         "pair_window": "" if pair_window is None else str(int(pair_window)),
         "queue_size": "" if queue_size is None else str(int(queue_size)),
         "restored_queued_pairs": str(int(restored_queued_pairs)),
+        "start_model_digest": start_model_digest,
         "hostname": socket.gethostname(),
         "platform": platform.platform(),
         "git_commit": git_commit(),
@@ -228,6 +243,12 @@ class SessionInfo:
     resumed_session: str | None = None  # None: the log predates the key
     resumed_segment: int = 0
     checkpoint: str = ""
+    format_version: int = 1
+
+    @property
+    def decisions(self) -> bool:
+        """The log holds the daemon's decision records (format version 2 or later)."""
+        return self.format_version >= 2
 
     @property
     def fresh(self) -> bool:
@@ -264,4 +285,11 @@ class SessionInfo:
             resumed_session=meta.get("resumed_session"),
             resumed_segment=int(meta.get("resumed_segment", "") or 0),
             checkpoint=meta.get("checkpoint", ""),
+            format_version=_format_version(meta.get("format", "")),
         )
+
+
+def _format_version(text: str) -> int:
+    """N of ``roger-session/N`` (1 when absent or unreadable: the oldest logs)."""
+    _, _, n = text.partition("/")
+    return int(n) if n.isdigit() else 1

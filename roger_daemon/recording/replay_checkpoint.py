@@ -10,44 +10,38 @@ from typing import Any
 
 import numpy as np
 
+from protocols.messages import Dims
 from roger_daemon.recording.replay_result import Model, ReplayError, ReplayResult
 from roger_daemon.recording.timeline import LearnedPair, Segment, Timeline
+from roger_daemon.robot import RobotRuntime
 
 __all__ = ["load_checkpoint", "resume_timeline", "save_checkpoint"]
 
 
 def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[str, Any]]:
-    """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.checkpoint``),
-    or from a plain ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles."""
+    """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.checkpoint``;
+    its queue read back by the daemon's own ``RobotRuntime.restore``), or from a plain
+    ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles."""
+    from roger_daemon.checkpoint import CheckpointError, read_checkpoint
     from roger_daemon.learner import load_model
 
     try:
-        from roger_daemon.checkpoint import CheckpointError, read_checkpoint
-    except ImportError:  # pragma: no cover - daemon package absent
-        read_checkpoint = None  # type: ignore[assignment]
-        CheckpointError = Exception  # type: ignore[assignment,misc]
-    if read_checkpoint is not None:
-        try:
-            ck = read_checkpoint(Path(path))
-        except CheckpointError:
-            ck = None
-        if ck is not None:
-            model: Model = load_model(ck.model)
-            d = ck.daemon
-            pairs: list[LearnedPair] = []
-            if "queue_ticks" in d:
-                vocab = [str(v) for v in d.get("label_vocab", np.zeros(0, "<U1")).tolist()]
-                start = int(model.n_learned)
-                for i, (x, y, code, tick) in enumerate(zip(
-                        d["queue_x"], d["queue_y"], d["queue_labels"], d["queue_ticks"],
-                        strict=True)):
-                    label = vocab[int(code)] if 0 <= int(code) < len(vocab) else ""
-                    pairs.append(LearnedPair(start + i, int(tick), np.array(x, dtype=float),
-                                             np.array(y, dtype=float), label, 0))
-            return model, pairs, dict(ck.meta)
-    with np.load(path, allow_pickle=False) as z:
-        state = {k: z[k] for k in z.files}
-    return load_model(state), [], {}
+        ck = read_checkpoint(Path(path))
+    except CheckpointError:
+        with np.load(path, allow_pickle=False) as z:
+            return load_model({k: z[k] for k in z.files}), [], {}
+    model: Model = load_model(ck.model)
+    d = ck.daemon
+    if not {"queue_ticks", "label_vocab", "label_codes"} <= set(d):
+        return model, [], dict(ck.meta)
+    rt = RobotRuntime("", Dims(int(np.shape(d["queue_x"])[-1]), int(np.shape(d["queue_y"])[-1])),
+                      model, lambda: model)
+    rt.restore(d, {})
+    start = int(model.n_learned)
+    pairs = [LearnedPair(start + i, p.tick, p.x, p.y,
+                         rt.vocab[p.label] if 0 <= p.label < len(rt.vocab) else "", 0)
+             for i, p in enumerate(rt.queue)]
+    return model, pairs, dict(ck.meta)
 
 
 def resume_timeline(
@@ -86,7 +80,8 @@ def resume_timeline(
     k = min(max(k, 0), len(tl.segments) - 1)
     preds = [p for p in tl.segments[k].predictions if p.updates >= learned]
     seg = Segment(start_updates=learned, after_reset=False, pairs=list(tail.pairs),
-                  predictions=preds)
+                  predictions=preds,
+                  digests=[c for c in tl.segments[k].digests if c.updates >= learned])
     notes = list(tail.notes)
     return replace(tl, segments=[seg]), notes
 

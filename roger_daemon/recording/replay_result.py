@@ -19,6 +19,7 @@ from roger_daemon.recording.timeline import LearnedPair, Timeline
 __all__ = [
     "ROUND_OFF_MARGIN",
     "DecisionMargin",
+    "DigestCheck",
     "Model",
     "ModelFactory",
     "PredictionDiff",
@@ -59,6 +60,15 @@ class DecisionMargin:
 #: A decision this close to its boundary may flip under another kernel's round-off: the floats
 #: differ by up to ~5e-7 relative across kernels with the default learner (docs/reproducibility.md).
 ROUND_OFF_MARGIN = 1e-6
+
+
+@dataclass(frozen=True)
+class DigestCheck:
+    """A checkpoint's model digest the daemon recorded, against the replayed model's."""
+
+    segment: int
+    updates: int
+    match: bool
 
 
 @dataclass(frozen=True)
@@ -131,6 +141,7 @@ class ReplayResult:
     warnings: list[str] = field(default_factory=list)
     learn_errors: int = 0  # pairs the learner rejected (skipped, as the daemon does)
     margins: list[DecisionMargin] = field(default_factory=list)  # per learned pair
+    digests: list[DigestCheck] = field(default_factory=list)  # recorded model digests checked
 
     @property
     def n_experts(self) -> int:
@@ -159,8 +170,10 @@ class ReplayResult:
         return max((d.rel for d in self.diffs), default=0.0)
 
     def bit_identical(self) -> bool:
-        """Every recorded prediction recomputed to the last bit (and none unreplayable)."""
-        return self.unreplayable == 0 and all(d.bit_identical for d in self.diffs)
+        """Every recorded prediction recomputed to the last bit (and none unreplayable), and
+        every recorded model digest reproduced."""
+        return (self.unreplayable == 0 and all(d.bit_identical for d in self.diffs)
+                and all(c.match for c in self.digests))
 
     def verdict(self, tolerance: float) -> str:
         """``"bit-identical"``, ``"within tolerance"`` or ``"MISMATCH"``."""
@@ -255,6 +268,9 @@ class ReplayResult:
             "daemon_dropped_pairs": tl.daemon_dropped,
             "dropped_pairs_recorded": tl.dropped_recorded,
             "learn_errors": self.learn_errors,
+            "decision_records": tl.decisions,
+            "model_digests": {"checked": len(self.digests),
+                              "matched": sum(c.match for c in self.digests)},
             "unpaired": {"perceptions": tl.unpaired[0], "actions": tl.unpaired[1]},
             "predictions_without_query": tl.predictions_without_query,
             "incomplete_files": tl.incomplete_files,

@@ -1,11 +1,14 @@
-"""JSON Schemas (draft 2020-12) of the ROGER messages, one per kind.
+"""JSON Schemas (draft 2020-12) of the ROGER messages and decision records, one per kind.
 
 These are the documentation schemas registered in every MCAP file (schema encoding
-``jsonschema``, schema name ``roger.<kind>``). The channels themselves carry msgpack, which has
-the same data model as JSON for these messages (maps with string keys, arrays, numbers, strings),
-so the same schema describes the msgpack payload and the JSON that ``roger log export`` writes.
+``jsonschema``, schema name ``roger.<kind>``; the daemon's decision records of
+:mod:`protocols.decisions` are the kinds ``daemon.<event>``). The channels themselves carry
+msgpack, which has the same data model as JSON for these messages (maps with string keys,
+arrays, numbers, strings), so the same schema describes the msgpack payload and the JSON that
+``roger log export`` writes.
 
-The schemas are generated from the message dataclasses of :mod:`protocols.message_types`: each
+The schemas are generated from the message dataclasses of :mod:`protocols.message_types` (and
+:mod:`protocols.decisions`): each
 field's type gives its JSON type, its :class:`~protocols.field_specs.FieldSpec` (the field's
 metadata) its description and constraints, and the class's ``DESCRIPTION`` the kind's. Tests check
 that every kind's ``properties`` are exactly the keys that ``to_map`` produces, that encoded
@@ -21,6 +24,7 @@ from collections.abc import Mapping
 from functools import cache
 from typing import Any
 
+from protocols.decisions import DECISION_TYPES
 from protocols.field_specs import field_spec
 from protocols.keys import KINDS
 from protocols.message_types import (
@@ -32,7 +36,7 @@ from protocols.message_types import (
     FloatArray,
 )
 
-__all__ = ["SCHEMA_ENCODING", "SCHEMA_PREFIX", "schema", "schema_bytes", "schema_name"]
+__all__ = ["CLASSES", "SCHEMA_ENCODING", "SCHEMA_PREFIX", "schema", "schema_bytes", "schema_name"]
 
 SCHEMA_ENCODING = "jsonschema"
 SCHEMA_PREFIX = "roger."
@@ -40,6 +44,8 @@ _DRAFT = "https://json-schema.org/draft/2020-12/schema"
 _SCALARS = {int: "integer", float: "number", str: "string"}
 
 assert set(TYPES) == set(KINDS)
+#: every kind with a schema: the wire's, then the decision records (``daemon.<event>``)
+CLASSES = {**TYPES, **{cls.KIND: cls for cls in DECISION_TYPES.values()}}
 
 
 def _scalar(hint: Any, f: dataclasses.Field[Any]) -> dict[str, Any]:
@@ -102,7 +108,7 @@ def _record(cls: type) -> dict[str, Any]:
 @cache
 def _message_properties(kind: str) -> str:
     """The header ``v`` and every field of a message kind, as JSON (parsed afresh per call)."""
-    cls = TYPES[kind]
+    cls = CLASSES[kind]
     props = {"v": {"const": SCHEMA_VERSION, "description": cls.VERSION_DESCRIPTION},
              **_properties(cls)}
     return json.dumps(props)
@@ -115,9 +121,9 @@ def schema_name(kind: str) -> str:
 
 def schema(kind: str) -> dict[str, Any]:
     """The JSON Schema of one message kind (a fresh dict)."""
-    if kind not in TYPES:
-        raise KeyError(f"no schema for message kind {kind!r}; kinds are {KINDS}")
-    cls = TYPES[kind]
+    if kind not in CLASSES:
+        raise KeyError(f"no schema for message kind {kind!r}; kinds are {sorted(CLASSES)}")
+    cls = CLASSES[kind]
     props = json.loads(_message_properties(kind))
     return {
         "$schema": _DRAFT,

@@ -1,18 +1,28 @@
 """Read a recorded session into a :class:`~roger_daemon.recording.timeline.Timeline`.
 
-The rules (pairing, learning order, mode, reset, predictions, drops) are described in
-:mod:`roger_daemon.recording.timeline`; :func:`read_timeline` applies them to the messages of
-a session's files in write order, one handler per message kind (:class:`_Reading`).
+:func:`read_timeline` walks the messages of a session's files in write order. What every log
+needs is here (:class:`Reading`: decoding, each prediction's query perception, dims, the
+status' drop counter); where the learned pairs come from depends on the log's format version
+(:mod:`roger_daemon.recording.timeline`): the daemon's decision records for version 2
+(:class:`DecisionReading`), re-pairing the recorded inputs for version 1
+(:class:`~roger_daemon.recording.read_inputs.InputsReading`).
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Iterable
-from dataclasses import replace
 from pathlib import Path
 
 from protocols import keys as keyexpr
+from protocols.decisions import (
+    Dropped,
+    Learned,
+    ModelDigest,
+    Reset,
+    chain_digest,
+    decode_decision,
+)
 from protocols.errors import ProtocolError
 from protocols.messages import (
     Action,
@@ -24,20 +34,18 @@ from protocols.messages import (
     Status,
     decode,
 )
-from roger_daemon.recording.events import decode_dropped, dropped_topic
+from roger_daemon.pairing import DEFAULT_PAIR_WINDOW
 from roger_daemon.recording.mcapio import LogMessage, LogReader, read_metadata, topics_of
 from roger_daemon.recording.metadata import SessionInfo
 from roger_daemon.recording.timeline import (
-    DEFAULT_PAIR_WINDOW,
-    LEARNING_MODES,
     LearnedPair,
-    PairTracker,
+    ModelCheck,
     RecordedPrediction,
     Segment,
     Timeline,
 )
 
-__all__ = ["read_timeline", "robot_absent"]
+__all__ = ["DecisionReading", "Reading", "read_timeline", "robot_absent"]
 
 _KINDS = ("perception", "action", "control", "prediction", "status")
 
@@ -55,9 +63,12 @@ def read_timeline(
 
     ``robot``, ``dims``, ``mode`` and ``start_updates`` override the metadata (needed for files
     from ``roger record``, which has no learner metadata: dims then come from the first valid
-    perception and action). ``predictions=False`` skips the recorded predictions (log-tail
-    catch-up needs only the pairs; predictions are the costliest messages to decode).
+    perception and action; ``mode`` matters to version-1 logs only). ``predictions=False``
+    skips the recorded predictions (log-tail catch-up needs only the pairs; predictions are the
+    costliest messages to decode).
     """
+    from roger_daemon.recording.read_inputs import InputsReading
+
     files = [Path(p) for p in paths]
     if not files:
         raise ValueError("no files to read")
@@ -74,12 +85,13 @@ def read_timeline(
         for r in readers:
             topics.update(lm.topic for lm in LogReader(r.path).messages())
     start = info.start_updates if start_updates is None else start_updates
-    first = Segment(start_updates=start, after_reset=False,
-                    queued=info.restored_queued_pairs if start_updates is None else 0)
+    queued = info.restored_queued_pairs if start_updates is None and not info.decisions else 0
     tl = Timeline(info=info, robot=_robot_for(info, topics, robot), dims=dims or info.dims,
-                  segments=[first], files=files, file_errors={}, incomplete_files=[])
+                  segments=[Segment(start_updates=start, after_reset=False, queued=queued)],
+                  files=files, file_errors={}, incomplete_files=[], decisions=info.decisions)
     tl.pair_window = info.pair_window or DEFAULT_PAIR_WINDOW
-    reading = _Reading(tl, mode or info.mode, predictions)
+    reading: Reading = (DecisionReading(tl, predictions) if info.decisions
+                        else InputsReading(tl, mode or info.mode, predictions))
     for reader in readers:
         for lm in reader.messages():
             reading.message(lm)
@@ -93,23 +105,26 @@ def read_timeline(
     return tl
 
 
-class _Reading:
-    """The state of one pass over a session's messages (the daemon's loop, read side)."""
+class Reading:
+    """One pass over a session's messages: what every format version reads the same way.
 
-    def __init__(self, tl: Timeline, mode: str | None, predictions: bool) -> None:
+    Subclasses say where the learned pairs come from: :meth:`perception`, :meth:`action`,
+    :meth:`control` and :meth:`decision` (a record on ``roger/<robot>/daemon/<event>``).
+    """
+
+    def __init__(self, tl: Timeline, predictions: bool) -> None:
         self.tl = tl
-        self.mode = mode
-        self.tracker = PairTracker(tl.pair_window)
         self.recent: OrderedDict[int, Perception] = OrderedDict()  # newest perception per tick
         self.last_dropped: int | None = None
         self.want = {keyexpr.key(tl.robot, k): k for k in _KINDS
                      if predictions or k != "prediction"}
-        self.drop_topic = dropped_topic(tl.robot)
+        self.events = {keyexpr.decision(tl.robot, e): e for e in keyexpr.DECISIONS}
         self.dx = tl.dims.x if tl.dims else None
         self.dy = tl.dims.y if tl.dims else None
 
     @property
     def segment(self) -> Segment:
+        """The segment being read (the last one)."""
         return self.tl.segments[-1]
 
     def message(self, lm: LogMessage) -> None:
@@ -117,8 +132,9 @@ class _Reading:
         tl = self.tl
         kind = self.want.get(lm.topic)
         if kind is None:
-            if lm.topic == self.drop_topic:
-                _drop(tl, self.segment, lm.message.data)
+            event = self.events.get(lm.topic)
+            if event is not None:
+                self.decision(event, lm)
             return
         tl.messages += 1
         dims = Dims(self.dx, self.dy) if self.dx and self.dy else None
@@ -128,55 +144,36 @@ class _Reading:
             tl.invalid[exc.reason] += 1
             return
         t_ns = lm.message.log_time
-        pair = None
         if isinstance(msg, Perception):
-            pair = self._perception(msg)
+            self._perception(msg, t_ns)
         elif isinstance(msg, Action):
-            pair = self._action(msg)
+            self._action(msg, t_ns)
         elif isinstance(msg, Control):
-            self._control(msg)
+            self.control(msg)
         elif isinstance(msg, Prediction):
             self._prediction(msg, t_ns)
         elif isinstance(msg, Status):
             self._status(msg)
-        if pair is not None:
-            p, a = pair
-            seg = self.segment
-            seg.pairs.append(LearnedPair(index=seg.end_updates, tick=p.tick, x=p.x, y=a.y,
-                                         label=a.label, log_time_ns=t_ns))
 
-    def _perception(self, msg: Perception) -> tuple[Perception, Action] | None:
+    def _perception(self, msg: Perception, t_ns: int) -> None:
         if self.dx is None:
             self.dx = msg.x.size
         elif msg.x.size != self.dx:
             self.tl.invalid["wrong_dimension"] += 1
-            return None
+            return
         self.recent[msg.tick] = msg
         self.recent.move_to_end(msg.tick)
-        if len(self.recent) > 4 * self.tracker.max_pending:
+        if len(self.recent) > 4 * self.tl.pair_window:
             self.recent.popitem(last=False)
-        if self.mode in LEARNING_MODES:
-            return self.tracker.perception(msg)
-        self.tl.ignored_not_learning += 1
-        return None
+        self.perception(msg, t_ns)
 
-    def _action(self, msg: Action) -> tuple[Perception, Action] | None:
+    def _action(self, msg: Action, t_ns: int) -> None:
         if self.dy is None:
             self.dy = msg.y.size
         elif msg.y.size != self.dy:
             self.tl.invalid["wrong_dimension"] += 1
-            return None
-        if self.mode in LEARNING_MODES:
-            return self.tracker.action(msg)
-        self.tl.ignored_not_learning += 1
-        return None
-
-    def _control(self, msg: Control) -> None:
-        if msg.op == "mode":
-            self.mode = msg.mode
-        elif msg.op == "reset":
-            self.tl.segments.append(Segment(start_updates=0, after_reset=True))
-            self.tracker = PairTracker(self.tl.pair_window)
+            return
+        self.action(msg, t_ns)
 
     def _prediction(self, msg: Prediction, t_ns: int) -> None:
         q = self.recent.get(msg.tick)
@@ -192,28 +189,81 @@ class _Reading:
             self.tl.daemon_dropped += msg.dropped - self.last_dropped
         self.last_dropped = msg.dropped
 
+    # --- where the learned pairs come from ------------------------------------------------
+
+    def perception(self, msg: Perception, t_ns: int) -> None:
+        """A valid perception of the robot (after the checks every reader makes)."""
+
+    def action(self, msg: Action, t_ns: int) -> None:
+        """A valid action of the robot."""
+
+    def control(self, msg: Control) -> None:
+        """A control message the daemon received."""
+
+    def decision(self, event: str, lm: LogMessage) -> None:
+        """A decision record of the robot (``event``: one of ``protocols.keys.DECISIONS``)."""
+
     def finish(self) -> None:
-        """Dims learned from the messages, and what was left unpaired."""
+        """After the last message: dims learned from the messages."""
         if self.tl.dims is None and self.dx is not None and self.dy is not None:
             self.tl.dims = Dims(self.dx, self.dy)
-        self.tl.unpaired = self.tracker.pending
 
 
-def _drop(tl: Timeline, seg: Segment, payload: bytes) -> None:
-    """Apply a drop record: the newest formed pair of its tick was never learned."""
-    try:
-        tick = decode_dropped(payload)
-    except ValueError:
-        tl.invalid["bad_drop_record"] += 1
-        return
-    for i in range(len(seg.pairs) - 1, -1, -1):
-        if seg.pairs[i].tick == tick:
-            del seg.pairs[i]
-            for j in range(i, len(seg.pairs)):  # renumber (normally nothing follows)
-                seg.pairs[j] = replace(seg.pairs[j], index=seg.first_index + j)
-            tl.dropped_recorded += 1
+class DecisionReading(Reading):
+    """Version 2: the learned pairs, resets and model digests are the daemon's own records.
+
+    :attr:`Timeline.unpaired` counts the perceptions and actions of ticks that no decision
+    record names (never learned nor dropped); nothing else is derived from the inputs.
+    """
+
+    def __init__(self, tl: Timeline, predictions: bool) -> None:
+        super().__init__(tl, predictions)
+        self.input_ticks: tuple[set[int], set[int]] = (set(), set())
+        self.named: set[int] = set()
+        self.chain = tl.info.raw.get("start_model_digest", "")  # as the records so far make it
+
+    def perception(self, msg: Perception, t_ns: int) -> None:
+        """Noted, to count the ticks no decision names."""
+        self.input_ticks[0].add(msg.tick)
+
+    def action(self, msg: Action, t_ns: int) -> None:
+        """Noted, to count the ticks no decision names."""
+        self.input_ticks[1].add(msg.tick)
+
+    def decision(self, event: str, lm: LogMessage) -> None:
+        """Apply one decision record (an undecodable one is counted as invalid)."""
+        tl = self.tl
+        try:
+            rec = decode_decision(event, lm.message.data, dims=tl.dims, robot=tl.robot)
+        except ProtocolError as exc:
+            tl.invalid[exc.reason] += 1
             return
-    tl.dropped_unmatched += 1
+        if isinstance(rec, Learned):
+            seg = self.segment
+            if rec.updates - 1 != seg.end_updates:
+                tl.invalid["decision_gap"] += 1  # a record missing in between: not expected
+            seg.pairs.append(LearnedPair(index=rec.updates - 1, tick=rec.tick, x=rec.x, y=rec.y,
+                                         label=rec.label, log_time_ns=lm.message.log_time))
+            self.named.add(rec.tick)
+        elif isinstance(rec, Reset):
+            tl.segments.append(Segment(start_updates=0, after_reset=True))
+        elif isinstance(rec, Dropped):
+            tl.dropped_recorded += 1
+            self.named.add(rec.tick)
+        elif isinstance(rec, ModelDigest):
+            self.chain = chain_digest(self.chain, rec.digest)
+            if rec.chain != self.chain:  # a model record is missing or altered
+                tl.invalid["digest_chain"] += 1
+                self.chain = rec.chain
+            if rec.segment < len(tl.segments):
+                tl.segments[rec.segment].digests.append(ModelCheck(rec.updates, rec.digest,
+                                                                   rec.chain))
+
+    def finish(self) -> None:
+        """Dims, and the inputs no decision names."""
+        super().finish()
+        perceptions, actions = self.input_ticks
+        self.tl.unpaired = (len(perceptions - self.named), len(actions - self.named))
 
 
 def _robot_for(info: SessionInfo, topics: Iterable[str], robot: str | None) -> str:

@@ -1,65 +1,53 @@
 """From a recorded session to what the learner saw: learned pairs and recorded predictions.
 
-The rules mirror the daemon's loop (``roger_daemon.robot.RobotRuntime`` and
-``roger_daemon.service.Service``), read in the log's write order, which is the order the
-daemon handled messages in (it records each message as it takes it off its inbox, before
-routing it, and each prediction and status as it publishes it):
+:func:`~roger_daemon.recording.session_read.read_timeline` reads a session's files in write
+order (the order the daemon handled messages in) into a :class:`Timeline`: one
+:class:`Segment` per stretch learned by one model (the session's start, then one per reset),
+each with its learned pairs in learning order and the recorded predictions computed on it.
 
-* **Pairing** (:class:`PairTracker`), only while the mode learns (``learn``,
-  ``learn+predict``): ``perception(t)`` and ``action(t)`` of the robot wait for each other by
-  tick in two insertion-ordered buffers of ``pair_window`` entries (the session's, default 64);
-  the second to arrive forms a pair; the newest perception of a tick wins; a tick pairs once.
-  In the other modes perceptions and actions are not buffered at all. Payloads that fail
-  ``protocols.decode`` with the session's dims are skipped.
-* **Learning order** = pair formation order (the daemon's FIFO training queue). A pair the
-  daemon dropped because its queue was full is named by a record on
-  ``roger/<robot>/daemon/dropped`` (:mod:`~roger_daemon.recording.events`) right after the
-  message that completed it, and is removed (:attr:`Timeline.dropped_recorded`). Logs from
-  daemons that did not write these records only show the ``dropped`` counter of the status
-  messages (:attr:`Timeline.daemon_dropped`); replay warns when that counter says more.
-* **Mode** starts as the metadata's ``mode`` and follows ``control`` messages ``op=mode``.
-* **Reset** (``control`` ``op=reset``) starts a new :class:`Segment` with a fresh model
-  (``n_learned`` 0, same params and seed) and empties the pairing buffers.
-* **Predictions**: each recorded prediction is tied to the newest perception of its tick (its
-  query) and to its ``updates`` (the model's ``n_learned`` when it was computed).
-
-:func:`~roger_daemon.recording.session_read.read_timeline` applies these rules to a session's
-files; this module holds the rules' data.
+* **Version-2 logs** (metadata ``format`` ``roger-session/2``, written by daemons that record
+  their decisions, :mod:`protocols.decisions`): each ``learned`` record is one pair, with its
+  ``x``, ``y``, label and the model's ``n_learned`` after it; each ``reset`` record starts a
+  segment; ``model`` records carry the digests of the checkpoints' models (kept on the
+  segment, :attr:`Segment.digests`, so that replay can check it rebuilt the same model).
+  Nothing is re-derived: pairs the daemon dropped are simply not there.
+* **Version-1 logs** (older daemons, ``roger record``): the pairs are re-derived from the
+  recorded perceptions and actions with the daemon's own pairing rule
+  (:mod:`roger_daemon.pairing`) by :mod:`roger_daemon.recording.read_inputs`, which documents
+  the rules (modes, resets, drop records).
+* **Predictions** (both): each recorded prediction is tied to the newest perception of its
+  tick (its query) and to its ``updates`` (the model's ``n_learned`` when it was computed).
 
 The first segment starts at the metadata's ``start_updates`` (non-zero when the daemon resumed
-from a checkpoint); when that checkpoint held unlearned pairs (metadata
-``restored_queued_pairs``), the model learned those first, so the session's own pairs start at
-``start_updates + restored_queued_pairs``. A pair's ``index`` is the model's ``n_learned`` just
-before learning it (assuming the learner rejected no pair).
+from a checkpoint). In a version-1 log, when that checkpoint held unlearned pairs (metadata
+``restored_queued_pairs``), the model learned those first without the log naming them, so the
+session's own pairs start at ``start_updates + restored_queued_pairs`` (:attr:`Segment.queued`);
+a version-2 log names them as ``learned`` records. A pair's ``index`` is the model's
+``n_learned`` just before learning it.
 """
 
 from __future__ import annotations
 
-from collections import Counter, OrderedDict
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from protocols.messages import Action, Dims, ExpertOutput, Perception
+from protocols.messages import Dims, ExpertOutput
+from roger_daemon.pairing import DEFAULT_PAIR_WINDOW
 from roger_daemon.recording.metadata import SessionInfo
 
 __all__ = [
-    "LEARNING_MODES",
     "LearnedPair",
-    "PairTracker",
+    "ModelCheck",
     "RecordedPrediction",
     "Segment",
     "Timeline",
 ]
 
 FloatArray = npt.NDArray[np.float64]
-
-#: Modes in which the daemon pairs and learns.
-LEARNING_MODES = ("learn", "learn+predict")
-#: The daemon's default pairing window (``[daemon] pair_window``).
-DEFAULT_PAIR_WINDOW = 64
 
 
 @dataclass(frozen=True)
@@ -89,6 +77,15 @@ class RecordedPrediction:
     log_time_ns: int
 
 
+@dataclass(frozen=True)
+class ModelCheck:
+    """A checkpoint's model digest recorded by the daemon (a version-2 ``model`` record)."""
+
+    updates: int
+    digest: str
+    chain: str
+
+
 @dataclass
 class Segment:
     """A stretch of the session learned by one model (the session start, or after a reset)."""
@@ -99,6 +96,8 @@ class Segment:
     predictions: list[RecordedPrediction] = field(default_factory=list)
     #: pairs restored from the checkpoint's queue, learned before ``pairs`` (not in this log)
     queued: int = 0
+    #: the checkpoints' model digests the daemon recorded in this segment (version 2)
+    digests: list[ModelCheck] = field(default_factory=list)
 
     @property
     def first_index(self) -> int:
@@ -109,49 +108,6 @@ class Segment:
     def end_updates(self) -> int:
         """``n_learned`` of the model after the last pair."""
         return self.start_updates + self.queued + len(self.pairs)
-
-
-class PairTracker:
-    """Pair perception and action of one robot by tick (the daemon's rule; see module doc).
-
-    The daemon can use this very class, which guarantees that replay pairs the same way.
-    """
-
-    def __init__(self, max_pending: int = DEFAULT_PAIR_WINDOW) -> None:
-        self.max_pending = max_pending
-        self._perc: OrderedDict[int, Perception] = OrderedDict()
-        self._act: OrderedDict[int, Action] = OrderedDict()
-        self.dropped_perceptions = 0
-        self.dropped_actions = 0
-
-    def perception(self, msg: Perception) -> tuple[Perception, Action] | None:
-        """Take a perception; return the pair it completes, if any."""
-        act = self._act.pop(msg.tick, None)
-        if act is not None:
-            return msg, act
-        self._perc[msg.tick] = msg
-        self._perc.move_to_end(msg.tick)
-        while len(self._perc) > self.max_pending:
-            self._perc.popitem(last=False)
-            self.dropped_perceptions += 1
-        return None
-
-    def action(self, msg: Action) -> tuple[Perception, Action] | None:
-        """Take an action; return the pair it completes, if any."""
-        perc = self._perc.pop(msg.tick, None)
-        if perc is not None:
-            return perc, msg
-        self._act[msg.tick] = msg
-        self._act.move_to_end(msg.tick)
-        while len(self._act) > self.max_pending:
-            self._act.popitem(last=False)
-            self.dropped_actions += 1
-        return None
-
-    @property
-    def pending(self) -> tuple[int, int]:
-        """(perceptions, actions) waiting for their other half."""
-        return len(self._perc), len(self._act)
 
 
 @dataclass
@@ -174,10 +130,14 @@ class Timeline:
     daemon_dropped: int = 0  # pairs the daemon dropped (queue full), from its status counter
     dropped_recorded: int = 0  # drops named by drop records (those pairs are removed)
     dropped_unmatched: int = 0  # drop records naming no formed pair (ignored)
+    decisions: bool = False  # the pairs come from the daemon's decision records (version 2)
 
     @property
     def unexplained_drops(self) -> int:
-        """Drops the status counter shows but no drop record names (replay cannot be exact)."""
+        """Drops the status counter shows but no drop record names (replay cannot be exact;
+        never with decision records, which name every learned pair)."""
+        if self.decisions:
+            return 0
         return max(0, self.daemon_dropped - self.dropped_recorded)
 
     @property

@@ -31,11 +31,6 @@ from mcap.writer import CompressionType, Writer
 from protocols import keys as keyexpr
 from protocols.errors import ProtocolError
 from roger_daemon.recording import files
-from roger_daemon.recording.events import (
-    DROPPED_SCHEMA_NAME,
-    dropped_schema_bytes,
-    parse_event_topic,
-)
 from roger_daemon.recording.metadata import METADATA_NAME
 from roger_daemon.recording.schemas import SCHEMA_ENCODING, schema_bytes, schema_name
 
@@ -167,6 +162,11 @@ class SessionRecorder:
     def paths(self) -> list[Path]:
         """Every part written so far, in order."""
         return list(self._paths)
+
+    @property
+    def metadata(self) -> dict[str, str]:
+        """The ``roger.session`` map it was given (a copy; each part adds its own keys)."""
+        return dict(self._meta)
 
     @property
     def session_id(self) -> str:
@@ -320,17 +320,9 @@ class SessionRecorder:
         try:
             robot, kind = keyexpr.parse(key)
         except ProtocolError:
-            robot, kind = "", ""
-        event = None if kind else parse_event_topic(key)
-        if event is not None and event[1] == "dropped":
-            meta = {"robot": event[0], "kind": "daemon.dropped"}
-            sid = self._schemas.get("daemon.dropped")
-            if sid is None:
-                sid = w.register_schema(name=DROPPED_SCHEMA_NAME, encoding=SCHEMA_ENCODING,
-                                        data=dropped_schema_bytes())
-                self._schemas["daemon.dropped"] = sid
-            schema_id = sid
-        elif kind:
+            decision = keyexpr.parse_decision(key)  # roger/<robot>/daemon/<event>
+            robot, kind = (decision[0], f"daemon.{decision[1]}") if decision else ("", "")
+        if kind:
             meta = {"robot": robot, "kind": kind}
             sid = self._schemas.get(kind)
             if sid is None:

@@ -85,7 +85,8 @@ class CheckpointState:
 class Checkpoints:
     """When each robot's checkpoint is due, and writing it (``sync``: on the caller's thread).
 
-    ``snapshot(rt, reason, model_state, ahead)`` copies what a checkpoint holds.
+    ``snapshot(rt, reason, model_state, ahead)`` copies what a checkpoint holds;
+    ``written(rt, meta)`` is told of every checkpoint written (on the loop thread).
     """
 
     def __init__(
@@ -93,12 +94,14 @@ class Checkpoints:
         snapshot: Callable[[RobotRuntime, str, Mapping[str, np.ndarray] | None,
                             Sequence[Pair]], Snapshot],
         *, sync: bool,
+        written: Callable[[RobotRuntime, dict[str, Any]], None] | None = None,
     ) -> None:
         self.config = config
         self.robots = robots
         self.clock = clock
         self._snapshot = snapshot
         self._sync = sync
+        self._written = written
         self.state = {r: CheckpointState() for r in robots}
         self._writer: ThreadPoolExecutor | None = None
         #: set at shutdown: a failure from then on means the final checkpoints failed
@@ -192,6 +195,8 @@ class Checkpoints:
         st.generation, st.path, st.updates = gen, str(path), int(meta["updates"])
         st.digest = str(meta["model_digest"])
         st.written += 1
+        if self._written is not None:
+            self._written(self.robots[robot], meta)
         log.info("%s: checkpoint %s written (%s, %d updates, model %s)", robot, path,
                  meta.get("reason", ""), st.updates, st.digest[:12])
 

@@ -51,7 +51,7 @@ from roger_daemon.service.checkpoints import Checkpoints, Snapshot, checkpoint_s
 from roger_daemon.service.clock import Clock, RealClock
 from roger_daemon.service.intake import Admission
 from roger_daemon.service.outbox import Outbox
-from roger_daemon.service.recording import Recorder, Recorders
+from roger_daemon.service.recording import DecisionLog, Recorder, Recorders
 from roger_daemon.service.schedule import LoopStats, TickSchedule
 from roger_daemon.service.shutdown import abort, shutdown
 from roger_daemon.service.status import invalid_counts, robot_status
@@ -110,12 +110,17 @@ class Service:
         self.admission = Admission(self.robots, self.recorders,
                                    count_unserved=config.count_unserved)
         self.clock: Clock = clock or RealClock()
+        for rt in self.robots.values():  # the decision records of each recorded session
+            rec = self.recorders.by_robot.get(rt.robot)
+            start = dict(getattr(rec, "metadata", {})).get("start_model_digest", "")
+            rt.decisions = (DecisionLog(self.recorders, self.clock.time_ns, start)
+                            if rec is not None else None)
         self.inbox = Inbox(max(4 * config.queue_size, 1024))
         self.stats = LoopStats()
         self.resumed = dict(resumed or {})
         self._checkpoint_meta = checkpoint_meta
         self.checkpoints = Checkpoints(config.checkpoint, self.robots, self.clock, self._snapshot,
-                                       sync=sync_checkpoints)
+                                       sync=sync_checkpoints, written=self._checkpoint_written)
         self.outbox = Outbox(self.recorders, self.clock)
         self.schedule = TickSchedule(int(round(1e9 / config.rate_hz)), self.stats)
         self._commit_ns = int(config.checkpoint.wal_commit_ms * _MS)
@@ -277,7 +282,6 @@ class Service:
         if admitted is None:
             return
         rt, _, msg = admitted
-        dropped, resent = rt.dropped, rt.resent
         if isinstance(msg, Perception):
             rt.on_perception(msg, item.recv_ns)
             if not self._realtime and rt.predicting and not self._stopping:
@@ -286,9 +290,6 @@ class Service:
             rt.on_action(msg)
         elif isinstance(msg, Control):
             self._control(rt, msg)
-        if (rt.dropped, rt.resent) != (dropped, resent) and rt.robot in self.recorders:
-            self.recorders.drop(rt, msg.tick, item.recv_wall_ns,
-                                "queue_full" if rt.dropped != dropped else "resent")
 
     def _control(self, rt: RobotRuntime, msg: Control) -> None:
         if msg.op == "mode":
@@ -370,6 +371,11 @@ class Service:
                        ahead: Sequence[Pair] = (), sync: bool = False) -> None:
         """Checkpoint ``rt`` (with the model state a worker sent, if given)."""
         self.checkpoints.write(rt, reason, model_state, ahead=ahead, sync=sync)
+
+    def _checkpoint_written(self, rt: RobotRuntime, meta: dict[str, Any]) -> None:
+        """A checkpoint of ``rt`` is on disk: its model digest goes into the session log."""
+        if isinstance(rt.decisions, DecisionLog):
+            rt.decisions.checkpoint(rt, meta)
 
     def _commit(self, rt: RobotRuntime) -> None:
         """Group commit of the robot's write-ahead log (a no-op when nothing is pending).

@@ -1,16 +1,20 @@
-"""The service's session recorders: one per robot, failures counted and never fatal."""
+"""The service's session recorders: one per robot, failures counted and never fatal; and
+each robot's decision log (:class:`DecisionLog`), the decision records of its session."""
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
+from protocols import keys
+from protocols.decisions import Dropped, Learned, ModelDigest, Reset, chain_digest
+from protocols.message_types import Message, encode
 from roger_daemon.config import RecordingConfig
-from roger_daemon.robot import RobotRuntime
+from roger_daemon.robot import Pair, RobotRuntime
 
-__all__ = ["Recorder", "Recorders"]
+__all__ = ["DecisionLog", "Recorder", "Recorders"]
 
 log = logging.getLogger(__name__)
 
@@ -60,17 +64,6 @@ class Recorders:
         except Exception as exc:
             self._error(robot, "write", exc)
 
-    def drop(self, rt: RobotRuntime, tick: int, wall_ns: int, reason: str) -> None:
-        """Name the pair just not learned in the log, so that replay stays exact.
-
-        ``reason``: ``queue_full``, or ``resent`` (a re-send of the newest pair).
-        """
-        from roger_daemon.recording.events import dropped_topic, encode_dropped
-
-        payload = encode_dropped(rt.robot, tick, stamp_ns=wall_ns, queue_size=rt.queue_size,
-                                 dropped=rt.dropped, reason=reason)
-        self.write(rt.robot, dropped_topic(rt.robot), payload, wall_ns, wall_ns, tick)
-
     def poll(self, monotonic_ns: Callable[[], int]) -> None:
         """Every loop cycle: retention when due, then each recorder's ``poll``."""
         if not self.by_robot:
@@ -112,3 +105,57 @@ class Recorders:
             self._failed.add(robot)
             log.error("%s: recorder %s failed: %s (further errors only counted)", robot, what,
                       exc)
+
+
+class DecisionLog:
+    """The decision records of one robot, written into its session log as they are made.
+
+    Attached as ``RobotRuntime.decisions`` (:class:`~roger_daemon.robot.Decisions`): every
+    learned pair, reset and dropped pair; and, from the checkpoint writer, the digest of each
+    checkpoint's model chained with the previous one (:mod:`protocols.decisions`). Replay and
+    recovery read these instead of re-deriving the decisions (docs/durability.md).
+    ``wall_ns`` is the daemon's wall clock (the records' ``stamp_ns`` and log time); the chain
+    starts at ``start``, the digest of the model the session started with (its metadata's
+    ``start_model_digest``).
+    """
+
+    def __init__(self, recorders: Recorders, wall_ns: Callable[[], int], start: str = "") -> None:
+        self.recorders = recorders
+        self.wall_ns = wall_ns
+        self.chain = start  # the newest link of the session's digest chain
+
+    def learned(self, rt: RobotRuntime, pair: Pair) -> None:
+        """``pair`` became model pair ``rt.updates - 1``."""
+        now = self.wall_ns()
+        label = rt.vocab[pair.label] if 0 <= pair.label < len(rt.vocab) else ""
+        self._write(rt, "learned", Learned(
+            rt.robot, pair.tick, pair.t, updates=rt.updates, segment=rt.session_resets,
+            x=pair.x, y=pair.y, label=label, stamp_ns=now), now)
+
+    def reset(self, rt: RobotRuntime, forgotten: int) -> None:
+        """The model was replaced by a fresh one."""
+        now = self.wall_ns()
+        self._write(rt, "reset", Reset(rt.robot, rt.last_tick, rt.last_t,
+                                       segment=rt.session_resets, forgotten=forgotten,
+                                       stamp_ns=now), now)
+
+    def dropped(self, rt: RobotRuntime, tick: int, reason: str) -> None:
+        """The completed pair of ``tick`` was not queued (``queue_full`` or ``resent``)."""
+        now = self.wall_ns()
+        self._write(rt, "dropped", Dropped(rt.robot, tick, rt.last_t, reason=reason,
+                                           queue_size=rt.queue_size, dropped=rt.dropped,
+                                           stamp_ns=now), now)
+
+    def checkpoint(self, rt: RobotRuntime, meta: dict[str, Any]) -> None:
+        """A checkpoint was written: record its model's digest, chained."""
+        digest = str(meta["model_digest"])
+        self.chain = chain_digest(self.chain, digest)
+        now = self.wall_ns()
+        self._write(rt, "model", ModelDigest(
+            rt.robot, int(rt.last_learned_tick or 0), rt.last_t, updates=int(meta["updates"]),
+            segment=int(meta.get("session_segment", 0) or 0), digest=digest, chain=self.chain,
+            stamp_ns=now), now)
+
+    def _write(self, rt: RobotRuntime, event: str, record: Message, now: int) -> None:
+        self.recorders.write(rt.robot, keys.decision(rt.robot, event), encode(record), now, now,
+                             record.tick)
