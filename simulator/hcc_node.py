@@ -42,7 +42,7 @@ from protocols.aibo import DIMS
 from simulator.config import load_config
 from simulator.hcc import HCC, HCCParams, HeadModel
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
-from simulator.transitioner import RULES, transition_command
+from simulator.transitioner import DEFAULT_RULE, RULES, transition_command
 from simulator.transport import (
     EPHEMERAL,
     Inbox,
@@ -99,9 +99,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--rule",
         choices=RULES,
-        default="support",
-        help="transitioner: among the subtask's experts take the one with the most points "
-        "(default), the lowest predictive variance, or the highest gate probability",
+        default=DEFAULT_RULE,
+        help="transitioner: among the subtask's experts, the gate-weighted mean of all "
+        f"(mixture, default {DEFAULT_RULE}), the one with the most points (support), the "
+        "lowest predictive variance, or the highest gate probability",
     )
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
     add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))

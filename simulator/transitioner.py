@@ -15,27 +15,31 @@ import numpy as np
 from protocols import ExpertOutput
 from protocols.aibo import DIMS
 
-__all__ = ["RULES", "choose_expert", "subtask_mixture", "transition_command"]
+__all__ = ["DEFAULT_RULE", "RULES", "choose_expert", "subtask_mixture", "transition_command"]
 
 
 #: How the transitioner picks among the experts of the current subtask (``--rule``).
 RULES = ("support", "variance", "gate", "mixture")
 
+#: The default rule: the gate-weighted mean of the subtask's experts.  Chosen over three
+#: demonstration streams x three learner seeds (docs/goal-scoring.md, "The transitioner's
+#: rule"): 36 of 117 goals against 13 for ``support``.
+DEFAULT_RULE = "mixture"
+
 
 def choose_expert(
-    multimap: tuple[ExpertOutput, ...], subtask: str, rule: str = "support"
+    multimap: tuple[ExpertOutput, ...], subtask: str, rule: str = DEFAULT_RULE
 ) -> tuple[ExpertOutput | None, str]:
     """The expert the transitioner uses for ``subtask``, and how it was chosen.
 
     Among the experts labelled ``subtask`` (majority label of their data, paper section IV.A):
-    ``rule = "support"`` (default) takes the expert holding the most points (the broadest fit
-    of the subtask; no rule was better over the streams measured, docs/goal-scoring.md),
-    ``"variance"`` the lowest predictive variance at this perception, ``"gate"`` the highest
-    gate probability (``"mixture"`` too: its command, from :func:`transition_command`, is the
-    gate-weighted mean of these experts); either way ``"label"``. If none carries the label,
-    the highest-probability expert overall (``"fallback_top"``); ``(None, "fallback_mean")``
-    for an empty multimap. Remaining ties go to the higher gate probability, then the lower
-    expert id.
+    ``rule = "support"`` takes the expert holding the most points (the broadest fit of the
+    subtask), ``"variance"`` the lowest predictive variance at this perception, ``"gate"``
+    the highest gate probability (``"mixture"``, the default, too: its command, from
+    :func:`transition_command`, is the gate-weighted mean of these experts); either way
+    ``"label"``. If none carries the label, the highest-probability expert overall
+    (``"fallback_top"``); ``(None, "fallback_mean")`` for an empty multimap. Remaining ties
+    go to the higher gate probability, then the lower expert id.
     """
     if rule not in RULES:
         raise ValueError(f"transitioner rule must be one of {RULES}, got {rule!r}")

@@ -35,7 +35,7 @@ from typing import Any
 from roger_daemon.atomic import write_json
 from simulator.experiment.procs import EpisodeJob
 from simulator.experiment.runner import json_default, machine
-from simulator.transitioner import RULES
+from simulator.transitioner import DEFAULT_RULE, RULES
 
 __all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "plan_from_args", "run"]
 
@@ -91,7 +91,7 @@ class Plan:
     seeds: dict[str, int] = field(default_factory=dict)
     shots: int = 1
     learner_seeds: int = 1
-    rule: str = "support"
+    rule: str = DEFAULT_RULE
     in_process: bool = False
     start_poses: str | None = None
     preset: str | None = None
@@ -148,8 +148,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--learner-seeds", type=int, default=None,
                         help="ROGER models trained with seeds SEED..SEED+N-1, each evaluated "
                         "(default 3; --quick: 1)")
-    parser.add_argument("--rule", choices=RULES, default="support",
-                        help="transitioner rule among the subtask's experts (default support)")
+    parser.add_argument("--rule", choices=RULES, default=DEFAULT_RULE,
+                        help="transitioner rule among the subtask's experts (default "
+                        f"{DEFAULT_RULE})")
     parser.add_argument("--preset", default=None,
                         help="learner preset (e.g. 'paper': the paper's literal numbers, every "
                         "lever off); same as --set learner.preset=NAME")

@@ -34,7 +34,7 @@ from simulator.episodes import EpisodeResult, SoccerSim, StartLocation, run_epis
 from simulator.experiment.averaging import MultimapNeighbourhood
 from simulator.experiment.training import Demonstrations
 from simulator.hcc import HCC
-from simulator.transitioner import transition_command
+from simulator.transitioner import DEFAULT_RULE, transition_command
 
 __all__ = [
     "EpisodeRecord",
@@ -123,7 +123,7 @@ class TransitionerController:
     """ROGER's experts, chosen by the HCC's current subtask (``roger hcc --role transitioner``)."""
 
     def __init__(self, hcc: HCC, model: Any, expert_labels: Mapping[int, str],
-                 rule: str = "support") -> None:
+                 rule: str = DEFAULT_RULE) -> None:
         self.hcc = hcc
         self.model = model
         self.labels = dict(expert_labels)

@@ -32,6 +32,7 @@ from typing import IO, Any
 from roger_daemon.atomic import write_json
 from roger_daemon.harness import free_port as _free_port
 from roger_daemon.harness import write_config
+from simulator.transitioner import DEFAULT_RULE
 
 __all__ = [
     "CHILDREN",
@@ -282,7 +283,7 @@ class EpisodeJob:
     task_config: str | None = None
     model_digest: str = ""  # of the checkpoint resumed from (part of the job's identity)
     name: str = ""  # result key (e.g. "roger:1" for the model of the second learner seed)
-    rule: str = "support"  # the transitioner's rule (roger hcc --rule)
+    rule: str = DEFAULT_RULE  # the transitioner's rule (roger hcc --rule)
 
     @property
     def key(self) -> str:
