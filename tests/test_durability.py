@@ -88,7 +88,10 @@ def _run(workdir: Path, n: int, kills: int, seed: int) -> list[tuple[int, int]]:
 
     The first kill is the worst spot, made deterministic: right after prediction(t) arrived
     (pair t learned and committed), the sender acts as if the answer had been lost and
-    re-sends tick t to the next daemon. The other kills land at random points.
+    re-sends tick t to the next daemon. The other kills land at random points, each on a
+    daemon of its own: a kill point reached while the previous kill's timer has not yet
+    fired waits for the next daemon (else two kills would take one daemon down, and the
+    count of restarts below would depend on timing).
     """
     x, y, labels = synthetic_stream("sqrt", n)
     rng = random.Random(seed)
@@ -96,13 +99,14 @@ def _run(workdir: Path, n: int, kills: int, seed: int) -> list[tuple[int, int]]:
     kill_at = sorted(rng.sample(range(n // 3, n - 5), kills - 1))
     answers: list[tuple[int, int]] = []
     d = Daemon(workdir)
+    armed = None  # the process the last kill timer is aimed at
     t = 0
     try:
         while t < n:
-            if kill_at and t >= kill_at[0]:
+            if kill_at and t >= kill_at[0] and d.proc.proc is not armed:
                 kill_at.pop(0)
-                victim, delay = d.proc.proc, rng.uniform(0.0, 0.006)
-                threading.Timer(delay, victim.kill).start()
+                armed, delay = d.proc.proc, rng.uniform(0.0, 0.006)
+                threading.Timer(delay, armed.kill).start()
             d.client.action(t, y[t], labels[t])
             d.client.perception(t, x[t])
             got = _answer(d, t)

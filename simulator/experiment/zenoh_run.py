@@ -13,6 +13,7 @@ is re-run in-process and compared episode by episode (``results["paths_agree"]``
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 from dataclasses import replace
@@ -248,9 +249,10 @@ class ZenohRun:
                if k not in local_eps},
         }
         results["resumed_jobs"] = self.reused
+        # fsum: exact, so the order jobs finished in (or were reused in) cannot flip a rounding
         results["jobs_wall_s"] = {
-            "demo": round(sum(r.wall_s for r in demo_results), 1),
-            **{k: round(sum(r.wall_s for r in ev if r.job.key == k), 1) for k in episodes
+            "demo": round(math.fsum(r.wall_s for r in demo_results), 1),
+            **{k: round(math.fsum(r.wall_s for r in ev if r.job.key == k), 1) for k in episodes
                if k not in local_eps},
         }
         self._phase("report", t0)
