@@ -20,6 +20,7 @@ from protocols.messages import Dims
 from roger_daemon.checkpoint import Checkpoint, CheckpointError, load_newest, write_checkpoint
 from roger_daemon.config import DaemonConfig, RobotConfig
 from roger_daemon.robot import RobotRuntime
+from roger_daemon.robot_state import RobotState
 from roger_daemon.sdnotify import Notifier
 from roger_daemon.service import checkpoint_snapshot
 
@@ -76,7 +77,11 @@ def load_robot(
             loaded["model"] = load_model(ck.model)
         except Exception as exc:  # the learner rejects a state it cannot continue from
             raise CheckpointError(f"the learner cannot load its model state ({exc})") from None
-        if int(loaded["model"].n_learned) != len(ck.daemon.get("label_codes", ())):
+        try:
+            state = RobotState.from_arrays(ck.daemon)
+        except KeyError as exc:
+            raise CheckpointError(str(exc)) from None
+        if int(loaded["model"].n_learned) != state.n_learned:
             raise CheckpointError("model and label counts disagree")
 
     rt = RobotRuntime(robot.id, dims, None, lambda: make_model(robot), mode=cfg.mode,

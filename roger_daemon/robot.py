@@ -21,7 +21,6 @@ import logging
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -30,22 +29,12 @@ from protocols.errors import REASONS
 from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
 from roger_daemon.labels import majority_labels_coded
 from roger_daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
+from roger_daemon.robot_state import Pair, RobotState
 from roger_daemon.window import Window
 
 __all__ = ["Decisions", "Pair", "RobotRuntime"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, slots=True)
-class Pair:
-    """A training pair waiting in the queue (``t``: its perception's time, 0 if unknown)."""
-
-    x: np.ndarray
-    y: np.ndarray
-    label: int
-    tick: int
-    t: float = 0.0
 
 
 class Decisions(Protocol):
@@ -361,17 +350,8 @@ class RobotRuntime:
     def daemon_arrays(self, ahead: Sequence[Pair] = ()) -> dict[str, np.ndarray]:
         """Daemon state that must survive a restart, as named arrays (``ahead``: pairs
         taken off the queue but not yet learned, saved in front of it)."""
-        q = [*ahead, *self.queue]
-        dx, dy = self.dims.x, self.dims.y
-        return {
-            "label_vocab": np.array(self.vocab, dtype=np.str_) if self.vocab
-            else np.zeros(0, dtype="<U1"),
-            "label_codes": self.codes.copy(),
-            "queue_x": np.array([p.x for p in q], dtype=np.float64).reshape(len(q), dx),
-            "queue_y": np.array([p.y for p in q], dtype=np.float64).reshape(len(q), dy),
-            "queue_labels": np.array([p.label for p in q], dtype=np.int32),
-            "queue_ticks": np.array([p.tick for p in q], dtype=np.int64),
-        }
+        return RobotState(list(self.vocab), self.codes, [*ahead, *self.queue]).to_arrays(
+            self.dims)
 
     def counters(self) -> dict[str, Any]:
         """The runtime's counters, as checkpointed and reported in status."""
@@ -384,17 +364,16 @@ class RobotRuntime:
         }
 
     def restore(self, arrays: dict[str, np.ndarray], counters: dict[str, Any]) -> None:
-        """Load daemon state saved by :meth:`daemon_arrays` / :meth:`counters`."""
-        self.vocab = [str(s) for s in arrays["label_vocab"].tolist()]
+        """Load daemon state saved by :meth:`daemon_arrays` / :meth:`counters`
+        (:class:`~roger_daemon.robot_state.RobotState`)."""
+        state = RobotState.from_arrays(arrays)
+        self.vocab = state.vocab
         self._vocab_index = {s: i for i, s in enumerate(self.vocab)}
-        codes = np.asarray(arrays["label_codes"], dtype=np.int32)
-        self._codes = np.zeros(max(1024, 2 * len(codes)), dtype=np.int32)
-        self._codes[: len(codes)] = codes
-        self.n_codes = len(codes)
+        self._codes = np.zeros(max(1024, 2 * state.n_learned), dtype=np.int32)
+        self._codes[: state.n_learned] = state.codes
+        self.n_codes = state.n_learned
         self.queue.clear()
-        for x, y, lab, tick in zip(arrays["queue_x"], arrays["queue_y"], arrays["queue_labels"],
-                                   arrays["queue_ticks"], strict=True):
-            self.queue.append(Pair(np.array(x), np.array(y), int(lab), int(tick)))
+        self.queue.extend(state.queue)
         self.ticks = int(counters.get("ticks", 0))
         self.dropped = int(counters.get("dropped", 0))
         self.unpaired = int(counters.get("unpaired_actions", 0))

@@ -13,12 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from protocols.messages import Dims
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
 from simulator.experiment.goal_scoring import configure, learner_params, plan_from_args
 from simulator.experiment.metrics import majority_labels
 from simulator.experiment.procs import EpisodeJob, load_finished
 from simulator.experiment.report import check_results
-from simulator.experiment.training import label_arrays, write_model_checkpoint
+from simulator.experiment.training import label_state, write_model_checkpoint
 
 
 def _args(*argv: str) -> argparse.Namespace:
@@ -75,7 +76,7 @@ def test_label_codes_follow_the_experiments_tie_rule() -> None:
 
     labels = ["trap", "aim", "seek", "seek", "kick", "aim"]
     assign = np.array([0, 0, 1, 1, 2, 2])  # expert 0 and 2 are ties
-    arr = label_arrays(labels)
+    arr = label_state(labels).to_arrays(Dims(23, 9))  # as the checkpoint stores it
     vocab = [str(s) for s in arr["label_vocab"]]
     assert vocab == sorted(vocab)
     theirs = daemon_majority(assign, arr["label_codes"], vocab)

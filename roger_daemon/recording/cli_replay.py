@@ -192,11 +192,11 @@ def _save(res: Any, directory: Path, checkpoint: Path | None, queued: list[Any])
     codes: list[int] = []
     if checkpoint is not None:
         from roger_daemon.checkpoint import CheckpointError, read_checkpoint
+        from roger_daemon.robot_state import RobotState
 
         try:
-            ck = read_checkpoint(checkpoint)
-            vocab = [str(v) for v in ck.daemon["label_vocab"].tolist()]
-            codes = [int(c) for c in ck.daemon["label_codes"].tolist()]
+            state = RobotState.from_arrays(read_checkpoint(checkpoint).daemon)
+            vocab, codes = state.vocab, state.codes.tolist()
         except (CheckpointError, KeyError):
             pass  # a plain state_dict: the labels of its pairs are unknown
     return save_checkpoint(res, directory, base_vocab=vocab, base_codes=codes,

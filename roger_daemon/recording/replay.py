@@ -46,6 +46,7 @@ from roger_daemon.recording.timeline import (
     Timeline,
 )
 from roger_daemon.robot import RobotRuntime
+from roger_daemon.robot_state import RobotState
 
 __all__ = [
     "ROUND_OFF_MARGIN",
@@ -216,8 +217,9 @@ def _start(rt: RobotRuntime, tl: Timeline, initial_model: Model | None,
                           f"session started at {seg.start_updates}")
     rt.model = initial_model
     # the labels of the pairs it learned before are unknown here: the empty label, which
-    # never wins a majority (roger_daemon.labels)
-    rt.restore(_no_labels(initial_model.n_learned, rt), {})
+    # never wins a majority (roger_daemon.labels); nothing queued
+    unknown = RobotState.from_labels([""] * int(initial_model.n_learned), vocab=[""])
+    rt.restore(unknown.to_arrays(rt.dims), {})
     if tl.decisions:  # a version-2 log names the queued pairs it learned as its own
         return seg
     if len(initial_pairs) != seg.queued:
@@ -228,14 +230,6 @@ def _start(rt: RobotRuntime, tl: Timeline, initial_model: Model | None,
         seg = Segment(seg.start_updates, seg.after_reset, [*initial_pairs, *seg.pairs],
                       seg.predictions, digests=seg.digests)
     return seg
-
-
-def _no_labels(n: int, rt: RobotRuntime) -> dict[str, np.ndarray]:
-    """Daemon arrays for ``n`` learned pairs of unknown label and an empty queue."""
-    return {"label_vocab": np.array([""]), "label_codes": np.zeros(n, dtype=np.int32),
-            "queue_x": np.zeros((0, rt.dims.x)), "queue_y": np.zeros((0, rt.dims.y)),
-            "queue_labels": np.zeros(0, dtype=np.int32),
-            "queue_ticks": np.zeros(0, dtype=np.int64)}
 
 
 def replay_timeline(

@@ -10,17 +10,16 @@ from typing import Any
 
 import numpy as np
 
-from protocols.messages import Dims
 from roger_daemon.recording.replay_result import Model, ReplayError, ReplayResult
 from roger_daemon.recording.timeline import LearnedPair, Segment, Timeline
-from roger_daemon.robot import RobotRuntime
+from roger_daemon.robot_state import RobotState
 
 __all__ = ["load_checkpoint", "resume_timeline", "save_checkpoint"]
 
 
 def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[str, Any]]:
     """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.checkpoint``;
-    its queue read back by the daemon's own ``RobotRuntime.restore``), or from a plain
+    its queue read by :class:`~roger_daemon.robot_state.RobotState`), or from a plain
     ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles."""
     from roger_daemon.checkpoint import CheckpointError, read_checkpoint
     from roger_daemon.learner import load_model
@@ -31,16 +30,13 @@ def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[st
         with np.load(path, allow_pickle=False) as z:
             return load_model({k: z[k] for k in z.files}), [], {}
     model: Model = load_model(ck.model)
-    d = ck.daemon
-    if not {"queue_ticks", "label_vocab", "label_codes"} <= set(d):
+    try:
+        state = RobotState.from_arrays(ck.daemon)
+    except KeyError:  # an older checkpoint without a queue
         return model, [], dict(ck.meta)
-    rt = RobotRuntime("", Dims(int(np.shape(d["queue_x"])[-1]), int(np.shape(d["queue_y"])[-1])),
-                      model, lambda: model)
-    rt.restore(d, {})
     start = int(model.n_learned)
-    pairs = [LearnedPair(start + i, p.tick, p.x, p.y,
-                         rt.vocab[p.label] if 0 <= p.label < len(rt.vocab) else "", 0)
-             for i, p in enumerate(rt.queue)]
+    pairs = [LearnedPair(start + i, p.tick, p.x, p.y, state.label(p.label), 0)
+             for i, p in enumerate(state.queue)]
     return model, pairs, dict(ck.meta)
 
 
@@ -112,30 +108,20 @@ def save_checkpoint(
         raise ReplayError("the learner rejected some pairs; their labels cannot be lined up")
     model = res.model
     n = int(model.n_learned)
-    vocab = [str(v) for v in base_vocab]
-    index = {v: i for i, v in enumerate(vocab)}
-
-    def code(label: str) -> int:
-        if label not in index:
-            index[label] = len(vocab)
-            vocab.append(label)
-        return index[label]
-
-    own = [code(lab) for lab in [*queued_labels, *res.labels]][-n:] if n else []
+    state = RobotState.from_labels([*queued_labels, *res.labels], vocab=base_vocab)
+    own = state.codes.tolist()[-n:] if n else []
     earlier = n - len(own)  # pairs the initial model had learned
     base = [int(c) for c in base_codes][:earlier]
-    codes = base + ([code("")] * (earlier - len(base)) if earlier > len(base) else []) + own
+    if earlier > len(base):  # their labels are unknown: the empty label
+        unknown = RobotState.from_labels([""], vocab=state.vocab)
+        state.vocab = unknown.vocab
+        base += [int(unknown.codes[0])] * (earlier - len(base))
+    state.codes = np.array(base + own, dtype=np.int32)
     seg_no = len(res.timeline.segments) - 1
     last = res.pairs[-1].tick if res.pairs else None
     d = res.timeline.dims
     assert d is not None
-    state = dict(model.state_dict())
-    daemon = {
-        "label_vocab": np.array(vocab, dtype=np.str_) if vocab else np.zeros(0, dtype="<U1"),
-        "label_codes": np.array(codes, dtype=np.int32),
-        "queue_x": np.zeros((0, d.x)), "queue_y": np.zeros((0, d.y)),
-        "queue_labels": np.zeros(0, dtype=np.int32), "queue_ticks": np.zeros(0, dtype=np.int64),
-    }
+    daemon = state.to_arrays(d)
     meta = {
         "reason": "replay", "updates": n, "x_dim": d.x, "y_dim": d.y,
         "model": res.model_kind, "seed": res.seed, "params": res.params,
@@ -143,5 +129,6 @@ def save_checkpoint(
         "session_id": res.info.session_id, "session_segment": seg_no,
         "replayed_from": [str(p) for p in res.files],
     }
-    path, _ = write_checkpoint(Path(directory), res.robot, state, daemon, meta, keep=keep)
+    path, _ = write_checkpoint(Path(directory), res.robot, dict(model.state_dict()), daemon, meta,
+                               keep=keep)
     return path

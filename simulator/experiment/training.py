@@ -25,14 +25,16 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from protocols.messages import Dims
 from roger_daemon.atomic import write_json
 from roger_daemon.checkpoint import array_digest, write_checkpoint
 from roger_daemon.recording.compare import REL_TOL
+from roger_daemon.robot_state import RobotState
 
 __all__ = [
     "Demonstrations",
     "daemon_check",
-    "label_arrays",
+    "label_state",
     "learner_table",
     "load_demonstrations",
     "model_fingerprint",
@@ -111,18 +113,13 @@ def model_fingerprint(model: Any) -> str:
     return array_digest(model.state_dict())
 
 
-def label_arrays(labels: Sequence[str]) -> dict[str, np.ndarray]:
-    """The daemon's label state: a sorted vocabulary and one code per learned pair.
+def label_state(labels: Sequence[str]) -> RobotState:
+    """The daemon's label state for pairs learned with ``labels`` (empty queue).
 
-    Sorted, so that the daemon's tie rule (lowest code) equals
-    :func:`simulator.experiment.metrics.majority_labels` (alphabetical).
+    The vocabulary is sorted, so that the daemon's tie rule (lowest code) is the alphabetical
+    one of :func:`roger_daemon.labels.majority_labels`.
     """
-    vocab = sorted(set(labels))
-    index = {s: i for i, s in enumerate(vocab)}
-    return {
-        "label_vocab": np.array(vocab, dtype=np.str_) if vocab else np.zeros(0, dtype="<U1"),
-        "label_codes": np.array([index[s] for s in labels], dtype=np.int32),
-    }
+    return RobotState.from_labels(labels, vocab=sorted(set(labels)))
 
 
 def write_model_checkpoint(directory: Path, model: Any, labels: Sequence[str], *,
@@ -135,13 +132,7 @@ def write_model_checkpoint(directory: Path, model: Any, labels: Sequence[str], *
     if len(labels) != int(model.n_learned):
         raise ValueError(f"{len(labels)} labels for {model.n_learned} learned pairs")
     d_x, d_y = int(model.d_x), int(model.d_y)
-    daemon = {
-        **label_arrays(labels),
-        "queue_x": np.zeros((0, d_x)),
-        "queue_y": np.zeros((0, d_y)),
-        "queue_labels": np.zeros(0, dtype=np.int32),
-        "queue_ticks": np.zeros(0, dtype=np.int64),
-    }
+    daemon = label_state(labels).to_arrays(Dims(d_x, d_y))
     meta = {
         "created_unix_ns": time.time_ns(),
         "reason": "experiment",
@@ -267,10 +258,10 @@ def daemon_check(
     replay_digest = model_fingerprint(replayed.model) if replayed and replayed.model else ""
 
     assign = np.asarray(offline.assignments())
-    vocab = [str(s) for s in ck.daemon["label_vocab"].tolist()]
+    state = RobotState.from_arrays(ck.daemon)
     # the daemon's names (its checkpoint's codes) against the offline model's: one rule
-    theirs = majority_labels_coded(np.asarray(from_daemon.assignments()),
-                                   np.asarray(ck.daemon["label_codes"]), vocab)
+    theirs = majority_labels_coded(np.asarray(from_daemon.assignments()), state.codes,
+                                   state.vocab)
     expected = majority_labels(assign, list(labels))
     pick = np.linspace(0, len(x) - 1, min(probes, len(x))).astype(int)
     out: dict[str, Any] = {

@@ -1,0 +1,112 @@
+"""A robot's daemon state beside its model: the ``daemon`` arrays of a checkpoint.
+
+One owner of that layout (docs/durability.md): the live daemon
+(:class:`roger_daemon.robot.RobotRuntime`), replay's ``--save-checkpoint``, the start-up
+checks and the experiment's model checkpoints all build and read it here, never by key.
+
+The arrays:
+
+* ``label_vocab`` (str) and ``label_codes`` (int32, one per learned pair, in learning order):
+  the demonstrator's subtask label of every pair the model learned, as codes into the
+  vocabulary. They name experts (majority label); the learner never sees them.
+* ``queue_x``, ``queue_y``, ``queue_labels``, ``queue_ticks``: the training queue, pairs
+  received but not yet learned, learned first after a restart.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from protocols.messages import Dims
+
+__all__ = ["DAEMON_KEYS", "Pair", "RobotState"]
+
+#: The arrays of a checkpoint's daemon state.
+DAEMON_KEYS = frozenset({"label_vocab", "label_codes", "queue_x", "queue_y", "queue_labels",
+                         "queue_ticks"})
+
+
+@dataclass(frozen=True, slots=True)
+class Pair:
+    """A training pair waiting in the queue (``t``: its perception's time, 0 if unknown)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    label: int
+    tick: int
+    t: float = 0.0
+
+
+@dataclass
+class RobotState:
+    """Label vocabulary, one label code per learned pair, and the queued pairs."""
+
+    vocab: list[str] = field(default_factory=list)
+    codes: npt.NDArray[np.int32] = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    queue: list[Pair] = field(default_factory=list)
+
+    @classmethod
+    def from_labels(cls, labels: Sequence[str], *, vocab: Sequence[str] = ()) -> RobotState:
+        """The state of a model that learned pairs with these ``labels`` (empty queue).
+
+        Codes index ``vocab`` first; labels not in it are appended in order of first use.
+        """
+        words = [str(v) for v in vocab]
+        index = {w: i for i, w in enumerate(words)}
+        codes = []
+        for label in labels:
+            if label not in index:
+                index[label] = len(words)
+                words.append(label)
+            codes.append(index[label])
+        return cls(words, np.array(codes, dtype=np.int32))
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, npt.ArrayLike]) -> RobotState:
+        """Read a checkpoint's daemon arrays; ``KeyError`` names a missing one."""
+        missing = sorted(DAEMON_KEYS - set(arrays))
+        if missing:
+            raise KeyError(f"daemon state lacks {', '.join(missing)}")
+        queue = [Pair(np.array(x, dtype=np.float64), np.array(y, dtype=np.float64), int(lab),
+                      int(tick))
+                 for x, y, lab, tick in zip(np.asarray(arrays["queue_x"]),
+                                            np.asarray(arrays["queue_y"]),
+                                            np.asarray(arrays["queue_labels"]).tolist(),
+                                            np.asarray(arrays["queue_ticks"]).tolist(),
+                                            strict=True)]
+        return cls([str(s) for s in np.asarray(arrays["label_vocab"]).tolist()],
+                   np.asarray(arrays["label_codes"], dtype=np.int32).copy(), queue)
+
+    def to_arrays(self, dims: Dims) -> dict[str, np.ndarray]:
+        """The checkpoint's daemon arrays (plain dtypes: no object arrays, no pickle)."""
+        q = self.queue
+        return {
+            "label_vocab": np.array(self.vocab, dtype=np.str_) if self.vocab
+            else np.zeros(0, dtype="<U1"),
+            "label_codes": np.asarray(self.codes, dtype=np.int32).copy(),
+            "queue_x": np.array([p.x for p in q], dtype=np.float64).reshape(len(q), dims.x),
+            "queue_y": np.array([p.y for p in q], dtype=np.float64).reshape(len(q), dims.y),
+            "queue_labels": np.array([p.label for p in q], dtype=np.int32),
+            "queue_ticks": np.array([p.tick for p in q], dtype=np.int64),
+        }
+
+    @property
+    def n_learned(self) -> int:
+        """Pairs the model learned (one label code each)."""
+        return int(len(self.codes))
+
+    def label(self, code: int) -> str:
+        """The label of ``code`` ('' for a code outside the vocabulary)."""
+        return self.vocab[code] if 0 <= code < len(self.vocab) else ""
+
+    def labels(self) -> list[str]:
+        """The label of every learned pair, in learning order."""
+        return [self.label(c) for c in self.codes.tolist()]
+
+    def queued_labels(self) -> list[str]:
+        """The label of every queued pair, in queue order."""
+        return [self.label(p.label) for p in self.queue]
