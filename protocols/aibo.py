@@ -79,7 +79,8 @@ ACTION_RANGES: tuple[tuple[float, float], ...] = (
     (-0.18, 0.225), (-0.17, 0.17), (-2.1, 2.1), *_HEAD, *_TAIL, (-1.0, 1.0))
 
 #: Perception entries that carry no task state: the tail pan wags on a clock and the tail
-#: tilt is constant (``simulator/hcc.py``), so the learner's default AIBO profile drops them.
+#: tilt is constant (``simulator/controllers/hcc.py``), so the learner's default AIBO profile
+#: drops them.
 STATE_FREE_DIMS = (PERCEPTION_NAMES.index("tail_pan"), PERCEPTION_NAMES.index("tail_tilt"))
 
 assert len(PERCEPTION_RANGES) == DIMS.x and len(ACTION_RANGES) == DIMS.y

@@ -64,7 +64,7 @@ COMMANDS = CommandTable({
     "router": ("roger_daemon.router", "a Zenoh router (Python session) for several hosts"),
     "record": ("roger_daemon.recording.cli_record", "record Zenoh traffic to MCAP"),
     "log": ("roger_daemon.recording.cli_log", "log tools: info, recover, export"),
-    "replay": ("roger_daemon.recording.cli_replay", "replay a log into the learner"),
+    "replay": ("roger_daemon.replay.cli", "replay a log into the learner"),
     "list": ("roger_daemon.tools.listing", "daemons alive (liveliness) and the robots they serve"),
     "status": ("roger_daemon.tools.status", "a robot's daemon status, readable (--watch, --json)"),
     "echo": ("roger_daemon.tools.echo", "print the decoded messages on a key expression"),
@@ -77,7 +77,7 @@ COMMANDS = CommandTable({
 BENCHES = CommandTable({
     "learner": ("roger_daemon.bench.learner",
                 "learner updates/s and latency (synthetic or AIBO stream; --compare REF)"),
-    "recorder": ("roger_daemon.recording.bench", "recorder write+poll cost, SIGKILL loss"),
+    "recorder": ("roger_daemon.bench.recorder", "recorder write+poll cost, SIGKILL loss"),
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
     "fleet": ("roger_daemon.bench.fleet", "N robots x 30 Hz against one daemon, per robot"),
     "soak": ("roger_daemon.bench.soak", "daemon RSS over a 30 Hz run, checkpoint bytes/expert"),

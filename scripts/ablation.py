@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.blas import pin_blas_threads
-from simulator.transitioner import RULES
+from simulator.controllers.transitioner import RULES
 
 #: name -> (what it changes, learner parameters replaced, transitioner rule)
 VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {

@@ -191,8 +191,8 @@ def record(spec: Spec, out: Path) -> dict[str, Any]:
 def goldens(spec: Spec, rel: Path) -> tuple[dict[str, Any], str]:
     """Golden replay result and ``log info`` text of one recorded session (run from ROOT)."""
     from roger_daemon.cli import main as roger
-    from roger_daemon.recording import replay_session
-    from roger_daemon.recording.compare import REL_TOL, behaviour, probe_inputs
+    from roger_daemon.replay import replay_session
+    from roger_daemon.replay.compare import REL_TOL, behaviour, probe_inputs
 
     res = replay_session(rel)
     if not res.bit_identical():

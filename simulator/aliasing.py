@@ -160,8 +160,9 @@ def measure_aliasing(
 
 
 def _label_order(labels: np.ndarray) -> list[str]:
-    """Labels present, in the demonstrator's order (``simulator.hcc.LABELS``), then others."""
-    from simulator.hcc import LABELS
+    """Labels present, in the demonstrator's order (``simulator.controllers.hcc.LABELS``),
+    then others."""
+    from simulator.controllers.hcc import LABELS
 
     present = set(labels.tolist())
     return [s for s in LABELS if s in present] + sorted(present - set(LABELS))
@@ -169,8 +170,8 @@ def _label_order(labels: np.ndarray) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Collect one shot per location with the HCC (in-process) per seed; print the report."""
+    from simulator.controllers.hcc import HCC
     from simulator.episodes import START_LOCATIONS, SoccerSim, Trace, run_episode
-    from simulator.hcc import HCC
 
     ap = argparse.ArgumentParser(prog="python -m simulator.aliasing", description=__doc__)
     ap.add_argument("--seeds", default="0", help="comma list of seeds (one shot per location each)")

@@ -127,8 +127,8 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 def _inprocess(seeds: int) -> dict[str, Any]:
     from simulator.aliasing import measure_aliasing
+    from simulator.controllers.hcc import HCC, LABELS
     from simulator.episodes import START_LOCATIONS, SoccerSim, Trace, run_episode
-    from simulator.hcc import HCC, LABELS
 
     sim = SoccerSim(vision="fast")
     hcc = HCC()

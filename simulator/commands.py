@@ -11,7 +11,8 @@ __all__ = ["BENCHES", "COMMANDS"]
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("simulator.sim_node", "the AIBO soccer simulator (pybullet) as a Zenoh process"),
-    "hcc": ("simulator.hcc_node", "the hand-coded FSM goal scorer: demonstrator or transitioner"),
+    "hcc": ("simulator.controllers.hcc_node",
+            "the hand-coded FSM goal scorer: demonstrator or transitioner"),
     "experiment": ("simulator.experiment.cli", "experiments: goal-scoring (paper section IV)"),
     "demo": ("simulator.experiment.demo", "a short end-to-end session: demonstrate, learn, act"),
     "up": ("simulator.launch", "start daemon, simulator and controller from one TOML file"),

@@ -1,7 +1,7 @@
 """What the controller may know of its own body: head kinematics and the camera model.
 
-The HCC (``simulator/hcc.py``) turns an image point of the 23-D perception into a bearing
-or a ball position in the body frame with it; the simulator's vision tests check it against
+The HCC (``simulator/controllers/hcc.py``) turns an image point of the 23-D perception into a
+bearing or a ball position in the body frame with it; the simulator's vision tests check it against
 the rendered camera.
 """
 

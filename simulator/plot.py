@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from simulator.config import FieldConfig, load_config
+from simulator.controllers.hcc import HCC, HCCParams
 from simulator.episodes import (
     START_LOCATIONS,
     EpisodeResult,
@@ -23,7 +24,6 @@ from simulator.episodes import (
     parse_locations,
     run_episode,
 )
-from simulator.hcc import HCC, HCCParams
 
 __all__ = ["SUBTASK_COLOURS", "draw_field", "main", "plot_episodes"]
 

@@ -17,8 +17,8 @@ from typing import Any
 
 import pytest
 
+from simulator.controllers.hcc import LABELS
 from simulator.experiment.report import check_results
-from simulator.hcc import LABELS
 
 pytestmark = pytest.mark.integration
 

@@ -15,6 +15,7 @@ import pytest
 from protocols import ExpertOutput
 from roger_daemon.labels import majority_labels
 from roger_daemon.learner import RogerParams
+from simulator.controllers.transitioner import choose_expert, transition_command
 from simulator.experiment import inprocess as ip
 from simulator.experiment.pipeline import fit_segmentation_oracle, train_models
 from simulator.experiment.start_poses import (
@@ -24,7 +25,6 @@ from simulator.experiment.start_poses import (
 )
 from simulator.experiment.training import Demonstrations, model_fingerprint
 from simulator.experiment.zenoh_run import compare_paths
-from simulator.transitioner import choose_expert, transition_command
 
 GOOD_TOML = """
 [[pose]]

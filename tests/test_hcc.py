@@ -10,9 +10,9 @@ import pytest
 from protocols import ExpertOutput
 from protocols.aibo import NOT_SEEN, blob_slice, decode_indicator
 from simulator.aliasing import conflicting, measure_aliasing
+from simulator.controllers.hcc import HCC, LABELS, HeadModel, coarse_label
+from simulator.controllers.transitioner import choose_expert
 from simulator.episodes import SoccerSim, Trace, run_episode
-from simulator.hcc import HCC, LABELS, HeadModel, coarse_label
-from simulator.transitioner import choose_expert
 
 LOOK = math.radians(-15.0)
 

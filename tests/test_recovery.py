@@ -26,11 +26,11 @@ from roger_daemon.recording import (
     is_complete,
     list_session_files,
     read_timeline,
-    replay_session,
 )
-from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
-from roger_daemon.recording.replay import load_checkpoint
 from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
+from roger_daemon.replay import replay_session
+from roger_daemon.replay.compare import REL_TOL, behaviour, behaviour_differences
+from roger_daemon.replay.session import load_checkpoint
 from roger_daemon.service import Service
 from roger_daemon.transport import MemoryTransport
 

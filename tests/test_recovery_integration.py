@@ -26,7 +26,7 @@ from roger_daemon.daemon import make_model
 from roger_daemon.labels import majority_labels_coded as majority_labels
 from roger_daemon.learner import load_model
 from roger_daemon.recording import LogReader, is_complete, list_session_files
-from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
+from roger_daemon.replay.compare import REL_TOL, behaviour, behaviour_differences
 
 harness = pytest.importorskip("roger_daemon.harness")
 

@@ -22,10 +22,10 @@ from roger_daemon.recording import (
     is_complete,
     read_metadata,
     recover,
-    replay_session,
 )
-from roger_daemon.recording.compare import REL_TOL, behaviour, behaviour_differences
-from roger_daemon.recording.replay import ROUND_OFF_MARGIN, DecisionMargin
+from roger_daemon.replay import replay_session
+from roger_daemon.replay.compare import REL_TOL, behaviour, behaviour_differences
+from roger_daemon.replay.session import ROUND_OFF_MARGIN, DecisionMargin
 
 pytestmark = pytest.mark.integration
 

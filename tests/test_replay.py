@@ -26,10 +26,10 @@ from roger_daemon.recording import (
     is_complete,
     log_tail,
     read_timeline,
-    replay_session,
 )
-from roger_daemon.recording.compare import REL_TOL
 from roger_daemon.recording.mcapio import LogReader
+from roger_daemon.replay import replay_session
+from roger_daemon.replay.compare import REL_TOL
 
 TOL = REL_TOL
 

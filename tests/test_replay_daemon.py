@@ -9,8 +9,9 @@ import pytest
 from daemon_sessions import as_version_1, synthetic_stream
 
 from protocols.messages import Dims
-from roger_daemon.recording import is_complete, list_session_files, replay_session
-from roger_daemon.recording.compare import REL_TOL
+from roger_daemon.recording import is_complete, list_session_files
+from roger_daemon.replay import replay_session
+from roger_daemon.replay.compare import REL_TOL
 
 harness = pytest.importorskip("roger_daemon.harness")
 

@@ -21,8 +21,8 @@ import zenoh
 from protocols import EpisodeEvent, ExpertOutput, Perception, Prediction, decode, encode, keys
 from protocols.aibo import DIMS, SUBTASKS
 from simulator.bench import free_port
+from simulator.controllers.hcc import HCC, coarse_label
 from simulator.episodes import SoccerSim, run_episode
-from simulator.hcc import HCC, coarse_label
 from simulator.transport import loopback_config
 
 pytestmark = pytest.mark.integration

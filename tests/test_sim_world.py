@@ -96,7 +96,7 @@ def test_head_moves_within_range_and_speed(world: World) -> None:
 
 
 def test_camera_link_follows_the_head_model(world: World) -> None:
-    from simulator.hcc import HeadModel
+    from simulator.controllers.hcc import HeadModel
 
     head = HeadModel(CFG.robot, CFG.camera)
     _reset(world, (0.5, -0.3, 0.7))
@@ -179,7 +179,7 @@ def test_kick_distance_and_heading_match_the_calibration() -> None:
 
 
 def test_same_seed_same_trajectory_and_different_seed_differs() -> None:
-    from simulator.hcc import HCC
+    from simulator.controllers.hcc import HCC
 
     def trajectory(seed: int) -> np.ndarray:
         sim = SoccerSim(vision="rendered")

@@ -11,7 +11,7 @@ from scipy.optimize import brentq
 
 from protocols.aibo import COLOURS, NOT_SEEN
 from simulator.config import CameraConfig, SimConfig
-from simulator.hcc import HeadModel
+from simulator.controllers.hcc import HeadModel
 from simulator.vision import FastVision, RenderedVision, apply_noise
 from simulator.world import World
 

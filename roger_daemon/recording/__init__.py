@@ -1,4 +1,4 @@
-"""Session recording to MCAP, log tools, offline replay and log-tail catch-up.
+"""Session recording to MCAP, log tools and log-tail catch-up (replay: roger_daemon.replay).
 
 The daemon's seam::
 
@@ -25,7 +25,8 @@ new recorder opens (an open session would cut the history)::
     # model.n_learned, checkpoint=<that file>, resumed_session=..., resumed_segment=...)
 
 By hand: ``roger log recover FILE --in-place``, then ``roger replay FILE --checkpoint CK
---save-checkpoint DIR`` (:func:`resume_timeline`, :func:`save_checkpoint`).
+--save-checkpoint DIR`` (:func:`roger_daemon.replay.resume_timeline`,
+:func:`roger_daemon.replay.save_checkpoint`).
 
 The daemon's decisions are in the log too (format version 2: a record per learned pair,
 reset, dropped pair and checkpoint digest on ``roger/<robot>/daemon/<event>``,
@@ -39,7 +40,6 @@ Nothing here imports Zenoh (only ``cli_record``, ``zenoh_net`` and ``publish`` d
 from __future__ import annotations
 
 from roger_daemon.recording.catchup import CatchUp, CatchUpError, log_tail
-from roger_daemon.recording.compare import behaviour, behaviour_differences, probe_inputs
 from roger_daemon.recording.files import SessionFile, list_session_files, parse_name
 from roger_daemon.recording.mcapio import LogMessage, LogReader, is_complete, read_metadata
 from roger_daemon.recording.metadata import (
@@ -53,15 +53,6 @@ from roger_daemon.recording.recover import (
     recover,
     recover_directory,
     recover_in_place,
-)
-from roger_daemon.recording.replay import (
-    PredictionDiff,
-    ReplayError,
-    ReplayResult,
-    replay_session,
-    replay_timeline,
-    resume_timeline,
-    save_checkpoint,
 )
 from roger_daemon.recording.schemas import schema, schema_bytes, schema_name
 from roger_daemon.recording.session_read import read_timeline
@@ -77,19 +68,14 @@ __all__ = [
     "LearnedPair",
     "LogMessage",
     "LogReader",
-    "PredictionDiff",
     "RecordedPrediction",
     "RecorderStats",
     "RecoverReport",
     "RecoveryPlan",
-    "ReplayError",
-    "ReplayResult",
     "SessionFile",
     "SessionInfo",
     "SessionRecorder",
     "Timeline",
-    "behaviour",
-    "behaviour_differences",
     "header_fields",
     "is_complete",
     "list_session_files",
@@ -97,16 +83,11 @@ __all__ = [
     "package_versions",
     "parse_name",
     "plan_recovery",
-    "probe_inputs",
     "read_metadata",
     "read_timeline",
     "recover",
     "recover_directory",
     "recover_in_place",
-    "replay_session",
-    "replay_timeline",
-    "resume_timeline",
-    "save_checkpoint",
     "schema",
     "schema_bytes",
     "schema_name",

@@ -1,6 +1,6 @@
 """SessionRecorder: one MCAP file per session and robot, crash-bounded, rotated.
 
-Durability model (measured in ``roger_daemon.recording.bench``):
+Durability model (measured in ``roger_daemon.bench.recorder``):
 
 * The mcap ``Writer`` keeps the open chunk in memory, so :meth:`SessionRecorder.poll` closes the
   chunk (``Writer.flush()``: finish chunk, write it and its message indexes, flush Python's

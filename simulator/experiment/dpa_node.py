@@ -134,7 +134,8 @@ class DPANode:
 
 class CommandTrace:
     """Perception and command per tick (``--trace``); an episode starts at a perception with
-    ``t == 0`` (the simulator's episode clock), as :mod:`simulator.hcc_node` detects it."""
+    ``t == 0`` (the simulator's episode clock), as :mod:`simulator.controllers.hcc_node`
+    detects it."""
 
     def __init__(self) -> None:
         self._x: dict[int, tuple[float, np.ndarray]] = {}

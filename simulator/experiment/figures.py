@@ -53,8 +53,9 @@ def expert_colours(assignments: npt.NDArray[np.int64]) -> dict[int, tuple[float,
 
 
 def _colour(label: str) -> str:
-    """Colour of the paper's subtask a demonstrator label belongs to (simulator.hcc.COARSE)."""
-    from simulator.hcc import coarse_label
+    """Colour of the paper's subtask a demonstrator label belongs to
+    (simulator.controllers.hcc.COARSE)."""
+    from simulator.controllers.hcc import coarse_label
 
     return SUBTASK_COLOURS.get(coarse_label(label), "tab:gray")
 
@@ -103,7 +104,7 @@ def plot_pca(
 def plot_experts_histogram(assignments: Sequence[int], labels: Sequence[str], out: Path) -> Path:
     """Fig. 8: data per expert, stacked by subtask (experts in id order)."""
     experts = np.asarray(assignments)
-    from simulator.hcc import coarse_label
+    from simulator.controllers.hcc import coarse_label
 
     lab = np.asarray([coarse_label(s) for s in labels])
     uniq = sorted(set(experts.tolist()))

@@ -1,8 +1,8 @@
 """The experiment in one process: demonstrations, training and closed-loop evaluation, no Zenoh.
 
 Same simulator (:class:`simulator.episodes.SoccerSim`), same demonstrator
-(:class:`simulator.hcc.HCC`), same learners and the same transitioner rule
-(:func:`simulator.transitioner.choose_expert`) as the Zenoh path of ``roger experiment
+(:class:`simulator.controllers.hcc.HCC`), same learners and the same transitioner rule
+(:func:`simulator.controllers.transitioner.choose_expert`) as the Zenoh path of ``roger experiment
 goal-scoring``; the only difference is that perceptions, predictions and commands are function
 calls instead of messages. Given the same seeds both paths give the same episodes (a test
 checks it on a shared subset), so this path serves iteration and ablations
@@ -30,11 +30,11 @@ import numpy as np
 
 from protocols import ExpertOutput
 from protocols.aibo import DIMS
+from simulator.controllers.hcc import HCC
+from simulator.controllers.transitioner import DEFAULT_RULE, transition_command
 from simulator.episodes import EpisodeResult, SoccerSim, StartLocation, run_episode
 from simulator.experiment.averaging import MultimapNeighbourhood
 from simulator.experiment.training import Demonstrations
-from simulator.hcc import HCC
-from simulator.transitioner import DEFAULT_RULE, transition_command
 
 __all__ = [
     "EpisodeRecord",

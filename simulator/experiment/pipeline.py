@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.labels import majority_labels
+from simulator.controllers.hcc import HCC
 from simulator.episodes import SoccerSim, StartLocation
 from simulator.experiment import inprocess as ip
 from simulator.experiment.averaging import MultimapNeighbourhood
 from simulator.experiment.metrics import downsample_per_label
 from simulator.experiment.training import Demonstrations, train
-from simulator.hcc import HCC
 
 __all__ = [
     "controllers_for",
@@ -59,7 +59,7 @@ def make_sim(plan: Any) -> SoccerSim:
 
 def make_hcc(plan: Any) -> HCC:
     """The HCC with the plan's task config (as ``roger hcc --config``)."""
-    from simulator.hcc_node import hcc_from_config
+    from simulator.controllers.hcc_node import hcc_from_config
 
     return hcc_from_config(plan.task_config)
 

@@ -32,7 +32,7 @@ from typing import IO, Any
 from roger_daemon.atomic import write_json
 from roger_daemon.harness import free_port as _free_port
 from roger_daemon.harness import write_config
-from simulator.transitioner import DEFAULT_RULE
+from simulator.controllers.transitioner import DEFAULT_RULE
 
 __all__ = [
     "CHILDREN",

@@ -96,7 +96,7 @@ def _ratio(a: float | None, b: float | None) -> float | None:
 def _seed_blocks(episodes: dict[str, list[dict[str, Any]]], models: Sequence[tuple[int, Any]],
                  labels: Sequence[str], hcc_rate: float | None) -> list[dict[str, Any]]:
     """One row per learner seed: success, ratio to HCC and the segmentation of its model."""
-    from simulator.hcc import coarse_label
+    from simulator.controllers.hcc import coarse_label
 
     rows = []
     for k, (seed, model) in enumerate(models):
@@ -128,9 +128,9 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
     as ``(learner seed, model)``. The ``roger`` block pools every learner seed's episodes (its
     rate is the mean over seeds); ``roger_seeds`` has one row per seed.
     """
+    from simulator.controllers.hcc import coarse_label
     from simulator.experiment.goal_scoring import PAPER
     from simulator.experiment.training import expert_table
-    from simulator.hcc import coarse_label
 
     assignments = np.asarray(models[0][1].assignments())
     groups = majority_labels(assignments.tolist(), stream.labels)

@@ -28,7 +28,7 @@ import numpy.typing as npt
 from protocols.messages import Dims
 from roger_daemon.atomic import write_json
 from roger_daemon.checkpoint import array_digest, write_checkpoint
-from roger_daemon.recording.compare import REL_TOL
+from roger_daemon.replay.compare import REL_TOL
 from roger_daemon.robot_state import RobotState
 
 __all__ = [
@@ -165,7 +165,7 @@ def _probe_predictions(model: Any, x: FloatArray
 
 def _probe_agreement(offline: Any, daemon: Any, x: FloatArray) -> dict[str, Any]:
     """Probe predictions of two models: structure exactly, floats within ``REL_TOL``."""
-    from roger_daemon.recording.compare import rel_err
+    from roger_daemon.replay.compare import rel_err
 
     m_off, ids_off, f_off = _probe_predictions(offline, x)
     m_dae, ids_dae, f_dae = _probe_predictions(daemon, x)
@@ -201,7 +201,8 @@ def daemon_check(
     from roger_daemon.harness import Client, DaemonProcess, write_config
     from roger_daemon.labels import majority_labels, majority_labels_coded
     from roger_daemon.learner import load_model
-    from roger_daemon.recording import list_session_files, replay_session
+    from roger_daemon.recording import list_session_files
+    from roger_daemon.replay import replay_session
     from simulator.experiment.procs import CHILDREN, child_env, free_port
 
     if workdir.exists():

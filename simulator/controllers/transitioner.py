@@ -3,7 +3,7 @@
 The paper (section IV.A) groups the learned experts by the subtask that generated most of
 their data and lets the hand-coded FSM pick the group of its current subtask; it leaves open
 which of a group's experts acts. The rules here answer that, for the Zenoh node
-(:mod:`simulator.hcc_node`) and the in-process evaluation
+(:mod:`simulator.controllers.hcc_node`) and the in-process evaluation
 (:mod:`simulator.experiment.inprocess`) alike, so both act identically. docs/goal-scoring.md
 compares them.
 """

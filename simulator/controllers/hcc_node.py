@@ -18,7 +18,7 @@
     where they are, no motion).
 
   Each case is counted; the counts are printed on exit. The FSM is told which command was
-  executed (:meth:`simulator.hcc.HCC.commit`); it never publishes ``action``.
+  executed (:meth:`simulator.controllers.hcc.HCC.commit`); it never publishes ``action``.
 
 A perception with ``t == 0`` starts a new episode (the FSM is reset). A repeated perception
 tick (the lockstep simulator re-sends when a command is late) gets the cached command again
@@ -40,9 +40,9 @@ import numpy as np
 from protocols import Action, Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
 from simulator.config import load_config
-from simulator.hcc import HCC, HCCParams, HeadModel
+from simulator.controllers.hcc import HCC, HCCParams, HeadModel
+from simulator.controllers.transitioner import DEFAULT_RULE, RULES, transition_command
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
-from simulator.transitioner import DEFAULT_RULE, RULES, transition_command
 from simulator.transport import (
     EPHEMERAL,
     Inbox,

@@ -15,7 +15,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from roger_daemon.recording.compare import REL_TOL
+from roger_daemon.replay.compare import REL_TOL
 
 __all__ = ["configure", "run"]
 
@@ -116,13 +116,13 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
     from roger_daemon.recording.catchup import CatchUpError
-    from roger_daemon.recording.replay import (
+    from roger_daemon.recording.session_read import read_timeline
+    from roger_daemon.replay.session import (
         ReplayError,
         load_checkpoint,
         replay_timeline,
         resume_timeline,
     )
-    from roger_daemon.recording.session_read import read_timeline
 
     err = Console(stderr=True)
     params: dict[str, Any] | None = None
@@ -186,7 +186,7 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
 
 def _save(res: Any, directory: Path, checkpoint: Path | None, queued: list[Any]) -> Path:
     """Write the replayed model as a daemon checkpoint (labels from the checkpoint, if any)."""
-    from roger_daemon.recording.replay import save_checkpoint
+    from roger_daemon.replay.session import save_checkpoint
 
     vocab: list[str] = []
     codes: list[int] = []

@@ -21,13 +21,21 @@ import numpy as np
 
 from protocols.messages import Perception
 from roger_daemon.checkpoint import array_digest
-from roger_daemon.recording.compare import max_abs_diff, rel_err
-from roger_daemon.recording.replay_checkpoint import (
+from roger_daemon.recording.session_read import read_timeline
+from roger_daemon.recording.timeline import (
+    LearnedPair,
+    ModelCheck,
+    RecordedPrediction,
+    Segment,
+    Timeline,
+)
+from roger_daemon.replay.checkpoint import (
     load_checkpoint,
     resume_timeline,
     save_checkpoint,
 )
-from roger_daemon.recording.replay_result import (
+from roger_daemon.replay.compare import max_abs_diff, rel_err
+from roger_daemon.replay.result import (
     ROUND_OFF_MARGIN,
     DecisionMargin,
     DigestCheck,
@@ -36,14 +44,6 @@ from roger_daemon.recording.replay_result import (
     PredictionDiff,
     ReplayError,
     ReplayResult,
-)
-from roger_daemon.recording.session_read import read_timeline
-from roger_daemon.recording.timeline import (
-    LearnedPair,
-    ModelCheck,
-    RecordedPrediction,
-    Segment,
-    Timeline,
 )
 from roger_daemon.robot import RobotRuntime
 from roger_daemon.robot_state import RobotState

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from roger_daemon.recording.replay_result import Model, ReplayError, ReplayResult
 from roger_daemon.recording.timeline import LearnedPair, Segment, Timeline
+from roger_daemon.replay.result import Model, ReplayError, ReplayResult
 from roger_daemon.robot_state import RobotState
 
 __all__ = ["load_checkpoint", "resume_timeline", "save_checkpoint"]
