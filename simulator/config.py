@@ -18,7 +18,7 @@ from typing import Any
 __all__ = [
     "BallConfig",
     "CameraConfig",
-    "ConfigError",
+    "SimConfigError",
     "EpisodeConfig",
     "FieldConfig",
     "MotionConfig",
@@ -30,22 +30,24 @@ __all__ = [
 ]
 
 
-class ConfigError(ValueError):
-    """A configuration value or key that is not acceptable."""
+class SimConfigError(ValueError):
+    """A simulator or task configuration value or key that is not acceptable (the daemon's
+    config errors are :class:`roger_daemon.config.ConfigError`)."""
 
 
 def _positive(obj: object, *names: str) -> None:
     for n in names:
         v = getattr(obj, n)
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-            raise ConfigError(f"{type(obj).__name__}.{n} must be a finite number > 0, got {v!r}")
+            raise SimConfigError(f"{type(obj).__name__}.{n} must be a finite number > 0, got {v!r}")
 
 
 def _non_negative(obj: object, *names: str) -> None:
     for n in names:
         v = getattr(obj, n)
         if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-            raise ConfigError(f"{type(obj).__name__}.{n} must be a finite number >= 0, got {v!r}")
+            raise SimConfigError(
+                f"{type(obj).__name__}.{n} must be a finite number >= 0, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -73,9 +75,10 @@ class FieldConfig:
         _positive(self, "beacon_radius", "beacon_band", "beacon_white", "border_height")
         _non_negative(self, "fringe_side", "fringe_end", "beacon_outside", "beacon_from_goal_line")
         if self.attack not in ("blue", "yellow"):
-            raise ConfigError(f"FieldConfig.attack must be 'blue' or 'yellow', got {self.attack!r}")
+            raise SimConfigError(
+                f"FieldConfig.attack must be 'blue' or 'yellow', got {self.attack!r}")
         if self.goal_width >= self.width:
-            raise ConfigError("FieldConfig.goal_width must be smaller than the field width")
+            raise SimConfigError("FieldConfig.goal_width must be smaller than the field width")
 
 
 @dataclass(frozen=True)
@@ -159,9 +162,9 @@ class RobotConfig:
         for n in ("tilt_range", "pan_range", "nod_range", "tail_pan_range", "tail_tilt_range"):
             lo, hi = getattr(self, n)
             if not lo < hi:
-                raise ConfigError(f"RobotConfig.{n} must be (low, high) with low < high")
+                raise SimConfigError(f"RobotConfig.{n} must be (low, high) with low < high")
         if self.trunk_height - self.trunk_thickness / 2 <= 0:
-            raise ConfigError("RobotConfig: the trunk must be above the floor")
+            raise SimConfigError("RobotConfig: the trunk must be above the floor")
 
 
 @dataclass(frozen=True)
@@ -177,12 +180,12 @@ class CameraConfig:
 
     def __post_init__(self) -> None:
         if not (isinstance(self.width, int) and isinstance(self.height, int)):
-            raise ConfigError("CameraConfig.width/height must be integers")
+            raise SimConfigError("CameraConfig.width/height must be integers")
         if not (8 <= self.width <= 2048 and 8 <= self.height <= 2048):
-            raise ConfigError("CameraConfig.width/height must be in 8..2048")
+            raise SimConfigError("CameraConfig.width/height must be in 8..2048")
         _positive(self, "hfov", "near", "far", "min_pixels")
         if self.hfov >= 170:
-            raise ConfigError("CameraConfig.hfov must be < 170 degrees")
+            raise SimConfigError("CameraConfig.hfov must be < 170 degrees")
 
     @property
     def focal_px(self) -> float:
@@ -211,7 +214,7 @@ class VisionNoiseConfig:
     def __post_init__(self) -> None:
         _non_negative(self, "dropout", "jitter", "size_jitter")
         if self.dropout >= 1:
-            raise ConfigError("VisionNoiseConfig.dropout must be < 1")
+            raise SimConfigError("VisionNoiseConfig.dropout must be < 1")
 
 
 @dataclass(frozen=True)
@@ -250,12 +253,12 @@ class MotionConfig:
         _non_negative(self, "trap_lunge_time", "trap_lunge_speed", "kick_distance_sd")
         _non_negative(self, "kick_heading_sd")
         if self.trap_capture_time > self.trap_time or self.kick_release_time > self.kick_time:
-            raise ConfigError("MotionConfig: capture/release must happen within the motion")
+            raise SimConfigError("MotionConfig: capture/release must happen within the motion")
         lo, hi = self.kick_distance_range
         if not 0 < lo < hi:
-            raise ConfigError("MotionConfig.kick_distance_range must be 0 < low < high")
+            raise SimConfigError("MotionConfig.kick_distance_range must be 0 < low < high")
         if not 0 < self.capture_x[0] < self.capture_x[1]:
-            raise ConfigError("MotionConfig.capture_x must be 0 < low < high")
+            raise SimConfigError("MotionConfig.capture_x must be 0 < low < high")
 
 
 @dataclass(frozen=True)
@@ -272,7 +275,7 @@ class EpisodeConfig:
         _positive(self, "time_limit", "control_hz")
         _non_negative(self, "start_xy_noise", "start_heading_noise")
         if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 64):
-            raise ConfigError("EpisodeConfig.substeps must be an integer in 1..64")
+            raise SimConfigError("EpisodeConfig.substeps must be an integer in 1..64")
 
     @property
     def dt(self) -> float:
@@ -296,7 +299,8 @@ class SimConfig:
 
     def __post_init__(self) -> None:
         if self.vision not in ("rendered", "fast"):
-            raise ConfigError(f"SimConfig.vision must be 'rendered' or 'fast', got {self.vision!r}")
+            raise SimConfigError(
+                f"SimConfig.vision must be 'rendered' or 'fast', got {self.vision!r}")
 
     def with_overrides(self, data: Mapping[str, Any]) -> SimConfig:
         """A copy with tables from ``data`` (as in the TOML file) applied."""
@@ -307,9 +311,9 @@ class SimConfig:
                 continue
             sub = getattr(self, name, None) if name in _TABLES else None
             if sub is None:
-                raise ConfigError(f"unknown table [{name}] (known: {sorted(_TABLES)}, vision)")
+                raise SimConfigError(f"unknown table [{name}] (known: {sorted(_TABLES)}, vision)")
             if not isinstance(value, Mapping):
-                raise ConfigError(f"[{name}] must be a table")
+                raise SimConfigError(f"[{name}] must be a table")
             changes[name] = _apply(sub, value, name)
         return replace(self, **changes)
 
@@ -322,21 +326,21 @@ def _apply(obj: Any, values: Mapping[str, Any], table: str) -> Any:
     out: dict[str, Any] = {}
     for k, v in values.items():
         if k not in known:
-            raise ConfigError(f"unknown key {k!r} in [{table}] (known: {sorted(known)})")
+            raise SimConfigError(f"unknown key {k!r} in [{table}] (known: {sorted(known)})")
         current = getattr(obj, k)
         if isinstance(current, tuple):
             if not isinstance(v, list | tuple) or len(v) != len(current):
-                raise ConfigError(f"[{table}] {k} must be a list of {len(current)} numbers")
+                raise SimConfigError(f"[{table}] {k} must be a list of {len(current)} numbers")
             v = tuple(float(e) for e in v)
         elif isinstance(current, bool) or isinstance(current, str):
             if type(v) is not type(current):
-                raise ConfigError(f"[{table}] {k} must be a {type(current).__name__}")
+                raise SimConfigError(f"[{table}] {k} must be a {type(current).__name__}")
         elif isinstance(current, int):
             if isinstance(v, bool) or not isinstance(v, int):
-                raise ConfigError(f"[{table}] {k} must be an integer")
+                raise SimConfigError(f"[{table}] {k} must be an integer")
         elif isinstance(current, float):
             if isinstance(v, bool) or not isinstance(v, int | float):
-                raise ConfigError(f"[{table}] {k} must be a number")
+                raise SimConfigError(f"[{table}] {k} must be a number")
             v = float(v)
         out[k] = v
     return replace(obj, **out)
@@ -350,7 +354,7 @@ def load_config(path: str | Path | None = None, **overrides: Any) -> SimConfig:
             data = tomllib.load(f)
         sim_data = data.get("sim", data)
         if not isinstance(sim_data, Mapping):
-            raise ConfigError("[sim] must be a table")
+            raise SimConfigError("[sim] must be a table")
         cfg = cfg.with_overrides(sim_data)
     if overrides:
         cfg = replace(cfg, **overrides)

@@ -42,9 +42,9 @@ from simulator.config import SimConfig
 from simulator.episodes import START_LOCATIONS, EpisodeResult, SoccerSim
 from simulator.sim_args import DAEMON_ENDPOINT, DEFAULT_LISTEN, configure, episode_plan, sim_config
 from simulator.transport import (
-    Inbox,
     InvalidCounter,
     StopFlag,
+    Subscription,
     config_from_args,
     has_subscribers,
     open_session,
@@ -99,7 +99,7 @@ class SimNode:
         args = self.args
         self.pub_x = publisher(session, keys.perception(self.robot))
         self.pub_ep = publisher(session, keys.episode(self.robot), never_drop=True)
-        self.cmds = Inbox(session, self.robot, "command", DIMS, self.invalid, capacity=256)
+        self.cmds = Subscription(session, self.robot, "command", DIMS, self.invalid, capacity=256)
         t_wait = time.monotonic()
         while not self.stop.stopped and time.monotonic() - t_wait < args.wait_subscribers:
             if _matching(self.pub_x) and len(list(session.info.peers_zid())) >= args.wait_peers:

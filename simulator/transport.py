@@ -5,10 +5,10 @@
 * :func:`add_zenoh_args` / :func:`config_from_args`: ``--listen``, ``--connect``,
   ``--zenoh-config``, ``--zenoh-set`` on a command line; session setup itself is
   :mod:`roger_daemon.zenoh_session`'s (``open_session`` is re-exported here).
-* :class:`Inbox`: a subscriber whose zenoh callback only appends the sample to a bounded deque
-  (the oldest dropped on overflow) and rings the process's :class:`Doorbell`; the loop decodes
-  and validates every sample, counting and logging once per kind the ones that fail, never
-  raising.
+* :class:`Subscription`: a subscriber whose zenoh callback only appends the sample to a
+  bounded deque (the oldest dropped on overflow) and rings the process's :class:`Doorbell`;
+  the loop decodes and validates every sample, counting and logging once per kind the ones
+  that fail, never raising.
 * :func:`wait_for`: the loop sleeps on the doorbell until a sample arrives (no polling: in
   lockstep most of the six or so processes of an episode are waiting at any moment, and on a
   2-core machine polling wake-ups took the CPU the working one needed).
@@ -50,7 +50,7 @@ __all__ = [
     "EPHEMERAL",
     "MSGPACK",
     "Doorbell",
-    "Inbox",
+    "Subscription",
     "InvalidCounter",
     "StopFlag",
     "add_zenoh_args",
@@ -167,8 +167,8 @@ class Doorbell:
 DOORBELL = Doorbell()
 
 
-class Inbox:
-    """Decoded, validated messages of one kind for one robot.
+class Subscription:
+    """A subscription to one message kind of one robot: its decoded, validated messages.
 
     ``capacity`` bounds the backlog; on overflow the oldest samples are dropped (a lockstep
     peer never has more than a few in flight). Zenoh's callback thread only appends the
@@ -237,7 +237,7 @@ def wait_for(
 ) -> T | None:
     """Call ``poll`` until it returns non-``None`` or ``timeout`` seconds pass (then ``None``).
 
-    Between calls it sleeps on ``doorbell`` (rung by every :class:`Inbox` of the process),
+    Between calls it sleeps on ``doorbell`` (rung by every :class:`Subscription` of the process),
     waking at least every 50 ms to check ``stop``.
     """
     deadline = time.monotonic() + timeout

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from protocols.aibo import encode_indicator
-from simulator.config import ConfigError, SimConfig, load_config
+from simulator.config import SimConfig, SimConfigError, load_config
 from simulator.episodes import START_LOCATIONS, SoccerSim, parse_locations
 from simulator.world import World
 
@@ -264,10 +264,10 @@ def test_config_file_overrides_and_rejects_unknown_keys(tmp_path) -> None:
     assert cfg.vision == "fast" and cfg.camera.width == 104
     assert cfg.camera.vfov == pytest.approx(CFG.camera.vfov, abs=0.01)
     p.write_text("[sim.camera]\nwidht = 104\n")
-    with pytest.raises(ConfigError, match="widht"):
+    with pytest.raises(SimConfigError, match="widht"):
         load_config(p)
     p.write_text("[sim.walk]\nmax_turn = -1.0\n")
-    with pytest.raises(ConfigError, match="max_turn"):
+    with pytest.raises(SimConfigError, match="max_turn"):
         load_config(p)
     assert load_config("configs/aibo.toml") == CFG
 

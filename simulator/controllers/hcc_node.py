@@ -45,9 +45,9 @@ from simulator.controllers.transitioner import DEFAULT_RULE, RULES, transition_c
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
 from simulator.transport import (
     EPHEMERAL,
-    Inbox,
     InvalidCounter,
     StopFlag,
+    Subscription,
     add_zenoh_args,
     publisher,
     put,
@@ -161,10 +161,11 @@ class HCCNode:
 
     def run(self, session: Any) -> dict[str, Any]:
         transitioner = self.args.role == "transitioner"
-        self.perc = Inbox(session, self.robot, "perception", DIMS, self.invalid, capacity=256)
-        self.events = Inbox(session, self.robot, "episode", None, self.invalid, capacity=256)
+        self.perc = Subscription(session, self.robot, "perception", DIMS, self.invalid,
+                                 capacity=256)
+        self.events = Subscription(session, self.robot, "episode", None, self.invalid, capacity=256)
         self.preds = (
-            Inbox(session, self.robot, "prediction", DIMS, self.invalid, capacity=64)
+            Subscription(session, self.robot, "prediction", DIMS, self.invalid, capacity=64)
             if transitioner
             else None
         )

@@ -37,9 +37,9 @@ from roger_daemon.atomic import write_bytes
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
 from simulator.transport import (
     EPHEMERAL,
-    Inbox,
     InvalidCounter,
     StopFlag,
+    Subscription,
     add_zenoh_args,
     publisher,
     put,
@@ -84,9 +84,9 @@ class DPANode:
         self.trace = CommandTrace() if args.trace else None
 
     def run(self, session: Any) -> dict[str, Any]:
-        preds = Inbox(session, self.robot, "prediction", DIMS, self.invalid, capacity=256)
-        events = Inbox(session, self.robot, "episode", None, self.invalid, capacity=256)
-        percs = (Inbox(session, self.robot, "perception", DIMS, self.invalid, capacity=256)
+        preds = Subscription(session, self.robot, "prediction", DIMS, self.invalid, capacity=256)
+        events = Subscription(session, self.robot, "episode", None, self.invalid, capacity=256)
+        percs = (Subscription(session, self.robot, "perception", DIMS, self.invalid, capacity=256)
                  if self.trace is not None else None)
         pub = publisher(session, keys.command(self.robot))
         source = f"dpa:{self.args.model}"

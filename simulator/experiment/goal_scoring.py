@@ -283,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
         plan = plan_from_args(args)
         params = learner_params(plan)
         starts = _load_starts(plan)
-    except ValueError as exc:  # ConfigError and StartPoseError are ValueErrors
+    except ValueError as exc:  # SimConfigError and StartPoseError are ValueErrors
         print(f"roger experiment goal-scoring: {exc}", file=sys.stderr)
         return 2
     if args.plan:
