@@ -20,8 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.records import Channel, Message, Metadata, Schema
-from mcap.writer import Writer
+from mcap_testing import copy_log
 
 from protocols import Action, Control, Perception, Prediction, decode, encode, keys
 from protocols.messages import Dims
@@ -30,10 +29,10 @@ from roger_daemon.config import parse_config
 from roger_daemon.daemon import open_recorders
 from roger_daemon.learners import ProcessLearners
 from roger_daemon.recording import METADATA_NAME
-from roger_daemon.recording.mcapio import LogReader
 from roger_daemon.recording.metadata import FORMAT_INPUTS_ONLY
 from roger_daemon.resume import Resumed, load_robot, model_meta, start_robots
 from roger_daemon.robot import Pair, RobotRuntime
+from roger_daemon.robot_state import RobotState
 from roger_daemon.service import Service
 from roger_daemon.service.recording import DecisionLog
 from roger_daemon.transport import MemoryTransport
@@ -240,32 +239,16 @@ def as_version_1(src: Path, dst: Path) -> Path:
     """Copy the log ``src`` to ``dst`` as a daemon without decision records wrote it: format
     ``roger-session/1``, and of the decision records only the ``dropped`` ones (older daemons
     wrote those); every other message, time and payload kept."""
-    reader = LogReader(src)
-    schemas: dict[int, int] = {}
-    channels: dict[int, int] = {}
     dropped = {"learned", "reset", "model"}
-    with open(dst, "wb") as f:
-        w = Writer(f)
-        w.start()
-        for rec in reader.records():
-            if isinstance(rec, Schema):
-                schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
-            elif isinstance(rec, Channel):
-                decision = keys.parse_decision(rec.topic)
-                if decision is None or decision[1] not in dropped:
-                    channels[rec.id] = w.register_channel(
-                        rec.topic, rec.message_encoding, schemas.get(rec.schema_id, 0),
-                        dict(rec.metadata))
-            elif isinstance(rec, Metadata):
-                meta = dict(rec.metadata)
-                if rec.name == METADATA_NAME:
-                    meta["format"] = FORMAT_INPUTS_ONLY
-                w.add_metadata(rec.name, meta)
-            elif isinstance(rec, Message) and rec.channel_id in channels:
-                w.add_message(channels[rec.channel_id], rec.log_time, rec.data,
-                              rec.publish_time, rec.sequence)
-        w.finish()
-    return dst
+
+    def keep(topic: str) -> bool:
+        decision = keys.parse_decision(topic)
+        return decision is None or decision[1] not in dropped
+
+    def version_1(name: str, fields: Mapping[str, str]) -> dict[str, str]:
+        return {**fields, "format": FORMAT_INPUTS_ONLY} if name == METADATA_NAME else dict(fields)
+
+    return copy_log(src, dst, keep=keep, metadata=version_1)
 
 
 def daemon_checkpoint(directory: Path, robot: str, state: Mapping[str, Any], *, dims: Dims,
@@ -277,14 +260,10 @@ def daemon_checkpoint(directory: Path, robot: str, state: Mapping[str, Any], *, 
     ``segment`` of the history."""
     vocab = sorted({*labels, *(q[3] for q in queue)}) or [""]
     code = {v: i for i, v in enumerate(vocab)}
-    daemon = {
-        "label_vocab": np.array(vocab), "label_codes": np.array([code[v] for v in labels],
-                                                                  dtype=np.int32),
-        "queue_x": np.array([q[1] for q in queue], dtype=np.float64).reshape(len(queue), dims.x),
-        "queue_y": np.array([q[2] for q in queue], dtype=np.float64).reshape(len(queue), dims.y),
-        "queue_labels": np.array([code[q[3]] for q in queue], dtype=np.int32),
-        "queue_ticks": np.array([q[0] for q in queue], dtype=np.int64),
-    }
+    robot_state = RobotState.from_labels(labels, vocab=vocab)
+    robot_state.queue = [Pair(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64),
+                              code[label], int(tick)) for tick, x, y, label in queue]
+    daemon = robot_state.to_arrays(dims)
     meta = {"updates": len(labels), "x_dim": dims.x, "y_dim": dims.y, "reason": "test",
             "session_id": session_id, "session_segment": segment,
             "counters": {"last_learned_tick": last_tick, "last_tick": last_tick or 0}}

@@ -2,13 +2,54 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from mcap.reader import make_reader
-from mcap.records import Chunk
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import Writer
 
-__all__ = ["chunk_ends", "messages"]
+from roger_daemon.recording.mcapio import LogReader
+
+__all__ = ["chunk_ends", "copy_log", "messages"]
+
+
+def copy_log(src: Path, dst: Path, *, keep: Callable[[str], bool] = lambda topic: True,
+             edit: Callable[[str, int, bytes], bytes] | None = None,
+             metadata: Callable[[str, Mapping[str, str]], dict[str, str]] | None = None
+             ) -> Path:
+    """Copy the log ``src`` to ``dst`` record by record: only the channels whose topic
+    ``keep`` accepts, each payload through ``edit(topic, index_in_topic, data)`` and each
+    metadata record through ``metadata(name, fields)``; times and sequence numbers kept."""
+    reader = LogReader(src)
+    seen: dict[str, int] = {}
+    schemas: dict[int, int] = {}
+    channels: dict[int, int] = {}
+    topics: dict[int, str] = {}
+    with open(dst, "wb") as f:
+        w = Writer(f)
+        w.start()
+        for rec in reader.records():
+            if isinstance(rec, Schema):
+                schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and keep(rec.topic):
+                channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
+                                                      schemas.get(rec.schema_id, 0),
+                                                      dict(rec.metadata))
+                topics[rec.id] = rec.topic
+            elif isinstance(rec, Metadata):
+                fields = dict(rec.metadata)
+                w.add_metadata(rec.name, metadata(rec.name, fields) if metadata else fields)
+            elif isinstance(rec, Message) and rec.channel_id in channels:
+                t = topics[rec.channel_id]
+                i = seen.get(t, 0)
+                seen[t] = i + 1
+                data = edit(t, i, rec.data) if edit else rec.data
+                w.add_message(channels[rec.channel_id], rec.log_time, data, rec.publish_time,
+                              rec.sequence)
+        w.finish()
+    return dst
 
 
 def chunk_ends(path: Path) -> list[tuple[int, int]]:

@@ -13,8 +13,7 @@ import msgpack
 import numpy as np
 import pytest
 from daemon_sessions import START_NS, as_version_1, daemon_checkpoint, record_session
-from mcap.records import Channel, Message, Metadata, Schema
-from mcap.writer import Writer
+from mcap_testing import copy_log
 
 from protocols import Action, Perception
 from roger_daemon.cli import main as roger
@@ -27,7 +26,6 @@ from roger_daemon.recording import (
     log_tail,
     read_timeline,
 )
-from roger_daemon.recording.mcapio import LogReader
 from roger_daemon.replay import replay_session
 from roger_daemon.replay.compare import REL_TOL
 
@@ -36,31 +34,7 @@ TOL = REL_TOL
 
 def _rewrite(src: Path, dst: Path, edit: Callable[[str, int, bytes], bytes]) -> None:
     """Copy a log, passing each payload through ``edit(topic, index_in_topic, data)``."""
-    reader = LogReader(src)
-    seen: dict[str, int] = {}
-    schemas: dict[int, int] = {}
-    channels: dict[int, int] = {}
-    topics: dict[int, str] = {}
-    with open(dst, "wb") as f:
-        w = Writer(f)
-        w.start()
-        for rec in reader.records():
-            if isinstance(rec, Schema):
-                schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
-            elif isinstance(rec, Channel):
-                channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
-                                                      schemas.get(rec.schema_id, 0),
-                                                      dict(rec.metadata))
-                topics[rec.id] = rec.topic
-            elif isinstance(rec, Metadata):
-                w.add_metadata(rec.name, dict(rec.metadata))
-            elif isinstance(rec, Message):
-                t = topics[rec.channel_id]
-                i = seen.get(t, 0)
-                seen[t] = i + 1
-                w.add_message(channels[rec.channel_id], rec.log_time, edit(t, i, rec.data),
-                              rec.publish_time, rec.sequence)
-        w.finish()
+    copy_log(src, dst, edit=edit)
 
 
 @pytest.fixture(scope="module")
