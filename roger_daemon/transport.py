@@ -3,7 +3,8 @@
 The service loop sees only :class:`Transport`: ``subscribe`` (deliveries arrive on another
 thread and must only be enqueued), ``publisher`` (one per key, declared once), ``declare_token``
 (liveliness), ``stop_intake`` and ``close``. :class:`ZenohTransport` implements it with one
-Zenoh session; :class:`MemoryTransport` is the in-memory fake used by the unit tests.
+Zenoh session; :class:`roger_daemon.testing.MemoryTransport` is the in-memory fake the unit
+tests use.
 
 Session setup (config layering, flags) is :mod:`roger_daemon.zenoh_session`'s; ``open_session``
 and ``zenoh_config`` are re-exported here. Zenoh rules followed here (docs/zenoh-notes.md §1,
@@ -21,11 +22,10 @@ and ``zenoh_config`` are re-exported here. Zenoh rules followed here (docs/zenoh
 from __future__ import annotations
 
 import queue
-import re
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 from roger_daemon.zenoh_session import ZenohSettings, open_session, zenoh_config
@@ -33,7 +33,6 @@ from roger_daemon.zenoh_session import ZenohSettings, open_session, zenoh_config
 __all__ = [
     "Inbox",
     "Incoming",
-    "MemoryTransport",
     "Publisher",
     "Transport",
     "ZenohTransport",
@@ -229,86 +228,3 @@ class ZenohTransport:
             self.session.close()
         except Exception:  # ZError on timeout: nothing more to do on the way out
             pass
-
-
-# --- the in-memory fake ------------------------------------------------------------------
-
-
-def _key_regex(key_expr: str) -> re.Pattern[str]:
-    """``*`` (one chunk) and ``**`` (any number of chunks); neither matches a verbatim ``@``."""
-    chunk = r"[^/@][^/]*"
-    pattern = ""
-    for i, c in enumerate(key_expr.split("/")):
-        sep = "/" if i else ""
-        if c == "**":
-            pattern += f"(?:{sep}{chunk})*" if i else f"(?:{chunk}(?:/{chunk})*)?"
-        else:
-            pattern += sep + (chunk if c == "*" else re.escape(c))
-    return re.compile("^" + pattern + "$")
-
-
-@dataclass
-class _MemoryPublisher:
-    key: str
-    realtime: bool
-    sink: list[tuple[str, bytes, bool]]
-
-    def put(self, payload: bytes) -> None:
-        self.sink.append((self.key, bytes(payload), self.realtime))
-
-
-@dataclass
-class MemoryTransport:
-    """In-memory :class:`Transport` for unit tests: inject samples, inspect publications."""
-
-    max_payload_bytes: int = 64 * 1024
-    published: list[tuple[str, bytes, bool]] = field(default_factory=list)
-    tokens: list[str] = field(default_factory=list)
-    closed: bool = False
-    intake_stopped: bool = False
-    _subs: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
-    now_ns: Callable[[], int] = time.monotonic_ns
-
-    def subscribe(self, key_expr: str, deliver: Deliver) -> None:
-        """Deliver every injected sample matching ``key_expr``."""
-        self._subs.append((_key_regex(key_expr), deliver))
-
-    def publisher(self, key: str, *, realtime: bool) -> Publisher:
-        """A publisher appending to :attr:`published`."""
-        return _MemoryPublisher(key, realtime, self.published)
-
-    def declare_token(self, key: str) -> None:
-        """Record a liveliness token."""
-        self.tokens.append(key)
-
-    def stop_intake(self) -> None:
-        """Forget every subscriber."""
-        self.intake_stopped = True
-        self._subs = []
-
-    def close(self) -> None:
-        """Stop intake and mark closed."""
-        self.stop_intake()
-        self.closed = True
-
-    def inject(self, key: str, payload: bytes) -> int:
-        """Deliver ``payload`` on ``key`` to matching subscribers; returns how many matched."""
-        n = 0
-        size = len(payload)
-        data = payload if size <= self.max_payload_bytes else None
-        for rx, deliver in self._subs:
-            if rx.match(key):
-                deliver(Incoming(key, data, size, self.now_ns(), time.time_ns()))
-                n += 1
-        return n
-
-    def take(self, kind: str | None = None) -> list[tuple[str, bytes]]:
-        """Remove and return publications (optionally only keys ending in ``/<kind>``)."""
-        keep, out = [], []
-        for key, data, rt in self.published:
-            if kind is None or key.endswith("/" + kind):
-                out.append((key, data))
-            else:
-                keep.append((key, data, rt))
-        self.published[:] = keep
-        return out

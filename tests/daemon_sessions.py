@@ -35,7 +35,7 @@ from roger_daemon.robot import Pair, RobotRuntime
 from roger_daemon.robot_state import RobotState
 from roger_daemon.service import Service
 from roger_daemon.service.recording import DecisionLog
-from roger_daemon.transport import MemoryTransport
+from roger_daemon.testing import MemoryTransport
 
 __all__ = [
     "START_NS",

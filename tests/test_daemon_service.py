@@ -19,7 +19,7 @@ from roger_daemon.daemon import build_robot
 from roger_daemon.labels import majority_labels_coded as majority_labels
 from roger_daemon.learner.synthetic import subtask_stream
 from roger_daemon.service import Service
-from roger_daemon.transport import MemoryTransport
+from roger_daemon.testing import MemoryTransport
 
 LABELS = ("seek", "trap", "aim", "kick")
 STREAM = subtask_stream(120)

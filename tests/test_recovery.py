@@ -32,7 +32,7 @@ from roger_daemon.replay import replay_session
 from roger_daemon.replay.compare import REL_TOL, behaviour, behaviour_differences
 from roger_daemon.replay.session import load_checkpoint
 from roger_daemon.service import Service
-from roger_daemon.transport import MemoryTransport
+from roger_daemon.testing import MemoryTransport
 
 X, Y, LABELS = synthetic_stream("sqrt", 400)
 PROBES = [[v] for v in np.linspace(0.0, 1.0, 9)]

@@ -23,7 +23,7 @@ from roger_daemon.daemon import build_robot
 from roger_daemon.learner.synthetic import subtask_stream
 from roger_daemon.learners import ProcessLearners, WorkerError
 from roger_daemon.service import Service
-from roger_daemon.transport import MemoryTransport
+from roger_daemon.testing import MemoryTransport
 from roger_daemon.wal import read_records, wal_dir
 from roger_daemon.worker import pack_arrays, unpack_arrays
 

@@ -73,7 +73,7 @@ class Service:
     config
         The validated configuration.
     transport
-        Zenoh, or :class:`~roger_daemon.transport.MemoryTransport` in unit tests.
+        Zenoh, or :class:`~roger_daemon.testing.MemoryTransport` in unit tests.
     robots
         One :class:`RobotRuntime` per served robot, models already loaded or resumed.
     notifier
