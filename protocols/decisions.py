@@ -13,7 +13,7 @@ too (``roger_daemon.recording.schemas``).
 * ``reset``: the model was replaced by a fresh one (``segment`` is the new segment number);
 * ``dropped``: a completed pair was not learned (training queue full, or a re-sent copy);
 * ``model``: a checkpoint's model digest (SHA-256 of its arrays, as
-  ``roger_daemon.checkpoint.array_digest``) at ``updates``, chained with the previous one.
+  ``roger_daemon.daemon.checkpoint.array_digest``) at ``updates``, chained with the previous one.
 """
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ class CommandTable(Mapping[str, tuple[str, str]]):
 # name -> (module, one-line help)
 COMMANDS = CommandTable({
     "bench": ("roger_daemon.bench", "benchmarks: learner, daemon, sim (table or --json)"),
-    "daemon": ("roger_daemon.daemon", "the learner daemon: predictions, status, checkpoints"),
+    "daemon": ("roger_daemon.daemon.main", "the learner daemon: predictions, status, checkpoints"),
     "router": ("roger_daemon.router", "a Zenoh router (Python session) for several hosts"),
     "record": ("roger_daemon.recording.cli_record", "record Zenoh traffic to MCAP"),
     "log": ("roger_daemon.recording.cli_log", "log tools: info, recover, export"),

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from types import FrameType
 
-from roger_daemon.sdnotify import Notifier
+from roger_daemon.daemon.sdnotify import Notifier
 from roger_daemon.zenoh_session import (
     ZenohOverrideError,
     ZenohSettings,

@@ -1,7 +1,7 @@
 """Recorded sessions for the replay and recovery tests, made by the daemon's own code.
 
 :func:`record_session` drives the real daemon in process: its configuration parser, its model
-loader (``roger_daemon.resume.load_robot``, a real checkpoint when one is given), its
+loader (``roger_daemon.daemon.resume.load_robot``, a real checkpoint when one is given), its
 recorders (``roger_daemon.daemon.open_recorders``, the real ``SessionRecorder``) and its
 service loop (``Service``, lockstep clock) on the in-memory transport with a fake 30 Hz clock.
 The daemon writes the log, decision records included; the returned object holds what the daemon
@@ -24,17 +24,17 @@ from mcap_testing import copy_log
 
 from protocols import Action, Control, Perception, Prediction, decode, encode, keys
 from protocols.messages import Dims
-from roger_daemon.checkpoint import list_checkpoints, read_checkpoint, write_checkpoint
 from roger_daemon.config import parse_config
-from roger_daemon.daemon import open_recorders
-from roger_daemon.learners import ProcessLearners
+from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint, write_checkpoint
+from roger_daemon.daemon.learners import ProcessLearners
+from roger_daemon.daemon.main import open_recorders
+from roger_daemon.daemon.resume import Resumed, load_robot, model_meta, start_robots
+from roger_daemon.daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.robot_state import RobotState
+from roger_daemon.daemon.service import Service
+from roger_daemon.daemon.service.recording import DecisionLog
 from roger_daemon.recording import METADATA_NAME
 from roger_daemon.recording.metadata import FORMAT_INPUTS_ONLY
-from roger_daemon.resume import Resumed, load_robot, model_meta, start_robots
-from roger_daemon.robot import Pair, RobotRuntime
-from roger_daemon.robot_state import RobotState
-from roger_daemon.service import Service
-from roger_daemon.service.recording import DecisionLog
 from roger_daemon.testing import MemoryTransport
 
 __all__ = [
@@ -151,7 +151,7 @@ def record_session(
     killed daemon does (what was flushed is on disk). ``recover``: start as ``roger daemon``
     does (``start_robots``: start-up self-recovery from the logs already in ``directory``).
     ``workers``: the model learns and predicts in a learner worker process
-    (``roger_daemon.learners.ProcessLearners``, ``[daemon] workers = "process"``).
+    (``roger_daemon.daemon.learners.ProcessLearners``, ``[daemon] workers = "process"``).
     """
     x, y, labels = synthetic_stream(stream, tick0 + n_ticks, seed=0)
     dims = Dims(int(x.shape[1]), int(y.shape[1]))

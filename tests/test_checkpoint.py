@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from roger_daemon import checkpoint as ck
-from roger_daemon.checkpoint import (
+from roger_daemon.daemon import checkpoint as ck
+from roger_daemon.daemon.checkpoint import (
     CHECKPOINT_VERSION,
     CheckpointError,
     list_checkpoints,

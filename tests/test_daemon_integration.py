@@ -16,7 +16,7 @@ import pytest
 
 from protocols import Perception, encode
 from protocols.messages import MAX_PAYLOAD_BYTES
-from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
+from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
 from roger_daemon.learner.synthetic import subtask_stream
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from roger_daemon.sdnotify import Notifier
+from roger_daemon.daemon.sdnotify import Notifier
 
 
 @pytest.fixture

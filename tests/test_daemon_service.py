@@ -13,12 +13,12 @@ import pytest
 
 from protocols import Action, Control, Perception, Status, decode, encode, keys
 from protocols.messages import MAX_PAYLOAD_BYTES, Prediction
-from roger_daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
 from roger_daemon.config import DaemonConfig, parse_config
-from roger_daemon.daemon import build_robot
+from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+from roger_daemon.daemon.main import build_robot
+from roger_daemon.daemon.service import Service
 from roger_daemon.labels import majority_labels_coded as majority_labels
 from roger_daemon.learner.synthetic import subtask_stream
-from roger_daemon.service import Service
 from roger_daemon.testing import MemoryTransport
 
 LABELS = ("seek", "trap", "aim", "kick")

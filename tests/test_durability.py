@@ -27,10 +27,10 @@ import pytest
 from daemon_sessions import synthetic_stream
 
 from protocols.messages import Dims
-from roger_daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
 from roger_daemon.config import load_config
-from roger_daemon.daemon import make_model
-from roger_daemon.wal import read_records, wal_dir
+from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+from roger_daemon.daemon.main import make_model
+from roger_daemon.daemon.wal import read_records, wal_dir
 
 harness = pytest.importorskip("roger_daemon.harness")
 

@@ -99,7 +99,7 @@ def _trained(n: int = 120) -> tuple[Roger, UnimapGP, np.ndarray, list[str]]:
 
 def test_the_daemon_resumes_the_written_checkpoints_with_their_labels(tmp_path: Path) -> None:
     from roger_daemon.config import load_config
-    from roger_daemon.daemon import build_robot
+    from roger_daemon.daemon.main import build_robot
 
     model, base, x, labels = _trained()
     params = RogerParams(beta=20, particles=3)

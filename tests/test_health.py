@@ -1,4 +1,4 @@
-"""Status level (roger_daemon.health) and journald priorities (roger_daemon.console)."""
+"""Status level (roger_daemon.daemon.health) and journald priorities (roger_daemon.console)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from roger_daemon.console import JournalFormatter, configure_logging
-from roger_daemon.health import Health, is_stale, worst
+from roger_daemon.daemon.health import Health, is_stale, worst
 
 S = 1_000_000_000
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from test_daemon_service import STREAM, Harness, make_config
 
 from protocols import Action, Control, Perception, encode
-from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
+from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
 
 
 def test_garbage_on_every_kind_it_decodes_is_counted_alike_in_status_and_checkpoint(
@@ -74,7 +74,7 @@ class _CountingWal:
     """A real write-ahead log that also counts pairs appended and pairs committed."""
 
     def __init__(self, directory: Path) -> None:
-        from roger_daemon.wal import WriteAheadLog
+        from roger_daemon.daemon.wal import WriteAheadLog
 
         self.wal = WriteAheadLog(directory, 0)
         self.appended = 0

@@ -18,9 +18,10 @@ import pytest
 from daemon_sessions import as_version_1, daemon_checkpoint, record_session, synthetic_stream
 
 from protocols import Action, Control, Perception, encode, keys
-from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.config import DaemonConfig, parse_config
-from roger_daemon.daemon import make_model, model_meta, open_recorders, start_robots
+from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
+from roger_daemon.daemon.main import make_model, model_meta, open_recorders, start_robots
+from roger_daemon.daemon.service import Service
 from roger_daemon.labels import majority_labels
 from roger_daemon.recording import (
     is_complete,
@@ -31,7 +32,6 @@ from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
 from roger_daemon.replay import replay_session
 from roger_daemon.replay.compare import REL_TOL, behaviour, behaviour_differences
 from roger_daemon.replay.session import load_checkpoint
-from roger_daemon.service import Service
 from roger_daemon.testing import MemoryTransport
 
 X, Y, LABELS = synthetic_stream("sqrt", 400)
@@ -346,7 +346,7 @@ def test_recovery_never_raises(tmp_path: Path, caplog: pytest.LogCaptureFixture,
 
     # a learner that fails while re-learning: the checkpoint is loaded again, untouched
     monkeypatch.undo()
-    import roger_daemon.robot as robot_mod
+    import roger_daemon.daemon.robot as robot_mod
 
     def bad_learn(self: Any) -> float:
         raise MemoryError("no memory")

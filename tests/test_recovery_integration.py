@@ -20,9 +20,9 @@ import pytest
 from daemon_sessions import synthetic_stream
 
 from protocols.messages import Dims
-from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.config import load_config
-from roger_daemon.daemon import make_model
+from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
+from roger_daemon.daemon.main import make_model
 from roger_daemon.labels import majority_labels_coded as majority_labels
 from roger_daemon.learner import load_model
 from roger_daemon.recording import LogReader, is_complete, list_session_files

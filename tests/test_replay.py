@@ -17,9 +17,9 @@ from mcap_testing import copy_log
 
 from protocols import Action, Perception
 from roger_daemon.cli import main as roger
+from roger_daemon.daemon.pairing import Pairing
 from roger_daemon.labels import majority_labels
 from roger_daemon.learner import load_model
-from roger_daemon.pairing import Pairing
 from roger_daemon.recording import (
     CatchUpError,
     is_complete,

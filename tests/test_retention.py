@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from roger_daemon.checkpoint import list_checkpoints, write_checkpoint
 from roger_daemon.config import ConfigError, parse_config
-from roger_daemon.retention import prune_oldest, prune_recordings
+from roger_daemon.daemon.checkpoint import list_checkpoints, write_checkpoint
+from roger_daemon.daemon.retention import prune_oldest, prune_recordings
 
 
 def _file(path: Path, size: int, age_s: float = 0.0) -> Path:

@@ -51,7 +51,7 @@ def test_a_change_of_level_is_logged(tmp_path: Path, caplog: pytest.LogCaptureFi
     h = Harness(make_config(tmp_path))
     h.pair(0)
     h.settle()
-    with caplog.at_level(logging.INFO, logger="roger_daemon.service"):
+    with caplog.at_level(logging.INFO, logger="roger_daemon.daemon.service"):
         for _ in range(7):
             h.status()
     warned = [r for r in caplog.records if "status WARN" in r.getMessage()]

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from protocols.messages import Dims
-from roger_daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
 from roger_daemon.config import parse_config
-from roger_daemon.daemon import make_model
-from roger_daemon.robot import Pair, RobotRuntime
-from roger_daemon.wal import WriteAheadLog, read_records, replay_into, segments
+from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+from roger_daemon.daemon.main import make_model
+from roger_daemon.daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.wal import WriteAheadLog, read_records, replay_into, segments
 
 
 def _pair(i: int) -> tuple[np.ndarray, np.ndarray]:

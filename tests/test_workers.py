@@ -17,15 +17,15 @@ import pytest
 
 from protocols import Action, Control, Perception, decode, encode, keys
 from protocols.messages import Prediction
-from roger_daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
 from roger_daemon.config import ConfigError, DaemonConfig, parse_config
-from roger_daemon.daemon import build_robot
+from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+from roger_daemon.daemon.learners import ProcessLearners, WorkerError
+from roger_daemon.daemon.main import build_robot
+from roger_daemon.daemon.service import Service
+from roger_daemon.daemon.wal import read_records, wal_dir
+from roger_daemon.daemon.worker import pack_arrays, unpack_arrays
 from roger_daemon.learner.synthetic import subtask_stream
-from roger_daemon.learners import ProcessLearners, WorkerError
-from roger_daemon.service import Service
 from roger_daemon.testing import MemoryTransport
-from roger_daemon.wal import read_records, wal_dir
-from roger_daemon.worker import pack_arrays, unpack_arrays
 
 LABELS = ("seek", "trap", "aim", "kick")
 STREAM = subtask_stream(60)
@@ -46,7 +46,7 @@ class Loop:
     """A service over the memory transport, inline or with worker processes."""
 
     def __init__(self, cfg: DaemonConfig, *, process: bool) -> None:
-        from roger_daemon import wal
+        from roger_daemon.daemon import wal
 
         self.transport = MemoryTransport()
         self.robots = {}

@@ -31,7 +31,7 @@ from typing import Any
 
 from roger_daemon.bench.fleet import FleetClient, child_pids, feed
 from roger_daemon.bench.streams import FLEET_STREAMS, feed_stream
-from roger_daemon.checkpoint import list_checkpoints, read_checkpoint
+from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.harness import DaemonProcess, free_port, write_config
 
 __all__ = ["checkpoint_profile", "configure", "rss_mb", "run"]

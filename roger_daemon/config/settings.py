@@ -72,7 +72,7 @@ class CheckpointConfig:
     keep: int = 5
     on_shutdown: bool = True
     shutdown_learn_s: float = 1.0
-    #: write-ahead log of learned pairs (roger_daemon.wal); committed before every
+    #: write-ahead log of learned pairs (roger_daemon.daemon.wal); committed before every
     #: prediction/status that reports them, and at least every ``wal_commit_ms``
     wal: bool = True
     wal_commit_ms: float = 50.0
@@ -82,7 +82,7 @@ class CheckpointConfig:
     max_age_days: float = 0.0
 
     def limits(self) -> dict[str, Any]:
-        """Retention arguments of :func:`roger_daemon.checkpoint.write_checkpoint`."""
+        """Retention arguments of :func:`roger_daemon.daemon.checkpoint.write_checkpoint`."""
         return {"keep": self.keep, "max_bytes": self.max_bytes,
                 "max_age_s": self.max_age_days * 86400.0}
 
@@ -112,7 +112,7 @@ class DaemonConfig:
     pair_window: int = 64
     seed: int = 0
     count_unserved: bool = True
-    #: "process": each robot's model in its own worker process (roger_daemon.learners);
+    #: "process": each robot's model in its own worker process (roger_daemon.daemon.learners);
     #: "inline": every model in the service loop's thread; "auto": inline for one robot (lower
     #: latency), processes for several (learning on every core); docs/fleet.md
     workers: str = "auto"

@@ -165,7 +165,7 @@ def session_metadata(
         the file holds inputs and outputs only (:data:`FORMAT_INPUTS_ONLY`, version 1).
     start_model_digest
         SHA-256 of the arrays of the model the session starts with
-        (``roger_daemon.checkpoint.array_digest``): the first link of the chain of the
+        (``roger_daemon.daemon.checkpoint.array_digest``): the first link of the chain of the
         checkpoints' model digests in the decision records, which replay checks.
     extra
         More string keys (they must not collide with the standard ones).

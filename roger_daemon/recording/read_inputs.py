@@ -4,7 +4,7 @@ Logs of older daemons and of ``roger record`` hold what was received and publish
 daemon's decisions, so the learned pairs are re-derived, in the log's write order (the order
 the daemon handled messages in), with the daemon's own rules:
 
-* **Pairing** with the daemon's :class:`~roger_daemon.pairing.Pairing` (the session's
+* **Pairing** with the daemon's :class:`~roger_daemon.daemon.pairing.Pairing` (the session's
   ``pair_window``, default 64), only while the mode learns (``learn``, ``learn+predict``); in
   the other modes perceptions and actions are not buffered at all (counted in
   :attr:`Timeline.ignored_not_learning`). Payloads that fail ``protocols.decode`` are skipped.
@@ -28,7 +28,7 @@ from typing import Any
 import msgpack
 
 from protocols.messages import Action, Control, Perception
-from roger_daemon.pairing import LEARN_MODES, Pairing
+from roger_daemon.daemon.pairing import LEARN_MODES, Pairing
 from roger_daemon.recording.mcapio import LogMessage
 from roger_daemon.recording.session_read import Reading
 from roger_daemon.recording.timeline import LearnedPair, Segment, Timeline

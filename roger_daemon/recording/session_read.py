@@ -34,7 +34,7 @@ from protocols.messages import (
     Status,
     decode,
 )
-from roger_daemon.pairing import DEFAULT_PAIR_WINDOW
+from roger_daemon.daemon.pairing import DEFAULT_PAIR_WINDOW
 from roger_daemon.recording.mcapio import LogMessage, LogReader, read_metadata, topics_of
 from roger_daemon.recording.metadata import SessionInfo
 from roger_daemon.recording.timeline import (

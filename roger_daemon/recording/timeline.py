@@ -13,7 +13,7 @@ each with its learned pairs in learning order and the recorded predictions compu
   Nothing is re-derived: pairs the daemon dropped are simply not there.
 * **Version-1 logs** (older daemons, ``roger record``): the pairs are re-derived from the
   recorded perceptions and actions with the daemon's own pairing rule
-  (:mod:`roger_daemon.pairing`) by :mod:`roger_daemon.recording.read_inputs`, which documents
+  (:mod:`roger_daemon.daemon.pairing`) by :mod:`roger_daemon.recording.read_inputs`, which documents
   the rules (modes, resets, drop records).
 * **Predictions** (both): each recorded prediction is tied to the newest perception of its
   tick (its query) and to its ``updates`` (the model's ``n_learned`` when it was computed).
@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from protocols.messages import Dims, ExpertOutput
-from roger_daemon.pairing import DEFAULT_PAIR_WINDOW
+from roger_daemon.daemon.pairing import DEFAULT_PAIR_WINDOW
 from roger_daemon.recording.metadata import SessionInfo
 
 __all__ = [

@@ -10,18 +10,18 @@ from typing import Any
 
 import numpy as np
 
+from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.recording.timeline import LearnedPair, Segment, Timeline
 from roger_daemon.replay.result import Model, ReplayError, ReplayResult
-from roger_daemon.robot_state import RobotState
 
 __all__ = ["load_checkpoint", "resume_timeline", "save_checkpoint"]
 
 
 def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[str, Any]]:
-    """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.checkpoint``;
-    its queue read by :class:`~roger_daemon.robot_state.RobotState`), or from a plain
+    """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.daemon.checkpoint``;
+    its queue read by :class:`~roger_daemon.daemon.robot_state.RobotState`), or from a plain
     ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles."""
-    from roger_daemon.checkpoint import CheckpointError, read_checkpoint
+    from roger_daemon.daemon.checkpoint import CheckpointError, read_checkpoint
     from roger_daemon.learner import load_model
 
     try:
@@ -100,7 +100,7 @@ def save_checkpoint(
     The checkpoint names the session and segment it stands at, so the daemon's start-up
     recovery only re-learns what was logged after the replayed pairs.
     """
-    from roger_daemon.checkpoint import write_checkpoint
+    from roger_daemon.daemon.checkpoint import write_checkpoint
 
     if res.model is None:
         raise ReplayError("nothing was replayed: no model to save")

@@ -191,8 +191,8 @@ def _save(res: Any, directory: Path, checkpoint: Path | None, queued: list[Any])
     vocab: list[str] = []
     codes: list[int] = []
     if checkpoint is not None:
-        from roger_daemon.checkpoint import CheckpointError, read_checkpoint
-        from roger_daemon.robot_state import RobotState
+        from roger_daemon.daemon.checkpoint import CheckpointError, read_checkpoint
+        from roger_daemon.daemon.robot_state import RobotState
 
         try:
             state = RobotState.from_arrays(read_checkpoint(checkpoint).daemon)

@@ -4,7 +4,7 @@
 It reads the session with :func:`~roger_daemon.recording.session_read.read_timeline` (the
 daemon's decision records, or the re-paired inputs of a version-1 log), rebuilds the model with
 the recorded params and seed, feeds the learned pairs in the daemon's order through the
-daemon's own :class:`~roger_daemon.robot.RobotRuntime`, recomputes every recorded prediction
+daemon's own :class:`~roger_daemon.daemon.robot.RobotRuntime`, recomputes every recorded prediction
 with it at the same ``updates`` count (in ``updates`` order, then file order), and checks the
 checkpoints' model digests the daemon recorded. No Zenoh is involved.
 """
@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from protocols.messages import Perception
-from roger_daemon.checkpoint import array_digest
+from roger_daemon.daemon.checkpoint import array_digest
+from roger_daemon.daemon.robot import RobotRuntime
+from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.recording.session_read import read_timeline
 from roger_daemon.recording.timeline import (
     LearnedPair,
@@ -45,8 +47,6 @@ from roger_daemon.replay.result import (
     ReplayError,
     ReplayResult,
 )
-from roger_daemon.robot import RobotRuntime
-from roger_daemon.robot_state import RobotState
 
 __all__ = [
     "ROUND_OFF_MARGIN",
@@ -246,7 +246,7 @@ def replay_timeline(
 ) -> ReplayResult:
     """Replay an already read :class:`Timeline` (see :func:`replay_session`).
 
-    The pairs are fed through the daemon's own :class:`~roger_daemon.robot.RobotRuntime`
+    The pairs are fed through the daemon's own :class:`~roger_daemon.daemon.robot.RobotRuntime`
     (``enqueue_recovered`` + ``learn_one``, ``reset`` between segments, ``predict`` for each
     recorded prediction), as start-up recovery does.
     """

@@ -16,7 +16,7 @@ import time
 from typing import Any
 
 from protocols import keys
-from roger_daemon.health import LEVELS, worst
+from roger_daemon.daemon.health import LEVELS, worst
 from roger_daemon.tools.common import (
     Listener,
     add_connection_args,

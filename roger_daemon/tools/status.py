@@ -4,7 +4,7 @@ Without ``--watch``: waits for the next status (published at 1 Hz, and at once a
 request) of ``ROBOT``, or of every robot heard within a status period when no robot is named,
 prints it and exits 0 (1 if none came within ``--timeout``). With ``--watch``: prints every
 status as it arrives until Ctrl-C, and a ``STALE`` line when a robot's status stops coming
-(:func:`roger_daemon.health.is_stale`). ``--json``: one JSON object per status, the message's
+(:func:`roger_daemon.daemon.health.is_stale`). ``--json``: one JSON object per status, the message's
 fields plus ``level`` (``OK``/``WARN``/``ERROR``/``STALE``) and ``age_s``.
 """
 
@@ -17,7 +17,7 @@ from typing import Any
 
 from protocols import keys
 from protocols.errors import ProtocolError
-from roger_daemon.health import is_stale
+from roger_daemon.daemon.health import is_stale
 from roger_daemon.tools.common import (
     Listener,
     Sample,

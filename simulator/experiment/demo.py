@@ -191,7 +191,7 @@ class _Demo:
     def _report(self, summary: dict[str, Any], wall: float) -> None:
         from rich.table import Table
 
-        from roger_daemon.checkpoint import load_newest
+        from roger_daemon.daemon.checkpoint import load_newest
         from roger_daemon.labels import majority_labels
         from roger_daemon.learner import load_model
         from roger_daemon.recording import list_session_files, read_timeline

@@ -27,9 +27,9 @@ import numpy.typing as npt
 
 from protocols.messages import Dims
 from roger_daemon.atomic import write_json
-from roger_daemon.checkpoint import array_digest, write_checkpoint
+from roger_daemon.daemon.checkpoint import array_digest, write_checkpoint
+from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.replay.compare import REL_TOL
-from roger_daemon.robot_state import RobotState
 
 __all__ = [
     "Demonstrations",
@@ -197,7 +197,7 @@ def daemon_check(
 
     ``offline`` must not have predicted anything yet (its state digest is compared as is).
     """
-    from roger_daemon.checkpoint import load_newest
+    from roger_daemon.daemon.checkpoint import load_newest
     from roger_daemon.harness import Client, DaemonProcess, write_config
     from roger_daemon.labels import majority_labels, majority_labels_coded
     from roger_daemon.learner import load_model

@@ -1,6 +1,6 @@
 """A learner worker process: one robot's model, driven over a pipe (``[daemon] workers``).
 
-``python -m roger_daemon.worker`` reads requests on stdin and answers each with exactly one
+``python -m roger_daemon.daemon.worker`` reads requests on stdin and answers each with exactly one
 reply on stdout, in order. Frames are ``u32 length (little endian) | msgpack map``; arrays
 travel as ``{"t": dtype, "s": shape, "b": bytes}`` (numeric and fixed-width unicode dtypes
 only; never pickle). Log lines go to stderr (the daemon's log). The worker pins BLAS to one
@@ -22,7 +22,7 @@ Requests (``op``) and replies:
 
 An unexpected error answers ``fatal`` (the traceback text) and the worker exits 1. End of
 input (the daemon died) ends the worker too. The daemon's side is
-:mod:`roger_daemon.learners`.
+:mod:`roger_daemon.daemon.learners`.
 """
 
 from __future__ import annotations
@@ -154,9 +154,9 @@ class _Worker:
     def _load(self, req: dict[str, Any]) -> dict[str, Any]:
         from protocols.messages import Dims
         from roger_daemon.config import RobotConfig
-        from roger_daemon.daemon import make_model
+        from roger_daemon.daemon.main import make_model
+        from roger_daemon.daemon.robot import RobotRuntime
         from roger_daemon.learner import RogerParams, load_model
-        from roger_daemon.robot import RobotRuntime
 
         robot = RobotConfig(id=str(req["robot"]), x_dim=int(req["x_dim"]),
                             y_dim=int(req["y_dim"]), model=str(req["model"]),
@@ -172,7 +172,7 @@ class _Worker:
         return {"n": rt.updates, "experts": int(rt.model.n_experts)}
 
     def _learn(self, req: dict[str, Any]) -> dict[str, Any]:
-        from roger_daemon.robot import Pair
+        from roger_daemon.daemon.robot import Pair
 
         rt = self.rt
         x = _vec(req["x"], rt.dims.x)
@@ -206,7 +206,7 @@ def main() -> int:
     logging.basicConfig(level="INFO", stream=sys.stderr,
                         format="%(levelname)s %(name)s (worker): %(message)s")
     from roger_daemon.blas import pin_blas_threads
-    from roger_daemon.memory import limit_heap_growth
+    from roger_daemon.daemon.memory import limit_heap_growth
 
     pin_blas_threads(1)
     limit_heap_growth()

@@ -2,7 +2,7 @@
 
 With ``[daemon] workers = "process"`` (the default) the service loop keeps Zenoh, pairing,
 the training queues, the write-ahead log, recording, status and publishing; each robot's
-model lives in its own worker process (:mod:`roger_daemon.worker`), started with
+model lives in its own worker process (:mod:`roger_daemon.daemon.worker`), started with
 ``subprocess`` (a fresh interpreter: nothing forked after Zenoh opened, nothing pickled) and
 driven over its stdin/stdout with msgpack frames. Robots learn in parallel on every core, and
 no robot waits for another's learning.
@@ -43,8 +43,8 @@ from typing import Any
 
 import numpy as np
 
-from roger_daemon.robot import Pair, RobotRuntime
-from roger_daemon.worker import pack_arrays, read_frame, unpack_arrays, write_frame
+from roger_daemon.daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.worker import pack_arrays, read_frame, unpack_arrays, write_frame
 
 __all__ = ["ProcessLearners", "RemoteModel", "WorkerError"]
 
@@ -125,7 +125,7 @@ class ProcessLearners:
         self.slots: dict[str, _Slot] = {}
         try:
             for robot, rt in robots.items():  # start them all first: they import in parallel
-                proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.worker"],
+                proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker"],
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE)
                 reader = threading.Thread(target=self._read, args=(robot, proc), daemon=True,
                                           name=f"roger-worker-{robot}")

@@ -12,7 +12,7 @@ from protocols import keys
 from protocols.decisions import Dropped, Learned, ModelDigest, Reset, chain_digest
 from protocols.message_types import Message, encode
 from roger_daemon.config import RecordingConfig
-from roger_daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.robot import Pair, RobotRuntime
 
 __all__ = ["DecisionLog", "Recorder", "Recorders"]
 
@@ -83,7 +83,7 @@ class Recorders:
 
         The file being written is kept.
         """
-        from roger_daemon.retention import prune_recordings
+        from roger_daemon.daemon.retention import prune_recordings
 
         r = self.config
         for robot, rec in self.by_robot.items():
@@ -110,7 +110,7 @@ class Recorders:
 class DecisionLog:
     """The decision records of one robot, written into its session log as they are made.
 
-    Attached as ``RobotRuntime.decisions`` (:class:`~roger_daemon.robot.Decisions`): every
+    Attached as ``RobotRuntime.decisions`` (:class:`~roger_daemon.daemon.robot.Decisions`): every
     learned pair, reset and dropped pair; and, from the checkpoint writer, the digest of each
     checkpoint's model chained with the previous one (:mod:`protocols.decisions`). Replay and
     recovery read these instead of re-deriving the decisions (docs/durability.md).

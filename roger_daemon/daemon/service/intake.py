@@ -14,8 +14,8 @@ from collections.abc import Mapping
 from protocols import keys
 from protocols.errors import ProtocolError
 from protocols.messages import MAX_PAYLOAD_BYTES, Message, decode
-from roger_daemon.robot import RobotRuntime
-from roger_daemon.service.recording import Recorders
+from roger_daemon.daemon.robot import RobotRuntime
+from roger_daemon.daemon.service.recording import Recorders
 from roger_daemon.transport import Incoming
 
 __all__ = ["INPUT_KINDS", "RECORD_ONLY_KINDS", "Admission"]

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.atomic import atomic_write
-from roger_daemon.retention import prune_checkpoints
+from roger_daemon.daemon.retention import prune_checkpoints
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -122,7 +122,7 @@ def write_checkpoint(
     max_age_s: float = 0.0,
 ) -> tuple[Path, dict[str, Any]]:
     """Write one checkpoint atomically, prune old ones (``keep``, then the byte and age
-    limits of :mod:`roger_daemon.retention`); return its path and final metadata."""
+    limits of :mod:`roger_daemon.daemon.retention`); return its path and final metadata."""
     d = robot_dir(directory, robot)
     d.mkdir(parents=True, exist_ok=True)
     existing = list_checkpoints(directory, robot)

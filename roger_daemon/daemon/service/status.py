@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from protocols.messages import Status
-from roger_daemon.robot import RobotRuntime
+from roger_daemon.daemon.robot import RobotRuntime
 
 if TYPE_CHECKING:
-    from roger_daemon.service.loop import Service
+    from roger_daemon.daemon.service.loop import Service
 
 __all__ = ["invalid_counts", "robot_status"]
 

@@ -3,7 +3,7 @@
 Shutdown: STOPPING=1, undeclare subscribers, drain the inbox, learn what is queued for up to
 ``checkpoint.shutdown_learn_s``, write the final checkpoints (still-queued pairs are saved in
 them and learned after a restart), close recorders and the session. These functions are parts
-of :class:`~roger_daemon.service.loop.Service` and use its state.
+of :class:`~roger_daemon.daemon.service.loop.Service` and use its state.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import time
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from roger_daemon.service.loop import Service
+    from roger_daemon.daemon.service.loop import Service
 
 __all__ = ["abort", "shutdown"]
 

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 from protocols import keys
 from protocols.messages import Message, encode
-from roger_daemon.service.clock import Clock
-from roger_daemon.service.recording import Recorders
+from roger_daemon.daemon.service.clock import Clock
+from roger_daemon.daemon.service.recording import Recorders
 from roger_daemon.transport import Publisher, Transport
 
 __all__ = ["Outbox", "Publishers"]

@@ -1,7 +1,7 @@
 """A robot's daemon state beside its model: the ``daemon`` arrays of a checkpoint.
 
 One owner of that layout (docs/durability.md): the live daemon
-(:class:`roger_daemon.robot.RobotRuntime`), replay's ``--save-checkpoint``, the start-up
+(:class:`roger_daemon.daemon.robot.RobotRuntime`), replay's ``--save-checkpoint``, the start-up
 checks and the experiment's model checkpoints all build and read it here, never by key.
 
 The arrays:

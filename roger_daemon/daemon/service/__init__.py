@@ -7,9 +7,9 @@ are its parts (those written as functions take the :class:`Service` whose state 
 
 from __future__ import annotations
 
-from roger_daemon.service.checkpoints import checkpoint_snapshot
-from roger_daemon.service.clock import Clock
-from roger_daemon.service.loop import Service
-from roger_daemon.service.recording import Recorder
+from roger_daemon.daemon.service.checkpoints import checkpoint_snapshot
+from roger_daemon.daemon.service.clock import Clock
+from roger_daemon.daemon.service.loop import Service
+from roger_daemon.daemon.service.recording import Recorder
 
 __all__ = ["Clock", "Recorder", "Service", "checkpoint_snapshot"]

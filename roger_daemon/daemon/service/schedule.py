@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from roger_daemon.window import Window
+from roger_daemon.daemon.window import Window
 
 __all__ = ["LoopStats", "TickSchedule"]
 

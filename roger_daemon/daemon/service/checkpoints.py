@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from roger_daemon.checkpoint import write_checkpoint
 from roger_daemon.config import CheckpointConfig
-from roger_daemon.robot import Pair, RobotRuntime
-from roger_daemon.service.clock import Clock
+from roger_daemon.daemon.checkpoint import write_checkpoint
+from roger_daemon.daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.service.clock import Clock
 
 __all__ = ["CheckpointState", "Checkpoints", "Snapshot", "checkpoint_snapshot"]
 

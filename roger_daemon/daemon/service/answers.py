@@ -3,7 +3,7 @@
 Inline, the loop's thread predicts after committing the robot's write-ahead log (a prediction
 acknowledges what it reports); with learner worker processes the worker predicts and the loop
 publishes its replies (:func:`worker_predictions`). These functions are parts of
-:class:`~roger_daemon.service.loop.Service`'s loop and use its state.
+:class:`~roger_daemon.daemon.service.loop.Service`'s loop and use its state.
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from protocols.messages import Perception, Prediction, decode
-from roger_daemon.robot import RobotRuntime
+from roger_daemon.daemon.robot import RobotRuntime
 
 if TYPE_CHECKING:
-    from roger_daemon.service.loop import Service
+    from roger_daemon.daemon.service.loop import Service
 
 __all__ = ["answer_lockstep", "on_timer", "publish_prediction", "worker_predictions"]
 

@@ -5,7 +5,7 @@ buffers of ``window`` entries: whichever half arrives first waits, the second co
 pair; a newer perception of a waiting tick replaces the older one; a tick pairs once (its
 waiting half is taken). When a buffer is full its oldest entry is evicted and counted.
 
-:class:`~roger_daemon.robot.RobotRuntime` pairs with it while its mode learns, and the reader
+:class:`~roger_daemon.daemon.robot.RobotRuntime` pairs with it while its mode learns, and the reader
 of version-1 session logs (which hold no decision records) re-derives the learned pairs with
 it (:mod:`roger_daemon.recording.read_inputs`), so the two cannot disagree.
 

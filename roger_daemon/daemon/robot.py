@@ -2,7 +2,7 @@
 
 Everything here runs on the service loop's thread; nothing is shared with transport threads.
 
-Pairing: perception(t) and action(t) meet by tick (:class:`~roger_daemon.pairing.Pairing`,
+Pairing: perception(t) and action(t) meet by tick (:class:`~roger_daemon.daemon.pairing.Pairing`,
 windows of ``pair_window`` entries; whichever arrives first waits). A completed pair goes into
 the training queue of ``queue_size`` pairs; when it is full the new pair is dropped, counted in
 ``dropped``, logged, and shown in status. An action whose perception never arrives is
@@ -27,10 +27,10 @@ import numpy as np
 
 from protocols.errors import REASONS
 from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
+from roger_daemon.daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
+from roger_daemon.daemon.robot_state import Pair, RobotState
+from roger_daemon.daemon.window import Window
 from roger_daemon.labels import majority_labels_coded
-from roger_daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
-from roger_daemon.robot_state import Pair, RobotState
-from roger_daemon.window import Window
 
 __all__ = ["Decisions", "Pair", "RobotRuntime"]
 
@@ -115,9 +115,9 @@ class RobotRuntime:
         self._status_updates = 0
         self._status_ns: int | None = None
         self._reported: set[str] = set()
-        # durability (roger_daemon.wal): every learned pair and fresh model is appended
+        # durability (roger_daemon.daemon.wal): every learned pair and fresh model is appended
         self.wal: Any = None
-        self.decisions: Decisions | None = None  # roger_daemon.service.recording.DecisionLog
+        self.decisions: Decisions | None = None  # roger_daemon.daemon.service.recording.DecisionLog
         self.resent = 0  # re-sent copies of the newest pair, not learned twice
         self._newest_pair: tuple[int, bytes, bytes] | None = None  # (tick, x, y) bytes
 
@@ -365,7 +365,7 @@ class RobotRuntime:
 
     def restore(self, arrays: dict[str, np.ndarray], counters: dict[str, Any]) -> None:
         """Load daemon state saved by :meth:`daemon_arrays` / :meth:`counters`
-        (:class:`~roger_daemon.robot_state.RobotState`)."""
+        (:class:`~roger_daemon.daemon.robot_state.RobotState`)."""
         state = RobotState.from_arrays(arrays)
         self.vocab = state.vocab
         self._vocab_index = {s: i for i, s in enumerate(self.vocab)}

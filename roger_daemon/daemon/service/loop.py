@@ -39,22 +39,22 @@ from protocols.messages import (
     Status,
 )
 from roger_daemon.config import DaemonConfig
-from roger_daemon.health import LOG_LEVEL_OF, Health
-from roger_daemon.robot import Pair, RobotRuntime
-from roger_daemon.sdnotify import Notifier
-from roger_daemon.service.answers import (
+from roger_daemon.daemon.health import LOG_LEVEL_OF, Health
+from roger_daemon.daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.sdnotify import Notifier
+from roger_daemon.daemon.service.answers import (
     answer_lockstep,
     on_timer,
     worker_predictions,
 )
-from roger_daemon.service.checkpoints import Checkpoints, Snapshot, checkpoint_snapshot
-from roger_daemon.service.clock import Clock, RealClock
-from roger_daemon.service.intake import Admission
-from roger_daemon.service.outbox import Outbox
-from roger_daemon.service.recording import DecisionLog, Recorder, Recorders
-from roger_daemon.service.schedule import LoopStats, TickSchedule
-from roger_daemon.service.shutdown import abort, shutdown
-from roger_daemon.service.status import invalid_counts, robot_status
+from roger_daemon.daemon.service.checkpoints import Checkpoints, Snapshot, checkpoint_snapshot
+from roger_daemon.daemon.service.clock import Clock, RealClock
+from roger_daemon.daemon.service.intake import Admission
+from roger_daemon.daemon.service.outbox import Outbox
+from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
+from roger_daemon.daemon.service.schedule import LoopStats, TickSchedule
+from roger_daemon.daemon.service.shutdown import abort, shutdown
+from roger_daemon.daemon.service.status import invalid_counts, robot_status
 from roger_daemon.transport import Inbox, Incoming, Transport
 
 __all__ = ["Service"]
@@ -134,7 +134,7 @@ class Service:
         self._stop = False
         self._stopping = False
         self._answer: list[tuple[RobotRuntime, Perception, int]] = []
-        # roger_daemon.learners.ProcessLearners: the models live in worker processes
+        # roger_daemon.daemon.learners.ProcessLearners: the models live in worker processes
         self.learners = learners
         self._committer: ThreadPoolExecutor | None = None
         self.health = {r: Health() for r in self.robots}
@@ -315,7 +315,7 @@ class Service:
 
     def worker_predictions(self, batch: Sequence[tuple[Any, ...]]) -> None:
         """Publish predictions learner workers computed: ``(rt, reply, perception,
-        receipt ns)`` each (:func:`~roger_daemon.service.answers.worker_predictions`)."""
+        receipt ns)`` each (:func:`~roger_daemon.daemon.service.answers.worker_predictions`)."""
         worker_predictions(self, batch)
 
     # --- status ----------------------------------------------------------------------------

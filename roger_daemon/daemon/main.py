@@ -2,11 +2,11 @@
 
 Start-up order: signal handlers, configuration (a bad one exits 2 naming the key), models
 (resumed from the newest valid checkpoint unless ``--fresh``), start-up self-recovery from the
-session logs when recording is on and not ``--fresh`` (:mod:`roger_daemon.resume`: footer-less
-logs recovered, the pairs logged after the checkpoint re-learned, a ``recovered`` checkpoint
-written), recorders, the Zenoh session (opened last, never forked after), then READY=1 and the
-loop. SIGTERM/SIGINT end the loop;
-shutdown drains, checkpoints and closes within a few seconds, exit status 0.
+session logs when recording is on and not ``--fresh`` (:mod:`roger_daemon.daemon.resume`:
+footer-less logs recovered, the pairs logged after the checkpoint re-learned, a
+``recovered`` checkpoint written), recorders, the Zenoh session (opened last, never forked
+after), then READY=1 and the loop. SIGTERM/SIGINT end the loop; shutdown drains, checkpoints
+and closes within a few seconds, exit status 0.
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ from types import FrameType
 from typing import Any
 
 from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION
-from roger_daemon.checkpoint import array_digest
 from roger_daemon.config import ConfigError, DaemonConfig, load_config
-from roger_daemon.resume import (
+from roger_daemon.daemon.checkpoint import array_digest
+from roger_daemon.daemon.resume import (
     Resumed,
     build_robot,
     load_robot,
@@ -35,9 +35,9 @@ from roger_daemon.resume import (
     recover_from_logs,
     start_robots,
 )
-from roger_daemon.robot import RobotRuntime
-from roger_daemon.sdnotify import Notifier
-from roger_daemon.service import Recorder, Service
+from roger_daemon.daemon.robot import RobotRuntime
+from roger_daemon.daemon.sdnotify import Notifier
+from roger_daemon.daemon.service import Recorder, Service
 
 __all__ = [
     "Resumed",
@@ -122,7 +122,7 @@ def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Any:
     model to its own worker process."""
     if cfg.learner_workers != "process":
         return None
-    from roger_daemon.learners import ProcessLearners
+    from roger_daemon.daemon.learners import ProcessLearners
 
     return ProcessLearners(robots, {r.id: r for r in cfg.robots})
 
@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         logging.getLogger().addHandler(handler)
 
-    from roger_daemon.memory import limit_heap_growth
+    from roger_daemon.daemon.memory import limit_heap_growth
 
     limit_heap_growth()
     notifier = Notifier.from_env()

@@ -17,12 +17,17 @@ from pathlib import Path
 from typing import Any
 
 from protocols.messages import Dims
-from roger_daemon.checkpoint import Checkpoint, CheckpointError, load_newest, write_checkpoint
 from roger_daemon.config import DaemonConfig, RobotConfig
-from roger_daemon.robot import RobotRuntime
-from roger_daemon.robot_state import RobotState
-from roger_daemon.sdnotify import Notifier
-from roger_daemon.service import checkpoint_snapshot
+from roger_daemon.daemon.checkpoint import (
+    Checkpoint,
+    CheckpointError,
+    load_newest,
+    write_checkpoint,
+)
+from roger_daemon.daemon.robot import RobotRuntime
+from roger_daemon.daemon.robot_state import RobotState
+from roger_daemon.daemon.sdnotify import Notifier
+from roger_daemon.daemon.service import checkpoint_snapshot
 
 __all__ = [
     "Resumed",
@@ -255,7 +260,7 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
     not re-learned) and where the model now stands (the ``recovered`` checkpoint written
     after a replay, which the new session names as its start).
     """
-    from roger_daemon import wal
+    from roger_daemon.daemon import wal
 
     d = wal.wal_dir(cfg.checkpoint.dir, rt.robot)
     seq = None if ckpt is None else ckpt.meta.get("wal_seq")
