@@ -16,8 +16,8 @@ import pytest
 from protocols.messages import Dims
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
 from simulator.experiment.goal_scoring import configure, learner_params, plan_from_args
+from simulator.experiment.jobs import EpisodeJob, load_finished
 from simulator.experiment.metrics import majority_labels
-from simulator.experiment.procs import EpisodeJob, load_finished
 from simulator.experiment.report import check_results
 from simulator.experiment.training import label_state, write_model_checkpoint
 

@@ -34,7 +34,7 @@ from typing import Any
 
 from roger_daemon.atomic import write_json
 from simulator.controllers.transitioner import DEFAULT_RULE, RULES
-from simulator.experiment.procs import EpisodeJob
+from simulator.experiment.jobs import EpisodeJob
 from simulator.experiment.runner import json_default, machine
 
 __all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "plan_from_args", "run"]

@@ -14,15 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from simulator.experiment.procs import (
-    CHILDREN,
-    EpisodeJob,
-    JobError,
-    JobResult,
-    count_episodes,
-    load_finished,
-    run_job,
-)
+from simulator.experiment.jobs import EpisodeJob, JobResult, load_finished, run_job
+from simulator.experiment.procs import CHILDREN, JobError, count_episodes
 
 __all__ = ["Runner", "controller_stats", "json_default", "machine", "progress_bars"]
 

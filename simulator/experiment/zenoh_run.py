@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from simulator.experiment.procs import JobResult
+from simulator.experiment.jobs import JobResult
 from simulator.experiment.runner import Runner, controller_stats, progress_bars
 
 __all__ = ["ZenohRun", "add_averaging", "compare_paths"]
@@ -51,7 +51,7 @@ def add_averaging(jobs: list[JobResult], stream: Any) -> None:
     its episodes gets none."""
     from simulator.experiment.averaging import MultimapNeighbourhood
     from simulator.experiment.dpa_node import read_trace
-    from simulator.experiment.procs import DPA_TRACE
+    from simulator.experiment.jobs import DPA_TRACE
 
     hood = MultimapNeighbourhood(stream.x, stream.y)
     for r in jobs:
