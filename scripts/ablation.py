@@ -26,33 +26,33 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.blas import pin_blas_threads
-from simulator.controllers.transitioner import RULES
+from simulator.controllers.transitioner import DEFAULT_RULE, RULES
 
 #: name -> (what it changes, learner parameters replaced, transitioner rule)
 VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
-    "default": ("the default configuration", {}, "support"),
+    "default": ("the default configuration", {}, DEFAULT_RULE),
     "rule-gate": ("transitioner rule gate (highest gate probability)", {}, "gate"),
     "rule-variance": ("transitioner rule variance (lowest predictive variance)", {}, "variance"),
-    "rule-mixture": ("transitioner rule mixture (gate-weighted mean of the subtask's experts)",
-                     {}, "mixture"),
+    "rule-support": ("transitioner rule support (the subtask's biggest expert; the default "
+                     "before)", {}, "support"),
+    "particles-300": ("300 particles", {"particles": 300}, DEFAULT_RULE),
     "merged-groups": ("ROGER's experts merged per group (one expert per majority label)", {},
                       "merged"),
     "choice-oracle": ("choice oracle: among the subtask's experts, the one closest to the "
                       "demonstrator's own command (uses the demonstrator; a diagnostic, not a "
                       "controller)", {}, "choice-oracle"),
-    "particles-10": ("10 particles", {"particles": 10}, "support"),
-    "particles-30": ("30 particles", {"particles": 30}, "support"),
+    "particles-10": ("10 particles", {"particles": 10}, DEFAULT_RULE),
+    "particles-30": ("30 particles", {"particles": 30}, DEFAULT_RULE),
     "min-support-0": ("no minimum support (every expert's gate competes)",
-                      {"min_support": 0}, "support"),
-    "sticky-5": ("temporal stickiness kappa = 5", {"sticky_kappa": 5.0}, "support"),
+                      {"min_support": 0}, DEFAULT_RULE),
+    "sticky-5": ("temporal stickiness kappa = 5", {"sticky_kappa": 5.0}, DEFAULT_RULE),
     "prior-zero": ("zero GP prior mean (instead of each expert's mean)",
-                   {"gp_prior_mean": "zero"}, "support"),
-    "tail-kept": ("tail inputs kept (input weights all 1)", {"input_weights": None}, "support"),
-    "noise-1e-3": ("GP noise theta_n = 1e-3", {"theta_n": 1e-3}, "support"),
-    "particles-100": ("100 particles", {"particles": 100}, "support"),
-    "sticky-20": ("temporal stickiness kappa = 20", {"sticky_kappa": 20.0}, "support"),
-    "lambda0-10": ("gate prior scatter lambda0 = 10", {"lambda0": 10.0}, "support"),
-    "lambda0-100": ("gate prior scatter lambda0 = 100", {"lambda0": 100.0}, "support"),
+                   {"gp_prior_mean": "zero"}, DEFAULT_RULE),
+    "tail-kept": ("tail inputs kept (input weights all 1)", {"input_weights": None}, DEFAULT_RULE),
+    "noise-1e-3": ("GP noise theta_n = 1e-3", {"theta_n": 1e-3}, DEFAULT_RULE),
+    "sticky-20": ("temporal stickiness kappa = 20", {"sticky_kappa": 20.0}, DEFAULT_RULE),
+    "lambda0-10": ("gate prior scatter lambda0 = 10", {"lambda0": 10.0}, DEFAULT_RULE),
+    "lambda0-100": ("gate prior scatter lambda0 = 100", {"lambda0": 100.0}, DEFAULT_RULE),
     "lambda0-100-gate": ("gate prior scatter lambda0 = 100, rule gate", {"lambda0": 100.0},
                          "gate"),
 }
