@@ -14,10 +14,18 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
 from collections.abc import Callable
 
-__all__ = ["LOG_LEVELS", "JournalFormatter", "UsageError", "configure_logging", "guarded"]
+__all__ = [
+    "LOG_LEVELS",
+    "JournalFormatter",
+    "UsageError",
+    "configure_logging",
+    "exit_on_sigterm",
+    "guarded",
+]
 
 LOG_LEVELS = ("debug", "info", "warning", "error")
 _PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
@@ -79,6 +87,17 @@ def guarded(prog: str, body: Callable[[], int]) -> int:
     except BrokenPipeError:
         _silence_stdout()
         return 141
+
+
+def exit_on_sigterm() -> None:
+    """SIGTERM raises ``SystemExit(143)`` in the main thread, so that ``finally`` blocks run
+    and stop the processes a command started (the default action would end this one at once
+    and leave them running). For commands without a SIGTERM handler of their own."""
+
+    def _exit(signum: int, frame: object) -> None:
+        sys.exit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _exit)
 
 
 def _silence_stdout() -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from process_testing import processes_naming
 
 from simulator.controllers.hcc import LABELS
 from simulator.experiment.report import check_results
@@ -157,21 +158,6 @@ def test_resume_reuses_finished_jobs_and_reproduces_the_results(
     assert again["resumed_jobs"] > 0 and again["jobs_wall_s"] == first["jobs_wall_s"]
 
 
-def _processes_naming(text: str) -> list[str]:
-    """Command lines of running processes that contain ``text`` (from /proc)."""
-    found = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        if text in cmd:
-            found.append(cmd)
-    return found
-
-
 @pytest.mark.parametrize(("command", "started", "signum", "code"), [
     (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 15, 143),
     (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 2, 130),
@@ -190,10 +176,10 @@ def test_a_stopped_run_leaves_no_process_behind(tmp_path: Path, command: tuple[s
         while not list(out.glob(started)):
             assert proc.poll() is None and time.monotonic() < end, "no job started"
             time.sleep(0.1)
-        assert _processes_naming(str(out))  # a job's processes are running
+        assert processes_naming(str(out))  # a job's processes are running
         proc.send_signal(signum)
         assert proc.wait(120) == code
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert _processes_naming(str(out)) == []
+    assert processes_naming(str(out)) == []

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from roger_daemon.cli import BENCHES, dispatch
+from roger_daemon.console import exit_on_sigterm
 
 __all__ = ["configure", "run"]
 
@@ -16,5 +17,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run one benchmark through the same lazy dispatcher as the top-level command."""
+    """Run one benchmark through the same lazy dispatcher as the top-level command.
+
+    SIGTERM ends it with exit status 143 after its daemons and clients are stopped."""
+    exit_on_sigterm()
     return dispatch(BENCHES, "roger bench", [args.name, *args.rest])
