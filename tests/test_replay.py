@@ -428,3 +428,29 @@ def test_replay_refuses_files_of_different_sessions(crash) -> None:  # type: ign
     assert len(files) == 2
     with pytest.raises(ValueError, match="2 sessions"):
         replay_session(files)
+
+
+def test_merge_groups_saves_the_experts_merged_per_group(tmp_path: Path) -> None:
+    """``roger replay --merge-groups --save-checkpoint DIR`` saves what
+    :func:`roger_daemon.groups.merge_groups` builds from the replayed model and the logged
+    pairs (the experiment's merged groups), labelled by group; it refuses without DIR."""
+    from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+    from roger_daemon.daemon.robot_state import RobotState
+    from roger_daemon.groups import merge_groups
+
+    s = record_session(tmp_path / "logs", n_ticks=150)  # 3 experts, named seek and trap
+    assert roger(["replay", str(s.paths[0]), "--merge-groups", "--no-progress"]) == 2
+    out = tmp_path / "merged"
+    assert roger(["replay", str(s.paths[0]), "--merge-groups", "--save-checkpoint", str(out),
+                  "--no-progress", "--json"]) == 0
+    res = replay_session(s.paths)
+    assert res.model is not None
+    x = np.array([p.x for p in res.pairs])
+    y = np.array([p.y for p in res.pairs])
+    want, groups = merge_groups(x, y, res.labels, res.model, params=res.model.params,
+                                seed=res.seed)
+    ck = read_checkpoint(list_checkpoints(out, res.robot)[0])
+    assert ck.meta["model_digest"] == array_digest(want.state_dict())
+    assert RobotState.from_arrays(ck.daemon).labels() == groups
+    assert ck.meta["params"] == want.params.to_mapping()  # one particle: the merged model's
+    assert want.n_experts == len(set(groups)) == 2 < res.model.n_experts == 3

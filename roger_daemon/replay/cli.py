@@ -38,6 +38,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--save-checkpoint", type=Path, metavar="DIR",
                         help="write the replayed model as a daemon checkpoint into DIR (the "
                              "daemon's [checkpoint] dir), for the daemon to resume from")
+    parser.add_argument("--merge-groups", action="store_true",
+                        help="with --save-checkpoint: save ROGER's experts merged per group "
+                             "(one expert per majority label, the experiment's 'merged "
+                             "groups') instead of the replayed model; for a daemon in predict "
+                             "mode driving the HCC transitioner. Needs the session from the "
+                             "model's first pair")
     parser.add_argument("--check", action="store_true",
                         help="exit 1 unless every recorded prediction is reproduced")
     parser.add_argument("--tolerance", type=float, default=REL_TOL,
@@ -163,9 +169,11 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
             )
         res.warnings.extend(notes)
         saved = ""
+        if args.merge_groups and not args.save_checkpoint:
+            raise ReplayError("--merge-groups needs --save-checkpoint DIR")
         if args.save_checkpoint:
-            saved = str(_save(res, args.save_checkpoint, args.checkpoint if initial is not None
-                              else None, queued))
+            saved = str(_save(_merged(res) if args.merge_groups else res, args.save_checkpoint,
+                              args.checkpoint if initial is not None else None, queued))
     except (ReplayError, CatchUpError, ValueError) as exc:
         print(f"roger replay: {exc}", file=sys.stderr)
         return 2
@@ -182,6 +190,32 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
         print("roger replay --check: the log has no predictions to compare", file=sys.stderr)
         return 1
     return 0 if res.ok(args.tolerance) else 1
+
+
+def _merged(res: Any) -> Any:
+    """``res`` with its model replaced by the model's experts merged per group
+    (:func:`roger_daemon.groups.merge_groups`) and each pair labelled with its group."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from roger_daemon.groups import merge_groups
+    from roger_daemon.labels import majority_labels
+    from roger_daemon.replay.session import ReplayError
+
+    model = res.model
+    if model is None or res.model_kind != "roger":
+        raise ReplayError("--merge-groups needs a ROGER model (model kind 'roger')")
+    if int(model.n_learned) != len(res.pairs):
+        raise ReplayError(
+            f"--merge-groups needs the session from the model's first pair: the model learned "
+            f"{model.n_learned} pairs, the replayed log holds {len(res.pairs)} of them")
+    merged, groups = merge_groups(np.array([p.x for p in res.pairs]),
+                                  np.array([p.y for p in res.pairs]), res.labels, model,
+                                  params=model.params, seed=res.seed)
+    return replace(res, model=merged, labels=groups, params=merged.params.to_mapping(),
+                   expert_labels=majority_labels(np.asarray(merged.assignments()).tolist(),
+                                                 groups))
 
 
 def _save(res: Any, directory: Path, checkpoint: Path | None, queued: list[Any]) -> Path:

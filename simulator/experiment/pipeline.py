@@ -123,12 +123,10 @@ def merge_expert_groups(stream: Demonstrations, model: Any, params: Any,
     (same learner parameters, one particle). ROGER's partition picks the points; the labels
     only name each expert's group, as for the transitioner.
     """
-    from roger_daemon.learner.partition import fit_partition
+    from roger_daemon.groups import merge_groups
 
-    assignments = np.asarray(model.assignments()).tolist()
-    names = majority_labels(assignments, stream.labels)
-    group_of_point = [names[k] for k in assignments]
-    merged = fit_partition(stream.x, stream.y, group_of_point, params=params, seed=seed)
+    merged, group_of_point = merge_groups(stream.x, stream.y, stream.labels, model,
+                                          params=params, seed=seed)
     labels = majority_labels(np.asarray(merged.assignments()).tolist(), group_of_point)
     return MergedGroups(seed, merged, group_of_point, labels)
 
