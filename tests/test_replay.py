@@ -430,7 +430,8 @@ def test_replay_refuses_files_of_different_sessions(crash) -> None:  # type: ign
         replay_session(files)
 
 
-def test_merge_groups_saves_the_experts_merged_per_group(tmp_path: Path) -> None:
+def test_merge_groups_saves_the_experts_merged_per_group(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``roger replay --merge-groups --save-checkpoint DIR`` saves what
     :func:`roger_daemon.groups.merge_groups` builds from the replayed model and the logged
     pairs (the experiment's merged groups), labelled by group; it refuses without DIR."""
@@ -441,8 +442,10 @@ def test_merge_groups_saves_the_experts_merged_per_group(tmp_path: Path) -> None
     s = record_session(tmp_path / "logs", n_ticks=150)  # 3 experts, named seek and trap
     assert roger(["replay", str(s.paths[0]), "--merge-groups", "--no-progress"]) == 2
     out = tmp_path / "merged"
+    capsys.readouterr()
     assert roger(["replay", str(s.paths[0]), "--merge-groups", "--save-checkpoint", str(out),
                   "--no-progress", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
     res = replay_session(s.paths)
     assert res.model is not None
     x = np.array([p.x for p in res.pairs])
@@ -454,3 +457,4 @@ def test_merge_groups_saves_the_experts_merged_per_group(tmp_path: Path) -> None
     assert RobotState.from_arrays(ck.daemon).labels() == groups
     assert ck.meta["params"] == want.params.to_mapping()  # one particle: the merged model's
     assert want.n_experts == len(set(groups)) == 2 < res.model.n_experts == 3
+    assert sorted(report["merged_groups"].values()) == sorted(set(groups))

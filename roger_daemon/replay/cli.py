@@ -171,8 +171,9 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
         saved = ""
         if args.merge_groups and not args.save_checkpoint:
             raise ReplayError("--merge-groups needs --save-checkpoint DIR")
+        merged = _merged(res) if args.merge_groups else None
         if args.save_checkpoint:
-            saved = str(_save(_merged(res) if args.merge_groups else res, args.save_checkpoint,
+            saved = str(_save(merged or res, args.save_checkpoint,
                               args.checkpoint if initial is not None else None, queued))
     except (ReplayError, CatchUpError, ValueError) as exc:
         print(f"roger replay: {exc}", file=sys.stderr)
@@ -180,10 +181,16 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     summary = res.summary(args.tolerance)
     if saved:
         summary["saved_checkpoint"] = saved
+    if merged is not None:  # what the checkpoint holds: one expert per group
+        summary["merged_groups"] = {str(k): v for k, v in sorted(merged.expert_labels.items())}
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
         _print_summary(summary, res)
+        if merged is not None:
+            print(f"merged:       {len(merged.expert_labels)} experts, one per group "
+                  f"({', '.join(sorted(merged.expert_labels.values()))}); saved, not the "
+                  "replayed model")
     if not args.check:
         return 0
     if not res.diffs:
