@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import re
+import subprocess
 from functools import cache
 from pathlib import Path
 
@@ -46,9 +47,21 @@ PITFALL = re.compile(r"\bpitfalls?\s+(\d+)(?:\s*-\s*(\d+))?")
 LEARNER_MATH = "docs/learner-math.md"
 
 
+def _candidates() -> list[Path]:
+    """The repository's files: what git tracks or would track (not what it ignores, such as
+    ``runs/`` written by ``make demo``); every file below the root outside a git checkout."""
+    try:
+        listed = subprocess.run(
+            ["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
+            cwd=ROOT, capture_output=True, check=True, timeout=60).stdout
+    except (OSError, subprocess.SubprocessError):
+        return sorted(ROOT.rglob("*"))
+    return sorted(ROOT / name for name in listed.decode().split("\0") if name)
+
+
 def _files() -> list[Path]:
     out = []
-    for path in sorted(ROOT.rglob("*")):
+    for path in _candidates():
         rel = path.relative_to(ROOT)
         if any(part in SKIP_DIRS or part.startswith(".") for part in rel.parts[:-1]):
             continue
