@@ -20,7 +20,8 @@ __all__ = ["KERNELS", "SMALL", "warm_up"]
 #: are compiled at every size since issue 11's second pass.)
 SMALL = 64
 
-KERNELS = ("cholesky_inverse", "expert_terms", "fused_delete_index", "fused_step",
+KERNELS = ("cholesky_inverse", "coalescence_row", "expert_terms",
+           "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "kernel_vector", "matvec", "rank_update_cq",
            "trace_assignments")
 
@@ -62,3 +63,4 @@ def warm_up() -> None:
                   cube.copy(), vec.copy())
     k.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
     k.trace_assignments(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1, 0)
+    k.coalescence_row(np.zeros((1, 1), dtype=np.int32), 1, 1)

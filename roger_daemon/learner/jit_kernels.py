@@ -39,7 +39,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-__all__ = ["cholesky_inverse", "expert_terms", "fused_delete_index", "fused_step",
+__all__ = ["cholesky_inverse", "coalescence_row", "expert_terms",
+           "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "kernel_vector", "matvec", "rank_update_cq",
            "trace_assignments"]
 
@@ -261,6 +262,33 @@ def trace_assignments(ancestors: npt.NDArray[np.int32], experts: npt.NDArray[np.
         out[t] = experts[t, j]
         j = ancestors[t, j]
     return out
+
+
+@_compiled(nogil=True)
+def coalescence_row(ancestors: npt.NDArray[np.int32], n: int, alive: int) -> tuple[int, int]:
+    """The latest row ``t < n`` at which the lineages of the ``alive`` particles of row
+    ``n - 1`` all pass through one particle ``j``: ``(t, j)``, or ``(-1, -1)`` if they do not
+    meet within the ``n`` rows (docs/learner-math.md §4, the segmentation history)."""
+    width = ancestors.shape[1]
+    on = np.zeros(width, dtype=np.bool_)
+    nxt = np.zeros(width, dtype=np.bool_)
+    for j in range(alive):
+        on[j] = True
+    for t in range(n - 1, -1, -1):
+        count = 0
+        last = -1
+        for j in range(width):
+            if on[j]:
+                count += 1
+                last = j
+        if count == 1:
+            return t, last
+        nxt[:] = False
+        for j in range(width):
+            if on[j]:
+                nxt[ancestors[t, j]] = True
+        on[:] = nxt
+    return -1, -1
 
 
 @_compiled(fastmath={"contract"}, nogil=True)

@@ -59,5 +59,5 @@ def fit_partition(x: npt.ArrayLike, y: npt.ArrayLike, groups: Sequence[Hashable]
         j = int(np.flatnonzero(flat_slots == target)[0])
         instantiate(model, np.array([j]), np.zeros(1), flat_part, flat_slots, offsets, xs, ys,
                     terms)
-        expert_of[group] = int(model._hist_eid[model.n_learned - 1, 0])
+        expert_of[group] = int(model._history.last_ids()[0])
     return model

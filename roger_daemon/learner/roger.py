@@ -22,7 +22,8 @@ share it), and the chosen experts are updated together (:func:`.sogp.update_many
 cost is bounded by (unique experts) x ``beta^2``, never by the data seen.  An opt-in bound
 (``prune_log_margin``) skips the GP of experts whose putatives cannot carry weight.  The
 segmentation history costs O(P) per step: survivors' ancestor index and chosen expert id,
-traced back by :meth:`Roger.assignments`.
+traced back by :meth:`Roger.assignments`, collapsed to one id per point once the particles'
+lineages meet (:mod:`.history`).
 
 The step itself is in :mod:`.roger_step`, the predictions in :mod:`.roger_predict`.
 """
@@ -36,8 +37,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit
 from roger_daemon.learner.gate import GatePool
+from roger_daemon.learner.history import SegmentationHistory
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
@@ -138,8 +139,7 @@ class Roger:
         self._free: list[int] = list(range(cap - 1, -1, -1))  # pop() yields the lowest slot
         self._particles: list[IntArray] = [np.zeros(0, dtype=np.int64)]
         self._logw = np.zeros(1)
-        self._hist_anc = np.zeros((0, p.particles), dtype=np.int32)
-        self._hist_eid = np.zeros((0, p.particles), dtype=np.int64)
+        self._history = SegmentationHistory(p.particles)
         self.n_learned = 0
         # how close the last learn_one's discrete decisions were to flipping (diagnostic, not
         # state): resampling in normalised weight, novelty in units of k* (docs/reproducibility.md)
@@ -279,15 +279,13 @@ class Roger:
     def assignments(self) -> IntArray:
         """The MAP particle's expert id for every learned point, in order.
 
-        Traced back through the stored (ancestor, chosen expert) of each step: O(N) per call in
-        a compiled loop (:func:`.jit_kernels.trace_assignments`), O(P) memory per step.
+        Traced back through the stored (ancestor, chosen expert) of each step since the
+        particles' lineages last met, the settled prefix read as is (:mod:`.history`): O(N) per
+        call, 8 bytes per point plus O(P) per unsettled step of memory.
         """
-        n = self.n_learned
-        if n == 0:
+        if self.n_learned == 0:
             return np.zeros(0, dtype=np.int64)
-        out: IntArray = jit.trace_assignments(self._hist_anc, self._hist_eid, n,
-                                              int(np.argmax(self._logw)))
-        return out
+        return self._history.assignments(int(np.argmax(self._logw)))
 
     def distinct_experts(self) -> list[SparseOnlineGP]:
         """The distinct SOGPs held by the particles (for inspection and tests)."""

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from roger_daemon.learner.history import SegmentationHistory
 from roger_daemon.learner.state import (
     SCHEMA_VERSION,
     generator_from_state,
@@ -46,8 +47,7 @@ def roger_state_dict(model: Roger) -> dict[str, np.ndarray]:
     out["particle_log_weights"] = model._logw.copy()
     out["particle_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     out["particle_experts"] = compact[flat]
-    out["history_ancestor"] = model._hist_anc[: model.n_learned].copy()
-    out["history_expert"] = model._hist_eid[: model.n_learned].copy()
+    out.update(model._history.state())
     out["meta"] = pack_meta({
         "schema": SCHEMA_VERSION,
         "kind": model.kind,
@@ -85,6 +85,6 @@ def load_roger_state(model: Roger, state: dict[str, np.ndarray], meta: dict[str,
     model._ref = np.bincount(flat, minlength=len(model._gps)).astype(np.int64)
     model.n_learned = int(meta["n_learned"])
     model._next_id = int(meta["next_expert_id"])
-    width = model.params.particles
-    model._hist_anc = np.asarray(state["history_ancestor"], dtype=np.int32).reshape(-1, width)
-    model._hist_eid = np.asarray(state["history_expert"], dtype=np.int64).reshape(-1, width)
+    model._history = SegmentationHistory.from_state(
+        model.params.particles, state.get("history_settled"),  # absent before schema 3
+        state["history_ancestor"], state["history_expert"])

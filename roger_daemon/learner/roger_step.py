@@ -73,7 +73,7 @@ def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slo
     other putative of that particle gets weight 0.  The common normaliser
     ``N + alpha + kappa`` is dropped like ``N + alpha`` (docs/learner-math.md)."""
     kappa = model.params.sticky_kappa
-    prev_ids = model._hist_eid[model.n_learned - 1]  # chosen expert id of each particle
+    prev_ids = model._history.last_ids()  # chosen expert id of each particle
     ids = np.where(is_new, -2, model._ids[np.where(is_new, 0, flat_slots)])
     is_prev = ids == prev_ids[flat_part]
     if math.isinf(kappa):
@@ -206,23 +206,6 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     model._ref = new_ref
     model._particles = new_parts
     model._logw = new_logw
-    record(model, surv_parent, chosen_ids)
+    model._history.append(surv_parent, chosen_ids)
     model.n_learned += 1
     return min((gp.novelty_margin for gp in upd_gps), default=math.inf)
-
-
-def record(model: Roger, ancestors: IntArray, expert_ids: IntArray) -> None:
-    """Append one row of segmentation history (O(P) per step)."""
-    t = model.n_learned
-    if t >= model._hist_anc.shape[0]:
-        grow = max(64, model._hist_anc.shape[0])
-        width = model.params.particles
-        model._hist_anc = np.concatenate(
-            [model._hist_anc, np.full((grow, width), -1, dtype=np.int32)])
-        model._hist_eid = np.concatenate(
-            [model._hist_eid, np.full((grow, width), -1, dtype=np.int64)])
-    n = ancestors.size
-    model._hist_anc[t, :n] = ancestors
-    model._hist_anc[t, n:] = -1
-    model._hist_eid[t, :n] = expert_ids
-    model._hist_eid[t, n:] = -1
