@@ -30,7 +30,7 @@ from protocols.messages import Action, Dims, ExpertOutput, Perception, Predictio
 from roger_daemon.daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
 from roger_daemon.daemon.robot_state import Pair, RobotState
 from roger_daemon.daemon.window import Window
-from roger_daemon.labels import majority_labels_coded
+from roger_daemon.labels import LabelTally, majority_labels_coded
 
 __all__ = ["Decisions", "Pair", "RobotRuntime"]
 
@@ -112,6 +112,7 @@ class RobotRuntime:
         self.predict_ms = Window(200)
         self.generation = 0  # bumped on every model change (learn, reset)
         self._labels_cache: tuple[int, dict[int, str]] | None = None
+        self._tally = LabelTally()  # counts of the settled points (roger_daemon/labels.py)
         self._status_updates = 0
         self._status_ns: int | None = None
         self._reported: set[str] = set()
@@ -281,8 +282,12 @@ class RobotRuntime:
         """Majority label of each expert of the MAP particle (cached per model generation)."""
         if self._labels_cache is not None and self._labels_cache[0] == self.generation:
             return self._labels_cache[1]
-        assign = np.asarray(self.model.assignments(), dtype=np.int64)
         codes = self.codes
+        if int(self.model.n_learned) == len(codes):  # the usual case: O(unsettled points)
+            labels = self._tally.labels(self.model, codes, self.vocab)
+            self._labels_cache = (self.generation, labels)
+            return labels
+        assign = np.asarray(self.model.assignments(), dtype=np.int64)
         if len(assign) != len(codes):
             # Should not happen; keep going with what lines up and say so once.
             self._warn_once("labels", f"{self.robot}: {len(assign)} assignments but "
@@ -329,6 +334,7 @@ class RobotRuntime:
         self.session_resets += 1
         self.last_learned_tick = None
         self._labels_cache = None
+        self._tally = LabelTally()
         self._status_updates = 0
         self._newest_pair = None
         if self.decisions is not None:
@@ -385,3 +391,4 @@ class RobotRuntime:
         inv = counters.get("invalid", {})
         self.invalid = Counter({str(k): int(v) for k, v in inv.items() if k in REASONS})
         self._labels_cache = None
+        self._tally = LabelTally()

@@ -98,14 +98,23 @@ class SegmentationHistory:
 
     # -- reading -------------------------------------------------------------------------------
 
-    def assignments(self, particle: int) -> IntArray:
-        """Particle ``particle``'s expert id for every recorded point, in order: O(N)."""
-        out = np.empty(len(self), dtype=np.int64)
-        out[:self.n_settled] = self._settled[:self.n_settled]
+    def assignments(self, particle: int, start: int = 0) -> IntArray:
+        """Particle ``particle``'s expert id for every recorded point from ``start`` on, in
+        order: O(N - start) (plus the rows since the lineages last met)."""
+        start = min(max(0, int(start)), len(self))
+        out = np.empty(len(self) - start, dtype=np.int64)
+        head = max(0, self.n_settled - start)
+        out[:head] = self._settled[start:self.n_settled]
         if self.n_rows:
-            out[self.n_settled:] = jit.trace_assignments(self._anc, self._eid, self.n_rows,
-                                                         int(particle))
+            trace = jit.trace_assignments(self._anc, self._eid, self.n_rows, int(particle))
+            out[head:] = trace[max(0, start - self.n_settled):]
         return out
+
+    def settled_points(self) -> int:
+        """Points whose assignment is the same in every particle: the rows before the latest
+        one at which the present lineages meet (settles first)."""
+        self.settle()
+        return self.n_settled
 
     # -- state ---------------------------------------------------------------------------------
 

@@ -71,6 +71,15 @@ class Learner(Protocol):
         """The MAP particle's expert id of every learned point, in order."""
         ...
 
+    @property
+    def settled_points(self) -> int:
+        """How many leading points have assignments that no further learning can change."""
+        ...
+
+    def assignments_from(self, start: int) -> npt.NDArray[np.int64]:
+        """``assignments()[start:]`` in O(n_learned - start) (incremental labelling)."""
+        ...
+
     def expert_sizes(self) -> dict[int, int]:
         """``{expert_id: points}`` of the MAP particle."""
         ...

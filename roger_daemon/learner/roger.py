@@ -287,6 +287,19 @@ class Roger:
             return np.zeros(0, dtype=np.int64)
         return self._history.assignments(int(np.argmax(self._logw)))
 
+    @property
+    def settled_points(self) -> int:
+        """Leading points whose assignment is the same in every particle, now and after any
+        further learning (the particles' lineages meet after them; :mod:`.history`)."""
+        return self._history.settled_points()
+
+    def assignments_from(self, start: int) -> IntArray:
+        """``assignments()[start:]`` in O(n_learned - start): the settled ids are read, the
+        rest traced back (the daemon labels experts incrementally, :mod:`roger_daemon.labels`)."""
+        if self.n_learned == 0:
+            return np.zeros(0, dtype=np.int64)
+        return self._history.assignments(int(np.argmax(self._logw)), int(start))
+
     def distinct_experts(self) -> list[SparseOnlineGP]:
         """The distinct SOGPs held by the particles (for inspection and tests)."""
         return [g for g, r in zip(self._gps, self._ref.tolist(), strict=True)

@@ -102,3 +102,20 @@ def test_fleet_and_soak_feed_the_aibo_demonstrations_by_default() -> None:
     assert synthetic.x.shape == (50, 23) and len(synthetic.labels) == 50
     with pytest.raises(ValueError, match="unknown stream"):
         feed_stream("nope")
+
+
+def test_bandwidth_script_counts_the_compiled_passes_of_a_step() -> None:
+    """scripts/learner_bandwidth.py (docs/fleet.md) wraps the compiled kernels by name: if
+    they are renamed the counts go to zero, which this catches."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "scripts" / "learner_bandwidth.py"
+    out = subprocess.run([sys.executable, str(script), "--points", "160", "--json"],
+                         capture_output=True, text=True, timeout=300, check=True)
+    report = json.loads(out.stdout)
+    passes = report["passes_per_step"]
+    assert passes["expert_terms"] >= 1 and passes["matvec"] >= 1
+    assert report["beta"] == 300 and report["distinct_experts"] >= 1
+    assert report["passes_ms_per_step"] > 0 and report["pass_us_out_of_cache"] > 0

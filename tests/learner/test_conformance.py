@@ -103,6 +103,24 @@ def test_assignments_agree_with_the_experts(cls: Any) -> None:
 
 
 @models
+def test_settled_assignments_never_change(cls: Any) -> None:
+    model = _fresh(cls, 0)
+    xs, ys = _stream(120)
+    seen: list[np.ndarray] = []
+    for x, y in zip(xs, ys, strict=True):
+        model.learn_one(x, y)
+        settled = model.settled_points
+        assert 0 <= settled <= model.n_learned
+        a = model.assignments()
+        for start in (0, settled // 2, settled, model.n_learned):
+            np.testing.assert_array_equal(model.assignments_from(start), a[start:])
+        seen.append(a[:settled])
+    final = model.assignments()
+    for prefix in seen:  # what was settled then is what the model says now
+        np.testing.assert_array_equal(final[:prefix.size], prefix)
+
+
+@models
 def test_same_seed_same_model(cls: Any) -> None:
     assert _same_state(_trained(cls).state_dict(), _trained(cls).state_dict())
 

@@ -96,5 +96,8 @@ def on_timer(svc: Service, now: int) -> None:
             published = True
     svc._learned_since_tick = False
     if svc.learners is not None:
+        # the workers are computing: make what they will report durable meanwhile, so the
+        # replies are published without waiting for fdatasync (docs/fleet.md)
+        svc._commit_all(svc.robots.values())
         svc.learners.new_tick()
     svc.schedule.fired(now, published)

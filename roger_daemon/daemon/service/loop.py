@@ -391,6 +391,9 @@ class Service:
         dirty = [rt.wal for rt in robots if rt.wal is not None and rt.wal.dirty]
         if len(dirty) > 1 and self._committer is not None:
             list(self._committer.map(lambda w: w.commit(), dirty))
+        else:
+            for w in dirty:
+                w.commit()
 
     # --- shutdown --------------------------------------------------------------------------
 

@@ -1,0 +1,109 @@
+"""How far the learner step is from the memory bandwidth bound (issue 11, docs/fleet.md).
+
+Counts the passes over the experts' ``beta x beta`` matrices that one ROGER step makes on the
+benchmark stream (``roger bench learner``: paper parameters), measures how fast this machine
+streams such a matrix when the experts do not fit in the core's cache (cycling over as many
+distinct matrices as the step touches) and when one matrix stays cached, and prints the time
+those passes alone take per step.
+
+    .venv/bin/python scripts/learner_bandwidth.py [--points 1500] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from collections import Counter
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from roger_daemon.bench.learner import load_stream
+from roger_daemon.learner import jit
+from roger_daemon.learner.roger import Roger
+from roger_daemon.learner.synthetic import BENCH_SEED
+
+
+def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
+    """Compiled calls per step by kind, measured ms per step, distinct experts, beta."""
+    stream = load_stream("synthetic", None, BENCH_SEED, [])
+    model = Roger(stream.x.shape[1], stream.y.shape[1], stream.params, seed=0)
+    warm = points // 4
+    for i in range(warm):
+        model.learn_one(stream.x[i], stream.y[i])
+    calls: Counter[str] = Counter()
+    jit._load()
+    originals = {name: getattr(jit, name) for name in ("expert_terms", "matvec", "fused_step")}
+
+    def counted(name: str, fn: Any) -> Any:
+        def wrapper(*args: Any) -> Any:
+            calls[name] += 1
+            return fn(*args)
+        return wrapper
+
+    for name, fn in originals.items():
+        setattr(jit, name, counted(name, fn))
+    try:
+        t0 = time.perf_counter()
+        for i in range(warm, points):
+            model.learn_one(stream.x[i], stream.y[i])
+        ms = (time.perf_counter() - t0) / (points - warm) * 1e3
+    finally:
+        for name, fn in originals.items():
+            setattr(jit, name, fn)
+    steps = points - warm
+    return ({k: v / steps for k, v in calls.items()}, ms, model.n_unique_experts,
+            model.params.beta)
+
+
+def stream_us(mats: list[np.ndarray], repeats: int) -> float:
+    """Microseconds per ``matvec`` pass, cycling over ``mats``."""
+    v = np.ones(mats[0].shape[0])
+    n = v.size
+    jit.matvec(mats[0], v, n)
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        for m in mats:
+            jit.matvec(m, v, n)
+    return (time.perf_counter() - t0) / (repeats * len(mats)) * 1e6
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--points", type=int, default=1500)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    with threadpool_limits(1):
+        per_step, step_ms, unique, beta = count_passes(args.points)
+        rng = np.random.default_rng(0)
+        mats = [rng.standard_normal((beta, beta)) for _ in range(3 * unique)]  # C, Q, K_B
+        cold = stream_us(mats, 50)
+        hot = stream_us(mats[:1], 2000)
+    mb = beta * beta * 8 / 1e6
+    # a C k or Q k pass reads one matrix; the fused step reads and writes C and Q
+    reads = per_step.get("expert_terms", 0.0) + per_step.get("matvec", 0.0)
+    rw = 2 * per_step.get("fused_step", 0.0)
+    bound_ms = (reads * cold + rw * 2 * cold) / 1e3
+    out = {
+        "beta": beta, "distinct_experts": unique, "step_ms": round(step_ms, 3),
+        "passes_per_step": {k: round(v, 2) for k, v in per_step.items()},
+        "matrix_mb": round(mb, 3),
+        "pass_us_out_of_cache": round(cold, 1), "pass_us_in_cache": round(hot, 1),
+        "gb_per_s_out_of_cache": round(mb / cold * 1e3, 1),
+        "passes_ms_per_step": round(bound_ms, 3),
+        "updates_per_s_at_that_bound": round(1e3 / bound_ms, 1),
+        "load_avg_1m": os.getloadavg()[0],
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k:32s} {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

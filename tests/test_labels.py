@@ -1,0 +1,39 @@
+"""The majority-label rule's incremental form (roger_daemon/labels.py: LabelTally): the same
+labels as the whole-history rule at every step of a learning model, as labels are added to the
+vocabulary, and after the model is replaced."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from roger_daemon.labels import LabelTally, majority_labels_coded
+from roger_daemon.learner import Roger, RogerParams
+from roger_daemon.learner.synthetic import subtask_stream
+
+VOCAB = ["", "aim", "kick", "seek", "trap"]
+
+
+def test_tally_equals_the_whole_history_rule_while_learning() -> None:
+    s = subtask_stream(700)
+    model = Roger(23, 9, RogerParams(beta=20), seed=1)
+    rng = np.random.default_rng(0)
+    # codes of a growing vocabulary: only "" and "aim" at first, all five from point 300 on
+    codes = np.where(np.arange(700) < 300, s.labels % 2, s.labels % 5)
+    codes[rng.random(700) < 0.1] = 0  # some points unlabelled
+    tally = LabelTally()
+    checked = 0
+    for i in range(700):
+        model.learn_one(s.x[i], s.y[i])
+        if i % 7 and i < 690:
+            continue
+        vocab = VOCAB[:2] if i < 300 else VOCAB
+        want = majority_labels_coded(model.assignments(), codes[: i + 1], vocab)
+        assert tally.labels(model, codes[: i + 1], vocab) == want, i
+        checked += 1
+    assert model.settled_points > 0 and tally.counted > 0 and checked > 90
+    # another model (a reset): counted afresh, not on top of the old counts
+    fresh = Roger(23, 9, RogerParams(beta=20), seed=2)
+    for i in range(50):
+        fresh.learn_one(s.x[i], s.y[i])
+    want = majority_labels_coded(fresh.assignments(), codes[:50], VOCAB)
+    assert tally.labels(fresh, codes[:50], VOCAB) == want
