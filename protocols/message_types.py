@@ -46,6 +46,7 @@ __all__ = [
     "as_vector",
     "encode",
     "now_ns",
+    "stamp_prediction",
 ]
 
 SCHEMA_VERSION = 1
@@ -339,4 +340,27 @@ TYPES: dict[str, type[Message]] = {
 def encode(msg: Message) -> bytes:
     """Serialise a message to msgpack bytes."""
     out: bytes = msgpack.packb(msg.to_map(), use_bin_type=True)
+    return out
+
+
+_PREDICTION_FIELDS = frozenset({"v", "robot", "tick", "stamp_ns", "mean", "var", "expert",
+                                "multimap", "latency_ms", "mode", "updates"})
+
+
+def stamp_prediction(payload: bytes, *, robot: str, tick: int, latency_ms: float, mode: str,
+                     stamp_ns: int) -> bytes:
+    """Fill the fields a publisher sets at publish time (``latency_ms``, ``mode``,
+    ``stamp_ns``) in a prediction this process's own code encoded with :func:`encode` (a
+    learner worker's reply): the same bytes as decoding, ``dataclasses.replace`` and encoding
+    again, without validating every vector a second time. Not for payloads from the network
+    (use ``decode``). Raises ``ValueError`` if ``payload`` is not a prediction of ``robot``'s
+    ``tick``."""
+    m = msgpack.unpackb(payload, raw=False)
+    if not isinstance(m, dict) or not _PREDICTION_FIELDS <= m.keys() or m["robot"] != robot \
+            or m["tick"] != tick:
+        raise ValueError(f"not the prediction of {robot} tick {tick}")
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
+    m["latency_ms"], m["mode"], m["stamp_ns"] = float(latency_ms), mode, int(stamp_ns)
+    out: bytes = msgpack.packb(m, use_bin_type=True)
     return out

@@ -33,6 +33,7 @@ from protocols.message_types import (
     Status,
     encode,
     now_ns,
+    stamp_prediction,
 )
 
 __all__ = [
@@ -58,4 +59,5 @@ __all__ = [
     "decode",
     "encode",
     "now_ns",
+    "stamp_prediction",
 ]

@@ -198,3 +198,37 @@ def test_decoder_enforces_every_field_spec(kind: str) -> None:
             decode(kind, msgpack.packb(case))
         assert err.value.reason == "bad_value", case
 
+
+
+def test_stamp_prediction_gives_the_bytes_of_decode_replace_encode() -> None:
+    """A worker's encoded prediction stamped in place (the daemon's publish path) is byte for
+    byte what decoding it, replacing the publish-time fields and encoding again gives."""
+    from protocols.messages import stamp_prediction
+
+    dims = Dims(3, 2)
+    expert = ExpertOutput(expert=4, p=0.75, mean=np.array([0.5, -1.0]),
+                          var=np.array([0.1, 0.2]), n=12, label="aim")
+    worker = Prediction("r3", 17, 0.5, stamp_ns=11, mean=np.array([0.25, 2.0]),
+                        var=np.array([0.3, 0.4]), expert=4, multimap=(expert,), updates=99)
+    payload = encode(worker)
+    stamped = stamp_prediction(payload, robot="r3", tick=17, latency_ms=2.5, mode="predict",
+                               stamp_ns=123456789)
+    msg = decode("prediction", payload, dims=dims, robot="r3")
+    assert stamped == encode(dataclasses.replace(msg, latency_ms=2.5, mode="predict",
+                                                 stamp_ns=123456789))
+    again = decode("prediction", stamped, dims=dims, robot="r3")
+    assert isinstance(again, Prediction)
+    assert (again.latency_ms, again.mode, again.stamp_ns, again.updates) == \
+        (2.5, "predict", 123456789, 99)
+    with pytest.raises(ValueError, match="r3 tick 18"):
+        stamp_prediction(payload, robot="r3", tick=18, latency_ms=1.0, mode="predict",
+                         stamp_ns=1)
+    with pytest.raises(ValueError, match="r2 tick 17"):
+        stamp_prediction(payload, robot="r2", tick=17, latency_ms=1.0, mode="predict",
+                         stamp_ns=1)
+    with pytest.raises(ValueError, match="mode"):
+        stamp_prediction(payload, robot="r3", tick=17, latency_ms=1.0, mode="fly", stamp_ns=1)
+    perception = encode(Perception("r3", 17, 0.5, x=np.zeros(3)))
+    with pytest.raises(ValueError, match="not the prediction"):
+        stamp_prediction(perception, robot="r3", tick=17, latency_ms=1.0, mode="predict",
+                         stamp_ns=1)
