@@ -156,6 +156,32 @@ def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path) -> None:
             loop.service.shutdown()
 
 
+def test_inline_loop_commits_every_answered_robot_before_publishing(tmp_path: Path) -> None:
+    """Acknowledged means durable with several robots in one loop: the logs of the robots a
+    step answers are committed together (in parallel) before any of them is published."""
+    inline = Loop(make_config(tmp_path, "inline"), process=False)
+    seen: list[tuple[str, bool, bool]] = []
+    publish = inline.service.outbox.prediction
+
+    def checked(robot: str, msg: Any) -> None:
+        walls = [rt.wal for rt in inline.robots.values()]
+        assert all(w is not None for w in walls)
+        seen.append((robot, any(w.dirty for w in walls if w is not None), msg.updates > 0))
+        publish(robot, msg)
+
+    inline.service.outbox.prediction = checked  # type: ignore[method-assign]
+    try:
+        for t in range(10):
+            inline.send("aibo", t)
+            inline.send("b2", 20 + t)  # both robots answered in one step
+        inline.collect(20)
+        assert len(seen) == 20 and {r for r, _, _ in seen} == {"aibo", "b2"}
+        assert sum(learned for _, _, learned in seen) == 20
+        assert not any(dirty for _, dirty, _ in seen), seen
+    finally:
+        inline.service.shutdown()
+
+
 def test_reset_drains_the_worker_first(tmp_path: Path) -> None:
     proc = Loop(make_config(tmp_path, "p"), process=True)
     try:

@@ -30,11 +30,14 @@ def answer_lockstep(svc: Service) -> None:
     which is the causal order of a lock-stepped simulator (deterministic runs).
     """
     answer, svc._answer = svc._answer, []
-    for rt in {id(a[0]): a[0] for a in answer}.values():
+    robots = {id(a[0]): a[0] for a in answer}.values()
+    for rt in robots:
         if svc.learners is not None:
             svc.learners.learn_all(rt)
         while rt.learning and rt.queue:
             rt.learn_one()
+    if svc.learners is None:  # inline: every answered robot's log at once, not one by one
+        svc._commit_all(robots)
     for rt, msg, recv_ns in answer:
         publish_prediction(svc, rt, msg, recv_ns)
 
@@ -90,6 +93,8 @@ def _worker_prediction(svc: Service, rt: RobotRuntime, reply: dict[str, Any], pe
 def on_timer(svc: Service, now: int) -> None:
     """Realtime tick: predict for the newest perception of every predicting robot."""
     published = False
+    if svc.learners is None:  # inline: commit the robots' logs side by side, then predict
+        svc._commit_all(rt for rt in svc.robots.values() if rt.predicting)
     for rt in svc.robots.values():
         if rt.predicting and rt.newest is not None and not svc._stopping:
             perc, recv_ns = rt.newest

@@ -155,6 +155,7 @@ class Service:
         self.checkpoints.start(now)
         if self.learners is not None:
             self.learners.attach(self, self.inbox.wake)
+        if len(self.robots) > 1:
             # fdatasync releases the GIL: the robots' logs commit side by side
             self._committer = ThreadPoolExecutor(max_workers=min(8, len(self.robots)),
                                                  thread_name_prefix="roger-wal")
@@ -387,7 +388,8 @@ class Service:
         rt.wal.commit()
 
     def _commit_all(self, robots: Iterable[RobotRuntime]) -> None:
-        """With worker processes: commit the dirty logs of ``robots`` side by side."""
+        """Commit the dirty logs of ``robots`` side by side (one ``fdatasync`` each, in
+        parallel), before answering several robots at once."""
         dirty = [rt.wal for rt in robots if rt.wal is not None and rt.wal.dirty]
         if len(dirty) > 1 and self._committer is not None:
             list(self._committer.map(lambda w: w.commit(), dirty))
