@@ -46,6 +46,9 @@ class ZenohOverrideError(ValueError):
     """An override (``KEY=JSON5``) that Zenoh rejects: an unknown key or a bad value."""
 
 
+REALTIME_QUEUE = 16  # Zenoh's maximum
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How a process joins Zenoh. ``None`` means "leave to the JSON5 file or Zenoh's default"."""
@@ -59,6 +62,10 @@ class ZenohSettings:
     gossip: bool | None = None
     #: ``(key, JSON5 value)`` pairs inserted last, e.g. ``("transport/link/tx/lease", "500")``
     overrides: tuple[tuple[str, str], ...] = ()
+    #: batches of the real-time priority's send queue per link (Zenoh's default is 2, and a
+    #: drop-on-congestion message waits 1 ms for one): 8 robots' predictions published in
+    #: one burst on a busy CPU were dropped at 2 (docs/zenoh-notes.md §4.3)
+    realtime_queue: int | None = REALTIME_QUEUE
 
 
 
@@ -74,7 +81,8 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
                        ("connect/endpoints", None if s.connect is None else list(s.connect)),
                        ("scouting/multicast/enabled", s.multicast_scouting),
                        ("scouting/gossip/enabled", s.gossip),
-                       ("transport/link/tx/lease", s.lease_ms)):
+                       ("transport/link/tx/lease", s.lease_ms),
+                       ("transport/link/tx/queue/size/real_time", s.realtime_queue)):
         if value is not None:
             cfg.insert_json5(key, json.dumps(value))
     for key, text in s.overrides:
@@ -141,7 +149,7 @@ def settings_from_args(args: argparse.Namespace) -> ZenohSettings:
             raise UsageError(f"--zenoh-config: no such file: {args.zenoh_config}")
         # with a file, only the flags given on the command line override it
         base = ZenohSettings(config_file=Path(args.zenoh_config), mode=None, listen=None,
-                             connect=None, multicast_scouting=None)
+                             connect=None, multicast_scouting=None, realtime_queue=None)
     if args.listen is not None:
         base = replace(base, listen=endpoints(args.listen))
     if args.connect is not None:

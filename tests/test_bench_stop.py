@@ -34,3 +34,4 @@ def test_sigterm_to_a_bench_stops_its_daemon(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
     assert processes_naming(config) == []
+

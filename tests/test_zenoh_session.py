@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from roger_daemon.config import parse_config
 from roger_daemon.console import UsageError
 from roger_daemon.harness import free_port
 from roger_daemon.zenoh_session import (
@@ -88,3 +89,19 @@ def test_sessions_on_loopback_exchange_samples_as_context_managers() -> None:
             pub.put(b"hello")
             time.sleep(0.05)
     assert got and got[0] == b"hello"
+
+
+def test_realtime_send_queue_is_16_batches_unless_a_file_decides(tmp_path: Path) -> None:
+    """Zenoh's 2 batches dropped predictions of a burst of robots (docs/zenoh-notes.md §4.3)."""
+    key = "transport/link/tx/queue/size/real_time"
+    assert _get(zenoh_config(_parse()), key) == 16
+    f = tmp_path / "z.json5"
+    f.write_text("{ transport: { link: { tx: { queue: { size: { real_time: 4 } } } } } }")
+    assert _get(zenoh_config(_parse("--zenoh-config", str(f))), key) == 4
+    g = tmp_path / "plain.json5"
+    g.write_text('{ mode: "peer" }')
+    assert _get(zenoh_config(_parse("--zenoh-config", str(g))), key) == 2  # Zenoh's default
+    daemon = parse_config({"robots": [{"id": "a"}]})
+    assert _get(zenoh_config(daemon.zenoh), key) == 16
+    filed = parse_config({"robots": [{"id": "a"}], "zenoh": {"config_file": str(f)}})
+    assert _get(zenoh_config(filed.zenoh), key) == 4

@@ -42,6 +42,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import msgpack
 import numpy as np
 
 from protocols import Action, Perception, decode, encode, keys
@@ -124,6 +125,7 @@ class FleetClient:
         self.preds: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}  # (recv, tick)
         self.status: dict[str, list[tuple[int, Any]]] = {r: [] for r in robots}
         self.answered: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
+        self._raw: list[tuple[int, str, bytes]] = []  # (received, key, payload)
         self.errors = 0
         cc = zenoh.CongestionControl.BLOCK  # the feed must not lose its own messages
         self._pubs = {(r, k): self.session.declare_publisher(
@@ -143,14 +145,31 @@ class FleetClient:
             return None
 
     def _on_pred(self, sample: Any) -> None:
+        # Keep the callback short: this one process receives every robot's predictions, and a
+        # slow callback backs up Zenoh until the daemon's drop-on-congestion publisher drops
+        # them. Predictions are validated after the phase (decode_predictions).
         now = time.monotonic_ns()
-        got = self._decode(sample)
-        if got is None:
-            return
-        robot, msg = got
-        self.preds[robot].append((now, msg.tick))
+        payload = sample.payload.to_bytes()
+        self._raw.append((now, str(sample.key_expr), payload))
         if self.lockstep:
-            self.answered.put((robot, msg.tick))
+            try:
+                robot, _kind = keys.parse(str(sample.key_expr))
+                tick = int(msgpack.unpackb(payload)["tick"])
+            except Exception:
+                return  # counted by decode_predictions
+            self.answered.put((robot, tick))
+
+    def decode_predictions(self) -> None:
+        """Validate every prediction received (decode_errors) and index them by robot."""
+        raw, self._raw = self._raw, []
+        for now, key, payload in raw:
+            try:
+                robot, kind = keys.parse(key)
+                msg = decode(kind, payload, dims=DIMS, robot=robot)
+            except Exception:
+                self.errors += 1
+                continue
+            self.preds[robot].append((now, msg.tick))
 
     def _on_status(self, sample: Any) -> None:
         got = self._decode(sample)
@@ -245,6 +264,9 @@ def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, A
         "queue_depth_end": int(end.queue_depth),
         "updates": int(end.updates), "experts": int(end.experts),
         "daemon_latency_p99_ms": float(end.latency_ms_p99),
+        # ticks on which the robot's worker had not answered the previous one (skipped)
+        "busy_ticks": int(s1.info.get("worker_busy_ticks", 0))
+        - int(s0.info.get("worker_busy_ticks", 0)),
     }
     if lockstep:
         sent = fleet.sent[r]
@@ -287,6 +309,7 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStre
         cpu1, main1, c1 = proc_cpu_s(pid), proc_cpu_s(pid, children=False), time.monotonic()
         end = fleet.wait_status(w1 + 500_000_000)
         s1 = fleet.last_status(w1)
+        fleet.decode_predictions()
         per = {r: _robot_result(fleet, r, w0, w1, (s0[r], s1[r], end[r]), args.rate,
                                 fleet.lockstep) for r in robots}
         info = end[robots[0]].info

@@ -188,7 +188,8 @@ def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[Rob
 def _zenoh_section(z: Table) -> ZenohSettings:
     """The ``[zenoh]`` table (with a ``config_file``, unset keys are left to the file)."""
     zfile = z.path("config_file", None)
-    zdefault = ZenohSettings() if zfile is None else ZenohSettings(None, None, None, None, None)
+    zdefault = ZenohSettings() if zfile is None else ZenohSettings(None, None, None, None, None,
+                                                                   realtime_queue=None)
     zmode = z.raw("mode", zdefault.mode)
     if zmode is not None and zmode not in ZENOH_MODES:
         raise bad("zenoh.mode", 'one of "peer", "client"', zmode)
@@ -211,7 +212,8 @@ def _zenoh_section(z: Table) -> ZenohSettings:
         raise bad("zenoh.connect", "at least one endpoint when zenoh.mode is \"client\"", [])
     if zfile is not None:
         _check_zenoh_file(zfile)
-    return ZenohSettings(zfile, zmode, listen, connect, mcast, lease)
+    return ZenohSettings(zfile, zmode, listen, connect, mcast, lease,
+                         realtime_queue=zdefault.realtime_queue)
 
 
 def _checkpoint_section(c: Table) -> CheckpointConfig:
