@@ -274,13 +274,9 @@ class ProcessLearners:
     def feed(self, deadline_ns: int | None = None) -> None:
         """Keep ``depth`` learn requests in flight per learning robot.
 
-        ``deadline_ns`` (realtime: the next timer tick): no robot learns while a prediction
-        of the tick is being computed (learning would take the cores the other robots'
-        predictions need), and once a robot has learned since the last tick, its next pair is
-        sent only if it is expected back before the tick, so the tick's prediction does not
-        wait behind it (as the inline loop schedules learning)."""
-        if deadline_ns is not None and any(s.predicts for s in self.slots.values()):
-            return  # realtime: the tick's predictions first, on every core (docs/fleet.md)
+        ``deadline_ns`` (realtime: the next timer tick): once a robot has learned since the
+        last tick, its next pair is sent only if it is expected back before the tick, so the
+        tick's prediction does not wait behind it (as the inline loop schedules learning)."""
         now = time.monotonic_ns()
         for s in self.slots.values():
             while s.rt.learning and s.rt.queue and s.learns < self.depth:
