@@ -35,22 +35,19 @@ import argparse
 import json
 import os
 import platform
-import queue
 import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 
-from protocols import Action, Perception, decode, encode, keys
-from protocols.aibo import DIMS
+from roger_daemon.bench.fleet_client import FleetClient, feed, proc_cpu_s
 from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
 from roger_daemon.harness import DaemonProcess, free_port, write_config
 
-__all__ = ["FleetClient", "child_pids", "configure", "feed", "proc_cpu_s", "run"]
+__all__ = ["configure", "run"]
 
 TARGETS = {"dropped": 0, "updates_per_s_min": 29.5, "predictions_per_s_min": 29.5,
            "latency_p99_ms": 10.0, "jitter_p99_ms": 5.0}
@@ -83,167 +80,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def _pct(values: Any, q: float) -> float:
     a = np.asarray(values, dtype=np.float64)
     return float(np.percentile(a, q)) if a.size else float("nan")
-
-
-def child_pids(pid: int) -> list[int]:
-    """The ids of ``pid``'s child processes (from ``/proc``; empty where that is unreadable)."""
-    out: list[int] = []
-    try:
-        for task in os.listdir(f"/proc/{pid}/task"):
-            with open(f"/proc/{pid}/task/{task}/children", encoding="ascii") as f:
-                out += [int(c) for c in f.read().split()]
-    except OSError:
-        pass
-    return out
-
-
-def proc_cpu_s(pid: int, *, children: bool = True) -> float:
-    """CPU seconds (user + system) used so far by ``pid`` and its live child processes."""
-    total = 0.0
-    tick = os.sysconf("SC_CLK_TCK")
-    for p in [pid, *(child_pids(pid) if children else [])]:
-        try:
-            with open(f"/proc/{p}/stat", encoding="ascii") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / tick
-        except (OSError, IndexError, ValueError):
-            continue
-    return total
-
-
-class FleetClient:
-    """One Zenoh session playing every robot; collects predictions and status."""
-
-    def __init__(self, connect: str, robots: list[str]) -> None:
-        import zenoh
-
-        from roger_daemon.zenoh_session import ZenohSettings, open_session
-
-        self.session = open_session(ZenohSettings(listen=(), connect=(connect,)))
-        self.robots = robots
-        self.sent: dict[str, dict[int, int]] = {r: {} for r in robots}
-        self.preds: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}  # (recv, tick)
-        self.status: dict[str, list[tuple[int, Any]]] = {r: [] for r in robots}
-        self.answered: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
-        self._raw: list[tuple[int, str, bytes]] = []  # (received, key, payload)
-        self.errors = 0
-        cc = zenoh.CongestionControl.BLOCK  # the feed must not lose its own messages
-        self._pubs = {(r, k): self.session.declare_publisher(
-            keys.key(r, k), congestion_control=cc, priority=zenoh.Priority.REAL_TIME,
-            express=True) for r in robots for k in ("perception", "action")}
-        self._subs = [self.session.declare_subscriber("roger/*/prediction", self._on_pred),
-                      self.session.declare_subscriber("roger/*/status", self._on_status)]
-        self.lockstep = False
-
-    def _decode(self, sample: Any) -> tuple[str, Any] | None:
-        """(robot, message) of a sample, by the one key parser; ``None`` (counted) if bad."""
-        try:
-            robot, kind = keys.parse(str(sample.key_expr))
-            return robot, decode(kind, sample.payload.to_bytes(), dims=DIMS, robot=robot)
-        except Exception:
-            self.errors += 1
-            return None
-
-    def _on_pred(self, sample: Any) -> None:
-        # Keep the callback short: this one process receives every robot's predictions, and a
-        # slow callback backs up Zenoh until the daemon's drop-on-congestion publisher drops
-        # them. Predictions are validated after the phase (decode_predictions).
-        now = time.monotonic_ns()
-        payload = sample.payload.to_bytes()
-        self._raw.append((now, str(sample.key_expr), payload))
-        if self.lockstep:
-            try:
-                robot, _kind = keys.parse(str(sample.key_expr))
-                tick = int(msgpack.unpackb(payload)["tick"])
-            except Exception:
-                return  # counted by decode_predictions
-            self.answered.put((robot, tick))
-
-    def decode_predictions(self) -> None:
-        """Validate every prediction received (decode_errors) and index them by robot."""
-        raw, self._raw = self._raw, []
-        for now, key, payload in raw:
-            try:
-                robot, kind = keys.parse(key)
-                msg = decode(kind, payload, dims=DIMS, robot=robot)
-            except Exception:
-                self.errors += 1
-                continue
-            self.preds[robot].append((now, msg.tick))
-
-    def _on_status(self, sample: Any) -> None:
-        got = self._decode(sample)
-        if got is not None:
-            self.status[got[0]].append((time.monotonic_ns(), got[1]))
-
-    def perception(self, robot: str, tick: int, x: np.ndarray) -> None:
-        """Publish a perception for ``robot`` and note when it was sent."""
-        self.sent[robot][tick] = time.monotonic_ns()
-        self._pubs[(robot, "perception")].put(
-            encode(Perception(robot, tick, tick / 30.0, x=x)))
-
-    def action(self, robot: str, tick: int, y: np.ndarray, label: str) -> None:
-        """Publish an action (the demonstrator's answer) for ``robot``."""
-        self._pubs[(robot, "action")].put(
-            encode(Action(robot, tick, tick / 30.0, y=y, label=label)))
-
-    def last_status(self, before_ns: int) -> dict[str, Any]:
-        """The last status of every robot received before ``before_ns``."""
-        return {r: [m for t, m in self.status[r] if t < before_ns][-1] for r in self.robots}
-
-    def wait_status(self, after_ns: int, timeout: float = 15.0) -> dict[str, Any]:
-        """The first status of every robot received after ``after_ns``."""
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            got = {r: next((m for t, m in self.status[r] if t >= after_ns), None)
-                   for r in self.robots}
-            if all(m is not None for m in got.values()):
-                return got
-            time.sleep(0.05)
-        raise TimeoutError("no status from every robot")
-
-    def close(self) -> None:
-        """Close the Zenoh session."""
-        self.session.close()
-
-
-def _stream_of(stream: FeedStream, i: int, n: int, tick: int
-               ) -> tuple[np.ndarray, np.ndarray, str]:
-    k = (tick + i * (len(stream.x) // max(n, 1))) % len(stream.x)
-    return stream.x[k], stream.y[k], stream.labels[k]
-
-
-def feed(fleet: FleetClient, stream: FeedStream, args: argparse.Namespace, lockstep: bool,
-          stop_at: float) -> int:
-    """Publish at ``args.rate`` until ``stop_at``; in lockstep actions follow predictions."""
-    n = len(fleet.robots)
-    period = 1.0 / args.rate
-    t0 = time.monotonic()
-    tick = 0
-    while time.monotonic() < stop_at:
-        for j in range(n):
-            i = (tick + j) % n
-            r = fleet.robots[i]
-            x, y, label = _stream_of(stream, i, n, tick)
-            fleet.perception(r, tick, x)
-            if not lockstep:
-                fleet.action(r, tick, y, label)
-        tick += 1
-        while True:  # lockstep: answer predictions with actions until the next tick
-            left = t0 + tick * period - time.monotonic()
-            if left <= 0:
-                break
-            if not lockstep:
-                time.sleep(left)
-                break
-            try:
-                r, t = fleet.answered.get(timeout=left)
-            except queue.Empty:
-                break
-            i = fleet.robots.index(r)
-            _x, y, label = _stream_of(stream, i, n, t)
-            fleet.action(r, t, y, label)
-    return tick
 
 
 def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, Any, Any],

@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from roger_daemon.bench.fleet import FleetClient, child_pids, feed
+from roger_daemon.bench.fleet_client import FleetClient, child_pids, feed
 from roger_daemon.bench.streams import FLEET_STREAMS, feed_stream
 from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.harness import DaemonProcess, free_port, write_config
