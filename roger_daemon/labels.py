@@ -73,47 +73,57 @@ def majority_of_counts(ids: npt.ArrayLike, counts: npt.NDArray[np.int64],
 
 
 class LabelTally:
-    """Majority labels of a model that keeps learning, each settled point counted once.
+    """Majority labels of a model that keeps learning, at a cost that does not grow with it.
 
-    A point's expert can change until the particles' lineages meet after it
-    (``model.settled_points``); the counts of those settled points are kept, and only the
-    points after them are counted again at each call, so labelling the experts costs
-    O(points since the lineages met), not O(points learned) (a day of demonstrations at 30 Hz
-    is ~10^6 points).  Gives exactly :func:`majority_labels_coded` of the whole history.
+    Keeps the label counts of every learned point under its current expert. A point's expert
+    can change only until the particles' lineages meet after it (``model.settled_points``):
+    the tally keeps the assignments of the points after that (the *tail*) from its last call,
+    and at the next call recounts only from the first point whose expert differs (usually just
+    the points learned since). So labelling costs O(tail) array work plus the changed points,
+    not O(points learned) (a day of demonstrations at 30 Hz is ~10^6 points). Gives exactly
+    :func:`majority_labels_coded` of the whole history.
     """
+
+    forget_after = 64  # experts left with no point are dropped from the table beyond this many
 
     def __init__(self) -> None:
         self._clear(None)
 
     def _clear(self, model: Any) -> None:
         self._model = None if model is None else weakref.ref(model)
-        self.counted = 0  # the settled points already in ``_counts``
+        self.counted = 0  # points before this are settled and counted for good
+        self._tail = np.zeros(0, dtype=np.int64)  # experts of points counted.. at the last call
         self._row: dict[int, int] = {}
-        self._counts = np.zeros((0, 0), dtype=np.int64)
+        self._counts = np.zeros((0, 0), dtype=np.int64)  # every point, under its expert now
 
     def labels(self, model: Any, codes: npt.ArrayLike, vocab: Sequence[str]) -> dict[int, str]:
         """Expert id -> majority label; ``codes`` (one per learned point) index ``vocab``."""
         c = np.asarray(codes, dtype=np.int64).reshape(-1)
         settled = min(int(model.settled_points), c.size)
-        if self._model is None or self._model() is not model or settled < self.counted:
+        if self._model is None or self._model() is not model or settled < self.counted \
+                or self.counted + self._tail.size > c.size:
             self._clear(model)  # another model (a reset, a reload): count afresh
         tail = np.asarray(model.assignments_from(self.counted), dtype=np.int64)
-        new = settled - self.counted
-        self._add(*label_counts(tail[:new], c[self.counted:settled], len(vocab)))
+        old = self._tail
+        m = min(old.size, tail.size)
+        differ = np.flatnonzero(old[:m] != tail[:m])
+        d = int(differ[0]) if differ.size else m  # the first point whose expert changed
+        base = self.counted + d
+        ids, counts = label_counts(old[d:], c[base:self.counted + old.size], len(vocab))
+        self._add(ids, -counts)
+        self._add(*label_counts(tail[d:], c[base:self.counted + tail.size], len(vocab)))
+        self._tail = tail[settled - self.counted:]
         self.counted = settled
-        ids, counts = label_counts(tail[new:], c[settled:], len(vocab))
-        self._add(ids, counts)
-        try:
-            rows = sorted(self._row.items())
-            table = np.zeros((len(rows), max(len(vocab), self._counts.shape[1])),
-                             dtype=np.int64)
-            if rows:
-                table[:, :self._counts.shape[1]] = self._counts[[r for _, r in rows]]
-            present = table.sum(axis=1) > 0  # experts with points (not only ever seen)
-            return majority_of_counts(np.array([e for e, _ in rows], dtype=np.int64)[present],
-                                      table[present], vocab)
-        finally:
-            self._add(ids, -counts)  # the unsettled points are counted again next time
+        rows = sorted(self._row.items())
+        table = np.zeros((len(rows), max(len(vocab), self._counts.shape[1])), dtype=np.int64)
+        if rows:
+            table[:, :self._counts.shape[1]] = self._counts[[r for _, r in rows]]
+        present = table.sum(axis=1) > 0  # experts with points (not only ever seen)
+        ids_all = np.array([e for e, _ in rows], dtype=np.int64)
+        if np.count_nonzero(~present) > max(self.forget_after, len(rows) // 2):  # now empty
+            self._row = {int(e): i for i, e in enumerate(ids_all[present].tolist())}
+            self._counts = table[present].copy()
+        return majority_of_counts(ids_all[present], table[present], vocab)
 
     def _add(self, ids: npt.NDArray[np.int64], counts: npt.NDArray[np.int64]) -> None:
         if ids.size == 0:

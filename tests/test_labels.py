@@ -37,3 +37,24 @@ def test_tally_equals_the_whole_history_rule_while_learning() -> None:
         fresh.learn_one(s.x[i], s.y[i])
     want = majority_labels_coded(fresh.assignments(), codes[:50], VOCAB)
     assert tally.labels(fresh, codes[:50], VOCAB) == want
+
+
+def test_tally_equals_the_rule_at_every_step_as_the_map_particle_changes() -> None:
+    """Checked after every point: the MAP particle (and with it the experts of the unsettled
+    points) changes between calls, and experts that lose all their points are forgotten."""
+    s = subtask_stream(400)
+    model = Roger(23, 9, RogerParams(beta=15, particles=6), seed=3)
+    codes = s.labels % len(VOCAB)
+    tally = LabelTally()
+    tally.forget_after = 1  # exercise forgetting experts left without points
+    map_changes = 0
+    last = None
+    for i in range(400):
+        model.learn_one(s.x[i], s.y[i])
+        now = model.assignments()
+        if last is not None and not np.array_equal(now[: len(last)], last):
+            map_changes += 1
+        last = now
+        assert tally.labels(model, codes[: i + 1], VOCAB) == \
+            majority_labels_coded(now, codes[: i + 1], VOCAB), i
+    assert map_changes >= 3 and tally.counted > 0

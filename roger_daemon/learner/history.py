@@ -41,6 +41,7 @@ class SegmentationHistory:
         self._anc = np.full((_MIN_ROWS, self.width), -1, dtype=np.int32)
         self._eid = np.full((_MIN_ROWS, self.width), -1, dtype=np.int64)
         self.n_rows = 0  # rows kept per particle (since the lineages last met)
+        self._tried = 0  # len(self) when settle() last ran
 
     def __len__(self) -> int:
         return self.n_settled + self.n_rows
@@ -76,6 +77,7 @@ class SegmentationHistory:
 
         Does not change :meth:`assignments`; leaves at least the last row per particle.
         """
+        self._tried = len(self)
         if self.n_rows == 0:
             return
         alive = int(np.count_nonzero(self._eid[self.n_rows - 1] >= 0))
@@ -111,9 +113,12 @@ class SegmentationHistory:
         return out
 
     def settled_points(self) -> int:
-        """Points whose assignment is the same in every particle: the rows before the latest
-        one at which the present lineages meet (settles first)."""
-        self.settle()
+        """Points whose assignment is the same in every particle and stays so: a lower bound,
+        exact right after :meth:`settle`, which this runs once the rows have grown by a quarter
+        (at least 16) since it last ran, so that asking at every step costs amortised O(P) even
+        while two lineages stay apart for a long time (the walk back is O(rows))."""
+        if len(self) - self._tried >= max(16, self.n_rows // 4):
+            self.settle()
         return self.n_settled
 
     # -- state ---------------------------------------------------------------------------------
