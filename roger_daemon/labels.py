@@ -76,11 +76,12 @@ class LabelTally:
     """Majority labels of a model that keeps learning, at a cost that does not grow with it.
 
     Keeps the label counts of every learned point under its current expert. A point's expert
-    can change only until the particles' lineages meet after it (``model.settled_points``):
-    the tally keeps the assignments of the points after that (the *tail*) from its last call,
-    and at the next call recounts only from the first point whose expert differs (usually just
-    the points learned since). So labelling costs O(tail) array work plus the changed points,
-    not O(points learned) (a day of demonstrations at 30 Hz is ~10^6 points). Gives exactly
+    can change only while it is among the model's ``unsettled_points()`` (the points on which
+    the particles' lineages disagree, and the last few steps: docs/learner-math.md §4.1); every
+    other point is counted once, for good. At each call the tally takes back the counts of the
+    points that were unsettled at its last call and counts them again with their experts now,
+    with the points learned since. So labelling costs O(unsettled + new points), not
+    O(points learned) (a day of demonstrations at 30 Hz is ~10^6 points). Gives exactly
     :func:`majority_labels_coded` of the whole history.
     """
 
@@ -91,29 +92,28 @@ class LabelTally:
 
     def _clear(self, model: Any) -> None:
         self._model = None if model is None else weakref.ref(model)
-        self.counted = 0  # points before this are settled and counted for good
-        self._tail = np.zeros(0, dtype=np.int64)  # experts of points counted.. at the last call
+        self.counted = 0  # points counted (those in _open counted as _open_ids say)
+        self._open = np.zeros(0, dtype=np.int64)  # the unsettled points at the last call
+        self._open_ids = np.zeros(0, dtype=np.int64)  # ... and their experts then
         self._row: dict[int, int] = {}
         self._counts = np.zeros((0, 0), dtype=np.int64)  # every point, under its expert now
 
     def labels(self, model: Any, codes: npt.ArrayLike, vocab: Sequence[str]) -> dict[int, str]:
         """Expert id -> majority label; ``codes`` (one per learned point) index ``vocab``."""
         c = np.asarray(codes, dtype=np.int64).reshape(-1)
-        settled = min(int(model.settled_points), c.size)
-        if self._model is None or self._model() is not model or settled < self.counted \
-                or self.counted + self._tail.size > c.size:
+        unsettled = np.asarray(model.unsettled_points(), dtype=np.int64)
+        unsettled = unsettled[unsettled < c.size]  # codes given for the first c.size points
+        if self._model is None or self._model() is not model or c.size < self.counted \
+                or not _within(unsettled, self._open, self.counted):
             self._clear(model)  # another model (a reset, a reload): count afresh
-        tail = np.asarray(model.assignments_from(self.counted), dtype=np.int64)
-        old = self._tail
-        m = min(old.size, tail.size)
-        differ = np.flatnonzero(old[:m] != tail[:m])
-        d = int(differ[0]) if differ.size else m  # the first point whose expert changed
-        base = self.counted + d
-        ids, counts = label_counts(old[d:], c[base:self.counted + old.size], len(vocab))
+        # take back what may have changed, count it again with the points learned since
+        ids, counts = label_counts(self._open_ids, c[self._open], len(vocab))
         self._add(ids, -counts)
-        self._add(*label_counts(tail[d:], c[base:self.counted + tail.size], len(vocab)))
-        self._tail = tail[settled - self.counted:]
-        self.counted = settled
+        recount = np.concatenate([self._open, np.arange(self.counted, c.size, dtype=np.int64)])
+        self._add(*label_counts(model.assignments_at(recount), c[recount], len(vocab)))
+        self._open = unsettled
+        self._open_ids = np.asarray(model.assignments_at(unsettled), dtype=np.int64)
+        self.counted = c.size
         rows = sorted(self._row.items())
         table = np.zeros((len(rows), max(len(vocab), self._counts.shape[1])), dtype=np.int64)
         if rows:
@@ -139,6 +139,18 @@ class LabelTally:
             self._counts = grown
         rows = np.array([self._row[int(e)] for e in ids.tolist()], dtype=np.int64)
         self._counts[rows, :counts.shape[1]] += counts
+
+
+def _within(points: npt.NDArray[np.int64], open_points: npt.NDArray[np.int64],
+            counted: int) -> bool:
+    """Whether every one of ``points`` was unsettled at the last call or is new since (a point
+    counted as settled never becomes unsettled again, unless the model was replaced)."""
+    old = points[points < counted]
+    if old.size == 0:
+        return True
+    pos = np.searchsorted(open_points, old)
+    return bool(np.all(pos < open_points.size)
+                and np.array_equal(open_points[np.minimum(pos, open_points.size - 1)], old))
 
 
 def majority_labels(assignments: npt.ArrayLike, labels: Sequence[str]) -> dict[int, str]:

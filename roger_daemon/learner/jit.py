@@ -20,10 +20,10 @@ __all__ = ["KERNELS", "SMALL", "warm_up"]
 #: are compiled at every size since issue 11's second pass.)
 SMALL = 64
 
-KERNELS = ("cholesky_inverse", "coalescence_row", "expert_terms",
+KERNELS = ("cholesky_inverse", "expert_terms",
            "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "kernel_vector", "matvec", "rank_update_cq",
-           "trace_assignments")
+           "trace_lineages")
 
 
 def _load() -> None:
@@ -62,5 +62,5 @@ def warm_up() -> None:
     k.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
                   cube.copy(), vec.copy())
     k.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
-    k.trace_assignments(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1, 0)
-    k.coalescence_row(np.zeros((1, 1), dtype=np.int32), 1, 1)
+    k.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
+                     np.zeros(1, dtype=np.int64))

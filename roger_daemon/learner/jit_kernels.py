@@ -19,9 +19,8 @@ expert's work in one call:
   the factor), the re-inversion of ``Q`` without LAPACK's per-call overhead;
 * :func:`gate_update`, :func:`gate_log_predictive`: the NIW gates' rank-1 updates and
   Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each;
-* :func:`trace_assignments`: the MAP particle's expert per learned point, chased back through
-  the stored ancestors (integers only: exact).  The daemon labels its experts at every tick
-  of ``learn+predict``, so this runs once per pair over the whole history.
+* :func:`trace_lineages`: particles' experts over the segmentation history's window, chased
+  back through the stored ancestors (integers only: exact; :mod:`.history`).
 
 Reductions may be reassociated (``fastmath={"reassoc", "contract"}``: no NaN/inf assumptions), so
 the floats differ from numpy's in the last bits, like another BLAS kernel's; the compiled code
@@ -39,10 +38,10 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-__all__ = ["cholesky_inverse", "coalescence_row", "expert_terms",
+__all__ = ["cholesky_inverse", "expert_terms",
            "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "kernel_vector", "matvec", "rank_update_cq",
-           "trace_assignments"]
+           "trace_lineages"]
 
 FloatArray = npt.NDArray[np.float64]
 F = TypeVar("F", bound=Callable[..., Any])
@@ -251,44 +250,23 @@ def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatAr
 
 
 @_compiled(nogil=True)
-def trace_assignments(ancestors: npt.NDArray[np.int32], experts: npt.NDArray[np.int64], n: int,
-                      last: int) -> npt.NDArray[np.int64]:
-    """``out[t] = experts[t, j_t]`` with ``j_{n-1} = last`` and ``j_{t-1} = ancestors[t, j_t]``:
-    the expert of every learned point along one particle's lineage (paper Algorithm 1's
-    stored choices, read back from the final particle)."""
-    out = np.empty(n, dtype=np.int64)
-    j = last
-    for t in range(n - 1, -1, -1):
-        out[t] = experts[t, j]
-        j = ancestors[t, j]
-    return out
-
-
-@_compiled(nogil=True)
-def coalescence_row(ancestors: npt.NDArray[np.int32], n: int, alive: int) -> tuple[int, int]:
-    """The latest row ``t < n`` at which the lineages of the ``alive`` particles of row
-    ``n - 1`` all pass through one particle ``j``: ``(t, j)``, or ``(-1, -1)`` if they do not
-    meet within the ``n`` rows (docs/learner-math.md §4, the segmentation history)."""
-    width = ancestors.shape[1]
-    on = np.zeros(width, dtype=np.bool_)
-    nxt = np.zeros(width, dtype=np.bool_)
-    for j in range(alive):
-        on[j] = True
-    for t in range(n - 1, -1, -1):
-        count = 0
-        last = -1
-        for j in range(width):
-            if on[j]:
-                count += 1
-                last = j
-        if count == 1:
-            return t, last
-        nxt[:] = False
-        for j in range(width):
-            if on[j]:
-                nxt[ancestors[t, j]] = True
-        on[:] = nxt
-    return -1, -1
+def trace_lineages(ancestors: npt.NDArray[np.int32], experts: npt.NDArray[np.int64], n: int,
+                   starts: npt.NDArray[np.int64]
+                   ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """For each particle ``starts[s]`` of row ``n - 1``: ``ids[t, s] = experts[t, j_t]`` with
+    ``j_{n-1} = starts[s]`` and ``j_{t-1} = ancestors[t, j_t]``, its expert at every row along
+    its lineage (paper Algorithm 1's stored choices, read back), and ``origin[s] = j_{-1}``, the
+    particle it descends from before row 0 (:mod:`.history`)."""
+    m = starts.size
+    ids = np.empty((n, m), dtype=np.int64)
+    origin = np.empty(m, dtype=np.int64)
+    for s in range(m):
+        j = starts[s]
+        for t in range(n - 1, -1, -1):
+            ids[t, s] = experts[t, j]
+            j = ancestors[t, j]
+        origin[s] = j
+    return ids, origin
 
 
 @_compiled(fastmath={"contract"}, nogil=True)

@@ -71,13 +71,13 @@ class Learner(Protocol):
         """The MAP particle's expert id of every learned point, in order."""
         ...
 
-    @property
-    def settled_points(self) -> int:
-        """How many leading points have assignments that no further learning can change."""
+    def unsettled_points(self) -> npt.NDArray[np.int64]:
+        """The points whose expert further learning may still change (ascending); every other
+        point's expert is final (incremental labelling)."""
         ...
 
-    def assignments_from(self, start: int) -> npt.NDArray[np.int64]:
-        """``assignments()[start:]`` in O(n_learned - start) (incremental labelling)."""
+    def assignments_at(self, points: npt.ArrayLike) -> npt.NDArray[np.int64]:
+        """``assignments()[points]`` without building the whole array."""
         ...
 
     def expert_sizes(self) -> dict[int, int]:

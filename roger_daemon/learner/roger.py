@@ -279,26 +279,26 @@ class Roger:
     def assignments(self) -> IntArray:
         """The MAP particle's expert id for every learned point, in order.
 
-        Traced back through the stored (ancestor, chosen expert) of each step since the
-        particles' lineages last met, the settled prefix read as is (:mod:`.history`): O(N) per
-        call, 8 bytes per point plus O(P) per unsettled step of memory.
+        The settled points read as is, the last few steps traced back through the stored
+        (ancestor, chosen expert) (:mod:`.history`): O(N) per call, 8 bytes per point of memory
+        plus ``8 (P + 1)`` per point on which the particles' lineages still disagree.
         """
         if self.n_learned == 0:
             return np.zeros(0, dtype=np.int64)
         return self._history.assignments(int(np.argmax(self._logw)))
 
-    @property
-    def settled_points(self) -> int:
-        """Leading points whose assignment is the same in every particle, now and after any
-        further learning (the particles' lineages meet after them; :mod:`.history`)."""
-        return self._history.settled_points()
+    def unsettled_points(self) -> IntArray:
+        """The learned points whose expert further learning may still change, ascending: those
+        on which the particles' lineages disagree and the last few steps (:mod:`.history`).
+        Every other point has the same expert in every particle, for good."""
+        return self._history.unsettled_points()
 
-    def assignments_from(self, start: int) -> IntArray:
-        """``assignments()[start:]`` in O(n_learned - start): the settled ids are read, the
-        rest traced back (the daemon labels experts incrementally, :mod:`roger_daemon.labels`)."""
+    def assignments_at(self, points: npt.ArrayLike) -> IntArray:
+        """``assignments()[points]`` in O(len(points)) plus the unsettled points (the daemon
+        labels experts incrementally, :mod:`roger_daemon.labels`)."""
         if self.n_learned == 0:
-            return np.zeros(0, dtype=np.int64)
-        return self._history.assignments(int(np.argmax(self._logw)), int(start))
+            return self.assignments()[np.asarray(points, dtype=np.int64)]
+        return self._history.assignments_at(int(np.argmax(self._logw)), points)
 
     def distinct_experts(self) -> list[SparseOnlineGP]:
         """The distinct SOGPs held by the particles (for inspection and tests)."""

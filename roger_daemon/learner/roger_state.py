@@ -87,4 +87,5 @@ def load_roger_state(model: Roger, state: dict[str, np.ndarray], meta: dict[str,
     model._next_id = int(meta["next_expert_id"])
     model._history = SegmentationHistory.from_state(
         model.params.particles, state.get("history_settled"),  # absent before schema 3
-        state["history_ancestor"], state["history_expert"])
+        state["history_ancestor"], state["history_expert"],
+        state.get("history_exception_points"), state.get("history_exception_ids"))  # schema 4

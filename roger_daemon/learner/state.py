@@ -3,7 +3,7 @@
 A state dict is ``dict[str, np.ndarray]`` with numeric arrays only, plus ``"meta"``: a 0-d
 unicode array holding a JSON object (schema version, model kind, dimensions, parameters,
 random-generator states, counters).  ``np.savez`` and ``np.load(allow_pickle=False)`` round-trip
-it unchanged.  Layout (schema 3):
+it unchanged.  Layout (schema 4):
 
 * ``expert_*``: the U distinct experts, concatenated: ``expert_n_bv`` (U,), ``expert_n_points``
   (U,), ``expert_alloc`` (U,), ``expert_B`` (sum n, d_m), ``expert_A`` (sum n, d_y, or d_y + 1
@@ -13,9 +13,11 @@ it unchanged.  Layout (schema 3):
 * ROGER only: ``expert_id``, ``expert_count`` (CRP counts), ``gate_*`` (the NIW statistics and
   cached predictive of each expert), ``particle_log_weights`` (P,), ``particle_offsets`` (P+1,)
   and ``particle_experts`` (indices into the experts, per particle in order),
-  ``history_settled`` (M,), the expert id of each point before the particles' lineages last
-  met, and ``history_ancestor`` / ``history_expert`` (N - M, P), each survivor's ancestor and
-  chosen expert at every later step, for :meth:`~.roger.Roger.assignments` (:mod:`.history`).
+  ``history_settled`` (M,), the expert id of each settled point (-1 at an exception),
+  ``history_exception_points`` (K,) and ``history_exception_ids`` (K, P), the points on which
+  the lineages still disagree and each boundary particle's id there, and ``history_ancestor`` /
+  ``history_expert`` (N - M, P, one row when saved), each survivor's ancestor and chosen expert
+  at the later steps, for :meth:`~.roger.Roger.assignments` (:mod:`.history`).
 
 Everything that influences future results is stored (including caches), so a restored model
 continues bit-identically.
@@ -24,7 +26,8 @@ Migration: schema 1 (before the issue-13 levers) had no ``expert_mean`` and no `
 the means are read as zeros and ``K_B`` is recomputed from the basis vectors,
 and its params lack the new fields, which take their defaults (the paper's, all levers off), so
 a schema-1 state loads as the same model.  Schema 2 kept the whole (N, P) history and no
-``history_settled``; it loads as the same history, settled on load.
+``history_settled``, schema 3 a prefix settled where all lineages met and every row after it,
+no exceptions; both load as the same history, settled on load.
 """
 
 from __future__ import annotations
@@ -49,8 +52,9 @@ __all__ = [
     "unpack_meta",
 ]
 
-SCHEMA_VERSION = 3
-READABLE_SCHEMAS = (1, 2, 3)  # 1: before the GP prior mean; 2: the full history (migrated)
+SCHEMA_VERSION = 4
+# 1: before the GP prior mean; 2: the full history; 3: no exceptions (all migrated on load)
+READABLE_SCHEMAS = (1, 2, 3, 4)
 
 Seed = int | np.random.Generator | None
 

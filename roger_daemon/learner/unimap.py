@@ -121,14 +121,13 @@ class UnimapGP:
         """All zeros: every point belongs to the one expert."""
         return np.zeros(self._gp.n_points, dtype=np.int64)
 
-    @property
-    def settled_points(self) -> int:
-        """Every point: its (only) expert never changes."""
-        return int(self._gp.n_points)
+    def unsettled_points(self) -> IntArray:
+        """None: a point's (only) expert never changes."""
+        return np.zeros(0, dtype=np.int64)
 
-    def assignments_from(self, start: int) -> IntArray:
-        """``assignments()[start:]``."""
-        return np.zeros(max(0, self._gp.n_points - int(start)), dtype=np.int64)
+    def assignments_at(self, points: npt.ArrayLike) -> IntArray:
+        """``assignments()[points]``: zeros."""
+        return self.assignments()[np.asarray(points, dtype=np.int64)]
 
     def expert_sizes(self) -> dict[int, int]:
         """``{0: points learned}`` (empty before any learning)."""

@@ -106,18 +106,21 @@ def test_assignments_agree_with_the_experts(cls: Any) -> None:
 def test_settled_assignments_never_change(cls: Any) -> None:
     model = _fresh(cls, 0)
     xs, ys = _stream(120)
-    seen: list[np.ndarray] = []
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
+    rng = np.random.default_rng(0)
     for x, y in zip(xs, ys, strict=True):
         model.learn_one(x, y)
-        settled = model.settled_points
-        assert 0 <= settled <= model.n_learned
         a = model.assignments()
-        for start in (0, settled // 2, settled, model.n_learned):
-            np.testing.assert_array_equal(model.assignments_from(start), a[start:])
-        seen.append(a[:settled])
+        unsettled = model.unsettled_points()
+        assert unsettled.dtype == np.int64 and np.all(np.diff(unsettled) > 0)
+        assert unsettled.size == 0 or 0 <= unsettled[0] <= unsettled[-1] < model.n_learned
+        some = rng.integers(0, model.n_learned, 7)
+        np.testing.assert_array_equal(model.assignments_at(some), a[some])
+        settled = np.setdiff1d(np.arange(model.n_learned), unsettled)
+        seen.append((settled, a[settled]))
     final = model.assignments()
-    for prefix in seen:  # what was settled then is what the model says now
-        np.testing.assert_array_equal(final[:prefix.size], prefix)
+    for points, ids in seen:  # what was settled then is what the model says now
+        np.testing.assert_array_equal(final[points], ids)
 
 
 @models

@@ -1,6 +1,7 @@
-"""The segmentation history (roger_daemon/learner/history.py): settling the prefix where the
-particles' lineages meet changes no assignment, keeps memory per point at one id, and gives
-canonical state dicts; schema-2 states (the full table) load as the same model."""
+"""The segmentation history (roger_daemon/learner/history.py): settling keeps every assignment
+(against a naive trace of the full table), keeps memory at one id per point plus the points on
+which surviving lineages disagree, gives canonical state dicts, and schema-2/3 states (the full
+table; a settled prefix and a long window) load as the same model."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from roger_daemon.learner import Roger, RogerParams, load_model
-from roger_daemon.learner.history import SegmentationHistory
+from roger_daemon.learner.history import WINDOW, SegmentationHistory
 from roger_daemon.learner.synthetic import subtask_stream
 
 WIDTH = 4
@@ -47,7 +48,18 @@ def ancestries(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, list[bool]]:
     return anc, eid, settles
 
 
-@settings(max_examples=60, deadline=None)
+def meeting_row(anc: np.ndarray, alive: int) -> int:
+    """Oracle for a schema-3 split: the latest row at which the lineages of the ``alive``
+    particles of the last row pass through one particle (-1 if they never do)."""
+    on = set(range(alive))
+    for t in range(len(anc) - 1, -1, -1):
+        if len(on) == 1:
+            return t
+        on = {int(anc[t, j]) for j in on}
+    return -1
+
+
+@settings(max_examples=80, deadline=None)
 @given(ancestries())
 def test_settling_changes_no_assignment_and_state_is_canonical(
         case: tuple[np.ndarray, np.ndarray, list[bool]]) -> None:
@@ -60,38 +72,52 @@ def test_settling_changes_no_assignment_and_state_is_canonical(
         if settles[t]:
             eager.settle()
     alive = int(np.count_nonzero(eid[-1] >= 0))
+    traces = np.array([naive_trace(anc, eid, j) for j in range(alive)])
+    points = np.random.default_rng(len(anc)).integers(0, len(anc), 20)
     for j in range(alive):
-        want = naive_trace(anc, eid, j)
-        np.testing.assert_array_equal(eager.assignments(j), want)
-        np.testing.assert_array_equal(lazy.assignments(j), want)
+        for h in (eager, lazy):
+            np.testing.assert_array_equal(h.assignments(j), traces[j])
+            np.testing.assert_array_equal(h.assignments(j, len(anc) // 3),
+                                          traces[j][len(anc) // 3:])
+            np.testing.assert_array_equal(h.assignments_at(j, points), traces[j][points])
+    for h in (eager, lazy):  # off the unsettled points every present lineage agrees
+        settled = np.setdiff1d(np.arange(len(anc)), h.unsettled_points())
+        assert np.all(traces[:, settled] == traces[:1, settled])
     np.testing.assert_array_equal(eager.last_ids(), eid[-1])
     a, b = eager.state(), lazy.state()
     assert a.keys() == b.keys()
     for key in a:
         np.testing.assert_array_equal(a[key], b[key])
-    # a schema-2 table (no settled prefix) loads as the same history
+    # a schema-2 table (no settled prefix) and a schema-3 split load as the same history
     old = SegmentationHistory.from_state(WIDTH, None, anc, eid)
-    restored = SegmentationHistory.from_state(WIDTH, a["history_settled"],
-                                              a["history_ancestor"], a["history_expert"])
-    for h in (old, restored):
+    row = max(meeting_row(anc, alive), 0)
+    split = SegmentationHistory.from_state(WIDTH, traces[0][:row], anc[row:], eid[row:])
+    restored = SegmentationHistory.from_state(
+        WIDTH, a["history_settled"], a["history_ancestor"], a["history_expert"],
+        a["history_exception_points"], a["history_exception_ids"])
+    for h in (old, split, restored):
         for j in range(alive):
-            np.testing.assert_array_equal(h.assignments(j), naive_trace(anc, eid, j))
+            np.testing.assert_array_equal(h.assignments(j), traces[j])
+        for key, value in h.state().items():
+            np.testing.assert_array_equal(value, a[key])
 
 
-def test_settle_keeps_the_rows_since_the_lineages_met() -> None:
+def test_an_old_disagreement_is_an_exception_until_one_lineage_dies() -> None:
     h = SegmentationHistory(2)
     h.append([0], [5])          # t=0: one particle
-    h.append([0], [7])          # t=1: one particle
-    h.append([0, 0], [7, 8])    # t=2: both from particle 0 of t=1
-    h.append([0, 1], [7, 8])    # t=3: lineages apart from here back to t=1
+    h.append([0, 0], [7, 8])    # t=1: two particles, different experts
+    for _ in range(3 * WINDOW):  # both lineages survive, agreeing from here on
+        h.append([0, 1], [7, 7])
     h.settle()
-    assert (h.n_settled, h.n_rows) == (1, 3)  # rows 1-3 kept: the lineages meet at row 1
-    np.testing.assert_array_equal(h.assignments(0), [5, 7, 7, 7])
-    np.testing.assert_array_equal(h.assignments(1), [5, 7, 8, 8])
-    h.append([1], [8])          # t=4: only the second lineage survives
+    assert h.n_exceptions == 1 and h.n_rows == 1
+    np.testing.assert_array_equal(h.unsettled_points(), [1, len(h) - 1])
+    np.testing.assert_array_equal(h.assignments(0)[:3], [5, 7, 7])
+    np.testing.assert_array_equal(h.assignments(1)[:3], [5, 8, 7])
+    h.append([1, 1], [7, 7])    # only the second lineage survives
     h.settle()
-    assert (h.n_settled, h.n_rows) == (4, 1)
-    np.testing.assert_array_equal(h.assignments(0), [5, 7, 8, 8, 8])
+    assert h.n_exceptions == 0
+    np.testing.assert_array_equal(h.unsettled_points(), [len(h) - 1])
+    np.testing.assert_array_equal(h.assignments(0)[:3], [5, 8, 7])
 
 
 def learn(model: Roger, x: np.ndarray, y: np.ndarray) -> None:
@@ -99,41 +125,69 @@ def learn(model: Roger, x: np.ndarray, y: np.ndarray) -> None:
         model.learn_one(xi, yi)
 
 
-def test_memory_per_point_is_one_id_once_the_lineages_meet() -> None:
+def test_memory_per_point_is_one_id_plus_the_disagreements() -> None:
     rng = np.random.default_rng(0)
     h = SegmentationHistory(10)
     n = 50_000
     for _ in range(n):  # resampling that keeps copies of the two heaviest particles
         h.append(rng.integers(0, 2, 10), rng.integers(0, 5, 10))
-    assert len(h) == n and h.n_rows < 64
+    assert len(h) == n and h.n_rows <= WINDOW
     # the full table would hold 12 bytes per particle per point: 120 B, 6 MB here
-    assert h.nbytes < 2 * 8 * n + 12 * 10 * 128, h.nbytes
+    assert h.nbytes < 2 * 8 * n + 12 * 10 * 128 + 88 * h.n_exceptions, h.nbytes
+    # ten lineages that never meet, disagreeing on one point in a thousand
+    apart = SegmentationHistory(10)
+    for t in range(n):
+        apart.append(np.arange(10), np.arange(10) if t % 1000 == 0 else np.zeros(10))
+    apart.settle()
+    assert apart.n_exceptions == n // 1000
+    assert apart.nbytes < 2 * 8 * n + 12 * 10 * WINDOW + 2 * 88 * (n // 1000), apart.nbytes
+    np.testing.assert_array_equal(apart.assignments(3)[:2001:1000], [3, 3, 3])
 
 
-def test_roger_history_settles_and_schema_2_migrates() -> None:
+def older_tables(state: dict[str, np.ndarray], width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The settled points as rows of a full table in which every particle descends from
+    itself and holds its lineage's ids (the exceptions), followed by the saved window."""
+    settled = state["history_settled"]
+    eid = np.repeat(settled[:, None], width, axis=1)
+    for point, ids in zip(state["history_exception_points"], state["history_exception_ids"],
+                          strict=True):
+        eid[point, ids >= 0] = ids[ids >= 0]
+    anc = np.tile(np.arange(width, dtype=np.int32), (settled.size, 1))
+    return (np.concatenate([anc, state["history_ancestor"]]),
+            np.concatenate([eid, state["history_expert"]]))
+
+
+def with_schema(state: dict[str, np.ndarray], schema: int) -> dict[str, np.ndarray]:
+    out = dict(state)
+    meta = json.loads(str(out["meta"]))
+    meta["schema"] = schema
+    out["meta"] = np.array(json.dumps(meta))
+    del out["history_exception_points"], out["history_exception_ids"]
+    return out
+
+
+def test_roger_history_settles_and_schemas_2_and_3_migrate() -> None:
     s = subtask_stream(1500)
     model = Roger(23, 9, RogerParams(beta=30), seed=3)
     learn(model, s.x[:1200], s.y[:1200])
     state = model.state_dict()
-    kept = state["history_ancestor"].shape[0]
-    assert state["history_settled"].size + kept == 1200
-    assert state["history_settled"].size > 0  # the particles' lineages met
-    # the same state in schema 2: the full (N, P) table, settled rows as one lineage
-    settled = state["history_settled"]
-    old = dict(state)
-    old["history_ancestor"] = np.concatenate(
-        [np.zeros((settled.size, 10), dtype=np.int32), state["history_ancestor"]])
-    old["history_expert"] = np.concatenate(
-        [np.repeat(settled[:, None], 10, axis=1), state["history_expert"]])
-    del old["history_settled"]
-    meta = json.loads(str(old["meta"]))
-    meta["schema"] = 2
-    old["meta"] = np.array(json.dumps(meta))
-    migrated = load_model(old)
-    np.testing.assert_array_equal(migrated.assignments(), model.assignments())
-    resaved = migrated.state_dict()
-    for key in state:
-        np.testing.assert_array_equal(resaved[key], state[key], err_msg=key)
+    assert state["history_ancestor"].shape == (1, 10)  # saved settled: the last step only
+    assert state["history_settled"].size == 1199
+    anc, eid = older_tables(state, 10)
+    first = int(state["history_exception_points"][0]) if state["history_exception_points"].size \
+        else 1199
+    old2 = with_schema(state, 2)  # the full (N, P) table
+    del old2["history_settled"]
+    old2["history_ancestor"], old2["history_expert"] = anc, eid
+    old3 = with_schema(state, 3)  # settled up to the first disagreement, then the table
+    old3["history_settled"] = state["history_settled"][:first]
+    old3["history_ancestor"], old3["history_expert"] = anc[first:], eid[first:]
+    for old in (old2, old3):
+        migrated = load_model(old)
+        np.testing.assert_array_equal(migrated.assignments(), model.assignments())
+        resaved = migrated.state_dict()
+        for key in state:
+            np.testing.assert_array_equal(resaved[key], state[key], err_msg=key)
     learn(model, s.x[1200:], s.y[1200:])
     learn(migrated, s.x[1200:], s.y[1200:])
     np.testing.assert_array_equal(migrated.assignments(), model.assignments())

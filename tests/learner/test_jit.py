@@ -119,22 +119,24 @@ def test_kernels_still_compile_where_no_cache_directory_is_writable() -> None:
     assert out.stdout.strip() == str([float(np.exp(-0.5))] * 2)
 
 
-def test_trace_assignments_matches_the_python_pointer_chase() -> None:
-    """Oracle: the lineage walked back in plain Python over random ancestor tables."""
-    from roger_daemon.learner.jit import trace_assignments
+def test_trace_lineages_matches_the_python_pointer_chase() -> None:
+    """Oracle: each lineage walked back in plain Python over random ancestor tables."""
+    from roger_daemon.learner.jit import trace_lineages
 
     rng = np.random.default_rng(7)
     for n, width in ((1, 1), (5, 3), (200, 30)):
         anc = rng.integers(0, width, size=(n + 4, width)).astype(np.int32)
         eid = rng.integers(0, 50, size=(n + 4, width)).astype(np.int64)
-        last = int(rng.integers(0, width))
-        expected, j = [0] * n, last
-        for t in range(n - 1, -1, -1):
-            expected[t] = int(eid[t, j])
-            j = int(anc[t, j])
-        got = trace_assignments(anc, eid, n, last)
-        assert got.dtype == np.int64
-        np.testing.assert_array_equal(got, expected)
+        starts = rng.integers(0, width, 3).astype(np.int64)
+        ids, origin = trace_lineages(anc, eid, n, starts)
+        assert ids.dtype == np.int64 and ids.shape == (n, 3)
+        for s, last in enumerate(starts.tolist()):
+            expected, j = [0] * n, last
+            for t in range(n - 1, -1, -1):
+                expected[t] = int(eid[t, j])
+                j = int(anc[t, j])
+            np.testing.assert_array_equal(ids[:, s], expected)
+            assert origin[s] == j
 
 
 def test_fused_step_keeps_the_gram_matrix_and_the_diagonal_cache_consistent() -> None:
