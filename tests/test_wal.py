@@ -3,7 +3,11 @@ segment, segments are pruned whole, and replay re-learns exactly what was logged
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
+from concurrent.futures import Executor, Future
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -36,6 +40,64 @@ def test_records_round_trip_and_survive_without_commit(tmp_path: Path) -> None:
     w.commit()
     assert w.durable_seq == 3 and not w.dirty and w.commits == 1
     w.close()
+
+
+class _Later(Executor):
+    """An executor that runs what it is given only when told to (a background commit that
+    is still running while the loop appends)."""
+
+    def __init__(self) -> None:
+        self.jobs: list[tuple[Future[None], Callable[..., None], tuple[Any, ...]]] = []
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
+        job: Future[None] = Future()
+        self.jobs.append((job, fn, args))
+        return job
+
+    def run_all(self) -> None:
+        for job, fn, args in self.jobs:
+            try:
+                fn(*args)
+                job.set_result(None)
+            except OSError as exc:
+                job.set_exception(exc)
+        self.jobs.clear()
+
+
+def test_an_early_commit_makes_what_was_appended_before_it_durable(tmp_path: Path) -> None:
+    w = WriteAheadLog(tmp_path, 0)
+    pool = _Later()
+    for i in range(2):
+        w.append_pair(i, i, *_pair(i), "seek")
+    w.commit_early(0, 10**9, pool)  # not due: started in the background
+    w.commit_early(0, 10**9, pool)  # one at a time
+    assert len(pool.jobs) == 1 and w.dirty and w.durable_seq == -1
+    w.append_pair(2, 2, *_pair(2), "seek")  # appended while that commit runs
+    pool.run_all()
+    assert w.durable_seq == 1 and w.dirty  # the third record is not covered
+    w.commit_early(0, 10**9, pool)
+    pool.run_all()
+    assert w.durable_seq == 2 and not w.dirty and w.commits == 2
+    w.append_pair(3, 3, *_pair(3), "seek")
+    w.commit_early(2 * 10**9 + time.monotonic_ns(), 10**9, pool)  # due: committed now
+    assert not pool.jobs and w.durable_seq == 3 and not w.dirty
+    w.close()
+
+
+def test_a_failed_early_commit_stops_the_next_commit(tmp_path: Path) -> None:
+    w = WriteAheadLog(tmp_path, 0)
+    pool = _Later()
+    w.append_pair(0, 0, *_pair(0), "seek")
+    w.commit_early(0, 10**9, pool)
+    fd = w._fd
+    w._fd = 999_999  # the disk goes away under the background commit: EBADF
+    pool.run_all()
+    w._fd = fd
+    assert w.dirty and w.durable_seq == -1
+    with pytest.raises(OSError):
+        w.commit()
+    w.close()
+    assert [r.seq for r in read_records(tmp_path)] == [0]
 
 
 def test_a_torn_tail_ends_the_segment(tmp_path: Path) -> None:

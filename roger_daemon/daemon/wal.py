@@ -33,10 +33,12 @@ import logging
 import os
 import re
 import struct
+import threading
 import time
 import zlib
 from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -160,6 +162,8 @@ class WriteAheadLog:
         self._fd = -1
         self._pos = self._end = 0
         self._dirty_since: int | None = None
+        self._lock = threading.Lock()  # the bookkeeping shared with a background commit
+        self._inflight: Future[None] | None = None
         self._open(next_seq)
 
     @property
@@ -192,9 +196,10 @@ class WriteAheadLog:
             self._extend(len(frame) + _FRAME.size)
         os.pwrite(self._fd, frame, self._pos)
         self._pos += len(frame)
-        self.next_seq += 1
-        if self._dirty_since is None:
-            self._dirty_since = time.monotonic_ns()
+        with self._lock:
+            self.next_seq += 1
+            if self._dirty_since is None:
+                self._dirty_since = time.monotonic_ns()
         return seq
 
     def append_pair(self, index: int, tick: int, x: np.ndarray, y: np.ndarray,
@@ -220,21 +225,55 @@ class WriteAheadLog:
         return self._dirty_since is not None and now_ns - self._dirty_since >= max_delay_ns
 
     def commit(self) -> None:
-        """Make every appended record durable (one ``fdatasync`` for the whole group)."""
+        """Make every appended record durable (one ``fdatasync`` for the whole group).
+
+        Raises the error of a failed background commit (:meth:`commit_early`)."""
+        self._reap(wait=False)
         if self._dirty_since is None:
             return
+        self._sync(self.next_seq - 1)
+
+    def commit_early(self, now_ns: int, max_delay_ns: int, executor: Executor | None) -> None:
+        """The loop's commit between acknowledgements: synchronous once the oldest uncommitted
+        record is ``max_delay_ns`` old; before that, with ``executor``, one ``fdatasync`` of the
+        records appended so far started in the background (unless one is running), so that
+        the commit before the next acknowledgement usually finds nothing left to do
+        (docs/durability.md). Raises the error of a failed background commit."""
+        self._reap(wait=False)
+        if self._dirty_since is None:
+            return
+        if self.due(now_ns, max_delay_ns):
+            self._sync(self.next_seq - 1)
+        elif executor is not None and self._inflight is None:
+            self._inflight = executor.submit(self._sync, self.next_seq - 1)
+
+    def _sync(self, target: int) -> None:
+        """``fdatasync``: the records up to ``target`` (appended before the call) are durable;
+        the log stays dirty if more were appended meanwhile (a background commit)."""
         t0 = time.perf_counter_ns()
         if self.sync:
             os.fdatasync(self._fd)
         ms = (time.perf_counter_ns() - t0) / 1e6
-        self.commit_ms.append(ms)
-        self.commit_ms_max = max(self.commit_ms_max, ms)
-        self.commits += 1
-        self.durable_seq = self.next_seq - 1
-        self._dirty_since = None
+        with self._lock:
+            self.commit_ms.append(ms)
+            self.commit_ms_max = max(self.commit_ms_max, ms)
+            self.commits += 1
+            self.durable_seq = max(self.durable_seq, target)
+            if self.next_seq - 1 == target:
+                self._dirty_since = None
+
+    def _reap(self, *, wait: bool) -> None:
+        """Forget a finished background commit (raising its error); ``wait``: also one that
+        is still running (before the file is closed or replaced)."""
+        job = self._inflight
+        if job is None or not (wait or job.done()):
+            return
+        self._inflight = None
+        job.result()
 
     def rotate(self) -> None:
         """Commit, then continue in a new segment (called after a checkpoint is taken)."""
+        self._reap(wait=True)
         self.commit()
         os.close(self._fd)
         self._open(self.next_seq)
@@ -254,6 +293,7 @@ class WriteAheadLog:
         """Commit and close (idempotent)."""
         if self._fd < 0:
             return
+        self._reap(wait=True)
         self.commit()
         os.close(self._fd)
         self._fd = -1

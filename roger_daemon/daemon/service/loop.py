@@ -155,8 +155,7 @@ class Service:
         self.checkpoints.start(now)
         if self.learners is not None:
             self.learners.attach(self, self.inbox.wake)
-        if len(self.robots) > 1:
-            # fdatasync releases the GIL: the robots' logs commit side by side
+        if self.robots:  # fdatasync releases the GIL: the logs commit side by side, and early
             self._committer = ThreadPoolExecutor(max_workers=min(8, len(self.robots)),
                                                  thread_name_prefix="roger-wal")
         self.schedule.start(now)
@@ -238,8 +237,8 @@ class Service:
             if self._next_status <= now:
                 self._next_status = now + self._status_period_ns
         for rt in self.robots.values():
-            if rt.wal is not None and rt.wal.due(now, self._commit_ns):
-                self._commit(rt)
+            if rt.wal is not None:  # due: now; else started in the background (docs/durability)
+                rt.wal.commit_early(now, self._commit_ns, self._committer)
         for rt in self.checkpoints.due(now):
             self._checkpoint(rt, "periodic")
         self.checkpoints.collect()
