@@ -233,6 +233,11 @@ class WriteAheadLog:
             return
         self._sync(self.next_seq - 1)
 
+    def commit_durations(self) -> list[float]:
+        """The latest commits' durations (ms), a copy: background commits append to them."""
+        with self._lock:
+            return list(self.commit_ms)
+
     def commit_early(self, now_ns: int, max_delay_ns: int, executor: Executor | None) -> None:
         """The loop's commit between acknowledgements: synchronous once the oldest uncommitted
         record is ``max_delay_ns`` old; before that, with ``executor``, one ``fdatasync`` of the
