@@ -278,9 +278,9 @@ def run_job(job: EpisodeJob) -> JobResult:
             ctl = {}
     finally:
         group.close()
-    wall = time.monotonic() - t0
+    wall = round(time.monotonic() - t0, 3)  # as --resume reads it back: the same totals
     write_json(job.workdir / "job.json", {  # what --resume reads: written whole or not at all
-        "spec": job.spec(), "wall_s": round(wall, 3),
+        "spec": job.spec(), "wall_s": wall,
         "mcap": [str(p.relative_to(job.workdir)) for p in mcap],
     })
     return JobResult(job, sim["episodes"], sim["summary"], ctl, mcap, wall)
