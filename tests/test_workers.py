@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import signal
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +33,10 @@ STREAM = subtask_stream(60)
 DEADLINE_S = 120.0
 
 
-def make_config(tmp_path: Path, name: str, **checkpoint: Any) -> DaemonConfig:
+def make_config(tmp_path: Path, name: str, clock: str = "lockstep",
+                **checkpoint: Any) -> DaemonConfig:
     return parse_config({
-        "daemon": {"clock": "lockstep"},
+        "daemon": {"clock": clock},
         "robots": [{"id": "aibo"}, {"id": "b2"}],
         "checkpoint": {"dir": str(tmp_path / name), "every_updates": 0, "every_s": 0,
                        **checkpoint},
@@ -45,7 +47,7 @@ def make_config(tmp_path: Path, name: str, **checkpoint: Any) -> DaemonConfig:
 class Loop:
     """A service over the memory transport, inline or with worker processes."""
 
-    def __init__(self, cfg: DaemonConfig, *, process: bool) -> None:
+    def __init__(self, cfg: DaemonConfig, *, process: bool, nice: int = 0) -> None:
         from roger_daemon.daemon import wal
 
         self.transport = MemoryTransport()
@@ -56,7 +58,7 @@ class Loop:
                       fresh=True)
             self.robots[r.id] = rt
         self.learners = ProcessLearners(self.robots, {r.id: r for r in cfg.robots},
-                                        timeout_s=DEADLINE_S) if process else None
+                                        timeout_s=DEADLINE_S, nice=nice) if process else None
         self.service = Service(cfg, self.transport, self.robots, sync_checkpoints=True,
                                learners=self.learners)
         self.service.start()
@@ -117,6 +119,76 @@ def test_workers_config_is_validated(tmp_path: Path) -> None:
         parse_config({"daemon": {"workers": "threads"}})
     assert err.value.key == "daemon.workers"
     assert '"auto", "process", "inline"' in str(err.value)
+    assert cfg.worker_nice == 5 and cfg.learner_worker_nice == 0  # lockstep: on demand
+    assert parse_config({"daemon": {"clock": "realtime"}}).learner_worker_nice == 5
+    assert parse_config({"daemon": {"worker_nice": 0}}).worker_nice == 0
+    for bad in (20, -1, 2.5, True):
+        with pytest.raises(ConfigError) as err:
+            parse_config({"daemon": {"worker_nice": bad}})
+        assert err.value.key == "daemon.worker_nice"
+
+
+def test_workers_run_nicer_than_the_loop(tmp_path: Path) -> None:
+    """``[daemon] worker_nice``: each worker lowers its own CPU priority at start."""
+    proc = Loop(make_config(tmp_path, "n"), process=True, nice=3)
+    assert proc.learners is not None
+    try:
+        mine = os.getpriority(os.PRIO_PROCESS, 0)
+        for s in proc.learners.slots.values():
+            assert os.getpriority(os.PRIO_PROCESS, s.proc.pid) == min(19, mine + 3)
+        assert proc.service.status_of(proc.robots["aibo"], 0).info["worker_nice"] == 3
+    finally:
+        proc.service.shutdown()
+
+
+def test_realtime_tick_publishes_the_prediction_prepared_on_arrival(tmp_path: Path) -> None:
+    """Realtime with workers: the prediction for a perception is computed when it arrives and
+    the next tick publishes it; when no newer perception comes, it is computed again as the
+    model learns the queued pairs. It equals the lockstep answer of a model with the same
+    updates (so replay recomputes it), and every pair it counts is in the write-ahead log."""
+    proc = Loop(make_config(tmp_path, "rt", clock="realtime"), process=True)
+    try:
+        for t in range(10):
+            proc.send("aibo", t)
+            proc.service.step(0.005)
+        end = time.monotonic() + DEADLINE_S
+        while not proc.preds or (proc.preds[-1].tick, proc.preds[-1].updates) != (9, 10):
+            assert time.monotonic() < end, "no prediction counting every pair"
+            proc.collect(len(proc.preds) + 1)
+        last = proc.preds[-1]
+        assert all(p.tick in range(10) for p in proc.preds)
+        assert [p.updates for p in proc.preds] == sorted(p.updates for p in proc.preds)
+        pairs = [r for r in read_records(wal_dir(tmp_path / "rt", "aibo")) if r.kind == "pair"]
+        assert len(pairs) == 10
+    finally:
+        proc.service.shutdown()
+    ref = Loop(make_config(tmp_path, "ref"), process=False)
+    try:
+        for t in range(10):
+            ref.send("aibo", t)
+        want = [p for p in ref.collect(10) if p.tick == 9][0]
+        _same_prediction(replace(want, mode=last.mode), last)
+    finally:
+        ref.service.shutdown()
+
+
+def test_no_prediction_is_started_in_the_quiet_window_before_a_tick(tmp_path: Path) -> None:
+    """A perception that arrives too close to the tick to be ready for it waits for the tick
+    (the cores are left to publishing); the tick sends it."""
+    proc = Loop(make_config(tmp_path, "q", clock="realtime"), process=True)
+    learners = proc.learners
+    assert learners is not None
+    try:
+        slot = learners.slots["aibo"]
+        learners.deadline_ns = time.monotonic_ns() + 500_000  # the tick in 0.5 ms
+        learners.prepare(proc.robots["aibo"], Perception("aibo", 0, 0.0, x=STREAM.x[0]), 0)
+        assert slot.waiting is not None and slot.predicts == 0
+        learners.new_tick(time.monotonic_ns() + 10**9, 10**9 // 30)
+        assert slot.waiting is None and slot.predicts == 1
+        assert learners.prepared([proc.robots["b2"]]) == [] and slot.busy_ticks == 0
+        assert learners.slots["b2"].busy_ticks == 1  # b2: nothing prepared yet
+    finally:
+        proc.service.shutdown()
 
 
 def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path) -> None:

@@ -158,8 +158,11 @@ def _daemon_section(d: Table) -> dict[str, Any]:
         seed=d.integer("seed", 0, lo=0),
         count_unserved=d.boolean("count_unserved", True),
         workers=d.choice("workers", "auto", WORKERS),
+        worker_nice=d.integer("worker_nice", 5, lo=0),
         log_dir=d.path("log_dir", None),
     )
+    if out["worker_nice"] > 19:
+        raise bad("daemon.worker_nice", "an integer from 0 to 19", out["worker_nice"])
     d.done()
     return out
 

@@ -116,6 +116,10 @@ class DaemonConfig:
     #: "inline": every model in the service loop's thread; "auto": inline for one robot (lower
     #: latency), processes for several (learning on every core); docs/fleet.md
     workers: str = "auto"
+    #: realtime clock: learner workers run this much nicer than the loop (0..19), so the loop
+    #: and Zenoh's threads publish the tick's predictions before learning takes the CPU
+    #: (lockstep: 0, the worker answers on the critical path; docs/fleet.md)
+    worker_nice: int = 5
     log_dir: Path | None = None
     robots: tuple[RobotConfig, ...] = ()
     learner: Mapping[str, Any] = field(default_factory=dict)
@@ -128,6 +132,13 @@ class DaemonConfig:
         if self.workers != "auto":
             return self.workers
         return "process" if len(self.robots) > 1 else "inline"
+
+    @property
+    def learner_worker_nice(self) -> int:
+        """The workers' niceness: ``worker_nice`` with the realtime clock, whose ticks publish
+        predictions prepared ahead; 0 in lockstep, where a worker answers each perception on
+        the critical path (docs/fleet.md)."""
+        return self.worker_nice if self.clock == "realtime" else 0
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     source: Path | None = None

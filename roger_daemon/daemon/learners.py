@@ -21,8 +21,12 @@ order, and one reader thread per worker hands the replies to the loop in that or
 - ``reset`` first drains the worker (pending replies bookkept), then replaces its model.
 
 At most ``depth`` learn requests are in flight per worker (1), so a prediction waits for at
-most one learning step. In realtime a robot whose previous prediction is still being computed
-skips that tick (counted as ``info.worker_busy_ticks``). A worker that dies or answers
+most one learning step. In realtime the prediction is prepared when the perception arrives
+(:meth:`ProcessLearners.prepare`, one in flight per robot, the newest perception next) and the
+timer's tick publishes the newest prepared one of every robot at once
+(:meth:`ProcessLearners.prepared`): no tick waits for eight workers to be scheduled
+(docs/fleet.md, *Prepared predictions*). A tick with nothing prepared yet for a robot that
+has a perception is counted as ``info.worker_busy_ticks``. A worker that dies or answers
 ``fatal`` raises :class:`WorkerError` in the loop, which aborts the daemon (exit 1; the
 write-ahead log holds every acknowledged pair for the restart); a wait for a worker has a
 deadline and never hangs.
@@ -37,7 +41,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -72,6 +76,8 @@ class RemoteModel:
     def fresh(self) -> RemoteModel:
         """Replace the worker's model by a fresh one (a reset); returns ``self``."""
         self._owner.send(self._robot, {"op": "fresh"}, None)
+        slot = self._owner.slots[self._robot]
+        slot.ready = slot.waiting = None  # the old model's predictions are not published
         self.n_learned, self.n_experts = 0, 0
         return self
 
@@ -91,8 +97,19 @@ class _Slot:
     snapshots: int = 0
     busy_ticks: int = 0
     learn_est_ns: int = 0  # send -> reply of a learn request, decaying maximum
+    predict_est_ns: int = 0  # the same for a prediction
     since_tick: bool = False  # a learn was sent since the last timer tick
+    # realtime: the newest prepared prediction (reply, perception, receipt ns, log seq it
+    # needs durable) and the perception waiting for the one in flight
+    ready: tuple[dict[str, Any], Any, int, int] | None = None
+    ready_updates: int = 0  # the model updates the ready one counts
+    waiting: tuple[Any, int] | None = None
     thread: threading.Thread | None = None
+
+
+def _log_seq(rt: RobotRuntime) -> int:
+    """The last write-ahead log record of ``rt`` (-1 without a log)."""
+    return rt.wal.last_seq if rt.wal is not None else -1
 
 
 def _vec(a: np.ndarray) -> bytes:
@@ -111,21 +128,28 @@ class ProcessLearners:
         Robot id -> :class:`~roger_daemon.config.RobotConfig` (model kind, seed, params).
     timeout_s
         Deadline of every blocking wait for a worker (start, snapshot, drain).
+    nice
+        How much lower the workers' CPU priority is than the loop's (``[daemon]
+        worker_nice``): the loop and Zenoh's threads publish before learning runs.
     """
 
     depth = 1
 
     def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
-                 timeout_s: float = 120.0) -> None:
+                 timeout_s: float = 120.0, nice: int = 0) -> None:
         self.timeout_s = timeout_s
+        self.nice = nice
         self._replies: queue.SimpleQueue[tuple[str, dict[str, Any] | None]] = \
             queue.SimpleQueue()
         self._wake: Callable[[], None] = lambda: None
         self._service: Any = None
+        self.deadline_ns: int | None = None  # the next realtime tick (pump)
+        self.period_ns = 0  # the realtime clock's period (attach)
         self.slots: dict[str, _Slot] = {}
         try:
             for robot, rt in robots.items():  # start them all first: they import in parallel
-                proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker"],
+                proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker",
+                                         "--nice", str(nice)],
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE)
                 reader = threading.Thread(target=self._read, args=(robot, proc), daemon=True,
                                           name=f"roger-worker-{robot}")
@@ -191,6 +215,7 @@ class ProcessLearners:
     def attach(self, service: Any, wake: Callable[[], None]) -> None:
         """Route replies to ``service`` and wake its loop with ``wake`` on each."""
         self._service, self._wake = service, wake
+        self.period_ns = int(service.schedule.period_ns)
 
     def _wait(self, done: Callable[[], bool], what: str) -> None:
         end = time.monotonic() + self.timeout_s
@@ -210,7 +235,12 @@ class ProcessLearners:
     def pump(self, deadline_ns: int | None = None) -> None:
         """Handle every reply that arrived, then keep each worker fed with learning
         (:meth:`feed`). Predictions of the batch are published together
-        (``service.worker_predictions``: one parallel write-ahead log commit for all)."""
+        (``service.worker_predictions``: one parallel write-ahead log commit for all).
+
+        ``deadline_ns`` (realtime: the next timer tick) starts the quiet window before it: no
+        worker starts a step then that is not expected back before the tick, so the cores
+        are free when the loop wakes to publish (``None``: no timer)."""
+        self.deadline_ns = deadline_ns
         batch: list[tuple[Any, ...]] = []
         while True:
             try:
@@ -220,7 +250,15 @@ class ProcessLearners:
             self._dispatch(*item, batch=batch)
         if batch:
             self._service.worker_predictions(batch)
-        self.feed(deadline_ns)
+        self.feed()
+
+    def _quiet(self, est_ns: int) -> bool:
+        """Whether a step taking ``est_ns`` (+ 1 ms) would still run at the next tick; the
+        window is at most a quarter of the period, so a slow step (the first ones compile)
+        never holds work back for good."""
+        window = min(est_ns + 1_000_000, self.period_ns // 4)
+        return self.deadline_ns is not None and \
+            time.monotonic_ns() + window >= self.deadline_ns
 
     def _dispatch(self, robot: str, frame: dict[str, Any] | None,
                   batch: list[tuple[Any, ...]] | None = None) -> None:
@@ -233,15 +271,26 @@ class ProcessLearners:
         if op == "learn":
             s.learns -= 1
             pair, sent_ns = ctx
-            took = time.monotonic_ns() - sent_ns
-            s.learn_est_ns = max(took, int(s.learn_est_ns * 0.95))
+            s.learn_est_ns = max(time.monotonic_ns() - sent_ns, int(s.learn_est_ns * 0.95))
             self._learned(s, pair, frame)
         elif op == "predict":
             s.predicts -= 1
-            if batch is not None:
-                batch.append((s.rt, frame, *ctx))
+            perc, recv_ns, prepared, sent_ns = ctx
+            s.predict_est_ns = max(time.monotonic_ns() - sent_ns,
+                                   int(s.predict_est_ns * 0.95))
+            # every learn reply before it is bookkept: the log up to here is what it counts
+            item = (s.rt, frame, perc, recv_ns, _log_seq(s.rt))
+            if prepared:
+                if frame.get("ok"):
+                    s.ready = item[1:]
+                    s.ready_updates = s.model.n_learned if s.model is not None else 0
+                else:  # counted and logged there; the tick keeps the last good one
+                    self._service.worker_predictions([item])
+                self._prepare_waiting(s)
+            elif batch is not None:
+                batch.append(item)
             elif self._service is not None:
-                self._service.worker_predictions([(s.rt, frame, *ctx)])
+                self._service.worker_predictions([item])
         elif op == "snapshot":
             s.snapshots -= 1
             ahead = [c[0] for o, c in s.pending if o == "learn"]
@@ -271,24 +320,33 @@ class ProcessLearners:
         s.learns += 1
         s.since_tick = True
 
-    def feed(self, deadline_ns: int | None = None) -> None:
-        """Keep ``depth`` learn requests in flight per learning robot.
-
-        ``deadline_ns`` (realtime: the next timer tick): once a robot has learned since the
-        last tick, its next pair is sent only if it is expected back before the tick, so the
-        tick's prediction does not wait behind it (as the inline loop schedules learning)."""
-        now = time.monotonic_ns()
+    def feed(self) -> None:
+        """Keep ``depth`` learn requests in flight per learning robot; in the quiet window
+        before a tick only a robot that has not learned since the last tick starts one (so
+        learning always progresses)."""
         for s in self.slots.values():
             while s.rt.learning and s.rt.queue and s.learns < self.depth:
-                if deadline_ns is not None and s.since_tick and \
-                        now + s.learn_est_ns + 1_000_000 >= deadline_ns:
+                if s.since_tick and self._quiet(s.learn_est_ns):
                     break
                 self._send_learn(s)
 
-    def new_tick(self) -> None:
-        """The realtime timer fired: every robot may learn once more regardless."""
+    def new_tick(self, deadline_ns: int, period_ns: int) -> None:
+        """The realtime timer fired (the next one is at ``deadline_ns``): send the
+        perceptions held back in the quiet window; every robot may learn once more.
+
+        A robot whose newest perception is more than a period old (it stopped or sends
+        slower than the clock) has it predicted again once its model learned more, as the
+        tick did when it computed the predictions itself."""
+        self.deadline_ns = deadline_ns
+        now = time.monotonic_ns()
         for s in self.slots.values():
             s.since_tick = False
+            newest = s.rt.newest
+            if s.waiting is None and s.ready is not None and newest is not None and \
+                    s.ready[1] is newest[0] and now - newest[1] > period_ns and \
+                    s.model is not None and s.model.n_learned > s.ready_updates:
+                s.waiting = newest
+            self._prepare_waiting(s)
 
     def learn_all(self, rt: RobotRuntime) -> None:
         """Send every queued pair of ``rt`` (lockstep: before answering a perception)."""
@@ -296,14 +354,42 @@ class ProcessLearners:
         while rt.learning and rt.queue:
             self._send_learn(s)
 
-    def predict(self, rt: RobotRuntime, perc: Any, recv_ns: int, *, skip_busy: bool) -> None:
-        """Ask for a prediction; the reply goes to ``service.worker_prediction``."""
+    def predict(self, rt: RobotRuntime, perc: Any, recv_ns: int) -> None:
+        """Ask for a prediction (lockstep); the reply goes to ``service.worker_predictions``."""
+        self._send_predict(self.slots[rt.robot], perc, recv_ns, prepared=False)
+
+    def prepare(self, rt: RobotRuntime, perc: Any, recv_ns: int) -> None:
+        """Realtime: prepare the prediction for ``perc``, just received, for the next tick.
+
+        One request is in flight per robot; a perception that arrives meanwhile waits, and
+        only the newest waiting one is sent when the reply comes."""
         s = self.slots[rt.robot]
-        if skip_busy and s.predicts > 0:
-            s.busy_ticks += 1
-            return
-        self.send(rt.robot, {"op": "predict", "x": _vec(perc.x), "tick": perc.tick,
-                             "t": perc.t, "vocab": list(rt.vocab)}, (perc, recv_ns))
+        s.waiting = (perc, recv_ns)
+        self._prepare_waiting(s)
+
+    def _prepare_waiting(self, s: _Slot) -> None:
+        """Send the waiting perception unless one is in flight or the tick is too close
+        (it would not be ready for it: it goes after the tick, :meth:`new_tick`)."""
+        if s.waiting is not None and not s.predicts and not self._quiet(s.predict_est_ns):
+            self._send_predict(s, *s.waiting, prepared=True)
+            s.waiting = None
+
+    def prepared(self, robots: Iterable[RobotRuntime]) -> list[tuple[Any, ...]]:
+        """The tick: the newest prepared prediction of each of ``robots`` (for
+        ``service.worker_predictions``); a robot with none yet counts a busy tick."""
+        out = []
+        for rt in robots:
+            s = self.slots[rt.robot]
+            if s.ready is None:
+                s.busy_ticks += 1
+            else:
+                out.append((rt, *s.ready))
+        return out
+
+    def _send_predict(self, s: _Slot, perc: Any, recv_ns: int, *, prepared: bool) -> None:
+        self.send(s.rt.robot, {"op": "predict", "x": _vec(perc.x), "tick": perc.tick,
+                               "t": perc.t, "vocab": list(s.rt.vocab)},
+                  (perc, recv_ns, prepared, time.monotonic_ns()))
         s.predicts += 1
 
     def snapshot(self, rt: RobotRuntime, reason: str, *, sync: bool) -> None:
@@ -337,7 +423,7 @@ class ProcessLearners:
     def info(self, rt: RobotRuntime) -> dict[str, Any]:
         """The worker's part of the robot's status ``info``."""
         s = self.slots[rt.robot]
-        return {"workers": "process", "worker_pid": s.proc.pid,
+        return {"workers": "process", "worker_pid": s.proc.pid, "worker_nice": self.nice,
                 "worker_busy_ticks": s.busy_ticks}
 
     def close(self, *, kill: bool = False, timeout: float = 10.0) -> None:

@@ -119,12 +119,13 @@ def open_recorders(
 
 def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Any:
     """``[daemon] workers`` = ``"process"`` (or ``"auto"`` with several robots): hand every
-    model to its own worker process."""
+    model to its own worker process, at ``learner_worker_nice``."""
     if cfg.learner_workers != "process":
         return None
     from roger_daemon.daemon.learners import ProcessLearners
 
-    return ProcessLearners(robots, {r.id: r for r in cfg.robots})
+    return ProcessLearners(robots, {r.id: r for r in cfg.robots},
+                           nice=cfg.learner_worker_nice)
 
 
 def _describe(cfg: DaemonConfig) -> dict[str, Any]:
@@ -133,6 +134,7 @@ def _describe(cfg: DaemonConfig) -> dict[str, Any]:
         "mode": cfg.mode, "queue_size": cfg.queue_size, "pair_window": cfg.pair_window,
         "seed": cfg.seed, "count_unserved": cfg.count_unserved,
         "workers": cfg.workers, "learner_workers": cfg.learner_workers,
+        "worker_nice": cfg.worker_nice,
         "robots": [{"id": r.id, "x_dim": r.x_dim, "y_dim": r.y_dim, "model": r.model,
                     "seed": r.seed, "profile": r.profile,
                     "learner": r.params.to_mapping()} for r in cfg.robots],

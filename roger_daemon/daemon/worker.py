@@ -20,6 +20,9 @@ Requests (``op``) and replies:
 - ``snapshot``: -> ``state`` (the model's ``state_dict``), ``n``;
 - ``stop``: -> ``{}``, then the process exits.
 
+``--nice N`` (the daemon's ``[daemon] worker_nice``) lowers the worker's CPU priority by
+``N`` at start (``os.nice``): serving predictions goes before learning (docs/fleet.md).
+
 An unexpected error answers ``fatal`` (the traceback text) and the worker exits 1. End of
 input (the daemon died) ends the worker too. The daemon's side is
 :mod:`roger_daemon.daemon.learners`.
@@ -27,7 +30,9 @@ input (the daemon died) ends the worker too. The daemon's side is
 
 from __future__ import annotations
 
+import argparse
 import logging
+import os
 import struct
 import sys
 import time
@@ -201,13 +206,18 @@ class _Worker:
         return {"ok": True, "pred": encode(pred), "ms": (time.perf_counter_ns() - t0) / 1e6}
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     """The worker's loop: one reply per request, until ``stop`` or end of input."""
     logging.basicConfig(level="INFO", stream=sys.stderr,
                         format="%(levelname)s %(name)s (worker): %(message)s")
     from roger_daemon.blas import pin_blas_threads
     from roger_daemon.daemon.memory import limit_heap_growth
 
+    parser = argparse.ArgumentParser(prog="python -m roger_daemon.daemon.worker")
+    parser.add_argument("--nice", type=int, default=0, choices=range(20), metavar="0..19")
+    nice = parser.parse_args(argv).nice
+    if nice:
+        os.nice(nice)
     pin_blas_threads(1)
     limit_heap_growth()
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer

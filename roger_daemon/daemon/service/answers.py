@@ -44,8 +44,8 @@ def answer_lockstep(svc: Service) -> None:
 
 def publish_prediction(svc: Service, rt: RobotRuntime, perc: Perception, recv_ns: int) -> None:
     """Answer ``perc``: inline (WAL committed first), or by the robot's learner worker."""
-    if svc.learners is not None:  # answered in worker_prediction
-        svc.learners.predict(rt, perc, recv_ns, skip_busy=svc._realtime)
+    if svc.learners is not None:  # answered in worker_predictions
+        svc.learners.predict(rt, perc, recv_ns)
         return
     svc._commit(rt)  # acknowledged means durable: the updates it reports are on disk
     try:
@@ -61,11 +61,12 @@ def publish_prediction(svc: Service, rt: RobotRuntime, perc: Perception, recv_ns
 
 
 def worker_predictions(svc: Service, batch: Sequence[tuple[Any, ...]]) -> None:
-    """Publish predictions learner workers computed: ``(rt, reply, perception,
-    receipt ns)`` each. Every pair they count was bookkept before their replies arrived:
-    commit the robots' logs (in parallel), then publish."""
-    svc._commit_all({id(b[0]): b[0] for b in batch}.values())
-    for rt, reply, perc, recv_ns in batch:
+    """Publish predictions learner workers computed: ``(rt, reply, perception, receipt ns,
+    log seq)`` each. Every pair one counts was bookkept (logged up to ``log seq``) before its
+    reply arrived: commit the logs not yet durable that far (in parallel), then publish."""
+    svc._commit_all({id(b[0]): b[0] for b in batch
+                     if b[0].wal is not None and b[0].wal.durable_seq < b[4]}.values())
+    for rt, reply, perc, recv_ns, _seq in batch:
         _worker_prediction(svc, rt, reply, perc, recv_ns)
 
 
@@ -77,7 +78,6 @@ def _worker_prediction(svc: Service, rt: RobotRuntime, reply: dict[str, Any], pe
             log.error("%s: prediction for tick %d failed in the worker (%s); further "
                       "failures are only counted", rt.robot, perc.tick, reply.get("error"))
         return
-    svc._commit(rt)
     latency_ms = (svc.clock.monotonic_ns() - recv_ns) / 1e6
     rt.predict_ms.add(float(reply["ms"]))
     rt.latency.add(latency_ms)
@@ -91,19 +91,22 @@ def _worker_prediction(svc: Service, rt: RobotRuntime, reply: dict[str, Any], pe
 
 
 def on_timer(svc: Service, now: int) -> None:
-    """Realtime tick: predict for the newest perception of every predicting robot."""
-    published = False
-    if svc.learners is None:  # inline: commit the robots' logs side by side, then predict
-        svc._commit_all(rt for rt in svc.robots.values() if rt.predicting)
-    for rt in svc.robots.values():
-        if rt.predicting and rt.newest is not None and not svc._stopping:
-            perc, recv_ns = rt.newest
-            publish_prediction(svc, rt, perc, recv_ns)
-            published = True
-    svc._learned_since_tick = False
+    """Realtime tick: publish a prediction for the newest perception of every predicting
+    robot. Inline the loop computes them now; learner workers prepared them as the
+    perceptions arrived (``ProcessLearners.prepare``), and the tick publishes the newest
+    prepared ones at once (docs/fleet.md, *Prepared predictions*)."""
+    due = [rt for rt in svc.robots.values()
+           if rt.predicting and rt.newest is not None and not svc._stopping]
     if svc.learners is not None:
-        # the workers are computing: make what they will report durable meanwhile, so the
-        # replies are published without waiting for fdatasync (docs/fleet.md)
-        svc._commit_all(svc.robots.values())
-        svc.learners.new_tick()
-    svc.schedule.fired(now, published)
+        batch = svc.learners.prepared(due)
+        if batch:
+            worker_predictions(svc, batch)
+    else:  # inline: commit the robots' logs side by side, then predict
+        svc._commit_all(rt for rt in svc.robots.values() if rt.predicting)
+        for rt in due:
+            perc, recv_ns = rt.newest  # type: ignore[misc]
+            publish_prediction(svc, rt, perc, recv_ns)
+    svc._learned_since_tick = False
+    svc.schedule.fired(now, bool(due))
+    if svc.learners is not None:
+        svc.learners.new_tick(svc.schedule.next_tick, svc.schedule.period_ns)

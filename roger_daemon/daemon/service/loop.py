@@ -216,9 +216,11 @@ class Service:
         # checkpoints, the watchdog or a stop request: the rest waits for the next cycle
         budget = min(self.inbox.capacity, MAX_DRAIN_PER_STEP)
         while item is not None and budget > 0:
+            self._tick_first()
             self._handle(item)
             budget -= 1
             item = self.inbox.get(0) if budget > 0 else None
+        self._tick_first()
         if self._answer:
             answer_lockstep(self)
         if self.learners is not None:
@@ -244,6 +246,15 @@ class Service:
         self.checkpoints.collect()
         self.recorders.poll(self.clock.monotonic_ns)
         self.notifier.watchdog(now)
+
+    def _tick_first(self) -> None:
+        """With learner workers the tick publishes predictions already prepared: fire it as
+        soon as it is due, before the messages and replies that arrived meanwhile (nothing
+        drained now could be ready for it; docs/fleet.md, *Prepared predictions*)."""
+        if self.learners is not None and self._realtime:
+            now = self.clock.monotonic_ns()
+            if now >= self.schedule.next_tick:
+                on_timer(self, now)
 
     def _next_deadline(self) -> int:
         deadline = self._next_status
@@ -284,8 +295,11 @@ class Service:
         rt, _, msg = admitted
         if isinstance(msg, Perception):
             rt.on_perception(msg, item.recv_ns)
-            if not self._realtime and rt.predicting and not self._stopping:
-                self._answer.append((rt, msg, item.recv_ns))
+            if rt.predicting and not self._stopping:
+                if not self._realtime:
+                    self._answer.append((rt, msg, item.recv_ns))
+                elif self.learners is not None:  # published on the next tick
+                    self.learners.prepare(rt, msg, item.recv_ns)
         elif isinstance(msg, Action):
             rt.on_action(msg)
         elif isinstance(msg, Control):
