@@ -351,3 +351,36 @@ def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
         again.kill()
     assert read_checkpoint(list_checkpoints(tmp_path / "checkpoints", "aibo")[0]) \
         .meta["updates"] == 12
+
+
+def test_idle_worker_counts_labels_ahead_and_predicts_the_same() -> None:
+    """After a learn with nothing waiting the worker counts the labels (``_Worker.idle``);
+    the next prediction uses them unchanged and equals one that counted them itself."""
+    from roger_daemon.daemon.worker import _Worker
+    from roger_daemon.learner import RogerParams
+
+    def load() -> _Worker:
+        w = _Worker()
+        w.handle({"op": "load", "robot": "aibo", "x_dim": STREAM.x.shape[1],
+                  "y_dim": STREAM.y.shape[1], "model": "roger", "seed": 0,
+                  "params": RogerParams().to_mapping(), "state": None, "codes": None})
+        return w
+
+    ahead, plain = load(), load()
+    vocab = list(LABELS)
+    for t in range(40):
+        for w in (ahead, plain):
+            req = {"op": "learn", "x": STREAM.x[t].tobytes(), "y": STREAM.y[t].tobytes(),
+                   "code": int(STREAM.labels[t]), "tick": t}
+            if t == 0:
+                req["vocab"] = vocab  # sent with the first learn request, then when it grows
+            assert w.handle(req)["ok"]
+        ahead.idle()
+        assert ahead.rt._labels_cache[0] == ahead.rt.generation  # counted now
+        assert plain.rt._labels_cache is None or plain.rt._labels_cache[0] != plain.rt.generation
+        if t % 10 == 9:
+            got = [decode("prediction", w.handle({"op": "predict", "x": STREAM.x[t].tobytes(),
+                                                  "tick": t, "t": t / 30, "vocab": vocab})["pred"],
+                          dims=ahead.rt.dims, robot="aibo") for w in (ahead, plain)]
+            _same_prediction(got[0], got[1])  # type: ignore[arg-type]
+            assert any(e.label for e in got[0].multimap)  # type: ignore[union-attr]

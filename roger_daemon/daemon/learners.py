@@ -78,6 +78,7 @@ class RemoteModel:
         self._owner.send(self._robot, {"op": "fresh"}, None)
         slot = self._owner.slots[self._robot]
         slot.ready = slot.waiting = None  # the old model's predictions are not published
+        slot.vocab_sent = -1  # a reset starts the label vocabulary again
         self.n_learned, self.n_experts = 0, 0
         return self
 
@@ -103,6 +104,7 @@ class _Slot:
     # needs durable) and the perception waiting for the one in flight
     ready: tuple[dict[str, Any], Any, int, int] | None = None
     ready_updates: int = 0  # the model updates the ready one counts
+    vocab_sent: int = -1  # the label vocabulary's length the worker was sent last
     waiting: tuple[Any, int] | None = None
     thread: threading.Thread | None = None
 
@@ -314,9 +316,12 @@ class ProcessLearners:
 
     def _send_learn(self, s: _Slot) -> None:
         pair = s.rt.queue.popleft()
-        self.send(s.rt.robot, {"op": "learn", "x": _vec(pair.x), "y": _vec(pair.y),
-                               "code": pair.label, "tick": pair.tick},
-                  (pair, time.monotonic_ns()))
+        req = {"op": "learn", "x": _vec(pair.x), "y": _vec(pair.y), "code": pair.label,
+               "tick": pair.tick}
+        if len(s.rt.vocab) != s.vocab_sent:  # the worker counts labels between requests
+            req["vocab"] = list(s.rt.vocab)
+            s.vocab_sent = len(s.rt.vocab)
+        self.send(s.rt.robot, req, (pair, time.monotonic_ns()))
         s.learns += 1
         s.since_tick = True
 
