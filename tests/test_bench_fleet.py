@@ -24,5 +24,8 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
         for robot in phase["robots"].values():
             assert robot["predictions_per_s"] > 0 and robot["updates"] > 0
             assert robot["busy_ticks"] >= 0 and robot["fed_per_s"] > 0
+            # the daemon's publish stamps: a period, and a delivery that takes time
+            assert 0 <= robot["publish_jitter_p99_ms"] < 1000 / 30
+            assert 0 < robot["delivery_p50_ms"] <= robot["delivery_p99_ms"] < 1000
     for robot in report["phases"]["lockstep"]["robots"].values():
         assert 0 < robot["latency_p50_ms"] <= robot["latency_p99_ms"]

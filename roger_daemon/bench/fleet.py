@@ -16,7 +16,9 @@ after a minute).  Two phases, each with a fresh daemon (``--clock both``, the de
   daemon publishes a prediction per robot on its own 30 Hz timer. Per robot:
   ``updates_per_s`` (from the daemon's status, over the measured window), ``dropped``
   (training queue overflow, whole run), ``predictions_per_s`` and ``jitter_p99_ms``
-  (|interval between two predictions received - 1/rate|, client side). Daemon-wide: the
+  (|interval between two predictions received - 1/rate|, client side), split into
+  ``publish_jitter_p99_ms`` (the same from the daemon's publish stamps) and
+  ``delivery_p50/p99_ms`` (publish -> received; one machine, one clock). Daemon-wide: the
   timer's own period jitter (status ``info.period_jitter_ms_p99``).
 - **lockstep**: every robot publishes perception(t) at ``--rate`` Hz, and action(t) as soon
   as prediction(t) arrived (as ``roger bench daemon``'s lockstep phase). ``latency_p50/p99_ms``
@@ -85,10 +87,14 @@ def _pct(values: Any, q: float) -> float:
 def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, Any, Any],
                   rate: float, lockstep: bool) -> dict[str, Any]:
     s0, s1, end = st
-    preds = [(t, k) for t, k in fleet.preds[r] if w0 <= t < w1]
-    recv = np.asarray([t for t, _ in preds], dtype=np.int64)
+    preds = [(t, k, p) for t, k, p in fleet.preds[r] if w0 <= t < w1]
+    recv = np.asarray([t for t, _, _ in preds], dtype=np.int64)
+    sent = np.asarray([p for _, _, p in preds], dtype=np.int64)
     nominal = 1000.0 / rate
     jitter = np.abs(np.diff(recv) / 1e6 - nominal) if len(recv) > 1 else np.zeros(0)
+    # the same split into the daemon's publishing and the delivery (docs/fleet.md)
+    published = np.abs(np.diff(sent) / 1e6 - nominal) if len(sent) > 1 else np.zeros(0)
+    delivery = (recv - sent) / 1e6
     dt = s1.uptime_s - s0.uptime_s
     out: dict[str, Any] = {
         "updates_per_s": (s1.updates - s0.updates) / dt if dt > 0 else float("nan"),
@@ -97,18 +103,23 @@ def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, A
         # what this process managed to send: on a starved machine the feed itself lags
         "fed_per_s": sum(w0 <= t < w1 for t in fleet.sent[r].values()) / ((w1 - w0) / 1e9),
         "jitter_p99_ms": _pct(jitter, 99),
+        # |interval between two publications - 1/rate| (the daemon's stamps) and publish ->
+        # received: which side of the link the jitter comes from
+        "publish_jitter_p99_ms": _pct(published, 99),
+        "delivery_p50_ms": _pct(delivery, 50),
+        "delivery_p99_ms": _pct(delivery, 99),
         "queue_depth_end": int(end.queue_depth),
         "updates": int(end.updates), "experts": int(end.experts),
         # the status at the window's end: after it the timer keeps answering the last
         # perception, whose age would fill the daemon's latency window
         "daemon_latency_p99_ms": float(s1.latency_ms_p99),
-        # ticks on which the robot's worker had not answered the previous one (skipped)
+        # ticks on which the robot had a perception but no prediction ready (start-up)
         "busy_ticks": int(s1.info.get("worker_busy_ticks", 0))
         - int(s0.info.get("worker_busy_ticks", 0)),
     }
     if lockstep:
-        sent = fleet.sent[r]
-        lat = [(t - sent[k]) / 1e6 for t, k in preds if k in sent]
+        sent_at = fleet.sent[r]
+        lat = [(t - sent_at[k]) / 1e6 for t, k, _ in preds if k in sent_at]
         out["latency_p50_ms"] = _pct(lat, 50)
         out["latency_p99_ms"] = _pct(lat, 99)
         out["latency_max_ms"] = max(lat) if lat else float("nan")
@@ -216,10 +227,11 @@ def _print_table(result: dict[str, Any]) -> None:
               f"jitter p99 {ph['daemon_period_jitter_p99_ms']:.2f} ms, "
               f"missed ticks {ph['missed_ticks']}")
         print(f"  {'robot':<6} {'upd/s':>7} {'dropped':>8} {'pred/s':>7} {'jit p99':>8} "
-              f"{'lat p50':>8} {'lat p99':>8} {'queue':>6}")
+              f"{'pub jit':>8} {'dlv p99':>8} {'lat p50':>8} {'lat p99':>8} {'queue':>6}")
         for r, v in ph["robots"].items():
             print(f"  {r:<6} {v['updates_per_s']:7.2f} {v['dropped']:8d} "
                   f"{v['predictions_per_s']:7.2f} {v['jitter_p99_ms']:8.2f} "
+                  f"{v['publish_jitter_p99_ms']:8.2f} {v['delivery_p99_ms']:8.2f} "
                   f"{v.get('latency_p50_ms', float('nan')):8.2f} "
                   f"{v.get('latency_p99_ms', float('nan')):8.2f} {v['queue_depth_end']:6d}")
     print(f"\nsummary: {json.dumps(result['summary'])}")

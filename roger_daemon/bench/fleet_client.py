@@ -57,7 +57,10 @@ class FleetClient:
         self.session = open_session(ZenohSettings(listen=(), connect=(connect,)))
         self.robots = robots
         self.sent: dict[str, dict[int, int]] = {r: {} for r in robots}
-        self.preds: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}  # (recv, tick)
+        # (received, tick, published): monotonic ns here; the daemon's stamp_ns (wall clock,
+        # same machine) moved onto this process's monotonic clock
+        self.preds: dict[str, list[tuple[int, int, int]]] = {r: [] for r in robots}
+        self._wall_to_mono = time.time_ns() - time.monotonic_ns()
         self.status: dict[str, list[tuple[int, Any]]] = {r: [] for r in robots}
         self.answered: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         self._raw: list[tuple[int, str, bytes]] = []  # (received, key, payload)
@@ -104,7 +107,7 @@ class FleetClient:
             except Exception:
                 self.errors += 1
                 continue
-            self.preds[robot].append((now, msg.tick))
+            self.preds[robot].append((now, msg.tick, msg.stamp_ns - self._wall_to_mono))
 
     def _on_status(self, sample: Any) -> None:
         got = self._decode(sample)
