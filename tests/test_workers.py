@@ -384,3 +384,32 @@ def test_idle_worker_counts_labels_ahead_and_predicts_the_same() -> None:
                           dims=ahead.rt.dims, robot="aibo") for w in (ahead, plain)]
             _same_prediction(got[0], got[1])  # type: ignore[arg-type]
             assert any(e.label for e in got[0].multimap)  # type: ignore[union-attr]
+
+
+def test_realtime_reset_publishes_nothing_from_the_old_model(tmp_path: Path) -> None:
+    """A reset forgets the prepared prediction: after it, every prediction published counts
+    only pairs learned after the reset."""
+    proc = Loop(make_config(tmp_path, "rr", clock="realtime"), process=True)
+    try:
+        for t in range(8):
+            proc.send("aibo", t)
+            proc.service.step(0.005)
+        end = time.monotonic() + DEADLINE_S
+        while not proc.preds or proc.preds[-1].updates < 8:
+            assert time.monotonic() < end, "the pairs before the reset were never counted"
+            proc.collect(len(proc.preds) + 1)
+        proc.transport.inject(keys.key("aibo", "control"),
+                              encode(Control("aibo", 0, 0.0, op="reset")))
+        proc.service.step(0.005)
+        assert proc.learners is not None
+        assert proc.learners.prepared([proc.robots["aibo"]]) == []  # the old one is gone
+        before = len(proc.preds)
+        proc.send("aibo", 8)
+        while len(proc.preds) < before + 5:
+            assert time.monotonic() < end, "no prediction after the reset"
+            proc.collect(len(proc.preds) + 1)
+        after = proc.preds[before:]
+        assert all(p.updates <= 1 for p in after), [p.updates for p in after]
+        assert after[-1].tick == 8
+    finally:
+        proc.service.shutdown()
