@@ -253,7 +253,10 @@ def main(argv: list[str] | None = None) -> int:
         if req.get("op") == "stop":
             return 0
         if req.get("op") == "learn" and not select.select([stdin], [], [], 0)[0]:
-            worker.idle()
+            try:
+                worker.idle()
+            except Exception:  # only work ahead: the next prediction counts them itself
+                logging.getLogger(__name__).exception("counting labels ahead failed")
 
 
 if __name__ == "__main__":
