@@ -138,6 +138,7 @@ class _Worker:
 
     def __init__(self) -> None:
         self.rt: Any = None
+        self.idle_failed = False  # counting labels ahead failed once (logged once)
 
     def handle(self, req: dict[str, Any]) -> dict[str, Any]:
         op = req.get("op")
@@ -256,7 +257,10 @@ def main(argv: list[str] | None = None) -> int:
             try:
                 worker.idle()
             except Exception:  # only work ahead: the next prediction counts them itself
-                logging.getLogger(__name__).exception("counting labels ahead failed")
+                if not worker.idle_failed:
+                    logging.getLogger(__name__).exception(
+                        "counting labels ahead failed; further failures are not logged")
+                worker.idle_failed = True
 
 
 if __name__ == "__main__":
