@@ -70,6 +70,20 @@ class Loop:
         self.transport.inject(keys.key(robot, "action"), a)  # action first: learned, then
         self.transport.inject(keys.key(robot, "perception"), p)  # prediction(t) includes t
 
+    def send_paced(self, robot: str, ticks: range) -> None:
+        """Send ``ticks`` one loop step apart (realtime: the loop keeps running)."""
+        for t in ticks:
+            self.send(robot, t)
+            self.service.step(0.005)
+
+    def collect_until(self, done: Any, what: str) -> Prediction:
+        """Collect until the newest prediction satisfies ``done`` (bounded by the deadline)."""
+        end = time.monotonic() + DEADLINE_S
+        while not self.preds or not done(self.preds[-1]):
+            assert time.monotonic() < end, what
+            self.collect(len(self.preds) + 1)
+        return self.preds[-1]
+
     def collect(self, n: int) -> list[Prediction]:
         """Step until ``n`` predictions in all were published (bounded by the deadline)."""
         end = time.monotonic() + DEADLINE_S
@@ -148,14 +162,9 @@ def test_realtime_tick_publishes_the_prediction_prepared_on_arrival(tmp_path: Pa
     updates (so replay recomputes it), and every pair it counts is in the write-ahead log."""
     proc = Loop(make_config(tmp_path, "rt", clock="realtime"), process=True)
     try:
-        for t in range(10):
-            proc.send("aibo", t)
-            proc.service.step(0.005)
-        end = time.monotonic() + DEADLINE_S
-        while not proc.preds or (proc.preds[-1].tick, proc.preds[-1].updates) != (9, 10):
-            assert time.monotonic() < end, "no prediction counting every pair"
-            proc.collect(len(proc.preds) + 1)
-        last = proc.preds[-1]
+        proc.send_paced("aibo", range(10))
+        last = proc.collect_until(lambda p: (p.tick, p.updates) == (9, 10),
+                                  "no prediction counting every pair")
         assert all(p.tick in range(10) for p in proc.preds)
         assert [p.updates for p in proc.preds] == sorted(p.updates for p in proc.preds)
         pairs = [r for r in read_records(wal_dir(tmp_path / "rt", "aibo")) if r.kind == "pair"]
@@ -391,13 +400,8 @@ def test_realtime_reset_publishes_nothing_from_the_old_model(tmp_path: Path) -> 
     only pairs learned after the reset."""
     proc = Loop(make_config(tmp_path, "rr", clock="realtime"), process=True)
     try:
-        for t in range(8):
-            proc.send("aibo", t)
-            proc.service.step(0.005)
-        end = time.monotonic() + DEADLINE_S
-        while not proc.preds or proc.preds[-1].updates < 8:
-            assert time.monotonic() < end, "the pairs before the reset were never counted"
-            proc.collect(len(proc.preds) + 1)
+        proc.send_paced("aibo", range(8))
+        proc.collect_until(lambda p: p.updates >= 8, "the pairs before the reset never counted")
         proc.transport.inject(keys.key("aibo", "control"),
                               encode(Control("aibo", 0, 0.0, op="reset")))
         proc.service.step(0.005)
@@ -405,9 +409,7 @@ def test_realtime_reset_publishes_nothing_from_the_old_model(tmp_path: Path) -> 
         assert proc.learners.prepared([proc.robots["aibo"]]) == []  # the old one is gone
         before = len(proc.preds)
         proc.send("aibo", 8)
-        while len(proc.preds) < before + 5:
-            assert time.monotonic() < end, "no prediction after the reset"
-            proc.collect(len(proc.preds) + 1)
+        proc.collect(before + 5)
         after = proc.preds[before:]
         assert all(p.updates <= 1 for p in after), [p.updates for p in after]
         assert after[-1].tick == 8

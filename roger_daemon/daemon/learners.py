@@ -1,11 +1,13 @@
 """The daemon's side of the learner workers: one process per robot owns that robot's model.
 
-With ``[daemon] workers = "process"`` (the default) the service loop keeps Zenoh, pairing,
-the training queues, the write-ahead log, recording, status and publishing; each robot's
+With ``[daemon] workers = "process"`` (what ``"auto"`` picks for several robots) the loop
+keeps Zenoh, pairing, the training queues, the write-ahead log, recording, status and
+publishing; each robot's
 model lives in its own worker process (:mod:`roger_daemon.daemon.worker`), started with
 ``subprocess`` (a fresh interpreter: nothing forked after Zenoh opened, nothing pickled) and
-driven over its stdin/stdout with msgpack frames. Robots learn in parallel on every core, and
-no robot waits for another's learning.
+driven over its stdin/stdout with msgpack frames (the processes and pipes:
+:mod:`roger_daemon.daemon.worker_procs`; this module schedules requests and books
+replies). Robots learn in parallel on every core, and no robot waits for another's learning.
 
 Ordering is what keeps the daemon's guarantees: a worker answers its requests one by one, in
 order, and one reader thread per worker hands the replies to the loop in that order. So
@@ -36,29 +38,21 @@ from __future__ import annotations
 
 import logging
 import queue
-import subprocess
-import sys
-import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from roger_daemon.daemon.robot import Pair, RobotRuntime
-from roger_daemon.daemon.worker import pack_arrays, read_frame, unpack_arrays, write_frame
+from roger_daemon.daemon.worker import pack_arrays, unpack_arrays
+from roger_daemon.daemon.worker_procs import WorkerError, WorkerProcesses, WorkerSlot
 
 __all__ = ["ProcessLearners", "RemoteModel", "WorkerError"]
 
 log = logging.getLogger(__name__)
 
 WORKER_MODES = ("process", "inline")
-
-
-class WorkerError(RuntimeError):
-    """A learner worker died, failed or did not answer in time."""
 
 
 class RemoteModel:
@@ -87,28 +81,6 @@ class RemoteModel:
         raise WorkerError("the model lives in a worker process: use ProcessLearners.snapshot")
 
 
-@dataclass
-class _Slot:
-    rt: RobotRuntime
-    proc: subprocess.Popen[bytes]
-    model: RemoteModel | None = None
-    pending: deque[tuple[str, Any]] = field(default_factory=deque)
-    learns: int = 0
-    predicts: int = 0
-    snapshots: int = 0
-    busy_ticks: int = 0
-    learn_est_ns: int = 0  # send -> reply of a learn request, decaying maximum
-    predict_est_ns: int = 0  # the same for a prediction
-    since_tick: bool = False  # a learn was sent since the last timer tick
-    # realtime: the newest prepared prediction (reply, perception, receipt ns, log seq it
-    # needs durable) and the perception waiting for the one in flight
-    ready: tuple[dict[str, Any], Any, int, int] | None = None
-    ready_updates: int = 0  # the model updates the ready one counts
-    vocab_sent: int = -1  # the label vocabulary's length the worker was sent last
-    waiting: tuple[Any, int] | None = None
-    thread: threading.Thread | None = None
-
-
 def _log_seq(rt: RobotRuntime) -> int:
     """The last write-ahead log record of ``rt`` (-1 without a log)."""
     return rt.wal.last_seq if rt.wal is not None else -1
@@ -118,7 +90,7 @@ def _vec(a: np.ndarray) -> bytes:
     return np.ascontiguousarray(a, dtype="<f8").tobytes()
 
 
-class ProcessLearners:
+class ProcessLearners(WorkerProcesses):
     """One worker process per robot; see the module docstring.
 
     Parameters
@@ -139,24 +111,11 @@ class ProcessLearners:
 
     def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
                  timeout_s: float = 120.0, nice: int = 0) -> None:
-        self.timeout_s = timeout_s
-        self.nice = nice
-        self._replies: queue.SimpleQueue[tuple[str, dict[str, Any] | None]] = \
-            queue.SimpleQueue()
-        self._wake: Callable[[], None] = lambda: None
         self._service: Any = None
         self.deadline_ns: int | None = None  # the next realtime tick (pump)
         self.period_ns = 0  # the realtime clock's period (attach)
-        self.slots: dict[str, _Slot] = {}
+        super().__init__(robots, timeout_s=timeout_s, nice=nice)
         try:
-            for robot, rt in robots.items():  # start them all first: they import in parallel
-                proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker",
-                                         "--nice", str(nice)],
-                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-                reader = threading.Thread(target=self._read, args=(robot, proc), daemon=True,
-                                          name=f"roger-worker-{robot}")
-                self.slots[robot] = _Slot(rt, proc, thread=reader)
-                reader.start()
             for robot, rt in robots.items():
                 self._load(robot, rt, configs[robot])
             self._wait(lambda: all(not s.pending for s in self.slots.values()), "start")
@@ -179,58 +138,10 @@ class ProcessLearners:
         rt.model = model
         rt.make_model = model.fresh
 
-    # --- plumbing --------------------------------------------------------------------------
-
-    def _read(self, robot: str, proc: subprocess.Popen[bytes]) -> None:
-        assert proc.stdout is not None
-        while True:
-            try:
-                frame = read_frame(proc.stdout)
-            except (OSError, ValueError) as exc:
-                log.error("%s: unreadable reply from the learner worker: %s", robot, exc)
-                frame = None
-            self._replies.put((robot, frame))
-            self._wake()
-            if frame is None or "fatal" in frame:
-                return
-
-    def send(self, robot: str, req: dict[str, Any], ctx: Any) -> None:
-        """Send one request; its reply is handled with ``ctx`` (in order)."""
-        s = self.slots[robot]
-        assert s.proc.stdin is not None
-        try:
-            write_frame(s.proc.stdin, req)
-        except (OSError, ValueError) as exc:
-            raise WorkerError(self._died(robot, f"cannot send to it ({exc})")) from None
-        s.pending.append((str(req["op"]), ctx))
-
-    def _died(self, robot: str, why: str) -> str:
-        s = self.slots[robot]
-        try:
-            code: int | None = s.proc.wait(1.0)
-        except subprocess.TimeoutExpired:
-            code = None
-        return (f"{robot}: learner worker pid {s.proc.pid} failed: {why} (exit status "
-                f"{code}); stopping the daemon (the write-ahead log holds every acknowledged "
-                "pair)")
-
     def attach(self, service: Any, wake: Callable[[], None]) -> None:
         """Route replies to ``service`` and wake its loop with ``wake`` on each."""
         self._service, self._wake = service, wake
         self.period_ns = int(service.schedule.period_ns)
-
-    def _wait(self, done: Callable[[], bool], what: str) -> None:
-        end = time.monotonic() + self.timeout_s
-        while not done():
-            left = end - time.monotonic()
-            try:
-                if left <= 0:
-                    raise queue.Empty
-                item = self._replies.get(timeout=left)
-            except queue.Empty:
-                raise WorkerError(f"no reply from a learner worker within {self.timeout_s:g} s "
-                                  f"({what})") from None
-            self._dispatch(*item)
 
     # --- replies ---------------------------------------------------------------------------
 
@@ -302,7 +213,7 @@ class ProcessLearners:
         elif op in ("load", "fresh") and s.model is not None:
             s.model.n_learned, s.model.n_experts = int(frame["n"]), int(frame["experts"])
 
-    def _learned(self, s: _Slot, pair: Pair, frame: dict[str, Any]) -> None:
+    def _learned(self, s: WorkerSlot, pair: Pair, frame: dict[str, Any]) -> None:
         if not frame.get("ok"):
             s.rt.learn_errors += 1
             log.error("%s: learning the pair of tick %d failed; pair skipped (see the "
@@ -314,7 +225,7 @@ class ProcessLearners:
 
     # --- requests --------------------------------------------------------------------------
 
-    def _send_learn(self, s: _Slot) -> None:
+    def _send_learn(self, s: WorkerSlot) -> None:
         pair = s.rt.queue.popleft()
         req = {"op": "learn", "x": _vec(pair.x), "y": _vec(pair.y), "code": pair.label,
                "tick": pair.tick}
@@ -372,7 +283,7 @@ class ProcessLearners:
         s.waiting = (perc, recv_ns)
         self._prepare_waiting(s)
 
-    def _prepare_waiting(self, s: _Slot) -> None:
+    def _prepare_waiting(self, s: WorkerSlot) -> None:
         """Send the waiting perception unless one is in flight or the tick is too close
         (it would not be ready for it: it goes after the tick, :meth:`new_tick`)."""
         if s.waiting is not None and not s.predicts and not self._quiet(s.predict_est_ns):
@@ -391,7 +302,7 @@ class ProcessLearners:
                 out.append((rt, *s.ready))
         return out
 
-    def _send_predict(self, s: _Slot, perc: Any, recv_ns: int, *, prepared: bool) -> None:
+    def _send_predict(self, s: WorkerSlot, perc: Any, recv_ns: int, *, prepared: bool) -> None:
         self.send(s.rt.robot, {"op": "predict", "x": _vec(perc.x), "tick": perc.tick,
                                "t": perc.t, "vocab": list(s.rt.vocab)},
                   (perc, recv_ns, prepared, time.monotonic_ns()))
@@ -430,30 +341,3 @@ class ProcessLearners:
         s = self.slots[rt.robot]
         return {"workers": "process", "worker_pid": s.proc.pid, "worker_nice": self.nice,
                 "worker_busy_ticks": s.busy_ticks}
-
-    def close(self, *, kill: bool = False, timeout: float = 10.0) -> None:
-        """Stop every worker (``stop`` request, then SIGKILL after ``timeout``)."""
-        for s in self.slots.values():
-            if not kill and s.proc.poll() is None and s.proc.stdin is not None:
-                try:
-                    write_frame(s.proc.stdin, {"op": "stop"})
-                except (OSError, ValueError):
-                    pass
-            if s.proc.stdin is not None:
-                try:
-                    s.proc.stdin.close()
-                except OSError:
-                    pass
-        end = time.monotonic() + timeout
-        for robot, s in self.slots.items():
-            if not kill:
-                try:
-                    s.proc.wait(max(0.1, end - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    log.warning("%s: learner worker pid %d did not stop; killed", robot,
-                                s.proc.pid)
-            if s.proc.poll() is None:
-                s.proc.kill()
-                s.proc.wait(5.0)
-            if s.proc.stdout is not None:
-                s.proc.stdout.close()
