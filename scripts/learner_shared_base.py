@@ -1,0 +1,117 @@
+"""How far a shared base per expert would cut a learner step's memory traffic (issue 11).
+
+On the benchmark stream (``roger bench learner``: paper parameters) the distinct experts are
+the particles' versions of a few experts (docs/performance.md). This learns the stream up to
+``--points``, groups the live versions by expert id, takes one version of each group as the
+base and measures, for every other version, the numerical rank of ``C_v - C_base`` and
+``Q_v - Q_base`` (eigenvalues above ``--tol`` times the largest magnitude). It then times the
+read a step makes for the GP likelihood of every version (``k^T C k``): dense, one pass over
+each version's ``C`` (what the learner does now), against one pass over each base plus a
+thin correction per version (``k^T C_base k + sum_i d_i (u_i . k)^2``). The floats of the two
+agree to rounding (printed); nothing in the learner changes.
+
+    .venv/bin/python scripts/learner_shared_base.py [--points 1500] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from roger_daemon.bench.learner import load_stream
+from roger_daemon.learner import jit
+from roger_daemon.learner.roger import Roger
+from roger_daemon.learner.synthetic import BENCH_SEED
+
+
+def low_rank(delta: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(U, d)`` with ``delta ~= U diag(d) U^T`` keeping eigenvalues above ``tol * max``."""
+    w, v = np.linalg.eigh((delta + delta.T) / 2)
+    big = np.abs(w) > tol * max(float(np.max(np.abs(w))), 1e-300)
+    return np.ascontiguousarray(v[:, big].T), w[big]
+
+
+def versions(points: int) -> tuple[dict[int, list[Any]], np.ndarray]:
+    """The live SOGP versions grouped by expert id, after ``points`` points; a query x."""
+    stream = load_stream("synthetic", None, BENCH_SEED, [])
+    model = Roger(stream.x.shape[1], stream.y.shape[1], stream.params, seed=0)
+    for i in range(points):
+        model.learn_one(stream.x[i], stream.y[i])
+    groups: dict[int, list[Any]] = defaultdict(list)
+    for slot, gp in enumerate(model._gps):
+        if gp is not None and gp.n > 1:
+            groups[int(model._ids[slot])].append(gp)
+    return groups, stream.x[points]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--points", type=int, default=1500)
+    parser.add_argument("--tol", type=float, default=1e-13)
+    parser.add_argument("--repeats", type=int, default=200)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    with threadpool_limits(1):
+        groups, x = versions(args.points)
+        dense, bases, thin, ranks_c, ranks_q, errs = [], [], [], [], [], []
+        for gps in groups.values():
+            base = gps[0]
+            n = base.n
+            bases.append(np.ascontiguousarray(base._C[:n, :n]))
+            for gp in gps:
+                if gp.n != n:  # a version of another size: kept dense
+                    dense.append(np.ascontiguousarray(gp._C[:gp.n, :gp.n]))
+                    continue
+                c = np.ascontiguousarray(gp._C[:n, :n])
+                dense.append(c)
+                u, d = low_rank(c - bases[-1], args.tol)
+                ranks_c.append(len(d))
+                ranks_q.append(len(low_rank(gp._Q[:n, :n] - base._Q[:n, :n], args.tol)[1]))
+                thin.append((len(bases) - 1, u, d))
+                k = np.exp(-0.1 * np.sum((gp._B[:n] - x) ** 2, axis=1))
+                exact = float(k @ c @ k)
+                approx = float(k @ bases[-1] @ k + np.sum(d * (u @ k) ** 2))
+                errs.append(abs(exact - approx) / max(abs(exact), 1e-300))
+        k = np.ones(max(m.shape[0] for m in dense))
+
+        def run_dense() -> None:
+            for m in dense:
+                jit.matvec(m, k, m.shape[0])
+
+        def run_shared() -> None:
+            for m in bases:
+                jit.matvec(m, k, m.shape[0])
+            for _, u, d in thin:
+                np.sum(d * (u @ k[:u.shape[1]]) ** 2)
+
+        out: dict[str, Any] = {"points": args.points, "versions": len(dense),
+                               "experts": len(groups)}
+        for name, fn in (("dense", run_dense), ("shared", run_shared)):
+            fn()
+            t0 = time.perf_counter()
+            for _ in range(args.repeats):
+                fn()
+            out[f"{name}_us_per_step"] = round((time.perf_counter() - t0) / args.repeats * 1e6, 1)
+    out.update({
+        "rank_c_p50_max": [int(np.median(ranks_c)), int(max(ranks_c))] if ranks_c else None,
+        "rank_q_p50_max": [int(np.median(ranks_q)), int(max(ranks_q))] if ranks_q else None,
+        "kck_relative_error_max": float(max(errs)) if errs else None,
+        "load_avg_1m": os.getloadavg()[0],
+    })
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for key, val in out.items():
+            print(f"{key:26s} {val}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,20 @@
+"""``scripts/learner_shared_base.py`` (docs/performance.md): its low-rank split reproduces
+every version's ``k^T C k`` to rounding, so the timings it prints compare equal work."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_shared_base.py"
+
+
+def test_shared_base_split_is_exact_to_rounding() -> None:
+    out = subprocess.run([sys.executable, str(SCRIPT), "--points", "400", "--repeats", "3",
+                          "--json"], capture_output=True, text=True, timeout=600, check=True)
+    report = json.loads(out.stdout)
+    assert report["versions"] >= report["experts"] >= 1
+    assert report["kck_relative_error_max"] < 1e-10
+    assert report["dense_us_per_step"] > 0 and report["shared_us_per_step"] > 0
