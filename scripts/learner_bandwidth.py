@@ -12,8 +12,6 @@ those passes alone take per step.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import time
 from collections import Counter
 from typing import Any
@@ -21,19 +19,14 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from roger_daemon.bench.learner import load_stream
+from roger_daemon.bench.learner import learned_model, print_report
 from roger_daemon.learner import jit
-from roger_daemon.learner.roger import Roger
-from roger_daemon.learner.synthetic import BENCH_SEED
 
 
 def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     """Compiled calls per step by kind, measured ms per step, distinct experts, beta."""
-    stream = load_stream("synthetic", None, BENCH_SEED, [])
-    model = Roger(stream.x.shape[1], stream.y.shape[1], stream.params, seed=0)
     warm = points // 4
-    for i in range(warm):
-        model.learn_one(stream.x[i], stream.y[i])
+    model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
     jit._load()
     originals = {name: getattr(jit, name) for name in ("expert_terms", "matvec", "fused_step")}
@@ -95,13 +88,8 @@ def main() -> int:
         "gb_per_s_out_of_cache": round(mb / cold * 1e3, 1),
         "passes_ms_per_step": round(bound_ms, 3),
         "updates_per_s_at_that_bound": round(1e3 / bound_ms, 1),
-        "load_avg_1m": os.getloadavg()[0],
     }
-    if args.json:
-        print(json.dumps(out))
-    else:
-        for k, v in out.items():
-            print(f"{k:32s} {v}")
+    print_report(out, as_json=args.json)
     return 0
 
 

@@ -16,8 +16,6 @@ agree to rounding (printed); nothing in the learner changes.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import time
 from collections import defaultdict
 from typing import Any
@@ -25,10 +23,8 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from roger_daemon.bench.learner import load_stream
+from roger_daemon.bench.learner import learned_model, print_report
 from roger_daemon.learner import jit
-from roger_daemon.learner.roger import Roger
-from roger_daemon.learner.synthetic import BENCH_SEED
 
 
 def low_rank(delta: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -40,10 +36,7 @@ def low_rank(delta: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
 
 def versions(points: int) -> tuple[dict[int, list[Any]], np.ndarray]:
     """The live SOGP versions grouped by expert id, after ``points`` points; a query x."""
-    stream = load_stream("synthetic", None, BENCH_SEED, [])
-    model = Roger(stream.x.shape[1], stream.y.shape[1], stream.params, seed=0)
-    for i in range(points):
-        model.learn_one(stream.x[i], stream.y[i])
+    model, stream = learned_model(points)
     groups: dict[int, list[Any]] = defaultdict(list)
     for slot, gp in enumerate(model._gps):
         if gp is not None and gp.n > 1:
@@ -103,13 +96,8 @@ def main() -> int:
         "rank_c_p50_max": [int(np.median(ranks_c)), int(max(ranks_c))] if ranks_c else None,
         "rank_q_p50_max": [int(np.median(ranks_q)), int(max(ranks_q))] if ranks_q else None,
         "kck_relative_error_max": float(max(errs)) if errs else None,
-        "load_avg_1m": os.getloadavg()[0],
     })
-    if args.json:
-        print(json.dumps(out))
-    else:
-        for key, val in out.items():
-            print(f"{key:26s} {val}")
+    print_report(out, as_json=args.json)
     return 0
 
 

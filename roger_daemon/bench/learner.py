@@ -105,6 +105,29 @@ def _params(base: RogerParams, overrides: list[str]) -> RogerParams:
         raise UsageError(f"--param: {exc}") from None
 
 
+def learned_model(points: int, seed: int = 0) -> tuple[Roger, BenchStream]:
+    """A ROGER model that learned the first ``points`` pairs of the benchmark's synthetic
+    stream (paper parameters), and the stream: the state the diagnostic scripts inspect
+    (``scripts/learner_bandwidth.py``, ``scripts/learner_shared_base.py``)."""
+    stream = load_stream("synthetic", None, BENCH_SEED, [])
+    model = Roger(stream.x.shape[1], stream.y.shape[1], stream.params, seed=seed)
+    for i in range(points):
+        model.learn_one(stream.x[i], stream.y[i])
+    return model, stream
+
+
+def print_report(out: dict[str, Any], *, as_json: bool) -> None:
+    """A diagnostic script's result, with the load average now: one JSON object, or one
+    aligned ``key value`` line per entry."""
+    out = {**out, "load_avg_1m": os.getloadavg()[0]}
+    if as_json:
+        print(json.dumps(out))
+        return
+    width = max(map(len, out)) + 2
+    for key, val in out.items():
+        print(f"{key:{width}s}{val}")
+
+
 def machine_info() -> dict[str, Any]:
     """CPU, cores, load average, Python, numpy, platform and BLAS of this run."""
     cpu = platform.processor() or platform.machine()
