@@ -192,7 +192,7 @@ def test_no_prediction_is_started_in_the_quiet_window_before_a_tick(tmp_path: Pa
         learners.deadline_ns = time.monotonic_ns() + 500_000  # the tick in 0.5 ms
         learners.prepare(proc.robots["aibo"], Perception("aibo", 0, 0.0, x=STREAM.x[0]), 0)
         assert slot.waiting is not None and slot.predicts == 0
-        learners.new_tick(time.monotonic_ns() + 10**9, 10**9 // 30)
+        learners.new_tick(time.monotonic_ns() + 10**9)
         assert slot.waiting is None and slot.predicts == 1
         assert learners.prepared([proc.robots["b2"]]) == [] and slot.busy_ticks == 0
         assert learners.slots["b2"].busy_ticks == 1  # b2: nothing prepared yet

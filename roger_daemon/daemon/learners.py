@@ -246,7 +246,7 @@ class ProcessLearners(WorkerProcesses):
                     break
                 self._send_learn(s)
 
-    def new_tick(self, deadline_ns: int, period_ns: int) -> None:
+    def new_tick(self, deadline_ns: int) -> None:
         """The realtime timer fired (the next one is at ``deadline_ns``): send the
         perceptions held back in the quiet window; every robot may learn once more.
 
@@ -259,7 +259,7 @@ class ProcessLearners(WorkerProcesses):
             s.since_tick = False
             newest = s.rt.newest
             if s.waiting is None and s.ready is not None and newest is not None and \
-                    s.ready[1] is newest[0] and now - newest[1] > period_ns and \
+                    s.ready[1] is newest[0] and now - newest[1] > self.period_ns and \
                     s.model is not None and s.model.n_learned > s.ready_updates:
                 s.waiting = newest
             self._prepare_waiting(s)

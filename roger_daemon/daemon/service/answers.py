@@ -109,4 +109,4 @@ def on_timer(svc: Service, now: int) -> None:
     svc._learned_since_tick = False
     svc.schedule.fired(now, bool(due))
     if svc.learners is not None:
-        svc.learners.new_tick(svc.schedule.next_tick, svc.schedule.period_ns)
+        svc.learners.new_tick(svc.schedule.next_tick)
