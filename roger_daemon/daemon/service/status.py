@@ -37,6 +37,7 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int) -> Status:
     """The status message of ``rt`` served by ``svc`` at ``now`` (monotonic ns)."""
     ck = svc.checkpoints.state[rt.robot]
     invalid = invalid_counts(rt, svc.unserved)
+    commit_ms = rt.wal.commit_durations() if rt.wal is not None else []  # one copy
     info: dict[str, Any] = {
         "clock": svc.config.clock,
         "rate_hz": svc.config.rate_hz,
@@ -65,8 +66,8 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int) -> Status:
         "recording_errors": svc.recorders.errors,
         "wal": rt.wal is not None,
         "wal_commits": 0 if rt.wal is None else rt.wal.commits,
-        "wal_commit_ms_p50": _pct(rt.wal.commit_durations(), 50) if rt.wal is not None else 0.0,
-        "wal_commit_ms_p99": _pct(rt.wal.commit_durations(), 99) if rt.wal is not None else 0.0,
+        "wal_commit_ms_p50": _pct(commit_ms, 50),
+        "wal_commit_ms_p99": _pct(commit_ms, 99),
         "wal_commit_ms_max": 0.0 if rt.wal is None else round(rt.wal.commit_ms_max, 3),
         "resent_pairs": rt.resent,
         "workers": "inline",
