@@ -10,21 +10,32 @@ each version's ``C`` (what the learner does now), against one pass over each bas
 thin correction per version (``k^T C_base k + sum_i d_i (u_i . k)^2``). The floats of the two
 agree to rounding (printed); nothing in the learner changes.
 
+The split above is numerical: a base and a correction of low *numerical* rank, found by an
+eigendecomposition, not an exact representation the learner could keep. An exact one would
+store, per version, the updates it received since the common ancestor of all the versions of
+its expert (each a rank-3 correction of ``C``). ``--genealogy`` (default on) follows every
+update and copy while learning and reports, at every step after the first third, how many
+updates each version received since that common ancestor: the length such an exact
+correction would have.
+
     .venv/bin/python scripts/learner_shared_base.py [--points 1500] [--json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import itertools
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import learned_model, print_report
-from roger_daemon.learner import jit
+from roger_daemon.learner import jit, roger_step, sogp
 
 
 def low_rank(delta: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -44,12 +55,94 @@ def versions(points: int) -> tuple[dict[int, list[Any]], np.ndarray]:
     return groups, stream.x[points]
 
 
+_STEP_UPDATES = "update_many"  # the function a ROGER step updates its chosen experts with
+
+
+class Genealogy:
+    """Each live SOGP's updates, as a tuple of tokens shared with the versions it was copied
+    from, and per step the updates since each expert's versions' common ancestor."""
+
+    def __init__(self) -> None:
+        self.updates: dict[int, tuple[int, ...]] = {}  # id(gp) -> update tokens, oldest first
+        self.counter = itertools.count()
+        self.since: list[int] = []  # per version and step: updates since the common ancestor
+        self.batched = False  # inside update_many, which counts its experts itself
+
+    def updated(self, gp: Any) -> None:
+        self.updates[id(gp)] = (*self.updates.get(id(gp), ()), next(self.counter))
+
+    def step(self, model: Any, i: int, first: int) -> None:
+        if i < first:
+            return
+        groups: dict[int, list[tuple[int, ...]]] = defaultdict(list)
+        for slot, gp in enumerate(model._gps):
+            if gp is not None:
+                groups[int(model._ids[slot])].append(self.updates.get(id(gp), ()))
+        for hist in groups.values():
+            common = 0
+            while all(len(h) > common for h in hist) and len({h[common] for h in hist}) == 1:
+                common += 1
+            self.since.extend(len(h) - common for h in hist)
+
+
+@contextlib.contextmanager
+def following(gen: Genealogy) -> Iterator[None]:
+    """Record every SOGP update and copy (the learner's own methods, wrapped) into ``gen``."""
+    cls = sogp.SparseOnlineGP
+    init, update, copy = cls.__init__, cls.update, cls.copy
+    many = getattr(roger_step, _STEP_UPDATES)
+
+    def init_(self: Any, *a: Any, **k: Any) -> None:
+        init(self, *a, **k)
+        gen.updates[id(self)] = ()
+
+    def update_(self: Any, *a: Any, **k: Any) -> None:
+        if not gen.batched:
+            gen.updated(self)
+        update(self, *a, **k)
+
+    def copy_(self: Any) -> Any:
+        out = copy(self)
+        gen.updates[id(out)] = gen.updates.get(id(self), ())
+        return out
+
+    def many_(gps: Any, *a: Any, **k: Any) -> None:  # one ROGER step's updates
+        for gp in gps:
+            gen.updated(gp)
+        gen.batched = True
+        try:
+            many(gps, *a, **k)
+        finally:
+            gen.batched = False
+
+    cls.__init__, cls.update, cls.copy = init_, update_, copy_  # type: ignore[method-assign]
+    setattr(roger_step, _STEP_UPDATES, many_)
+    try:
+        yield
+    finally:
+        cls.__init__, cls.update, cls.copy = init, update, copy  # type: ignore[method-assign]
+        setattr(roger_step, _STEP_UPDATES, many)
+
+
+def genealogy(points: int) -> dict[str, Any]:
+    """Updates each version received since its expert's common ancestor (steps after the
+    first third of ``points``)."""
+    gen = Genealogy()
+    with following(gen):
+        learned_model(points, on_step=lambda m, i: gen.step(m, i, points // 3))
+    since = np.asarray(gen.since)
+    return {"updates_since_common_ancestor_p50_p90_max":
+            [int(np.median(since)), int(np.percentile(since, 90)), int(since.max())]}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1500)
     parser.add_argument("--tol", type=float, default=1e-13)
     parser.add_argument("--repeats", type=int, default=200)
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--no-genealogy", dest="genealogy", action="store_false",
+                        help="skip the updates-since-the-common-ancestor count (a second run)")
     args = parser.parse_args()
     with threadpool_limits(1):
         groups, x = versions(args.points)
@@ -97,6 +190,9 @@ def main() -> int:
         "rank_q_p50_max": [int(np.median(ranks_q)), int(max(ranks_q))] if ranks_q else None,
         "kck_relative_error_max": float(max(errs)) if errs else None,
     })
+    if args.genealogy:
+        with threadpool_limits(1):
+            out.update(genealogy(args.points))
     print_report(out, as_json=args.json)
     return 0
 

@@ -1,5 +1,6 @@
 """``scripts/learner_shared_base.py`` (docs/performance.md): its low-rank split reproduces
-every version's ``k^T C k`` to rounding, so the timings it prints compare equal work."""
+every version's ``k^T C k`` to rounding, so the timings it prints compare equal work; its
+genealogy count follows the learner's updates and copies."""
 
 from __future__ import annotations
 
@@ -18,3 +19,6 @@ def test_shared_base_split_is_exact_to_rounding() -> None:
     assert report["versions"] >= report["experts"] >= 1
     assert report["kck_relative_error_max"] < 1e-10
     assert report["dense_us_per_step"] > 0 and report["shared_us_per_step"] > 0
+    # the genealogy: every version has its own updates since its expert's common ancestor
+    p50, p90, most = report["updates_since_common_ancestor_p50_p90_max"]
+    assert 0 <= p50 <= p90 <= most and most > 0

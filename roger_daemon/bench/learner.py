@@ -20,6 +20,7 @@ import os
 import platform
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -105,14 +106,19 @@ def _params(base: RogerParams, overrides: list[str]) -> RogerParams:
         raise UsageError(f"--param: {exc}") from None
 
 
-def learned_model(points: int, seed: int = 0) -> tuple[Roger, BenchStream]:
+def learned_model(points: int, seed: int = 0,
+                  on_step: Callable[[Roger, int], None] | None = None
+                  ) -> tuple[Roger, BenchStream]:
     """A ROGER model that learned the first ``points`` pairs of the benchmark's synthetic
     stream (paper parameters), and the stream: the state the diagnostic scripts inspect
-    (``scripts/learner_bandwidth.py``, ``scripts/learner_shared_base.py``)."""
+    (``scripts/learner_bandwidth.py``, ``scripts/learner_shared_base.py``); ``on_step(model,
+    i)`` is called after the ``i``-th pair."""
     stream = load_stream("synthetic", None, BENCH_SEED, [])
     model = Roger(stream.x.shape[1], stream.y.shape[1], stream.params, seed=seed)
     for i in range(points):
         model.learn_one(stream.x[i], stream.y[i])
+        if on_step is not None:
+            on_step(model, i)
     return model, stream
 
 
