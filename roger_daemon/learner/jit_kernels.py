@@ -134,17 +134,18 @@ def rank_update_cq(cmat: FloatArray, qmat: FloatArray, n: int, i: int, uc: Float
             cmat[a, i] = 0.0
             qmat[i, a] = 0.0
             qmat[a, i] = 0.0
+    # Q first: the caller has just read it for Q k, so it is still in the core's cache
+    for a in range(n):
+        w0 = cq[0] * uq[0, a]
+        w1 = cq[1] * uq[1, a]
+        for b in range(n):
+            qmat[a, b] += w0 * uq[0, b] + w1 * uq[1, b]
     for a in range(n):
         v0 = cc[0] * uc[0, a]
         v1 = cc[1] * uc[1, a]
         v2 = cc[2] * uc[2, a]
         for b in range(n):
             cmat[a, b] += v0 * uc[0, b] + v1 * uc[1, b] + v2 * uc[2, b]
-    for a in range(n):
-        w0 = cq[0] * uq[0, a]
-        w1 = cq[1] * uq[1, a]
-        for b in range(n):
-            qmat[a, b] += w0 * uq[0, b] + w1 * uq[1, b]
 
 
 @_compiled(nogil=True)

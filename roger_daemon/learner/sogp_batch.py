@@ -32,9 +32,10 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
                 terms: Sequence[Terms | None]) -> None:
     """Learn the same pair in several distinct experts (one ROGER step's chosen experts).
 
-    Equivalent to ``gp.update(x, y, t)`` for each, but the experts on the hot path (full,
-    contiguous, ``x`` novel) share one batched evaluation of the fused add-then-delete step,
-    so the per-expert Python work is a handful of in-place BLAS calls.
+    Equivalent to ``gp.update(x, y, t)`` for each (except that a non-novel point never
+    re-inverts ``Q``: a projection update leaves ``Q`` unchanged).  The experts on the hot path
+    (full, contiguous) are updated one after the other, each by ``Q k``, the novelty test and
+    then one compiled fused add-then-delete step (:mod:`.sogp_fused`) or a projection update.
     """
     full: list[SparseOnlineGP] = []
     full_terms: list[Terms] = []
@@ -48,47 +49,34 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
         return
     y_pub = y
     kstar = full[0].kernel.k_star
-    ks = np.stack([t[0] for t in full_terms])
-    cks = np.stack([t[1] for t in full_terms])
-    means = np.stack([t[2] for t in full_terms])
     if full[0].prior_mean:  # extend by the a1 column: target 1, prediction a1^T k (one model)
         y = np.append(y, 1.0)
-        a1k = np.array([float(k @ gp._A[:, gp.d_y]) for gp, k in zip(full, ks, strict=True)])
-        means = np.concatenate([means, a1k[:, None]], axis=1)
-    latents = np.array([t[3] for t in full_terms])
-    e_hat = np.stack([_jit.matvec(gp._Q, k, gp.n)  # step 3: Q k
-                      for gp, k in zip(full, ks, strict=True)])
-    gamma = kstar - np.einsum("un,un->u", ks, e_hat)
-    for j, gp in enumerate(full):
-        if gp.q_inconsistent(float(gamma[j])):
+    # one expert at a time, its Q k right before its own pass over Q (the step's other experts
+    # would evict Q from the core's cache in between: docs/performance.md)
+    for gp, t in zip(full, full_terms, strict=True):
+        k, ck, mean, latent = t
+        if gp.prior_mean:
+            mean = np.append(mean, float(k @ gp._A[:, gp.d_y]))
+        e_hat = _jit.matvec(gp._Q, k, gp.n)  # step 3: Q k
+        gamma = kstar - float(np.einsum("un,un->u", k[None], e_hat[None])[0])
+        if gp.q_inconsistent(gamma):
             gp.refresh_inverse_gram()
-            e_hat[j] = _jit.matvec(gp._Q, ks[j], gp.n)
-            gamma[j] = kstar - float(ks[j] @ e_hat[j])
-    gamma[gamma < _GAMMA_FLOOR] = 0.0
-    thresholds = np.array([g.novelty_threshold for g in full]) * kstar
-    for gp, m in zip(full, (np.abs(gamma - thresholds) / kstar).tolist(), strict=True):
-        gp.novelty_margin = m
-    novel = (gamma >= thresholds) & (gamma > 0.0)
-    if not np.all(novel):
-        for j in np.flatnonzero(~novel).tolist():  # step 4a for the non-novel few
-            gp = full[j]
-            gp.n_points += 1
-            s0 = gp.noise
-            gp._sparse_update(cks[j], e_hat[j], float(gamma[j]), -1.0 / (s0 + latents[j]),
-                              (y - means[j]) / (s0 + latents[j]))
-            gp._clean_up()
-            gp._shift_mean(y_pub)
-        keep = np.flatnonzero(novel)
-        full = [full[j] for j in keep.tolist()]
-        if not full:
-            return
-        ks, cks, means, latents = ks[keep], cks[keep], means[keep], latents[keep]
-        e_hat, gamma = e_hat[keep], gamma[keep]
-    for gp in full:
+            e_hat = _jit.matvec(gp._Q, k, gp.n)
+            gamma = kstar - float(k @ e_hat)
+        if gamma < _GAMMA_FLOOR:
+            gamma = 0.0
+        threshold = gp.novelty_threshold * kstar
+        gp.novelty_margin = abs(gamma - threshold) / kstar
         gp.n_points += 1
-    _fused_add_delete(full, x, y, ks, cks, means, latents, e_hat, gamma)
-    for gp, g in zip(full, gamma.tolist(), strict=True):
-        gp._clean_up()
-        if g < _NEAR_DEPENDENT * kstar and gp.n > 1:
-            gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+        s0 = gp.noise
+        if gamma < threshold or gamma <= 0.0:  # step 4a for the non-novel few
+            gp._sparse_update(ck, e_hat, gamma, -1.0 / (s0 + latent),
+                              (y - mean) / (s0 + latent))
+            gp._clean_up()
+        else:
+            _fused_add_delete([gp], x, y, k[None], ck[None], mean[None], np.array([latent]),
+                              e_hat[None], np.array([gamma]))
+            gp._clean_up()
+            if gamma < _NEAR_DEPENDENT * kstar and gp.n > 1:
+                gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
         gp._shift_mean(y_pub)
