@@ -1,10 +1,11 @@
 """How far the learner step is from the memory bandwidth bound (issue 11, docs/fleet.md).
 
-Counts the passes over the experts' ``beta x beta`` matrices that one ROGER step makes on the
-benchmark stream (``roger bench learner``: paper parameters), measures how fast this machine
-streams such a matrix when the experts do not fit in the core's cache (cycling over as many
-distinct matrices as the step touches) and when one matrix stays cached, and prints the time
-those passes alone take per step.
+Counts the passes over the experts' ``beta x beta`` symmetric matrices (``C`` and ``Q``, stored
+packed: their upper triangles, :mod:`roger_daemon.learner.packed`) that one ROGER step makes on
+the benchmark stream (``roger bench learner``: paper parameters), measures how fast this
+machine streams such a matrix when the experts do not fit in the core's cache (cycling over as
+many distinct matrices as the step touches) and when one matrix stays cached, and prints the
+time those passes alone take per step.
 
     .venv/bin/python scripts/learner_bandwidth.py [--points 1500] [--json]
 """
@@ -20,7 +21,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import learned_model, print_report
-from roger_daemon.learner import jit
+from roger_daemon.learner import jit, packed
 
 
 def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
@@ -29,7 +30,7 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
     jit._load()
-    originals = {name: getattr(jit, name) for name in ("expert_terms", "matvec", "fused_step")}
+    originals = {name: getattr(jit, name) for name in ("expert_terms", "sym_matvec", "fused_step")}
 
     def counted(name: str, fn: Any) -> Any:
         def wrapper(*args: Any) -> Any:
@@ -52,15 +53,15 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
             model.params.beta)
 
 
-def stream_us(mats: list[np.ndarray], repeats: int) -> float:
-    """Microseconds per ``matvec`` pass, cycling over ``mats``."""
-    v = np.ones(mats[0].shape[0])
-    n = v.size
-    jit.matvec(mats[0], v, n)
+def stream_us(mats: list[np.ndarray], n: int, repeats: int) -> float:
+    """Microseconds per ``sym_matvec`` pass over a packed ``n x n`` matrix, cycling over
+    ``mats``."""
+    v = np.ones(n)
+    jit.sym_matvec(mats[0], v, n, n)
     t0 = time.perf_counter()
     for _ in range(repeats):
         for m in mats:
-            jit.matvec(m, v, n)
+            jit.sym_matvec(m, v, n, n)
     return (time.perf_counter() - t0) / (repeats * len(mats)) * 1e6
 
 
@@ -72,12 +73,13 @@ def main() -> int:
     with threadpool_limits(1):
         per_step, step_ms, unique, beta = count_passes(args.points)
         rng = np.random.default_rng(0)
-        mats = [rng.standard_normal((beta, beta)) for _ in range(3 * unique)]  # C, Q, K_B
-        cold = stream_us(mats, 50)
-        hot = stream_us(mats[:1], 2000)
-    mb = beta * beta * 8 / 1e6
+        size = packed.packed_size(beta)
+        mats = [rng.standard_normal(size) for _ in range(3 * unique)]  # C, Q (and K_B's room)
+        cold = stream_us(mats, beta, 50)
+        hot = stream_us(mats[:1], beta, 2000)
+    mb = packed.packed_size(beta) * 8 / 1e6
     # a C k or Q k pass reads one matrix; the fused step reads and writes C and Q
-    reads = per_step.get("expert_terms", 0.0) + per_step.get("matvec", 0.0)
+    reads = per_step.get("expert_terms", 0.0) + per_step.get("sym_matvec", 0.0)
     rw = 2 * per_step.get("fused_step", 0.0)
     bound_ms = (reads * cold + rw * 2 * cold) / 1e3
     out = {

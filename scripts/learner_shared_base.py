@@ -5,8 +5,8 @@ the particles' versions of a few experts (docs/performance.md). This learns the 
 ``--points``, groups the live versions by expert id, takes one version of each group as the
 base and measures, for every other version, the numerical rank of ``C_v - C_base`` and
 ``Q_v - Q_base`` (eigenvalues above ``--tol`` times the largest magnitude). It then times the
-read a step makes for the GP likelihood of every version (``k^T C k``): dense, one pass over
-each version's ``C`` (what the learner does now), against one pass over each base plus a
+read a step makes for the GP likelihood of every version (``k^T C k``): one pass over each
+version's packed ``C`` (what the learner does now), against one pass over each base plus a
 thin correction per version (``k^T C_base k + sum_i d_i (u_i . k)^2``). The floats of the two
 agree to rounding (printed); nothing in the learner changes.
 
@@ -35,7 +35,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import learned_model, print_report
-from roger_daemon.learner import jit, roger_step, sogp
+from roger_daemon.learner import jit, packed, roger_step, sogp
 
 
 def low_rank(delta: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -150,30 +150,33 @@ def main() -> int:
         for gps in groups.values():
             base = gps[0]
             n = base.n
-            bases.append(np.ascontiguousarray(base._C[:n, :n]))
+            bases.append(base.C)  # unpacked (n x n)
             for gp in gps:
                 if gp.n != n:  # a version of another size: kept dense
-                    dense.append(np.ascontiguousarray(gp._C[:gp.n, :gp.n]))
+                    dense.append(gp.C)
                     continue
-                c = np.ascontiguousarray(gp._C[:n, :n])
+                c = gp.C
                 dense.append(c)
                 u, d = low_rank(c - bases[-1], args.tol)
                 ranks_c.append(len(d))
-                ranks_q.append(len(low_rank(gp._Q[:n, :n] - base._Q[:n, :n], args.tol)[1]))
+                ranks_q.append(len(low_rank(gp.Q - base.Q, args.tol)[1]))
                 thin.append((len(bases) - 1, u, d))
                 k = np.exp(-0.1 * np.sum((gp._B[:n] - x) ** 2, axis=1))
                 exact = float(k @ c @ k)
                 approx = float(k @ bases[-1] @ k + np.sum(d * (u @ k) ** 2))
                 errs.append(abs(exact - approx) / max(abs(exact), 1e-300))
         k = np.ones(max(m.shape[0] for m in dense))
+        # timed as the learner stores them: packed upper triangles (learner.packed)
+        dense_p = [(packed.pack(m, m.shape[0]), m.shape[0]) for m in dense]
+        bases_p = [(packed.pack(m, m.shape[0]), m.shape[0]) for m in bases]
 
         def run_dense() -> None:
-            for m in dense:
-                jit.matvec(m, k, m.shape[0])
+            for m, n in dense_p:
+                jit.sym_matvec(m, k, n, n)
 
         def run_shared() -> None:
-            for m in bases:
-                jit.matvec(m, k, m.shape[0])
+            for m, n in bases_p:
+                jit.sym_matvec(m, k, n, n)
             for _, u, d in thin:
                 np.sum(d * (u @ k[:u.shape[1]]) ** 2)
 

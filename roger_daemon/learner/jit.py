@@ -22,8 +22,8 @@ SMALL = 64
 
 KERNELS = ("cholesky_inverse", "expert_terms",
            "fused_delete_index", "fused_step",
-           "gate_log_predictive", "gate_update", "kernel_vector", "matvec", "rank_update_cq",
-           "trace_lineages")
+           "gate_log_predictive", "gate_update", "kernel_vector", "packed_add_lowrank",
+           "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row", "trace_lineages")
 
 
 def _load() -> None:
@@ -48,14 +48,17 @@ def warm_up() -> None:
     n = 2
     basis = np.zeros((n, 1))
     mat = np.eye(n)
+    sym = np.array([1.0, 0.0, 1.0])  # the identity, packed (:mod:`.packed`)
     k.kernel_vector(basis, np.zeros(1), 1.0, n)
-    k.matvec(mat, np.zeros(n), n)
-    k.expert_terms(basis, mat, np.zeros((n, 1)), np.zeros(1), 1.0, n)
-    k.rank_update_cq(mat.copy(), mat.copy(), n, 0, np.zeros((3, n)), np.zeros(3),
+    k.sym_matvec(sym, np.zeros(n), n, n)
+    k.sym_row(sym, n, n, 1)
+    k.packed_add_lowrank(sym.copy(), n, n, np.zeros((1, n)), np.zeros(1))
+    k.expert_terms(basis, sym, np.zeros((n, 1)), np.zeros(1), 1.0, n, n)
+    k.rank_update_cq(sym.copy(), sym.copy(), n, n, 0, np.zeros((3, n)), np.zeros(3),
                      np.zeros((2, n)), np.zeros(2))
     k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
     vn, one = np.ones(n), np.ones(1)
-    k.fused_step(basis.copy(), np.zeros((n, 1)), -mat.copy(), mat.copy(), mat.copy(), 2 * vn,
+    k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), mat.copy(), 2 * vn,
                  np.zeros(1), 0.5 * vn, -0.1 * vn, 0.5 * vn, one, one, -0.5, 0.5, 1.0)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))

@@ -7,12 +7,15 @@ and updates the chosen ones; with small experts (the AIBO experiment's broad ker
 basis vectors) the cost was numpy's per-call overhead, not arithmetic.  These kernels do one
 expert's work in one call:
 
-* :func:`expert_terms`: ``k``, ``C k``, ``k^T C k`` and ``k^T A`` in one pass, at every size
-  (at ``beta = 300`` it reads ``C`` ~1.7x faster than numpy's BLAS ``C @ k``: 25 vs 43 us per
-  cache-cold 300 x 300 product on the 2-core EPYC, /tmp micro-benchmark, issue 11);
-* :func:`matvec`: ``Q k`` for the novelty test, the same compiled loop;
+``C`` and ``Q`` are stored packed (their upper triangles, :mod:`.packed`): every pass over
+them streams half the bytes of a full matrix.
+
+* :func:`expert_terms`: ``k``, ``C k``, ``k^T C k`` and ``k^T A`` in one pass, at every size;
+* :func:`sym_matvec`: ``Q k`` for the novelty test, the same packed loop
+  (:func:`sym_matvec_into`), and :func:`sym_row`, one row of a packed matrix;
 * :func:`rank_update_cq`: the fused hot path's rank-3 update of ``C`` and rank-2 update of
   ``Q`` in one pass over the two buffers, with row and column ``i`` zeroed first;
+  :func:`packed_add_lowrank`: the other steps' low-rank updates;
 * :func:`fused_step` (with :func:`fused_delete_index`): the whole fused add-then-delete step
   of one full expert (:mod:`.sogp_fused`), ending in :func:`rank_update_cq`;
 * :func:`cholesky_inverse`: ``K^{-1}`` of a small SPD matrix (Cholesky, then the inverse from
@@ -40,8 +43,8 @@ from numba import njit
 
 __all__ = ["cholesky_inverse", "expert_terms",
            "fused_delete_index", "fused_step",
-           "gate_log_predictive", "gate_update", "kernel_vector", "matvec", "rank_update_cq",
-           "trace_lineages"]
+           "gate_log_predictive", "gate_update", "kernel_vector", "packed_add_lowrank",
+           "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row", "trace_lineages"]
 
 FloatArray = npt.NDArray[np.float64]
 F = TypeVar("F", bound=Callable[..., Any])
@@ -79,22 +82,89 @@ def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> Flo
 
 
 @_compiled(fastmath=_FM, nogil=True)
-def matvec(mat: FloatArray, v: FloatArray, n: int) -> FloatArray:
-    """``mat[:n, :n] @ v`` (row by row; one streaming pass over the live block)."""
-    out = np.empty(n)
+def sym_matvec_into(buf: FloatArray, v: FloatArray, n: int, alloc: int, out: FloatArray) -> None:
+    """``out[:n] = S v`` for the symmetric ``S`` packed in ``buf`` (:mod:`.packed`): one
+    streaming pass over the upper triangle of the live block, each stored ``S_ij`` used for
+    row ``i`` (a dot product) and row ``j`` (an axpy).  Two rows at a time, so that each
+    load and store of the axpy's accumulator serves two rows (1.2x cache-cold, 1.5x cached
+    against one row at a time: /tmp micro-benchmark, 2026-11-25, issue 11)."""
     for i in range(n):
-        s = 0.0
-        for j in range(n):
-            s += mat[i, j] * v[j]
-        out[i] = s
+        out[i] = 0.0
+    off = 0
+    i = 0
+    while i + 1 < n:
+        r0 = buf[off: off + n - i]  # S[i, i:n]
+        off1 = off + alloc - i
+        r1 = buf[off1: off1 + n - i - 1]  # S[i+1, i+1:n]
+        v0 = v[i]
+        v1 = v[i + 1]
+        s0 = r0[0] * v0 + r0[1] * v1
+        s1 = r1[0] * v1
+        out[i + 1] += r0[1] * v0
+        t0 = r0[2:]
+        t1 = r1[1:]
+        tail = v[i + 2:n]
+        acc = out[i + 2:n]
+        for j in range(n - i - 2):
+            a = t0[j]
+            b = t1[j]
+            t = tail[j]
+            s0 += a * t
+            s1 += b * t
+            acc[j] += a * v0 + b * v1
+        out[i] += s0
+        out[i + 1] += s1
+        off = off1 + alloc - i - 1
+        i += 2
+    if i < n:  # the last row of an odd n: its diagonal entry only
+        out[i] += buf[off] * v[i]
+
+
+@_compiled(fastmath=_FM, nogil=True)
+def sym_matvec(buf: FloatArray, v: FloatArray, n: int, alloc: int) -> FloatArray:
+    """``S v`` over the live ``n x n`` block of the packed symmetric ``S`` (``Q k``)."""
+    out = np.empty(n)
+    sym_matvec_into(buf, v, n, alloc, out)
     return out
+
+
+@_compiled(nogil=True)
+def sym_row(buf: FloatArray, alloc: int, n: int, i: int) -> FloatArray:
+    """Row (= column) ``i`` of the live block of the packed symmetric ``S``."""
+    out = np.empty(n)
+    off = 0
+    for a in range(i):
+        out[a] = buf[off + i - a]
+        off += alloc - a
+    for a in range(i, n):
+        out[a] = buf[off + a - i]
+    return out
+
+
+@_compiled(fastmath={"contract"}, nogil=True)
+def packed_add_lowrank(buf: FloatArray, alloc: int, n: int, cols: FloatArray,
+                       coefs: FloatArray) -> None:
+    """``S += cols^T diag(coefs) cols`` on the live ``n x n`` block of the packed ``S``, in
+    place; ``cols`` is (m, n), the update's vectors as rows (one pass per vector)."""
+    for r in range(cols.shape[0]):
+        u = cols[r]
+        c = coefs[r]
+        off = 0
+        for a in range(n):
+            row = buf[off: off + n - a]
+            tail = u[a:n]
+            va = c * u[a]
+            for b in range(n - a):
+                row[b] += va * tail[b]
+            off += alloc - a
 
 
 @_compiled(fastmath=_FM, nogil=True)
 def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatArray,
-                 gamma: float, n: int) -> FloatArray:
-    """``[k, C k, k^T C k, k^T A]`` over the live ``n`` rows (every column of ``A``), packed in
-    one array of length ``2 n + 1 + cols`` (one boxed result: each costs a numba unpickle)."""
+                 gamma: float, n: int, alloc: int) -> FloatArray:
+    """``[k, C k, k^T C k, k^T A]`` over the live ``n`` rows (every column of ``A``; ``C``
+    packed for ``alloc`` basis vectors), packed in one array of length ``2 n + 1 + cols``
+    (one boxed result: each costs a numba unpickle)."""
     cols = coef.shape[1]
     out = np.zeros(2 * n + 1 + cols)
     d = basis.shape[1]
@@ -104,13 +174,12 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
             t = basis[i, j] - x[j]
             s += t * t
         out[i] = math.exp(-gamma * s)
+    k = out[:n]
+    ck = out[n: 2 * n]
+    sym_matvec_into(cov, k, n, alloc, ck)
     kck = 0.0
     for i in range(n):
-        s = 0.0
-        for j in range(n):
-            s += cov[i, j] * out[j]
-        out[n + i] = s
-        kck += out[i] * s
+        kck += k[i] * ck[i]
     out[2 * n] = kck
     base = 2 * n + 1
     for i in range(n):
@@ -121,31 +190,45 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
 
 
 @_compiled(fastmath={"contract"}, nogil=True)
-def rank_update_cq(cmat: FloatArray, qmat: FloatArray, n: int, i: int, uc: FloatArray,
-                   cc: FloatArray, uq: FloatArray, cq: FloatArray) -> None:
+def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: int,
+                   uc: FloatArray, cc: FloatArray, uq: FloatArray, cq: FloatArray) -> None:
     """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
-    ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks, in place, one pass each.
+    ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks of the packed ``C`` and ``Q``, in
+    place, one pass over each upper triangle.
 
     ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.
     """
     if i >= 0:
-        for a in range(n):
-            cmat[i, a] = 0.0
-            cmat[a, i] = 0.0
-            qmat[i, a] = 0.0
-            qmat[a, i] = 0.0
+        off = 0
+        for a in range(i):
+            cbuf[off + i - a] = 0.0
+            qbuf[off + i - a] = 0.0
+            off += alloc - a
+        for a in range(n - i):
+            cbuf[off + a] = 0.0
+            qbuf[off + a] = 0.0
     # Q first: the caller has just read it for Q k, so it is still in the core's cache
+    q0, q1 = uq[0], uq[1]
+    off = 0
     for a in range(n):
-        w0 = cq[0] * uq[0, a]
-        w1 = cq[1] * uq[1, a]
-        for b in range(n):
-            qmat[a, b] += w0 * uq[0, b] + w1 * uq[1, b]
+        row = qbuf[off: off + n - a]
+        t0, t1 = q0[a:n], q1[a:n]
+        w0 = cq[0] * q0[a]
+        w1 = cq[1] * q1[a]
+        for b in range(n - a):
+            row[b] += w0 * t0[b] + w1 * t1[b]
+        off += alloc - a
+    c0, c1, c2 = uc[0], uc[1], uc[2]
+    off = 0
     for a in range(n):
-        v0 = cc[0] * uc[0, a]
-        v1 = cc[1] * uc[1, a]
-        v2 = cc[2] * uc[2, a]
-        for b in range(n):
-            cmat[a, b] += v0 * uc[0, b] + v1 * uc[1, b] + v2 * uc[2, b]
+        row = cbuf[off: off + n - a]
+        t0, t1, t2 = c0[a:n], c1[a:n], c2[a:n]
+        v0 = cc[0] * c0[a]
+        v1 = cc[1] * c1[a]
+        v2 = cc[2] * c2[a]
+        for b in range(n - a):
+            row[b] += v0 * t0[b] + v1 * t1[b] + v2 * t2[b]
+        off += alloc - a
 
 
 @_compiled(nogil=True)
@@ -305,7 +388,7 @@ def fused_delete_index(coef: FloatArray, dg: FloatArray, ck: FloatArray, e: Floa
 
 
 @_compiled(fastmath={"contract"}, nogil=True)
-def fused_step(basis: FloatArray, coef: FloatArray, cmat: FloatArray, qmat: FloatArray,
+def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
                gram: FloatArray, dg: FloatArray, x: FloatArray, k: FloatArray, ck: FloatArray,
                e: FloatArray, cw: FloatArray, q: FloatArray, r: float, gamma: float,
                kstar: float) -> FloatArray:
@@ -313,8 +396,9 @@ def fused_step(basis: FloatArray, coef: FloatArray, cmat: FloatArray, qmat: Floa
     in place; returns the new ``diag(C) + diag(Q)``.  The vectors ``s = [Ck; 1]``,
     ``e = [Qk; -1]`` and the columns ``i`` of ``C1`` and ``Q1`` are permuted so that index
     ``n`` sits at ``i``; then ``A``, the diagonal, the basis and ``K_B`` are updated and
-    :func:`rank_update_cq` does the rank-3 and rank-2 updates in one pass."""
-    n = cmat.shape[0]
+    :func:`rank_update_cq` does the rank-3 and rank-2 updates in one pass.  ``C`` and ``Q``
+    are packed (:mod:`.packed`) for as many basis vectors as the expert holds (full)."""
+    n = gram.shape[0]
     d_a = coef.shape[1]
     inv_gamma = 1.0 / gamma
     idx = fused_delete_index(coef, dg, ck, e, cw, q, r, inv_gamma, n)
@@ -330,9 +414,11 @@ def fused_step(basis: FloatArray, coef: FloatArray, cmat: FloatArray, qmat: Floa
     c_n = 1.0 * (r * s_i)  # entry n of C1[:, i] and Q1[:, i]
     q_n = -1.0 * (e_i * inv_gamma)
     if old:
+        crow = sym_row(cbuf, n, n, idx)
+        qrow = sym_row(qbuf, n, n, idx)
         for a in range(n):
-            vs[2, a] += cmat[idx, a]
-            vs[3, a] += qmat[idx, a]
+            vs[2, a] += crow[a]
+            vs[3, a] += qrow[a]
         c_star = vs[2, idx]
         q_star = vs[3, idx]
         vs[0, idx] = 1.0
@@ -378,5 +464,5 @@ def fused_step(basis: FloatArray, coef: FloatArray, cmat: FloatArray, qmat: Floa
             gram[i, a] = k[a]
             gram[a, i] = k[a]
         gram[i, i] = kstar
-    rank_update_cq(cmat, qmat, n, i, uc, cc, uq, cq)
+    rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq)
     return diag

@@ -10,8 +10,8 @@ share the covariance coefficients ``C`` and the inverse Gram matrix ``Q``
 Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (docs/learner-math.md
 §2.5); capacity ``beta`` is enforced by a ``while n > beta`` loop of KL-optimal deletions
 (thesis App. G(g), §2.7), followed by the geometric clean-up.  Every update is a symmetric
-low-rank term, so ``C`` and ``Q`` stay symmetric up to round-off (Csató's ``(C + C^T)/2`` is
-not needed; the tests check it).
+low-rank term and ``C`` and ``Q`` are stored as their upper triangles (:mod:`.packed`), so
+they are exactly symmetric (Csató's ``(C + C^T)/2`` is not needed).
 
 Prior mean (``prior_mean=True``, issue 13): the GP models ``y - m`` where ``m`` is the running
 mean of the outputs learned so far, so far from its data the expert predicts ``m`` instead of 0.
@@ -23,10 +23,11 @@ unchanged; deletion scores use the centred columns only.
 
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
 vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
-one rank-2 update of ``Q``, done in place in one compiled pass over the contiguous
-``beta x beta`` buffers (:mod:`.sogp_fused`, :mod:`.jit`, batched over experts by
-:func:`update_many`).  Buffers grow by 1.5x as an expert does, up to ``beta`` rows.  Cost per
-step: O(n d_x + n^2 + n d_y).
+one rank-2 update of ``Q``, done in place in one compiled pass over each buffer
+(:mod:`.sogp_fused`, :mod:`.jit`, batched over experts by :func:`update_many`).  ``C`` and
+``Q`` are symmetric and stored packed, upper triangle only (:mod:`.packed`): every pass streams
+half the bytes.  Buffers grow by 1.5x as an expert does, up to ``beta`` rows.  Cost per step:
+O(n d_x + n^2 + n d_y).
 
 Modules: this one holds the state, prediction and the update's dispatch; the matrix steps
 (updates, deletion, clean-up, re-inversion of ``Q``) are :mod:`.sogp_steps`, the batched update
@@ -41,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner import jit as _jit
+from roger_daemon.learner import packed as _packed
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
@@ -118,10 +120,12 @@ class SparseOnlineGP(SOGPSteps):
         self.n = 0  # basis vectors
         self.n_points = 0  # pairs learned
         alloc = _alloc if _alloc is not None else self._initial_alloc()
+        self._alloc = alloc  # basis vectors the buffers hold
         self._B: FloatArray = np.zeros((alloc, d_x))
         self._A: FloatArray = np.zeros((alloc, self.a_cols))
-        self._C: FloatArray = np.zeros((alloc, alloc))
-        self._Q: FloatArray = np.zeros((alloc, alloc))
+        # C and Q packed: their upper triangles, row by row (:mod:`.packed`)
+        self._Cp: FloatArray = np.zeros(_packed.packed_size(alloc))
+        self._Qp: FloatArray = np.zeros(_packed.packed_size(alloc))
         # K_B, kept alongside Q (its rows are the kernel vectors already computed when each
         # basis vector entered), so a re-inversion of Q costs a Cholesky, not a Gram matrix
         self._K: FloatArray = np.zeros((alloc, alloc))
@@ -157,14 +161,19 @@ class SparseOnlineGP(SOGPSteps):
         return self._m.copy()
 
     @property
+    def alloc(self) -> int:
+        """Basis vectors the buffers are sized for (``>= n``; ``beta`` once full)."""
+        return self._alloc
+
+    @property
     def C(self) -> FloatArray:
-        """Covariance coefficients (n, n), symmetric, negative-definite-ish."""
-        return self._C[: self.n, : self.n]
+        """Covariance coefficients (n, n), symmetric, negative-definite-ish (a copy, unpacked)."""
+        return _packed.unpack(self._Cp, self._alloc, self.n)
 
     @property
     def Q(self) -> FloatArray:
-        """Inverse Gram matrix ``K_B^{-1}`` (n, n)."""
-        return self._Q[: self.n, : self.n]
+        """Inverse Gram matrix ``K_B^{-1}`` (n, n) (a copy, unpacked)."""
+        return _packed.unpack(self._Qp, self._alloc, self.n)
 
     # -- prediction ------------------------------------------------------------------------------
 
@@ -175,7 +184,8 @@ class SparseOnlineGP(SOGPSteps):
             empty = np.zeros(0)
             return empty, empty, self._m.copy(), self.kernel.k_star
         # one compiled call: kernel, C k, k^T C k, k^T A (one pass over C, no BLAS)
-        packed = _jit.expert_terms(self._B, self._C, self._A, x, self.kernel.gamma, n)
+        packed = _jit.expert_terms(self._B, self._Cp, self._A, x, self.kernel.gamma, n,
+                                   self._alloc)
         k, ck, mean = packed[:n], packed[n: 2 * n], packed[2 * n + 1:]
         kck = float(packed[2 * n])
         latent = max(self.kernel.k_star + kck, LATENT_FLOOR)
@@ -240,8 +250,8 @@ class SparseOnlineGP(SOGPSteps):
                 self._A[0, self.d_y] = 1.0 / (kstar + s0)
             else:
                 self._A[0] = y / (kstar + s0)
-            self._C[0, 0] = -1.0 / (kstar + s0)
-            self._Q[0, 0] = 1.0 / kstar
+            self._Cp[0] = -1.0 / (kstar + s0)  # C[0, 0]: the packed buffer starts with it
+            self._Qp[0] = 1.0 / kstar
             self._K[0, 0] = kstar
             self.n = 1
             self._shift_mean(y)
@@ -252,11 +262,11 @@ class SparseOnlineGP(SOGPSteps):
         r = -1.0 / (s0 + latent)
         q = (y - mean) / (s0 + latent)
         # step 3: novelty, the projection residual gamma = k* - k^T Q k
-        e_hat = _jit.matvec(self._Q, k, n)
+        e_hat = _jit.sym_matvec(self._Qp, k, n, self._alloc)
         gamma = kstar - float(k @ e_hat)
         if self.q_inconsistent(gamma):
             self.refresh_inverse_gram()
-            e_hat = _jit.matvec(self._Q, k, n)
+            e_hat = _jit.sym_matvec(self._Qp, k, n, self._alloc)
             gamma = kstar - float(k @ e_hat)
         if gamma < _GAMMA_FLOOR:
             gamma = 0.0
@@ -265,8 +275,7 @@ class SparseOnlineGP(SOGPSteps):
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
         elif self._fusable():
             # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix
-            _fused_add_delete([self], x, y, k[None], ck[None], mean[None], np.array([latent]),
-                              e_hat[None], np.array([gamma]))
+            _fused_add_delete(self, x, y, k, ck, mean, latent, e_hat, gamma)
         else:
             self._full_update(x, k, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6
@@ -285,11 +294,12 @@ class SparseOnlineGP(SOGPSteps):
         out.fused = self.fused
         out.n = self.n
         out.n_points = self.n_points
+        out._alloc = self._alloc
         # whole buffers: one memcpy each (the padding is never read)
         out._B = self._B.copy()
         out._A = self._A.copy()
-        out._C = self._C.copy()
-        out._Q = self._Q.copy()
+        out._Cp = self._Cp.copy()
+        out._Qp = self._Qp.copy()
         out._K = self._K.copy()
         out._dg = None if self._dg is None else self._dg.copy()
         out.q_refreshes = self.q_refreshes
@@ -308,17 +318,20 @@ class SparseOnlineGP(SOGPSteps):
         n = B.shape[0]
         self.n = 0
         self._dg = None
-        size = max(n, self._C.shape[0] if alloc is None else int(alloc))
-        if size != self._C.shape[0]:
+        size = max(n, self._alloc if alloc is None else int(alloc))
+        if size != self._alloc:
             self._B = np.zeros((size, self.d_x))
             self._A = np.zeros((size, self.a_cols))
-            self._C = np.zeros((size, size))
-            self._Q = np.zeros((size, size))
             self._K = np.zeros((size, size))
+            self._alloc = size
+        self._Cp = np.zeros(_packed.packed_size(size))
+        self._Qp = np.zeros(_packed.packed_size(size))
         self._B[:n] = B
         self._A[:n] = A
-        self._C[:n, :n] = C
-        self._Q[:n, :n] = Q
+        # the upper triangles (a state from before packed storage may hold a C or Q that is
+        # symmetric only to round-off: its upper triangle is taken)
+        _packed.pack_into(self._Cp, size, np.asarray(C, dtype=np.float64), n)
+        _packed.pack_into(self._Qp, size, np.asarray(Q, dtype=np.float64), n)
         self._K[:n, :n] = self.kernel.gram(B, B) if gram is None else gram
         self.n = n
         self.n_points = int(n_points)

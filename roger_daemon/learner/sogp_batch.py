@@ -1,8 +1,9 @@
 """Learning one pair in several experts at once: one ROGER step's chosen experts.
 
 :func:`update_many` is :meth:`.sogp.SparseOnlineGP.update` for each expert, but the experts on
-the hot path (full, contiguous, ``x`` novel) share one batched fused add-then-delete step
-(:mod:`.sogp_fused`).  Split from :mod:`.sogp` (which re-exports it).
+the hot path (full: ``n = beta`` basis vectors in buffers for ``beta``) take the fused
+add-then-delete step (:mod:`.sogp_fused`), one compiled call each.  Split from :mod:`.sogp`
+(which re-exports it).
 """
 
 from __future__ import annotations
@@ -57,11 +58,11 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
         k, ck, mean, latent = t
         if gp.prior_mean:
             mean = np.append(mean, float(k @ gp._A[:, gp.d_y]))
-        e_hat = _jit.matvec(gp._Q, k, gp.n)  # step 3: Q k
+        e_hat = _jit.sym_matvec(gp._Qp, k, gp.n, gp.alloc)  # step 3: Q k
         gamma = kstar - float(np.einsum("un,un->u", k[None], e_hat[None])[0])
         if gp.q_inconsistent(gamma):
             gp.refresh_inverse_gram()
-            e_hat = _jit.matvec(gp._Q, k, gp.n)
+            e_hat = _jit.sym_matvec(gp._Qp, k, gp.n, gp.alloc)
             gamma = kstar - float(k @ e_hat)
         if gamma < _GAMMA_FLOOR:
             gamma = 0.0
@@ -74,8 +75,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
                               (y - mean) / (s0 + latent))
             gp._clean_up()
         else:
-            _fused_add_delete([gp], x, y, k[None], ck[None], mean[None], np.array([latent]),
-                              e_hat[None], np.array([gamma]))
+            _fused_add_delete(gp, x, y, k, ck, mean, latent, e_hat, gamma)
             gp._clean_up()
             if gamma < _NEAR_DEPENDENT * kstar and gp.n > 1:
                 gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q

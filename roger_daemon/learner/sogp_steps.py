@@ -2,8 +2,9 @@
 the re-inversion of ``Q`` (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5-§2.7).
 
 A base class of :class:`.sogp.SparseOnlineGP`, split from it: these methods change the buffers
-``_B``, ``_A``, ``_C``, ``_Q``, ``_K`` in place; the class there owns them, predicts and
-dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.
+``_B``, ``_A``, ``_Cp``, ``_Qp``, ``_K`` in place; the class there owns them, predicts and
+dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.  ``C`` and ``Q`` are stored
+packed (their upper triangles, :mod:`.packed`) in buffers sized for ``_alloc`` basis vectors.
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from scipy.linalg.lapack import dpotrf as _dpotrf
 from scipy.linalg.lapack import dpotri as _dpotri
 
 from roger_daemon.learner import jit as _jit
+from roger_daemon.learner import packed as _packed
 from roger_daemon.learner.kernel import RBFKernel
-from roger_daemon.learner.sogp_fused import add_lowrank as _add_lowrank
 
 __all__ = ["GAMMA_FLOOR", "NEAR_DEPENDENT", "SOGPSteps"]
 
@@ -35,8 +36,8 @@ class SOGPSteps:
     """The in-place matrix steps of a sparse online GP (state: :class:`.sogp.SparseOnlineGP`)."""
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_B", "_A", "_C", "_Q", "_K", "_dg", "q_refreshes",
-                 "prior_mean", "_m", "novelty_margin")
+                 "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_K", "_dg",
+                 "q_refreshes", "prior_mean", "_m", "novelty_margin")
     kernel: RBFKernel
     capacity: int | None
     novelty_threshold: float
@@ -44,10 +45,11 @@ class SOGPSteps:
     d_y: int
     n: int
     q_refreshes: int
+    _alloc: int
     _B: FloatArray
     _A: FloatArray
-    _C: FloatArray
-    _Q: FloatArray
+    _Cp: FloatArray
+    _Qp: FloatArray
     _K: FloatArray
     _dg: FloatArray | None
 
@@ -56,7 +58,7 @@ class SOGPSteps:
         kstar = self.kernel.k_star
         if gamma < -_Q_DRIFT_TOL * kstar:
             return True
-        diag = np.diagonal(self._Q)[: self.n]
+        diag = _packed.diagonal(self._Qp, self._alloc, self.n)
         return bool(diag.size and float(diag.min()) * kstar < 1.0 - _Q_DRIFT_TOL)
 
     def refresh_inverse_gram(self) -> None:
@@ -70,8 +72,10 @@ class SOGPSteps:
         n = self.n
         jitter = 0.0
         if n <= _jit.SMALL:  # compiled: no LAPACK call overhead at this size
-            while not _jit.cholesky_inverse(self._K, n, jitter, self._Q):
+            inverse = np.empty((n, n))
+            while not _jit.cholesky_inverse(self._K, n, jitter, inverse):
                 jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
+            _packed.pack_into(self._Qp, self._alloc, inverse, n)
             self._dg = None
             self.q_refreshes += 1
             return
@@ -83,8 +87,8 @@ class SOGPSteps:
                 break
             jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
         inv, _ = _dpotri(factor, lower=1, overwrite_c=1)
-        low = np.tril(inv)
-        self._Q[:n, :n] = low + np.tril(low, -1).T
+        # the lower triangle holds the inverse: stored as the upper one of its transpose
+        _packed.pack_into(self._Qp, self._alloc, np.ascontiguousarray(inv.T), n)
         self._dg = None
         self.q_refreshes += 1
 
@@ -93,12 +97,14 @@ class SOGPSteps:
         if self._dg is not None:
             return self._dg
         n = self.n
-        return np.diagonal(self._C)[:n] + np.diagonal(self._Q)[:n]
+        return (_packed.diagonal(self._Cp, self._alloc, n)
+                + _packed.diagonal(self._Qp, self._alloc, n))
 
     def _fusable(self) -> bool:
-        """Full and contiguous: the fused add-then-delete hot path applies."""
+        """Full, in buffers sized for exactly ``beta``: the fused add-then-delete hot path
+        applies."""
         return (self.fused and self.capacity is not None and self.n == self.capacity
-                and self._C.shape[0] == self.n)
+                and self._alloc == self.n)
 
     def _sparse_update(self, ck: FloatArray, e_hat: FloatArray, gamma: float, r: float,
                        q: FloatArray) -> None:
@@ -108,7 +114,7 @@ class SOGPSteps:
         eta = 1.0 / (1.0 + gamma * r)
         s_hat = ck + e_hat
         self._A[:n] += np.outer(s_hat, q) * eta
-        _add_lowrank(self._C, n, s_hat[:, None], np.array([r * eta]))
+        _jit.packed_add_lowrank(self._Cp, self._alloc, n, s_hat[None], np.array([r * eta]))
 
     def _clean_up(self) -> None:
         """Steps 5 and 6: ``while n > beta`` delete; geometric clean-up (Csató)."""
@@ -117,7 +123,7 @@ class SOGPSteps:
                 self.delete(self._deletion_choice())
         floor = self.novelty_threshold * 1e-3
         while self.n > 1 and floor > 0.0:
-            diag = np.diagonal(self._Q)[: self.n]
+            diag = _packed.diagonal(self._Qp, self._alloc, self.n)
             i = int(np.argmax(diag))
             if 1.0 / diag[i] >= floor:
                 break
@@ -138,56 +144,62 @@ class SOGPSteps:
         e = np.empty(n + 1)
         e[:n] = e_hat
         e[n] = -1.0
-        for mat in (self._C, self._Q):
-            mat[n, : n + 1] = 0.0
-            mat[:n, n] = 0.0
+        column = _packed.row_offsets(self._alloc)[: n + 1] + (n - np.arange(n + 1))
+        for buf in (self._Cp, self._Qp):
+            buf[column] = 0.0  # row and column n (stale padding after a deletion)
         self._K[n, :n] = k
         self._K[:n, n] = k
         self._K[n, n] = self.kernel.k_star
-        _add_lowrank(self._C, n + 1, s[:, None], np.array([r]))
-        _add_lowrank(self._Q, n + 1, e[:, None], np.array([1.0 / gamma]))
+        _jit.packed_add_lowrank(self._Cp, self._alloc, n + 1, s[None], np.array([r]))
+        _jit.packed_add_lowrank(self._Qp, self._alloc, n + 1, e[None], np.array([1.0 / gamma]))
         self.n = n + 1
 
     def _deletion_choice(self) -> int:
         """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
         n = self.n
         a = self._A[:n, : self.d_y]  # the centred columns (not a1)
-        den = np.diagonal(self._Q)[:n] + np.diagonal(self._C)[:n]
+        den = (_packed.diagonal(self._Qp, self._alloc, n)
+               + _packed.diagonal(self._Cp, self._alloc, n))
         # Q_ii + C_ii > 0 in exact arithmetic (a diagonal of K^-1 Sigma_post K^-1); guard it
         score = np.einsum("ij,ij->i", a, a) / np.maximum(den, 1e-300)
         return int(np.argmin(score))
 
     def delete(self, i: int) -> None:
-        """Remove basis vector ``i`` with the rank-1 corrections of thesis App. G(g) (§2.7)."""
+        """Remove basis vector ``i`` with the rank-1 corrections of thesis App. G(g) (§2.7).
+
+        Off the hot path (the fused step deletes at capacity): ``C`` and ``Q`` are unpacked,
+        ``i`` is permuted to the end, and the live ``(n-1) x (n-1)`` block is packed back."""
         n = self.n
         self._dg = None
         j = n - 1
+        cmat = _packed.unpack(self._Cp, self._alloc, n)
+        qmat = _packed.unpack(self._Qp, self._alloc, n)
         if i != j:  # permute i to the end
             idx = [i, j]
             rev = [j, i]
-            for mat in (self._C, self._Q, self._K):
-                v = mat[:n, :n]
+            for v in (cmat, qmat, self._K[:n, :n]):
                 v[idx] = v[rev]
                 v[:, idx] = v[:, rev]
             self._A[idx] = self._A[rev]
             self._B[idx] = self._B[rev]
         a_star = self._A[j].copy()
-        c_star = float(self._C[j, j])
-        q_star = float(self._Q[j, j])
-        q_v = self._Q[:j, j].copy()
-        w = q_v + self._C[:j, j]
+        c_star = float(cmat[j, j])
+        q_star = float(qmat[j, j])
+        q_v = qmat[:j, j].copy()
+        w = q_v + cmat[:j, j]
         den = q_star + c_star
         inv_den = 1.0 / den if den > 0.0 else 0.0  # broken: Q-only (marginal) removal
         self._A[:j] -= np.outer(w, a_star) * inv_den
-        cols = np.empty((j, 2), order="F")
-        cols[:, 0] = q_v
-        cols[:, 1] = w
-        _add_lowrank(self._C, j, cols, np.array([1.0 / q_star, -inv_den]))
-        _add_lowrank(self._Q, j, cols[:, :1], np.array([-1.0 / q_star]))
+        _packed.pack_into(self._Cp, self._alloc, cmat, j)
+        _packed.pack_into(self._Qp, self._alloc, qmat, j)
+        cols = np.stack([q_v, w])
+        _jit.packed_add_lowrank(self._Cp, self._alloc, j, cols,
+                                np.array([1.0 / q_star, -inv_den]))
+        _jit.packed_add_lowrank(self._Qp, self._alloc, j, cols[:1], np.array([-1.0 / q_star]))
         self.n = j
 
     def _grow(self, need: int) -> None:
-        alloc = self._C.shape[0]
+        alloc = self._alloc
         if need <= alloc:
             return
         new = max(8, (alloc * 3) // 2)
@@ -200,8 +212,9 @@ class SOGPSteps:
             buf = np.zeros((new, old.shape[1]))
             buf[:n] = old[:n]
             setattr(self, name, buf)
-        for name in ("_C", "_Q", "_K"):
-            old = getattr(self, name)
-            buf = np.zeros((new, new))
-            buf[:n, :n] = old[:n, :n]
-            setattr(self, name, buf)
+        self._Cp = _packed.repack(self._Cp, alloc, new, n)
+        self._Qp = _packed.repack(self._Qp, alloc, new, n)
+        gram = np.zeros((new, new))
+        gram[:n, :n] = self._K[:n, :n]
+        self._K = gram
+        self._alloc = new

@@ -135,7 +135,7 @@ def pack_experts(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.
     return {
         "expert_n_bv": ns,
         "expert_n_points": np.array([g.n_points for g in gps], dtype=np.int64),
-        "expert_alloc": np.array([g._C.shape[0] for g in gps], dtype=np.int64),
+        "expert_alloc": np.array([g.alloc for g in gps], dtype=np.int64),
         "expert_B": np.concatenate([g.B for g in gps]) if gps else np.zeros((0, d_x)),
         "expert_A": (np.concatenate([g._A[: g.n] for g in gps]) if gps
                      else np.zeros((0, d_y))),

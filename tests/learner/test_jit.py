@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from roger_daemon.learner import jit_kernels as jit
+from roger_daemon.learner import packed
 from roger_daemon.learner.kernel import RBFKernel
 
 
@@ -23,39 +24,62 @@ def test_kernel_vector_and_expert_terms_match_numpy(n: int) -> None:
     kernel = RBFKernel(0.7, d_x=4)
     alloc = n + 3  # live block inside a larger buffer, as in an expert
     basis = rng.normal(size=(alloc, 4))
-    cov = np.zeros((alloc, alloc))
-    cov[:n, :n] = -_spd(n, rng)
+    cov = -_spd(n, rng)
     coef = rng.normal(size=(alloc, 3))
     x = rng.normal(size=4)
     k = kernel.gram(basis[:n], x[None])[:, 0]
     np.testing.assert_allclose(jit.kernel_vector(basis, x, kernel.gamma, n), k, rtol=1e-13)
-    packed = jit.expert_terms(basis, cov, coef, x, kernel.gamma, n)
-    assert packed.shape == (2 * n + 1 + 3,)
-    ck = cov[:n, :n] @ k
-    np.testing.assert_allclose(packed[:n], k, rtol=1e-13)
-    np.testing.assert_allclose(packed[n:2 * n], ck, rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(packed[2 * n], k @ ck, rtol=1e-12)
-    np.testing.assert_allclose(packed[2 * n + 1:], k @ coef[:n], rtol=1e-12, atol=1e-14)
+    # C packed into a buffer for alloc basis vectors, its padding garbage that must not be read
+    buf = np.full(packed.packed_size(alloc), np.nan)
+    packed.pack_into(buf, alloc, cov, n)
+    out = jit.expert_terms(basis, buf, coef, x, kernel.gamma, n, alloc)
+    assert out.shape == (2 * n + 1 + 3,)
+    ck = cov @ k
+    np.testing.assert_allclose(out[:n], k, rtol=1e-13)
+    np.testing.assert_allclose(out[n:2 * n], ck, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(out[2 * n], k @ ck, rtol=1e-12)
+    np.testing.assert_allclose(out[2 * n + 1:], k @ coef[:n], rtol=1e-12, atol=1e-14)
 
 
 @pytest.mark.parametrize("n", [1, 40, 300])
-def test_matvec_and_large_expert_terms_match_numpy(n: int) -> None:
+def test_sym_matvec_and_large_expert_terms_match_numpy(n: int) -> None:
     """Both compiled products also serve beta = 300 experts (no BLAS branch above 64 BVs)."""
     rng = np.random.default_rng(n + 7)
     alloc = n + 2
-    mat = np.zeros((alloc, alloc))
-    mat[:n, :n] = _spd(n, rng, cond=1e6)
+    mat = _spd(n, rng, cond=1e6)
+    buf = np.full(packed.packed_size(alloc), np.nan)
+    packed.pack_into(buf, alloc, mat, n)
     v = rng.normal(size=n)
-    np.testing.assert_allclose(jit.matvec(mat, v, n), mat[:n, :n] @ v, rtol=1e-11, atol=1e-13)
+    np.testing.assert_allclose(jit.sym_matvec(buf, v, n, alloc), mat @ v, rtol=1e-11,
+                               atol=1e-13)
+    for i in (0, n // 2, n - 1):
+        np.testing.assert_array_equal(jit.sym_row(buf, alloc, n, i), np.triu(mat)[i]
+                                      + np.triu(mat, 1)[:, i])
     kernel = RBFKernel(0.9, d_x=3)
     basis = rng.normal(size=(alloc, 3))
     coef = rng.normal(size=(alloc, 2))
     x = rng.normal(size=3)
     k = kernel.gram(basis[:n], x[None])[:, 0]
-    packed = jit.expert_terms(basis, -mat, coef, x, kernel.gamma, n)
-    ck = -mat[:n, :n] @ k
-    np.testing.assert_allclose(packed[n:2 * n], ck, rtol=1e-11, atol=1e-13)
-    np.testing.assert_allclose(packed[2 * n], k @ ck, rtol=1e-11, atol=1e-13)
+    out = jit.expert_terms(basis, -buf, coef, x, kernel.gamma, n, alloc)
+    ck = -mat @ k
+    np.testing.assert_allclose(out[n:2 * n], ck, rtol=1e-11, atol=1e-13)
+    np.testing.assert_allclose(out[2 * n], k @ ck, rtol=1e-11, atol=1e-13)
+
+
+def test_packing_round_trips_and_packed_add_lowrank_is_a_low_rank_term() -> None:
+    rng = np.random.default_rng(3)
+    n, alloc = 7, 10
+    sym = rng.normal(size=(n, n))
+    sym = sym + sym.T
+    buf = packed.pack(sym, alloc)
+    assert buf.shape == (alloc * (alloc + 1) // 2,)
+    np.testing.assert_array_equal(packed.unpack(buf, alloc, n), sym)
+    np.testing.assert_array_equal(packed.diagonal(buf, alloc, n), np.diagonal(sym))
+    np.testing.assert_array_equal(packed.unpack(packed.repack(buf, alloc, 12, n), 12, n), sym)
+    cols, coefs = rng.normal(size=(2, n)), np.array([0.5, -1.5])
+    jit.packed_add_lowrank(buf, alloc, n, cols, coefs)
+    np.testing.assert_allclose(packed.unpack(buf, alloc, n), sym + (cols.T * coefs) @ cols,
+                               rtol=1e-13, atol=1e-13)
 
 
 @pytest.mark.parametrize("i", [-1, 0, 6])
@@ -73,11 +97,10 @@ def test_rank_update_cq_is_zeroing_then_two_low_rank_terms(i: int) -> None:
             m[:, i] = 0.0
     want_c += (uc.T * cc) @ uc
     want_q += (uq.T * cq) @ uq
-    cmat, qmat = c0.copy(), q0.copy()
-    jit.rank_update_cq(cmat, qmat, n, i, uc, cc, uq, cq)
-    np.testing.assert_allclose(cmat, want_c, rtol=1e-13, atol=1e-13)
-    np.testing.assert_allclose(qmat, want_q, rtol=1e-13, atol=1e-13)
-    np.testing.assert_allclose(cmat, cmat.T, rtol=0, atol=1e-13)  # symmetric up to round-off
+    cbuf, qbuf = packed.pack(c0, n), packed.pack(q0, n)
+    jit.rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq)
+    np.testing.assert_allclose(packed.unpack(cbuf, n, n), want_c, rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(packed.unpack(qbuf, n, n), want_q, rtol=1e-13, atol=1e-13)
 
 
 @pytest.mark.parametrize("n", [1, 2, 8, 30])

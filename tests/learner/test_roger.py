@@ -285,7 +285,7 @@ def check_bounded(model: Roger) -> None:
     assert model.n_particles == p.particles
     gps = model.distinct_experts()
     assert gps and all(g.n <= p.beta for g in gps)
-    assert all(g._C.shape[0] <= p.beta for g in gps)  # buffers too
+    assert all(g.alloc <= p.beta for g in gps)  # buffers too
     assert model.n_unique_experts == len(gps)
     # every particle's experts are in the pool; the pool holds nothing else
     assert model.n_unique_experts <= sum(a.size for a in model._particles)
