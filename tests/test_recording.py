@@ -333,6 +333,27 @@ def test_rotation_by_time(tmp_path: Path) -> None:
     assert total == 2 * 30 * 35
 
 
+def test_rotation_releases_the_finished_parts_chunk_index(tmp_path: Path) -> None:
+    """The MCAP writer keeps one index entry per chunk until its file is finished (for the
+    summary): with a chunk a second per robot that is what grows in the daemon's loop process
+    over an hour (docs/fleet.md). Rotation must drop the finished part's writer, so that the
+    growth is bounded by ``rotate_s``."""
+    import gc
+    import weakref
+
+    rec = SessionRecorder(tmp_path, robot="aibo", metadata={}, rotate_bytes=None, rotate_s=10.0,
+                          flush_interval_s=1.0, start_ns=T0)
+    rec.poll(0)
+    first = weakref.ref(rec._writer)
+    for t in range(0, 30 * 15):  # 15 s at 30 Hz: a flushed chunk every second, one rotation
+        _write_ticks(rec, range(t, t + 1))
+        rec.poll(t * TICK)
+    gc.collect()
+    assert len(rec.paths) == 2
+    assert first() is None  # the first part's writer and its chunk indexes are gone
+    rec.close()
+
+
 def test_parse_name() -> None:
     sf = parse_name("/x/roger-my-bot_2-20261118T110640Z_3-012.mcap")
     assert sf is not None

@@ -59,7 +59,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
         if gp.prior_mean:
             mean = np.append(mean, float(k @ gp._A[:, gp.d_y]))
         e_hat = _jit.sym_matvec(gp._Qp, k, gp.n, gp.alloc)  # step 3: Q k
-        gamma = kstar - float(np.einsum("un,un->u", k[None], e_hat[None])[0])
+        gamma = kstar - float(k @ e_hat)  # as SparseOnlineGP.update computes it
         if gp.q_inconsistent(gamma):
             gp.refresh_inverse_gram()
             e_hat = _jit.sym_matvec(gp._Qp, k, gp.n, gp.alloc)
