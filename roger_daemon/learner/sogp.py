@@ -24,7 +24,7 @@ unchanged; deletion scores use the centred columns only.
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
 vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
 one rank-2 update of ``Q``, done in place in one compiled pass over each buffer
-(:mod:`.sogp_fused`, :mod:`.jit`, batched over experts by :func:`update_many`).  ``C`` and
+(:mod:`.sogp_fused`, :mod:`.jit`; one expert after another by :func:`update_many`).  ``C`` and
 ``Q`` are symmetric and stored packed, upper triangle only (:mod:`.packed`): every pass streams
 half the bytes.  Buffers grow by 1.5x as an expert does, up to ``beta`` rows.  Cost per step:
 O(n d_x + n^2 + n d_y).
