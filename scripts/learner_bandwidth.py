@@ -70,6 +70,8 @@ def main() -> int:
     parser.add_argument("--points", type=int, default=1500)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
+    if args.points < 8:
+        parser.error(f"--points must be at least 8 (got {args.points})")
     with threadpool_limits(1):
         per_step, step_ms, unique, beta = count_passes(args.points)
         rng = np.random.default_rng(0)

@@ -144,6 +144,10 @@ def main() -> int:
     parser.add_argument("--no-genealogy", dest="genealogy", action="store_false",
                         help="skip the updates-since-the-common-ancestor count (a second run)")
     args = parser.parse_args()
+    if args.points < 30:
+        parser.error(f"--points must be at least 30 (got {args.points})")
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1 (got {args.repeats})")
     with threadpool_limits(1):
         groups, x = versions(args.points)
         dense, bases, thin, ranks_c, ranks_q, errs = [], [], [], [], [], []
