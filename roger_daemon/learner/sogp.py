@@ -46,7 +46,6 @@ from roger_daemon.learner import packed as _packed
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
-from roger_daemon.learner.sogp_steps import GAMMA_FLOOR as _GAMMA_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 from roger_daemon.learner.sogp_steps import SOGPSteps
 
@@ -261,17 +260,8 @@ class SparseOnlineGP(SOGPSteps):
         # step 2: Gaussian-likelihood scalars (Csató's K2 = r and K1 = q)
         r = -1.0 / (s0 + latent)
         q = (y - mean) / (s0 + latent)
-        # step 3: novelty, the projection residual gamma = k* - k^T Q k
-        e_hat = _jit.sym_matvec(self._Qp, k, n, self._alloc)
-        gamma = kstar - float(k @ e_hat)
-        if self.q_inconsistent(gamma):
-            self.refresh_inverse_gram()
-            e_hat = _jit.sym_matvec(self._Qp, k, n, self._alloc)
-            gamma = kstar - float(k @ e_hat)
-        if gamma < _GAMMA_FLOOR:
-            gamma = 0.0
-        self.novelty_margin = abs(gamma - self.novelty_threshold * kstar) / kstar
-        if gamma < self.novelty_threshold * kstar or gamma <= 0.0:
+        e_hat, gamma = self.novelty(k)  # step 3
+        if not self.is_novel(gamma):
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
         elif self._fusable():
             # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix

@@ -14,9 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit as _jit
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
-from roger_daemon.learner.sogp_steps import GAMMA_FLOOR as _GAMMA_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
 if TYPE_CHECKING:
@@ -48,35 +46,22 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
             gp.update(x, y, t)
     if not full:
         return
-    y_pub = y
     kstar = full[0].kernel.k_star
-    if full[0].prior_mean:  # extend by the a1 column: target 1, prediction a1^T k (one model)
-        y = np.append(y, 1.0)
     # one expert at a time, its Q k right before its own pass over Q (the step's other experts
     # would evict Q from the core's cache in between: docs/performance.md)
     for gp, t in zip(full, full_terms, strict=True):
         k, ck, mean, latent = t
-        if gp.prior_mean:
-            mean = np.append(mean, float(k @ gp._A[:, gp.d_y]))
-        e_hat = _jit.sym_matvec(gp._Qp, k, gp.n, gp.alloc)  # step 3: Q k
-        gamma = kstar - float(k @ e_hat)  # as SparseOnlineGP.update computes it
-        if gp.q_inconsistent(gamma):
-            gp.refresh_inverse_gram()
-            e_hat = _jit.sym_matvec(gp._Qp, k, gp.n, gp.alloc)
-            gamma = kstar - float(k @ e_hat)
-        if gamma < _GAMMA_FLOOR:
-            gamma = 0.0
-        threshold = gp.novelty_threshold * kstar
-        gp.novelty_margin = abs(gamma - threshold) / kstar
+        y_ext, mean = gp._targets(y, mean, k)  # with a prior mean, the a1 column too
+        e_hat, gamma = gp.novelty(k)  # step 3
         gp.n_points += 1
         s0 = gp.noise
-        if gamma < threshold or gamma <= 0.0:  # step 4a for the non-novel few
+        if not gp.is_novel(gamma):  # step 4a for the non-novel few
             gp._sparse_update(ck, e_hat, gamma, -1.0 / (s0 + latent),
-                              (y - mean) / (s0 + latent))
+                              (y_ext - mean) / (s0 + latent))
             gp._clean_up()
         else:
-            _fused_add_delete(gp, x, y, k, ck, mean, latent, e_hat, gamma)
+            _fused_add_delete(gp, x, y_ext, k, ck, mean, latent, e_hat, gamma)
             gp._clean_up()
             if gamma < _NEAR_DEPENDENT * kstar and gp.n > 1:
                 gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
-        gp._shift_mean(y_pub)
+        gp._shift_mean(y)

@@ -45,6 +45,7 @@ class SOGPSteps:
     d_y: int
     n: int
     q_refreshes: int
+    novelty_margin: float
     _alloc: int
     _B: FloatArray
     _A: FloatArray
@@ -52,6 +53,27 @@ class SOGPSteps:
     _Qp: FloatArray
     _K: FloatArray
     _dg: FloatArray | None
+
+    def novelty(self, k: FloatArray) -> tuple[FloatArray, float]:
+        """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma)`` with the projection residual
+        ``gamma = k* - k^T Q k`` of the kernel vector ``k``, after re-inverting ``Q`` if it
+        has visibly drifted, and 0 below :data:`GAMMA_FLOOR`.  Records
+        :attr:`novelty_margin`."""
+        kstar = self.kernel.k_star
+        e_hat = _jit.sym_matvec(self._Qp, k, self.n, self._alloc)
+        gamma = kstar - float(k @ e_hat)
+        if self.q_inconsistent(gamma):
+            self.refresh_inverse_gram()
+            e_hat = _jit.sym_matvec(self._Qp, k, self.n, self._alloc)
+            gamma = kstar - float(k @ e_hat)
+        if gamma < GAMMA_FLOOR:
+            gamma = 0.0
+        self.novelty_margin = abs(gamma - self.novelty_threshold * kstar) / kstar
+        return e_hat, gamma
+
+    def is_novel(self, gamma: float) -> bool:
+        """Full update iff ``gamma >= novelty_threshold * k*`` and ``gamma > 0`` (step 4)."""
+        return not (gamma < self.novelty_threshold * self.kernel.k_star or gamma <= 0.0)
 
     def q_inconsistent(self, gamma: float) -> bool:
         """True when ``Q`` has visibly drifted from ``K_B^-1`` (see ``_Q_DRIFT_TOL``)."""
