@@ -225,14 +225,21 @@ class ProcessLearners(WorkerProcesses):
 
     # --- requests --------------------------------------------------------------------------
 
+    @staticmethod
+    def _with_vocab(s: WorkerSlot, req: dict[str, Any]) -> dict[str, Any]:
+        """``req`` with the label vocabulary when it grew since the worker was last sent it
+        (it only grows; a reset sends it again): the worker labels experts with it, while
+        counting ahead and for a prediction."""
+        if len(s.rt.vocab) != s.vocab_sent:
+            req["vocab"] = list(s.rt.vocab)
+            s.vocab_sent = len(s.rt.vocab)
+        return req
+
     def _send_learn(self, s: WorkerSlot) -> None:
         pair = s.rt.queue.popleft()
         req = {"op": "learn", "x": _vec(pair.x), "y": _vec(pair.y), "code": pair.label,
                "tick": pair.tick}
-        if len(s.rt.vocab) != s.vocab_sent:  # the worker counts labels between requests
-            req["vocab"] = list(s.rt.vocab)
-            s.vocab_sent = len(s.rt.vocab)
-        self.send(s.rt.robot, req, (pair, time.monotonic_ns()))
+        self.send(s.rt.robot, self._with_vocab(s, req), (pair, time.monotonic_ns()))
         s.learns += 1
         s.since_tick = True
 
@@ -303,8 +310,8 @@ class ProcessLearners(WorkerProcesses):
         return out
 
     def _send_predict(self, s: WorkerSlot, perc: Any, recv_ns: int, *, prepared: bool) -> None:
-        self.send(s.rt.robot, {"op": "predict", "x": _vec(perc.x), "tick": perc.tick,
-                               "t": perc.t, "vocab": list(s.rt.vocab)},
+        req = {"op": "predict", "x": _vec(perc.x), "tick": perc.tick, "t": perc.t}
+        self.send(s.rt.robot, self._with_vocab(s, req),
                   (perc, recv_ns, prepared, time.monotonic_ns()))
         s.predicts += 1
 

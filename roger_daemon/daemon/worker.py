@@ -16,8 +16,8 @@ Requests (``op``) and replies:
   -> ``ok``, ``ms``, ``n``, ``experts`` (``ok`` false: the learner rejected the pair, the
   model is unchanged); when no request waits after it, the worker counts the labels of what
   it learned (``_Worker.idle``), so the next prediction need not;
-- ``predict``: ``x``, ``tick``, ``t``, ``vocab`` -> ``ok``, ``pred`` (an encoded
-  ``Prediction``: mean, variance, multimap with majority labels, ``updates``), ``ms``;
+- ``predict``: ``x``, ``tick``, ``t``, ``vocab`` (only when it grew) -> ``ok``, ``pred`` (an
+  encoded ``Prediction``: mean, variance, multimap with majority labels, ``updates``), ``ms``;
 - ``fresh``: replace the model by a fresh one (``reset``) -> ``n``, ``experts``;
 - ``snapshot``: -> ``state`` (the model's ``state_dict``), ``n``;
 - ``stop``: -> ``{}``, then the process exits.
