@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
+
+import numpy as np
+
+from roger_daemon.bench.fleet import period_jitter_ms
 
 
 def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
@@ -24,8 +29,25 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
         for robot in phase["robots"].values():
             assert robot["predictions_per_s"] > 0 and robot["updates"] > 0
             assert robot["busy_ticks"] >= 0 and robot["fed_per_s"] > 0
-            # the daemon's publish stamps: a period, and a delivery that takes time
-            assert 0 <= robot["publish_jitter_p99_ms"] < 1000 / 30
-            assert 0 < robot["delivery_p50_ms"] <= robot["delivery_p99_ms"] < 1000
+            # computed from the daemon's publish stamps and the receipts (timings are
+            # `roger bench` figures, not test assertions: only their consistency is checked)
+            assert math.isfinite(robot["publish_jitter_p99_ms"])
+            assert robot["publish_jitter_p99_ms"] >= 0 and robot["jitter_p99_ms"] >= 0
+            assert 0 < robot["delivery_p50_ms"] <= robot["delivery_p99_ms"]
+            assert math.isfinite(robot["delivery_p99_ms"])
     for robot in report["phases"]["lockstep"]["robots"].values():
         assert 0 < robot["latency_p50_ms"] <= robot["latency_p99_ms"]
+
+
+def test_period_jitter_is_the_distance_of_each_interval_from_the_period() -> None:
+    """Exact oracle: stamps one period apart have no jitter; a publication 5 ms late shows
+    as +5 ms on its interval and -5 ms on the next (both |.| = 5); fewer than 2 stamps give
+    no interval."""
+    period = 1_000_000_000 // 25  # 40 ms at 25 Hz, exact in ns
+    on_time = np.arange(6, dtype=np.int64) * period
+    assert period_jitter_ms(on_time, 25.0).tolist() == [0.0] * 5
+    late = on_time.copy()
+    late[3] += 5_000_000
+    assert period_jitter_ms(late, 25.0).tolist() == [0.0, 0.0, 5.0, 5.0, 0.0]
+    assert period_jitter_ms(on_time[:1], 25.0).size == 0
+    assert period_jitter_ms([], 25.0).size == 0

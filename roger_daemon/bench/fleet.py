@@ -44,12 +44,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from roger_daemon.bench.fleet_client import FleetClient, feed, proc_cpu_s
 from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
 from roger_daemon.harness import DaemonProcess, free_port, write_config
 
-__all__ = ["configure", "run"]
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["configure", "period_jitter_ms", "run"]
 
 TARGETS = {"dropped": 0, "updates_per_s_min": 29.5, "predictions_per_s_min": 29.5,
            "latency_p99_ms": 10.0, "jitter_p99_ms": 5.0}
@@ -84,16 +87,27 @@ def _pct(values: Any, q: float) -> float:
     return float(np.percentile(a, q)) if a.size else float("nan")
 
 
+def period_jitter_ms(stamps_ns: npt.ArrayLike, rate: float) -> FloatArray:
+    """``|interval - 1/rate|`` in ms between consecutive stamps (ns); empty for < 2 stamps.
+
+    >>> period_jitter_ms([0, 33_333_333, 70_000_000], 30.0).round(3).tolist()
+    [0.0, 3.333]
+    """
+    a = np.asarray(stamps_ns, dtype=np.int64)
+    if a.size < 2:
+        return np.zeros(0)
+    return np.abs(np.diff(a) / 1e6 - 1000.0 / rate)
+
+
 def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, Any, Any],
                   rate: float, lockstep: bool) -> dict[str, Any]:
     s0, s1, end = st
     preds = [(t, k, p) for t, k, p in fleet.preds[r] if w0 <= t < w1]
     recv = np.asarray([t for t, _, _ in preds], dtype=np.int64)
     sent = np.asarray([p for _, _, p in preds], dtype=np.int64)
-    nominal = 1000.0 / rate
-    jitter = np.abs(np.diff(recv) / 1e6 - nominal) if len(recv) > 1 else np.zeros(0)
+    jitter = period_jitter_ms(recv, rate)
     # the same split into the daemon's publishing and the delivery (docs/fleet.md)
-    published = np.abs(np.diff(sent) / 1e6 - nominal) if len(sent) > 1 else np.zeros(0)
+    published = period_jitter_ms(sent, rate)
     delivery = (recv - sent) / 1e6
     dt = s1.uptime_s - s0.uptime_s
     out: dict[str, Any] = {
