@@ -1,8 +1,9 @@
-"""The learner's compiled kernels (:mod:`.jit_kernels`), loaded on first use.
+"""The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_particles`), loaded on
+first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
-kernel here imports :mod:`.jit_kernels` and binds its functions into this module, so later
+kernel here imports both modules and binds its functions into this module, so later
 accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles every kernel
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
 """
@@ -27,10 +28,11 @@ KERNELS = ("cholesky_inverse", "expert_terms",
 
 
 def _load() -> None:
-    from roger_daemon.learner import jit_kernels
+    from roger_daemon.learner import jit_kernels, jit_particles
 
-    for name in KERNELS:
-        globals()[name] = getattr(jit_kernels, name)
+    for module in (jit_kernels, jit_particles):
+        for name in module.__all__:
+            globals()[name] = getattr(module, name)
 
 
 def __getattr__(name: str) -> Any:
@@ -43,6 +45,7 @@ def __getattr__(name: str) -> Any:
 def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel now, not inside a first step."""
     from roger_daemon.learner import jit_kernels as k
+    from roger_daemon.learner import jit_particles as gk
 
     _load()
     n = 2
@@ -62,8 +65,8 @@ def warm_up() -> None:
                  np.zeros(1), 0.5 * vn, -0.1 * vn, 0.5 * vn, one, one, -0.5, 0.5, 1.0)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
-    k.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
+    gk.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
                   cube.copy(), vec.copy())
-    k.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
-    k.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
+    gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
+    gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                      np.zeros(1, dtype=np.int64))

@@ -20,10 +20,7 @@ them streams half the bytes of a full matrix.
   of one full expert (:mod:`.sogp_fused`), ending in :func:`rank_update_cq`;
 * :func:`cholesky_inverse`: ``K^{-1}`` of a small SPD matrix (Cholesky, then the inverse from
   the factor), the re-inversion of ``Q`` without LAPACK's per-call overhead;
-* :func:`gate_update`, :func:`gate_log_predictive`: the NIW gates' rank-1 updates and
-  Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each;
-* :func:`trace_lineages`: particles' experts over the segmentation history's window, chased
-  back through the stored ancestors (integers only: exact; :mod:`.history`).
+* the gates' and the segmentation history's kernels are in :mod:`.jit_particles`.
 
 Reductions may be reassociated (``fastmath={"reassoc", "contract"}``: no NaN/inf assumptions), so
 the floats differ from numpy's in the last bits, like another BLAS kernel's; the compiled code
@@ -34,37 +31,18 @@ routine is tested against a numpy oracle (tests/learner/test_jit.py).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
 
-__all__ = ["cholesky_inverse", "expert_terms",
-           "fused_delete_index", "fused_step",
-           "gate_log_predictive", "gate_update", "kernel_vector", "packed_add_lowrank",
-           "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row", "trace_lineages"]
+from roger_daemon.learner.jit_compile import compiled as _compiled
+
+__all__ = ["cholesky_inverse", "expert_terms", "fused_delete_index", "fused_step",
+           "kernel_vector", "packed_add_lowrank", "rank_update_cq", "sym_matvec",
+           "sym_matvec_into", "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
-F = TypeVar("F", bound=Callable[..., Any])
-
 _FM = {"reassoc", "contract"}
-
-
-def _compiled(**options: Any) -> Callable[[F], F]:
-    """``numba.njit(cache=True, **options)``; without the on-disk cache where no cache
-    directory is writable (a read-only install with no usable home: numba then refuses
-    ``cache=True`` when decorating), so the kernels are compiled in every process instead.
-    A hardened service sets ``NUMBA_CACHE_DIR`` to a writable path (configs/systemd)."""
-
-    def wrap(fn: F) -> F:
-        try:
-            return cast(F, njit(cache=True, **options)(fn))
-        except RuntimeError:  # "cannot cache function ...: no locator available"
-            return cast(F, njit(**options)(fn))
-
-    return wrap
 
 
 @_compiled(fastmath=_FM, nogil=True)
@@ -266,91 +244,6 @@ def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -
             out[a, b] = t
             out[b, a] = t
     return True
-
-
-@_compiled(nogil=True)
-def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, nu: FloatArray,
-                mu: FloatArray, lam: FloatArray, prec: FloatArray, logdet: FloatArray) -> None:
-    """NIW rank-1 updates of the gates in ``slots`` (docs/learner-math.md §3.2), in place.
-
-    ``Lambda += w u u^T`` with ``u = x - mu``, ``w = kappa / (kappa + 1)``; the precision by
-    Sherman-Morrison, ``log|Lambda|`` by the determinant lemma (:class:`.gate.GatePool`).
-    """
-    d = x.shape[0]
-    u = np.empty(d)
-    uw = np.empty(d)
-    pu = np.empty(d)
-    puf = np.empty(d)
-    for s in slots:
-        kp = kappa[s]
-        kp1 = kp + 1.0
-        w = kp / kp1
-        for a in range(d):
-            u[a] = x[a] - mu[s, a]
-            uw[a] = u[a] * w
-        for a in range(d):
-            t = 0.0
-            for b in range(d):
-                t += prec[s, a, b] * u[b]
-            pu[a] = t
-        t = 0.0
-        for a in range(d):
-            t += uw[a] * pu[a]
-        f = w / (1.0 + t)
-        for a in range(d):
-            puf[a] = pu[a] * f
-        for a in range(d):
-            ua = u[a]
-            pa = pu[a]
-            for b in range(d):
-                lam[s, a, b] += ua * uw[b]
-                prec[s, a, b] -= pa * puf[b]
-            mu[s, a] += u[a] / kp1
-        kappa[s] = kp1
-        nu[s] += 1.0
-        logdet[s] += math.log1p(t)
-
-
-@_compiled(nogil=True)
-def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatArray,
-                        prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
-                        inv_nu_c: FloatArray) -> FloatArray:
-    """``log t_s(x)`` of the Student-t predictive of every gate in ``slots`` (§3.3)."""
-    d = x.shape[0]
-    out = np.empty(slots.shape[0])
-    diff = np.empty(d)
-    for j in range(slots.shape[0]):
-        s = slots[j]
-        for a in range(d):
-            diff[a] = x[a] - mu[s, a]
-        delta = 0.0
-        for a in range(d):
-            t = 0.0
-            for b in range(d):
-                t += prec[s, a, b] * diff[b]
-            delta += diff[a] * t
-        out[j] = lognorm[s] - half_nu_d[s] * math.log1p(delta * inv_nu_c[s])
-    return out
-
-
-@_compiled(nogil=True)
-def trace_lineages(ancestors: npt.NDArray[np.int32], experts: npt.NDArray[np.int64], n: int,
-                   starts: npt.NDArray[np.int64]
-                   ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    """For each particle ``starts[s]`` of row ``n - 1``: ``ids[t, s] = experts[t, j_t]`` with
-    ``j_{n-1} = starts[s]`` and ``j_{t-1} = ancestors[t, j_t]``, its expert at every row along
-    its lineage (paper Algorithm 1's stored choices, read back), and ``origin[s] = j_{-1}``, the
-    particle it descends from before row 0 (:mod:`.history`)."""
-    m = starts.size
-    ids = np.empty((n, m), dtype=np.int64)
-    origin = np.empty(m, dtype=np.int64)
-    for s in range(m):
-        j = starts[s]
-        for t in range(n - 1, -1, -1):
-            ids[t, s] = experts[t, j]
-            j = ancestors[t, j]
-        origin[s] = j
-    return ids, origin
 
 
 @_compiled(fastmath={"contract"}, nogil=True)

@@ -176,3 +176,16 @@ def test_fused_step_keeps_the_gram_matrix_and_the_diagonal_cache_consistent() ->
     np.testing.assert_allclose(gp._K[:15, :15], kernel.gram(gp.B, gp.B), rtol=1e-13)
     diag = np.diagonal(gp.C) + np.diagonal(gp.Q)
     np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
+
+
+def test_the_lazy_loader_binds_exactly_the_kernels_of_both_modules() -> None:
+    """``jit.KERNELS`` (what ``roger_daemon.learner.jit`` serves and ``warm_up`` compiles) is
+    the union of the kernel modules' exports, and each name resolves to that module's kernel."""
+    from roger_daemon.learner import jit as lazy
+    from roger_daemon.learner import jit_particles
+
+    assert set(lazy.KERNELS) == set(jit.__all__) | set(jit_particles.__all__)
+    assert not set(jit.__all__) & set(jit_particles.__all__)
+    for name in lazy.KERNELS:
+        module = jit if name in jit.__all__ else jit_particles
+        assert getattr(lazy, name) is getattr(module, name)

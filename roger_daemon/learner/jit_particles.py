@@ -1,0 +1,110 @@
+"""Compiled kernels of the particle filter's bookkeeping (numba): gates and lineages.
+
+Imported through :mod:`.jit`, like :mod:`.jit_kernels` (the experts' GP kernels):
+
+* :func:`gate_update`, :func:`gate_log_predictive`: the NIW gates' rank-1 updates and
+  Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each;
+* :func:`trace_lineages`: particles' experts over the segmentation history's window, chased
+  back through the stored ancestors (integers only: exact; :mod:`.history`).
+
+Each is tested against a numpy or plain-Python oracle (tests/learner/test_gate.py,
+tests/learner/test_jit.py).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner.jit_compile import compiled
+
+__all__ = ["gate_log_predictive", "gate_update", "trace_lineages"]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@compiled(nogil=True)
+def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, nu: FloatArray,
+                mu: FloatArray, lam: FloatArray, prec: FloatArray, logdet: FloatArray) -> None:
+    """NIW rank-1 updates of the gates in ``slots`` (docs/learner-math.md §3.2), in place.
+
+    ``Lambda += w u u^T`` with ``u = x - mu``, ``w = kappa / (kappa + 1)``; the precision by
+    Sherman-Morrison, ``log|Lambda|`` by the determinant lemma (:class:`.gate.GatePool`).
+    """
+    d = x.shape[0]
+    u = np.empty(d)
+    uw = np.empty(d)
+    pu = np.empty(d)
+    puf = np.empty(d)
+    for s in slots:
+        kp = kappa[s]
+        kp1 = kp + 1.0
+        w = kp / kp1
+        for a in range(d):
+            u[a] = x[a] - mu[s, a]
+            uw[a] = u[a] * w
+        for a in range(d):
+            t = 0.0
+            for b in range(d):
+                t += prec[s, a, b] * u[b]
+            pu[a] = t
+        t = 0.0
+        for a in range(d):
+            t += uw[a] * pu[a]
+        f = w / (1.0 + t)
+        for a in range(d):
+            puf[a] = pu[a] * f
+        for a in range(d):
+            ua = u[a]
+            pa = pu[a]
+            for b in range(d):
+                lam[s, a, b] += ua * uw[b]
+                prec[s, a, b] -= pa * puf[b]
+            mu[s, a] += u[a] / kp1
+        kappa[s] = kp1
+        nu[s] += 1.0
+        logdet[s] += math.log1p(t)
+
+
+@compiled(nogil=True)
+def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatArray,
+                        prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
+                        inv_nu_c: FloatArray) -> FloatArray:
+    """``log t_s(x)`` of the Student-t predictive of every gate in ``slots`` (§3.3)."""
+    d = x.shape[0]
+    out = np.empty(slots.shape[0])
+    diff = np.empty(d)
+    for j in range(slots.shape[0]):
+        s = slots[j]
+        for a in range(d):
+            diff[a] = x[a] - mu[s, a]
+        delta = 0.0
+        for a in range(d):
+            t = 0.0
+            for b in range(d):
+                t += prec[s, a, b] * diff[b]
+            delta += diff[a] * t
+        out[j] = lognorm[s] - half_nu_d[s] * math.log1p(delta * inv_nu_c[s])
+    return out
+
+
+@compiled(nogil=True)
+def trace_lineages(ancestors: npt.NDArray[np.int32], experts: npt.NDArray[np.int64], n: int,
+                   starts: npt.NDArray[np.int64]
+                   ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """For each particle ``starts[s]`` of row ``n - 1``: ``ids[t, s] = experts[t, j_t]`` with
+    ``j_{n-1} = starts[s]`` and ``j_{t-1} = ancestors[t, j_t]``, its expert at every row along
+    its lineage (paper Algorithm 1's stored choices, read back), and ``origin[s] = j_{-1}``, the
+    particle it descends from before row 0 (:mod:`.history`)."""
+    m = starts.size
+    ids = np.empty((n, m), dtype=np.int64)
+    origin = np.empty(m, dtype=np.int64)
+    for s in range(m):
+        j = starts[s]
+        for t in range(n - 1, -1, -1):
+            ids[t, s] = experts[t, j]
+            j = ancestors[t, j]
+        origin[s] = j
+    return ids, origin
