@@ -58,7 +58,7 @@ def warm_up() -> None:
     k.packed_add_lowrank(sym.copy(), n, n, np.zeros((1, n)), np.zeros(1))
     k.expert_terms(basis, sym, np.zeros((n, 1)), np.zeros(1), 1.0, n, n)
     k.rank_update_cq(sym.copy(), sym.copy(), n, n, 0, np.zeros((3, n)), np.zeros(3),
-                     np.zeros((2, n)), np.zeros(2))
+                     np.zeros((2, n)), np.zeros(2), np.empty(n))
     k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
     vn, one = np.ones(n), np.ones(1)
     k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), mat.copy(), 2 * vn,

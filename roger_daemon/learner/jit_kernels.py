@@ -169,10 +169,12 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
 
 @_compiled(fastmath={"contract"}, nogil=True)
 def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: int,
-                   uc: FloatArray, cc: FloatArray, uq: FloatArray, cq: FloatArray) -> None:
+                   uc: FloatArray, cc: FloatArray, uq: FloatArray, cq: FloatArray,
+                   dq: FloatArray) -> None:
     """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
     ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks of the packed ``C`` and ``Q``, in
-    place, one pass over each upper triangle.
+    place, one pass over each upper triangle; ``dq[:n]`` receives the new ``diag(Q)`` as
+    stored (the novelty test's drift check and the clean-up read it, docs/performance.md).
 
     ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.
     """
@@ -195,6 +197,7 @@ def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: in
         w1 = cq[1] * q1[a]
         for b in range(n - a):
             row[b] += w0 * t0[b] + w1 * t1[b]
+        dq[a] = row[0]
         off += alloc - a
     c0, c1, c2 = uc[0], uc[1], uc[2]
     off = 0
@@ -284,13 +287,14 @@ def fused_delete_index(coef: FloatArray, dg: FloatArray, ck: FloatArray, e: Floa
 def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
                gram: FloatArray, dg: FloatArray, x: FloatArray, k: FloatArray, ck: FloatArray,
                e: FloatArray, cw: FloatArray, q: FloatArray, r: float, gamma: float,
-               kstar: float) -> FloatArray:
+               kstar: float) -> tuple[FloatArray, FloatArray]:
     """One full expert's fused add-then-delete step (:func:`.sogp_fused.fused_add_delete`),
-    in place; returns the new ``diag(C) + diag(Q)``.  The vectors ``s = [Ck; 1]``,
-    ``e = [Qk; -1]`` and the columns ``i`` of ``C1`` and ``Q1`` are permuted so that index
-    ``n`` sits at ``i``; then ``A``, the diagonal, the basis and ``K_B`` are updated and
-    :func:`rank_update_cq` does the rank-3 and rank-2 updates in one pass.  ``C`` and ``Q``
-    are packed (:mod:`.packed`) for as many basis vectors as the expert holds (full)."""
+    in place; returns the new ``diag(C) + diag(Q)`` (tracked) and ``diag(Q)`` (as stored).
+    The vectors ``s = [Ck; 1]``, ``e = [Qk; -1]`` and the columns ``i`` of ``C1`` and ``Q1``
+    are permuted so that index ``n`` sits at ``i``; then ``A``, the diagonal, the basis and
+    ``K_B`` are updated and :func:`rank_update_cq` does the rank-3 and rank-2 updates in one
+    pass.  ``C`` and ``Q`` are packed (:mod:`.packed`) for as many basis vectors as the
+    expert holds (full)."""
     n = gram.shape[0]
     d_a = coef.shape[1]
     inv_gamma = 1.0 / gamma
@@ -357,5 +361,6 @@ def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Floa
             gram[i, a] = k[a]
             gram[a, i] = k[a]
         gram[i, i] = kstar
-    rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq)
-    return diag
+    dq = np.empty(n)
+    rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
+    return diag, dq

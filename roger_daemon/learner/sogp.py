@@ -129,6 +129,7 @@ class SparseOnlineGP(SOGPSteps):
         # basis vector entered), so a re-inversion of Q costs a Cholesky, not a Gram matrix
         self._K: FloatArray = np.zeros((alloc, alloc))
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
+        self._dq: FloatArray | None = None  # diag(Q) as stored, from the fused step
         self.q_refreshes = 0  # re-inversions of Q after detected drift
         # |gamma - threshold k*| / k* of the last update's novelty test (diagnostic, not state;
         # docs/reproducibility.md): how close that discrete decision was to going the other way
@@ -241,7 +242,7 @@ class SparseOnlineGP(SOGPSteps):
         n = self.n
         kstar = self.kernel.k_star
         s0 = self.noise
-        self._dg = None  # the fused path below recomputes it
+        self._forget_diagonals()  # the fused path below recomputes them
         if n == 0:  # first point, §2.5
             self._B[0] = x
             if self.prior_mean:  # targets [y - m, 1]
@@ -292,6 +293,7 @@ class SparseOnlineGP(SOGPSteps):
         out._Qp = self._Qp.copy()
         out._K = self._K.copy()
         out._dg = None if self._dg is None else self._dg.copy()
+        out._dq = None if self._dq is None else self._dq.copy()
         out.q_refreshes = self.q_refreshes
         return out
 
@@ -307,7 +309,7 @@ class SparseOnlineGP(SOGPSteps):
         """
         n = B.shape[0]
         self.n = 0
-        self._dg = None
+        self._forget_diagonals()
         size = max(n, self._alloc if alloc is None else int(alloc))
         if size != self._alloc:
             self._B = np.zeros((size, self.d_x))

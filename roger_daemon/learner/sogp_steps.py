@@ -37,7 +37,7 @@ class SOGPSteps:
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
                  "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_K", "_dg",
-                 "q_refreshes", "prior_mean", "_m", "novelty_margin")
+                 "_dq", "q_refreshes", "prior_mean", "_m", "novelty_margin")
     kernel: RBFKernel
     capacity: int | None
     novelty_threshold: float
@@ -53,6 +53,7 @@ class SOGPSteps:
     _Qp: FloatArray
     _K: FloatArray
     _dg: FloatArray | None
+    _dq: FloatArray | None
 
     def novelty(self, k: FloatArray) -> tuple[FloatArray, float]:
         """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma)`` with the projection residual
@@ -80,7 +81,7 @@ class SOGPSteps:
         kstar = self.kernel.k_star
         if gamma < -_Q_DRIFT_TOL * kstar:
             return True
-        diag = _packed.diagonal(self._Qp, self._alloc, self.n)
+        diag = self._diag_q()
         return bool(diag.size and float(diag.min()) * kstar < 1.0 - _Q_DRIFT_TOL)
 
     def refresh_inverse_gram(self) -> None:
@@ -98,7 +99,7 @@ class SOGPSteps:
             while not _jit.cholesky_inverse(self._K, n, jitter, inverse):
                 jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
             _packed.pack_into(self._Qp, self._alloc, inverse, n)
-            self._dg = None
+            self._forget_diagonals()
             self.q_refreshes += 1
             return
         gram = self._K[:n, :n]
@@ -111,8 +112,19 @@ class SOGPSteps:
         inv, _ = _dpotri(factor, lower=1, overwrite_c=1)
         # the lower triangle holds the inverse: stored as the upper one of its transpose
         _packed.pack_into(self._Qp, self._alloc, np.ascontiguousarray(inv.T), n)
-        self._dg = None
+        self._forget_diagonals()
         self.q_refreshes += 1
+
+    def _forget_diagonals(self) -> None:
+        """``C`` or ``Q`` is about to change: drop the cached diagonals."""
+        self._dg = None
+        self._dq = None
+
+    def _diag_q(self) -> FloatArray:
+        """``diag(Q)`` as stored: the fused step's copy (read-only use) or read off ``Q``."""
+        if self._dq is not None:
+            return self._dq
+        return _packed.diagonal(self._Qp, self._alloc, self.n)
 
     def _diag_cq(self) -> FloatArray:
         """``diag(C) + diag(Q)`` (cached by the fused hot path, else read off the matrices)."""
@@ -132,7 +144,7 @@ class SOGPSteps:
                        q: FloatArray) -> None:
         """Step 4a: projection update, BV set unchanged; ``eta = 1/(1 + gamma r)``."""
         n = self.n
-        self._dg = None
+        self._forget_diagonals()
         eta = 1.0 / (1.0 + gamma * r)
         s_hat = ck + e_hat
         self._A[:n] += np.outer(s_hat, q) * eta
@@ -145,7 +157,7 @@ class SOGPSteps:
                 self.delete(self._deletion_choice())
         floor = self.novelty_threshold * 1e-3
         while self.n > 1 and floor > 0.0:
-            diag = _packed.diagonal(self._Qp, self._alloc, self.n)
+            diag = self._diag_q()
             i = int(np.argmax(diag))
             if 1.0 / diag[i] >= floor:
                 break
@@ -155,7 +167,7 @@ class SOGPSteps:
                      gamma: float, r: float, q: FloatArray) -> None:
         """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
         n = self.n
-        self._dg = None
+        self._forget_diagonals()
         self._grow(n + 1)
         self._B[n] = x
         s = np.empty(n + 1)
@@ -192,7 +204,7 @@ class SOGPSteps:
         Off the hot path (the fused step deletes at capacity): ``C`` and ``Q`` are unpacked,
         ``i`` is permuted to the end, and the live ``(n-1) x (n-1)`` block is packed back."""
         n = self.n
-        self._dg = None
+        self._forget_diagonals()
         j = n - 1
         cmat = _packed.unpack(self._Cp, self._alloc, n)
         qmat = _packed.unpack(self._Qp, self._alloc, n)

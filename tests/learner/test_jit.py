@@ -98,9 +98,12 @@ def test_rank_update_cq_is_zeroing_then_two_low_rank_terms(i: int) -> None:
     want_c += (uc.T * cc) @ uc
     want_q += (uq.T * cq) @ uq
     cbuf, qbuf = packed.pack(c0, n), packed.pack(q0, n)
-    jit.rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq)
+    dq = np.full(n, np.nan)
+    jit.rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
     np.testing.assert_allclose(packed.unpack(cbuf, n, n), want_c, rtol=1e-13, atol=1e-13)
     np.testing.assert_allclose(packed.unpack(qbuf, n, n), want_q, rtol=1e-13, atol=1e-13)
+    # the diagonal it reports is the one stored, bit for bit
+    assert np.array_equal(dq, packed.diagonal(qbuf, n, n))
 
 
 @pytest.mark.parametrize("n", [1, 2, 8, 30])

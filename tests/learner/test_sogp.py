@@ -217,6 +217,30 @@ def test_hot_path_diagonal_cache_tracks_the_matrices() -> None:
     np.testing.assert_allclose(gp.Q @ gram, np.eye(gp.n), atol=1e-6)
 
 
+def test_cached_diagonal_of_q_is_the_stored_one_bit_for_bit() -> None:
+    """The fused step's copy of ``diag(Q)`` (read by the drift check and the clean-up) equals
+    the diagonal stored in ``Q`` after every step: fused steps, re-inversions on
+    near-duplicate inputs, projection updates and copies (an exact cache: same decisions)."""
+    rng = np.random.default_rng(11)
+    t = np.linspace(0, 8, 500)
+    x = np.stack([np.sin(t), np.cos(1.3 * t), 0.5 * np.sin(0.7 * t)], 1)
+    x += 1e-3 * rng.normal(size=x.shape)
+    y = np.stack([np.sin(2 * t), np.cos(t)], 1)
+    gps = [make_gp(3, 2, width=w, noise=0.1, capacity=20, threshold=1e-4) for w in (0.3, 1.0)]
+    cached = 0
+    for i, (xi, yi) in enumerate(zip(x, y, strict=True)):
+        update_many(gps, xi, yi, [g.terms(xi) for g in gps])
+        if i % 50 == 49:
+            gps = [g.copy() for g in gps]
+        for g in gps:
+            stored = np.diagonal(g.Q)
+            assert np.array_equal(g._diag_q(), stored)
+            if g._dq is not None:
+                cached += 1
+                assert np.array_equal(g._dq, stored)
+    assert cached > 100 and sum(g.q_refreshes for g in gps) > 0
+
+
 def test_inverse_gram_stays_consistent_on_near_duplicate_inputs() -> None:
     """Consecutive robot frames are near-duplicates: with a broad kernel K_B gets very
     ill-conditioned and the rank-1-updated Q drifts from K_B^-1 (docs/learner-math.md §7, pitfall 6)
