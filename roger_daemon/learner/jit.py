@@ -61,7 +61,7 @@ def warm_up() -> None:
                      np.zeros((2, n)), np.zeros(2), np.empty(n))
     k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
     vn, one = np.ones(n), np.ones(1)
-    k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), mat.copy(), 2 * vn,
+    k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), sym.copy(), 2 * vn,
                  np.zeros(1), 0.5 * vn, -0.1 * vn, 0.5 * vn, one, one, -0.5, 0.5, 1.0)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))

@@ -293,9 +293,9 @@ def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Floa
     The vectors ``s = [Ck; 1]``, ``e = [Qk; -1]`` and the columns ``i`` of ``C1`` and ``Q1``
     are permuted so that index ``n`` sits at ``i``; then ``A``, the diagonal, the basis and
     ``K_B`` are updated and :func:`rank_update_cq` does the rank-3 and rank-2 updates in one
-    pass.  ``C`` and ``Q`` are packed (:mod:`.packed`) for as many basis vectors as the
-    expert holds (full)."""
-    n = gram.shape[0]
+    pass.  ``C``, ``Q`` and ``K_B`` are packed (:mod:`.packed`) for as many basis vectors as
+    the expert holds (full)."""
+    n = basis.shape[0]
     d_a = coef.shape[1]
     inv_gamma = 1.0 / gamma
     idx = fused_delete_index(coef, dg, ck, e, cw, q, r, inv_gamma, n)
@@ -357,10 +357,13 @@ def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Floa
     if old:
         i = idx
         basis[i, :] = x
-        for a in range(n):
-            gram[i, a] = k[a]
-            gram[a, i] = k[a]
-        gram[i, i] = kstar
+        off = 0  # K_B's row and column i (packed, like C and Q) := k, with k* on the diagonal
+        for a in range(i):
+            gram[off + i - a] = k[a]
+            off += n - a
+        for a in range(n - i):
+            gram[off + a] = k[i + a]
+        gram[off] = kstar
     dq = np.empty(n)
     rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
     return diag, dq

@@ -126,8 +126,9 @@ class SparseOnlineGP(SOGPSteps):
         self._Cp: FloatArray = np.zeros(_packed.packed_size(alloc))
         self._Qp: FloatArray = np.zeros(_packed.packed_size(alloc))
         # K_B, kept alongside Q (its rows are the kernel vectors already computed when each
-        # basis vector entered), so a re-inversion of Q costs a Cholesky, not a Gram matrix
-        self._K: FloatArray = np.zeros((alloc, alloc))
+        # basis vector entered), so a re-inversion of Q costs a Cholesky, not a Gram matrix;
+        # packed like C and Q (exactly symmetric: both halves are written from one k)
+        self._Kp: FloatArray = np.zeros(_packed.packed_size(alloc))
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
         self._dq: FloatArray | None = None  # diag(Q) as stored, from the fused step
         self.q_refreshes = 0  # re-inversions of Q after detected drift
@@ -174,6 +175,11 @@ class SparseOnlineGP(SOGPSteps):
     def Q(self) -> FloatArray:
         """Inverse Gram matrix ``K_B^{-1}`` (n, n) (a copy, unpacked)."""
         return _packed.unpack(self._Qp, self._alloc, self.n)
+
+    @property
+    def gram(self) -> FloatArray:
+        """The kept Gram matrix ``K_B`` of the basis (n, n) (a copy, unpacked)."""
+        return _packed.unpack(self._Kp, self._alloc, self.n)
 
     # -- prediction ------------------------------------------------------------------------------
 
@@ -252,7 +258,7 @@ class SparseOnlineGP(SOGPSteps):
                 self._A[0] = y / (kstar + s0)
             self._Cp[0] = -1.0 / (kstar + s0)  # C[0, 0]: the packed buffer starts with it
             self._Qp[0] = 1.0 / kstar
-            self._K[0, 0] = kstar
+            self._Kp[0] = kstar
             self.n = 1
             self._shift_mean(y)
             return
@@ -291,7 +297,7 @@ class SparseOnlineGP(SOGPSteps):
         out._A = self._A.copy()
         out._Cp = self._Cp.copy()
         out._Qp = self._Qp.copy()
-        out._K = self._K.copy()
+        out._Kp = self._Kp.copy()
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
         out.q_refreshes = self.q_refreshes
@@ -314,17 +320,18 @@ class SparseOnlineGP(SOGPSteps):
         if size != self._alloc:
             self._B = np.zeros((size, self.d_x))
             self._A = np.zeros((size, self.a_cols))
-            self._K = np.zeros((size, size))
             self._alloc = size
         self._Cp = np.zeros(_packed.packed_size(size))
         self._Qp = np.zeros(_packed.packed_size(size))
+        self._Kp = np.zeros(_packed.packed_size(size))
         self._B[:n] = B
         self._A[:n] = A
         # the upper triangles (a state from before packed storage may hold a C or Q that is
         # symmetric only to round-off: its upper triangle is taken)
         _packed.pack_into(self._Cp, size, np.asarray(C, dtype=np.float64), n)
         _packed.pack_into(self._Qp, size, np.asarray(Q, dtype=np.float64), n)
-        self._K[:n, :n] = self.kernel.gram(B, B) if gram is None else gram
+        _packed.pack_into(self._Kp, size, self.kernel.gram(B, B) if gram is None
+                          else np.asarray(gram, dtype=np.float64), n)
         self.n = n
         self.n_points = int(n_points)
         self._m = np.zeros(self.d_y) if mean is None else np.array(mean, dtype=np.float64)

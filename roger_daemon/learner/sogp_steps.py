@@ -2,7 +2,7 @@
 the re-inversion of ``Q`` (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5-§2.7).
 
 A base class of :class:`.sogp.SparseOnlineGP`, split from it: these methods change the buffers
-``_B``, ``_A``, ``_Cp``, ``_Qp``, ``_K`` in place; the class there owns them, predicts and
+``_B``, ``_A``, ``_Cp``, ``_Qp``, ``_Kp`` in place; the class there owns them, predicts and
 dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.  ``C`` and ``Q`` are stored
 packed (their upper triangles, :mod:`.packed`) in buffers sized for ``_alloc`` basis vectors.
 """
@@ -36,7 +36,7 @@ class SOGPSteps:
     """The in-place matrix steps of a sparse online GP (state: :class:`.sogp.SparseOnlineGP`)."""
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_K", "_dg",
+                 "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_Kp", "_dg",
                  "_dq", "q_refreshes", "prior_mean", "_m", "novelty_margin")
     kernel: RBFKernel
     capacity: int | None
@@ -51,7 +51,7 @@ class SOGPSteps:
     _A: FloatArray
     _Cp: FloatArray
     _Qp: FloatArray
-    _K: FloatArray
+    _Kp: FloatArray
     _dg: FloatArray | None
     _dq: FloatArray | None
 
@@ -96,13 +96,14 @@ class SOGPSteps:
         jitter = 0.0
         if n <= _jit.SMALL:  # compiled: no LAPACK call overhead at this size
             inverse = np.empty((n, n))
-            while not _jit.cholesky_inverse(self._K, n, jitter, inverse):
+            gram = _packed.unpack(self._Kp, self._alloc, n)
+            while not _jit.cholesky_inverse(gram, n, jitter, inverse):
                 jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
             _packed.pack_into(self._Qp, self._alloc, inverse, n)
             self._forget_diagonals()
             self.q_refreshes += 1
             return
-        gram = self._K[:n, :n]
+        gram = _packed.unpack(self._Kp, self._alloc, n)
         while True:  # K_B is SPD in exact arithmetic; add jitter only if round-off says no
             factor, info = _dpotrf(gram if jitter == 0.0 else gram + jitter * np.eye(n),
                                    lower=1, clean=0)
@@ -181,9 +182,8 @@ class SOGPSteps:
         column = _packed.row_offsets(self._alloc)[: n + 1] + (n - np.arange(n + 1))
         for buf in (self._Cp, self._Qp):
             buf[column] = 0.0  # row and column n (stale padding after a deletion)
-        self._K[n, :n] = k
-        self._K[:n, n] = k
-        self._K[n, n] = self.kernel.k_star
+        self._Kp[column[:n]] = k
+        self._Kp[column[n]] = self.kernel.k_star
         _jit.packed_add_lowrank(self._Cp, self._alloc, n + 1, s[None], np.array([r]))
         _jit.packed_add_lowrank(self._Qp, self._alloc, n + 1, e[None], np.array([1.0 / gamma]))
         self.n = n + 1
@@ -208,10 +208,11 @@ class SOGPSteps:
         j = n - 1
         cmat = _packed.unpack(self._Cp, self._alloc, n)
         qmat = _packed.unpack(self._Qp, self._alloc, n)
+        kmat = _packed.unpack(self._Kp, self._alloc, n)
         if i != j:  # permute i to the end
             idx = [i, j]
             rev = [j, i]
-            for v in (cmat, qmat, self._K[:n, :n]):
+            for v in (cmat, qmat, kmat):
                 v[idx] = v[rev]
                 v[:, idx] = v[:, rev]
             self._A[idx] = self._A[rev]
@@ -226,6 +227,7 @@ class SOGPSteps:
         self._A[:j] -= np.outer(w, a_star) * inv_den
         _packed.pack_into(self._Cp, self._alloc, cmat, j)
         _packed.pack_into(self._Qp, self._alloc, qmat, j)
+        _packed.pack_into(self._Kp, self._alloc, kmat, j)
         cols = np.stack([q_v, w])
         _jit.packed_add_lowrank(self._Cp, self._alloc, j, cols,
                                 np.array([1.0 / q_star, -inv_den]))
@@ -248,7 +250,5 @@ class SOGPSteps:
             setattr(self, name, buf)
         self._Cp = _packed.repack(self._Cp, alloc, new, n)
         self._Qp = _packed.repack(self._Qp, alloc, new, n)
-        gram = np.zeros((new, new))
-        gram[:n, :n] = self._K[:n, :n]
-        self._K = gram
+        self._Kp = _packed.repack(self._Kp, alloc, new, n)
         self._alloc = new

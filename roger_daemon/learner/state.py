@@ -143,7 +143,7 @@ def pack_experts(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.
                         else np.zeros((0, d_y))),
         "expert_C": np.concatenate([g.C.ravel() for g in gps]) if gps else np.zeros(0),
         "expert_Q": np.concatenate([g.Q.ravel() for g in gps]) if gps else np.zeros(0),
-        "expert_K": (np.concatenate([g._K[: g.n, : g.n].ravel() for g in gps]) if gps
+        "expert_K": (np.concatenate([g.gram.ravel() for g in gps]) if gps
                      else np.zeros(0)),
         # the hot path's cached diag(C) + diag(Q) (NaN where none): restores bit-exactly
         "expert_diag_cache": (np.concatenate([np.full(g.n, np.nan) if g._dg is None else g._dg
