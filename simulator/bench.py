@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from roger_daemon.machine import finish, machine_record
+
 __all__ = ["configure", "free_port", "run", "run_processes"]
 
 
@@ -191,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the benchmark; print a table or one JSON object."""
     out: dict[str, Any] = {
         "bench": "sim",
-        "machine": {"cpus": os.cpu_count(), "loadavg_1m_start": round(os.getloadavg()[0], 2)},
+        "machine": machine_record(),
     }
     common = ["--locations", args.locations, "--seed", str(args.seed)]
     if not args.skip_rendered:
@@ -222,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
     }
     if args.seeds > 0:
         out["inprocess"] = _inprocess(args.seeds)
-    out["machine"]["loadavg_1m_end"] = round(os.getloadavg()[0], 2)
+    finish(out["machine"])
     if args.json:
         print(json.dumps(out))
         return 0

@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -40,6 +38,7 @@ import numpy as np
 from protocols.aibo import SUBTASKS
 from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
 from roger_daemon.learner.synthetic import subtask_stream
+from roger_daemon.machine import describe, finish, machine_record
 
 __all__ = ["configure", "run"]
 
@@ -238,7 +237,7 @@ def _phase(name: str, fn: Any, workdir: Path, args: argparse.Namespace,
 def run(args: argparse.Namespace) -> int:
     """Run the phases and print a table or one JSON object."""
     stream = subtask_stream(4000)
-    load_before = os.getloadavg()
+    machine = machine_record()
     with tempfile.TemporaryDirectory(prefix="roger-bench-daemon-") as tmp:
         workdir = args.keep or Path(tmp)
         workdir.mkdir(parents=True, exist_ok=True)
@@ -261,9 +260,7 @@ def run(args: argparse.Namespace) -> int:
                      "saturate_seconds": args.saturate_seconds,
                      "saturate_rate_hz": args.saturate_rate, "recording": args.recording,
                      "wal": not args.no_wal, "workers": args.workers or "default"},
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "platform": platform.platform(), "loadavg_before": load_before,
-                    "loadavg_after": os.getloadavg()},
+        "machine": finish(machine),
     }
     if args.json:
         print(json.dumps(result, indent=2))
@@ -284,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         ("updates/s sustained at the feed rate", real["updates_per_s"], "1/s"),
         ("updates/s when saturated", result["updates_per_s_max"], "1/s"),
     ]
-    print(f"roger bench daemon  ({os.cpu_count()} CPUs, load {load_before[0]:.2f} before)")
+    print(f"roger bench daemon  ({describe(machine)})")
     for name, value, unit in rows:
         print(f"  {name:<50} {value:10.3f} {unit}")
     print(f"  model at the end: lockstep {lock['updates']} updates/{lock['experts']} experts, "

@@ -35,8 +35,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import tempfile
 import threading
 import time
@@ -49,6 +47,7 @@ import numpy.typing as npt
 from roger_daemon.bench.fleet_client import FleetClient, feed, proc_cpu_s
 from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
 from roger_daemon.harness import DaemonProcess, free_port, write_config
+from roger_daemon.machine import describe, finish, machine_record
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -233,8 +232,7 @@ def _print_table(result: dict[str, Any]) -> None:
     m = result["machine"]
     print(f"roger bench fleet: {result['settings']['robots']} robots x "
           f"{result['settings']['rate_hz']:g} Hz, {result['settings']['seconds']:g} s per "
-          f"phase ({m['cpus']} CPUs, load {m['loadavg_before'][0]:.2f} before, "
-          f"{m['loadavg_after'][0]:.2f} after)")
+          f"phase ({describe(m)})")
     for name, ph in result["phases"].items():
         print(f"\n{name}: workers {ph['workers']}, daemon CPU {ph['daemon_cpu_percent']:.0f} % "
               f"of one core (loop process {ph['daemon_main_cpu_percent']:.0f} %), timer "
@@ -257,7 +255,7 @@ def run(args: argparse.Namespace) -> int:
         print("roger bench fleet: --robots >= 1, --seconds > 0 and --rate > 0 are required")
         return 2
     stream = feed_stream(args.stream)
-    load_before = os.getloadavg()
+    machine = machine_record()
     clocks = ("realtime", "lockstep") if args.clock == "both" else (args.clock,)
     phases: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="roger-bench-fleet-") as tmp:
@@ -271,9 +269,7 @@ def run(args: argparse.Namespace) -> int:
                      "rate_hz": args.rate,
                      "warmup_s": args.warmup, "recording": not args.no_recording,
                      "overrides": list(args.overrides)},
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "platform": platform.platform(), "loadavg_before": load_before,
-                    "loadavg_after": os.getloadavg()},
+        "machine": finish(machine),
     }
     if args.json:
         print(json.dumps(result, indent=2))

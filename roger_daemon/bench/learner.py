@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from collections.abc import Callable
@@ -27,17 +26,17 @@ from typing import Any
 
 import numpy as np
 
-from roger_daemon.blas import blas_info
 from roger_daemon.console import UsageError
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
 from roger_daemon.learner.jit import warm_up
 from roger_daemon.learner.params import ParameterError
 from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
+from roger_daemon.machine import describe, finish, machine_record
 
 _AIBO = Path(__file__).with_name("data") / "aibo-demonstrations.npz"
 STREAMS = ("synthetic", "aibo")
 
-__all__ = ["BenchStream", "configure", "load_stream", "machine_info", "measure", "run"]
+__all__ = ["BenchStream", "configure", "load_stream", "measure", "run"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -134,30 +133,8 @@ def print_report(out: dict[str, Any], *, as_json: bool) -> None:
         print(f"{key:{width}s}{val}")
 
 
-def machine_info() -> dict[str, Any]:
-    """CPU, cores, load average, Python, numpy, platform and BLAS of this run."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "load_avg_1m_start": round(os.getloadavg()[0], 2),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "platform": platform.platform(),
-        "blas": blas_info(),
-    }
-
-
 NOTE = ("wall-clock timings on a shared machine: other processes compete for the cores "
-        "(see machine.load_avg_*)")
+        "(see machine.load_avg_*) and its speed drifts (machine.speed_probe)")
 
 
 def _ms(samples: list[int], q: float) -> float:
@@ -192,7 +169,7 @@ def _ari(a: np.ndarray, b: np.ndarray) -> float:
 def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int,
             unimap: bool) -> dict[str, Any]:
     """Run the benchmark and return the result object."""
-    machine = machine_info()
+    machine = machine_record()
     params = stream.params
     points, d_x = stream.x.shape
     d_y = stream.y.shape[1]
@@ -260,8 +237,7 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
     out["seed"] = seed
     out["stream_seed"] = stream_seed
     out["params"] = params.to_mapping()
-    machine["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
-    out["machine"] = machine
+    out["machine"] = finish(machine)
     out["note"] = NOTE
     return out
 
@@ -288,8 +264,7 @@ def _table(res: dict[str, Any]) -> str:
         rows.append(("unimap updates/s, p99 ms",
                      f"{res['unimap_updates_per_s']}, {res['unimap_update_p99_ms']}"))
     m = res["machine"]
-    rows.append(("machine", f"{m['cpu']}, {m['cores']} cores, load "
-                            f"{m['load_avg_1m_start']}->{m['load_avg_1m_end']}"))
+    rows.append(("machine", describe(m)))
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 

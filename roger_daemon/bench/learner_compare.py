@@ -10,16 +10,16 @@ their final predictions (a float change in the learner shows up there).
 
 from __future__ import annotations
 
-import os
 import time
 from typing import Any
 
 import numpy as np
 
-from roger_daemon.bench.learner import NOTE, BenchStream, _ms, machine_info
+from roger_daemon.bench.learner import NOTE, BenchStream, _ms
 from roger_daemon.bench.reference import load_reference
 from roger_daemon.learner import Roger
 from roger_daemon.learner.jit import warm_up
+from roger_daemon.machine import describe, finish, machine_record
 
 __all__ = ["compare", "compare_table"]
 
@@ -31,7 +31,7 @@ def _summary(samples: list[int]) -> dict[str, float]:
 
 def compare(stream: BenchStream, rev: str, seed: int) -> dict[str, Any]:
     """Learn ``stream`` with revision ``rev``'s Roger and this Roger, interleaved."""
-    machine = machine_info()
+    machine = machine_record()
     ref_pkg, sha = load_reference(rev)
     points, d_x = stream.x.shape
     d_y = stream.y.shape[1]
@@ -58,7 +58,7 @@ def compare(stream: BenchStream, rev: str, seed: int) -> dict[str, Any]:
     a, b = _summary(t_ref), _summary(t_new)
     probe = stream.x[-1]
     pa, pb = ref.predict_one(probe), new.predict_one(probe)
-    machine["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
+    finish(machine)
     return {
         "bench": "learner-compare",
         "stream": stream.name,
@@ -91,7 +91,6 @@ def compare_table(res: dict[str, Any]) -> str:
         f"speedup (new / REF updates/s): {res['speedup']}x",
         f"same segmentation: {res['same_segmentation']}; final prediction max |diff|: "
         f"{res['prediction_max_abs_diff']:.3g}",
-        f"machine: {m['cpu']}, {m['cores']} cores, load "
-        f"{m['load_avg_1m_start']}->{m['load_avg_1m_end']}",
+        f"machine: {describe(m)}",
     ]
     return "\n".join(lines)

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import tempfile
 import threading
@@ -33,6 +32,7 @@ from roger_daemon.bench.fleet_client import FleetClient, child_pids, feed
 from roger_daemon.bench.streams import FLEET_STREAMS, feed_stream
 from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.harness import DaemonProcess, free_port, write_config
+from roger_daemon.machine import describe, finish, machine_record
 
 __all__ = ["checkpoint_profile", "configure", "rss_mb", "run"]
 
@@ -159,14 +159,14 @@ def run(args: argparse.Namespace) -> int:
     warm = args.warmup_minutes
     if warm is None:
         warm = 10.0 if args.minutes >= 30 else args.minutes / 3.0
-    load_before = os.getloadavg()
+    machine = machine_record()
     with tempfile.TemporaryDirectory(prefix="roger-bench-soak-") as tmp:
         workdir = args.keep or Path(tmp)
         workdir.mkdir(parents=True, exist_ok=True)
         if not args.json:
             print(f"roger bench soak: {args.robots} robot(s) x {args.rate:g} Hz for "
                   f"{args.minutes:g} min, growth measured after {warm:g} min "
-                  f"(load {load_before[0]:.2f})")
+                  f"({describe(machine)})")
         out = _soak(workdir, args)
     samples = out["samples"]
     t_warm = warm * 60.0
@@ -185,8 +185,7 @@ def run(args: argparse.Namespace) -> int:
                      "robots": args.robots,
                      "rate_hz": args.rate, "interval_s": args.interval,
                      "overrides": list(args.overrides)},
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "loadavg_before": load_before, "loadavg_after": os.getloadavg()},
+        "machine": finish(machine),
     }
     result["meets_target"] = bool(result["rss_growth_after_warmup_pct"] < TARGET_GROWTH_PCT)
     if args.json:

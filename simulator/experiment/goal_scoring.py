@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from roger_daemon.atomic import write_json
+from roger_daemon.machine import machine_record
 from simulator.controllers.transitioner import DEFAULT_RULE, RULES
 from simulator.experiment.jobs import EpisodeJob
 from simulator.experiment.runner import json_default, machine
@@ -317,6 +318,7 @@ class Experiment:
         self.context: dict[str, Any] = {}  # stream, models, unimap, oracle (for --start-poses)
         self.timings: dict[str, float] = {}
         self.errors: list[str] = []
+        self.machine: dict[str, Any] | None = None  # the machine record, from the start
 
     def _phase(self, name: str, t0: float) -> None:
         self.timings[name] = round(time.monotonic() - t0, 2)
@@ -325,6 +327,7 @@ class Experiment:
         plan, console = self.plan, self.console
         plan.out.mkdir(parents=True, exist_ok=True)
         t_all = time.monotonic()
+        self.machine = machine_record()
         console.rule("roger experiment goal-scoring")
         console.print(f"out {plan.out}  seed {plan.seed}  jobs {plan.jobs}  "
                       f"locations {list(plan.locations)}  shots {plan.shots}  attempts "
@@ -360,7 +363,7 @@ class Experiment:
 
         plan, console = self.plan, self.console
         results["errors"] = list(results.get("errors", [])) + self.errors
-        results["machine"] = machine()
+        results["machine"] = machine(self.machine)
         path = plan.out / "results.json"
         write_json(path, results, default=json_default)
         print_report(console, results)

@@ -3,8 +3,6 @@ progress bars, transport counters, the machine record and JSON encoding of numpy
 
 from __future__ import annotations
 
-import os
-import platform
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
@@ -144,11 +142,12 @@ def json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def machine() -> dict[str, Any]:
-    """The machine, package versions and BLAS of this run (for results.json)."""
+def machine(start: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The machine record of this run (:mod:`roger_daemon.machine`, taken at its ``start``;
+    now if ``None``), finished now, with the package versions (for results.json)."""
     from importlib.metadata import PackageNotFoundError, version
 
-    from roger_daemon.blas import blas_info
+    from roger_daemon.machine import finish, machine_record
 
     versions: dict[str, str | None] = {}
     for pkg in ("numpy", "scipy", "pybullet", "eclipse-zenoh", "scikit-learn", "mcap"):
@@ -156,11 +155,6 @@ def machine() -> dict[str, Any]:
             versions[pkg] = version(pkg)
         except PackageNotFoundError:
             versions[pkg] = None
-    return {
-        "cpus": os.cpu_count(),
-        "loadavg_1m_end": round(os.getloadavg()[0], 2),
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-        "versions": versions,
-        "blas": blas_info(),
-    }
+    record = finish(dict(start) if start is not None else machine_record())
+    record["versions"] = versions
+    return record

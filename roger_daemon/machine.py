@@ -1,0 +1,98 @@
+"""The machine record of a benchmark or experiment run: what ran it, how loaded, how fast.
+
+Every ``roger bench`` command and ``roger experiment goal-scoring`` put this record in their
+JSON (``"machine"``): the CPU model and count, Python, numpy, the platform, the BLAS and its
+threads, the 1-minute load average at the start and at the end, and a *speed probe*: two fixed
+reference workloads timed when the run starts. The probe is there because this project's
+machines are shared virtual machines whose speed drifts (the same fleet run took 59 % of a
+core one evening and 83 % the next, on an idle machine): two runs' figures are comparable
+only when their probes are (docs/performance.md, *Comparing runs*).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from typing import Any
+
+import numpy as np
+
+from roger_daemon.blas import blas_info
+
+__all__ = ["describe", "finish", "machine_record", "speed_probe"]
+
+_PROBE_ELEMENTS = 1 << 23  # 64 MB of float64: larger than the caches of the machines we use
+_PROBE_LOOP = 200_000
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _python_loop() -> int:
+    total = 0
+    for i in range(_PROBE_LOOP):
+        total += i * i % 7
+    return total
+
+
+def speed_probe(repeats: int = 5) -> dict[str, float]:
+    """Two reference workloads timed now, best of ``repeats`` (ms; smaller is faster).
+
+    ``python_ms``: a fixed pure-Python loop (the interpreter: the learner's and the daemon's
+    bookkeeping); ``memory_ms``: one pass summing 64 MB of float64 (memory bandwidth: the
+    learner's passes over ``C`` and ``Q``). The best of several repeats is what the machine
+    delivers when nothing preempts the probe.
+    """
+    data = np.ones(_PROBE_ELEMENTS)
+    python = memory = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        _python_loop()
+        t1 = time.perf_counter()
+        float(data.sum())
+        t2 = time.perf_counter()
+        python = min(python, t1 - t0)
+        memory = min(memory, t2 - t1)
+    return {"python_ms": round(python * 1e3, 2), "memory_ms": round(memory * 1e3, 2)}
+
+
+def machine_record(*, probe: bool = True) -> dict[str, Any]:
+    """The record at the start of a run (call :func:`finish` at its end)."""
+    record: dict[str, Any] = {
+        "cpu": _cpu_model(),
+        "cpus": os.cpu_count(),
+        "load_avg_1m_start": round(os.getloadavg()[0], 2),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+        "blas": blas_info(),
+    }
+    if probe:
+        record["speed_probe"] = speed_probe()
+    return record
+
+
+def finish(record: dict[str, Any]) -> dict[str, Any]:
+    """``record`` with the 1-minute load average at the end of the run."""
+    record["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
+    return record
+
+
+def describe(record: dict[str, Any]) -> str:
+    """One line for a benchmark's table: CPU, load start -> end, the speed probe."""
+    text = f"{record['cpu']}, {record['cpus']} CPUs, load {record['load_avg_1m_start']}"
+    if "load_avg_1m_end" in record:
+        text += f" -> {record['load_avg_1m_end']}"
+    if "speed_probe" in record:
+        probe = record["speed_probe"]
+        text += f", speed probe: Python {probe['python_ms']} ms, memory {probe['memory_ms']} ms"
+    return text
