@@ -60,9 +60,10 @@ def warm_up() -> None:
     k.rank_update_cq(sym.copy(), sym.copy(), n, n, 0, np.zeros((3, n)), np.zeros(3),
                      np.zeros((2, n)), np.zeros(2), np.empty(n))
     k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
-    vn, one = np.ones(n), np.ones(1)
+    vn, one, weights = np.ones(n), np.ones(1), np.ones(1)
+    weights.setflags(write=False)  # as sogp_fused passes them: read-only, its own signature
     k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), sym.copy(), 2 * vn,
-                 np.zeros(1), 0.5 * vn, -0.1 * vn, 0.5 * vn, one, one, -0.5, 0.5, 1.0)
+                 np.zeros(1), 0.5 * vn, -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5, 1.0)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
     gk.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),

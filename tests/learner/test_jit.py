@@ -192,3 +192,23 @@ def test_the_lazy_loader_binds_exactly_the_kernels_of_both_modules() -> None:
     for name in lazy.KERNELS:
         module = jit if name in jit.__all__ else jit_particles
         assert getattr(lazy, name) is getattr(module, name)
+
+
+def test_warm_up_compiles_every_signature_a_learner_step_uses() -> None:
+    """After ``warm_up`` nothing compiles inside a step (a first fused step on a full expert
+    compiled its read-only-weights signature mid-run: seconds without numba's cache, in the
+    daemon's first full learning step or in a timed benchmark)."""
+    from roger_daemon.bench.learner_compare import compiled_signatures
+    from roger_daemon.learner import Roger, RogerParams
+    from roger_daemon.learner.jit import warm_up
+    from roger_daemon.learner.synthetic import subtask_stream
+
+    warm_up()
+    before = compiled_signatures("roger_daemon.learner")
+    s = subtask_stream(150)
+    model = Roger(23, 9, RogerParams(beta=20), seed=5)
+    for x, y in zip(s.x, s.y, strict=True):
+        model.learn_one(x, y)
+    model.predict_with_multimap(s.x[0])
+    assert max(g.n for g in model.distinct_experts()) == 20  # the fused path ran
+    assert compiled_signatures("roger_daemon.learner") == before
