@@ -415,3 +415,34 @@ def test_realtime_reset_publishes_nothing_from_the_old_model(tmp_path: Path) -> 
         assert after[-1].tick == 8
     finally:
         proc.service.shutdown()
+
+
+def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads() -> None:
+    """A fresh worker process compiles (or loads from numba's cache) the learner's kernels at
+    ``load``, not inside a robot's first steps (a first use mid-run stalled a step for
+    milliseconds to seconds): its load reply counts the compiled signatures, 0 in a process
+    that never warmed them up."""
+    import subprocess
+    import sys
+
+    from roger_daemon.daemon.worker import read_frame, write_frame
+    from roger_daemon.learner import RogerParams
+
+    proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert proc.stdin is not None and proc.stdout is not None
+        write_frame(proc.stdin, {"op": "load", "robot": "aibo", "x_dim": STREAM.x.shape[1],
+                                 "y_dim": STREAM.y.shape[1], "model": "roger", "seed": 0,
+                                 "params": RogerParams().to_mapping(), "state": None,
+                                 "codes": None})
+        reply = read_frame(proc.stdout)
+        assert reply is not None and reply["n"] == 0
+        assert reply["kernels"] > 0
+        write_frame(proc.stdin, {"op": "stop"})
+        assert read_frame(proc.stdout) == {}
+        assert proc.wait(timeout=120) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -11,7 +11,6 @@ their final predictions (a float change in the learner shows up there).
 from __future__ import annotations
 
 import importlib
-import sys
 import time
 from types import ModuleType
 from typing import Any
@@ -21,10 +20,10 @@ import numpy as np
 from roger_daemon.bench.learner import NOTE, BenchStream, _ms
 from roger_daemon.bench.reference import load_reference
 from roger_daemon.learner import Roger
-from roger_daemon.learner.jit import warm_up
+from roger_daemon.learner.jit import compiled_signatures, warm_up
 from roger_daemon.machine import describe, finish, machine_record
 
-__all__ = ["compare", "compare_table", "compiled_signatures"]
+__all__ = ["compare", "compare_table"]
 
 
 def _summary(samples: list[int]) -> dict[str, float]:
@@ -43,20 +42,6 @@ def _warm_up_reference(ref_pkg: ModuleType) -> None:
     warm = getattr(ref_jit, "warm_up", None)
     if callable(warm):
         warm()
-
-
-def compiled_signatures(package: str) -> int:
-    """How many compiled signatures the numba kernels of ``package`` (a learner package,
-    this one or a reference) hold now: a count that grows while timing means a kernel was
-    compiled (or loaded from numba's cache) inside the timed steps."""
-    count = 0
-    for name, module in list(sys.modules.items()):
-        if module is None or not (name == package or name.startswith(package + ".")):
-            continue
-        for obj in vars(module).values():
-            if hasattr(obj, "py_func") and hasattr(obj, "signatures"):
-                count += len(obj.signatures)
-    return count
 
 
 def compare(stream: BenchStream, rev: str, seed: int) -> dict[str, Any]:

@@ -11,7 +11,9 @@ Requests (``op``) and replies:
 
 - ``load``: ``robot``, ``x_dim``, ``y_dim``, ``model`` (``roger`` | ``unimap``), ``seed``,
   ``params`` (the learner parameter mapping), ``state`` (a model ``state_dict`` or nil for a
-  fresh model), ``codes`` (label codes of the learned pairs) -> ``n``, ``experts``;
+  fresh model), ``codes`` (label codes of the learned pairs) -> ``n``, ``experts``,
+  ``kernels`` (the learner's compiled kernel signatures: the worker warms them up on load, so
+  no step compiles or loads one from numba's cache);
 - ``learn``: ``x``, ``y`` (float64 bytes), ``code``, ``tick``, ``vocab`` (only when it grew)
   -> ``ok``, ``ms``, ``n``, ``experts`` (``ok`` false: the learner rejected the pair, the
   model is unchanged); when no request waits after it, the worker counts the labels of what
@@ -166,7 +168,9 @@ class _Worker:
         from roger_daemon.daemon.main import make_model
         from roger_daemon.daemon.robot import RobotRuntime
         from roger_daemon.learner import RogerParams, load_model
+        from roger_daemon.learner.jit import compiled_signatures, warm_up
 
+        warm_up()  # the compiled kernels now, not inside this robot's first steps
         robot = RobotConfig(id=str(req["robot"]), x_dim=int(req["x_dim"]),
                             y_dim=int(req["y_dim"]), model=str(req["model"]),
                             seed=int(req["seed"]), params=RogerParams.from_mapping(req["params"]))
@@ -178,7 +182,8 @@ class _Worker:
         for c in codes.astype(np.int64):
             rt._append_code(int(c))
         self.rt = rt
-        return {"n": rt.updates, "experts": int(rt.model.n_experts)}
+        return {"n": rt.updates, "experts": int(rt.model.n_experts),
+                "kernels": compiled_signatures("roger_daemon.learner")}
 
     def _vocab(self, req: dict[str, Any]) -> None:
         """The daemon's label vocabulary, when the request carries it (the codes index it)."""

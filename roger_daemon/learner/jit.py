@@ -10,11 +10,12 @@ accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles e
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
 
-__all__ = ["KERNELS", "SMALL", "warm_up"]
+__all__ = ["KERNELS", "SMALL", "compiled_signatures", "warm_up"]
 
 #: up to this many basis vectors ``Q`` is re-inverted by the compiled Cholesky
 #: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK.  (Expert evaluation and ``Q k``
@@ -71,3 +72,18 @@ def warm_up() -> None:
     gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
     gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                      np.zeros(1, dtype=np.int64))
+
+
+def compiled_signatures(package: str) -> int:
+    """How many compiled signatures the numba kernels of ``package`` (``__package__`` for
+    this learner, or a reference revision's, :mod:`roger_daemon.bench.reference`) hold in
+    this process: after :func:`warm_up`, a count that grows means a kernel was compiled (or
+    loaded from numba's cache) inside a learning step."""
+    seen: dict[int, int] = {}  # a kernel is bound in its module and here (each counted once)
+    for name, module in list(sys.modules.items()):
+        if module is None or not (name == package or name.startswith(package + ".")):
+            continue
+        for obj in vars(module).values():
+            if hasattr(obj, "py_func") and hasattr(obj, "signatures"):
+                seen[id(obj)] = len(obj.signatures)
+    return sum(seen.values())

@@ -198,9 +198,8 @@ def test_warm_up_compiles_every_signature_a_learner_step_uses() -> None:
     """After ``warm_up`` nothing compiles inside a step (a first fused step on a full expert
     compiled its read-only-weights signature mid-run: seconds without numba's cache, in the
     daemon's first full learning step or in a timed benchmark)."""
-    from roger_daemon.bench.learner_compare import compiled_signatures
     from roger_daemon.learner import Roger, RogerParams
-    from roger_daemon.learner.jit import warm_up
+    from roger_daemon.learner.jit import compiled_signatures, warm_up
     from roger_daemon.learner.synthetic import subtask_stream
 
     warm_up()
