@@ -25,6 +25,7 @@ __all__ = [
     "configure_logging",
     "exit_on_sigterm",
     "guarded",
+    "require",
 ]
 
 LOG_LEVELS = ("debug", "info", "warning", "error")
@@ -35,6 +36,12 @@ _PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERRO
 class UsageError(Exception):
     """A bad command-line value; the message names what is wrong, the expected form and the
     value given."""
+
+
+def require(ok: bool, option: str, form: str, value: object) -> None:
+    """Raise :class:`UsageError` (``OPTION must be FORM, got VALUE``) unless ``ok``."""
+    if not ok:
+        raise UsageError(f"{option} must be {form}, got {value!r}")
 
 
 class JournalFormatter(logging.Formatter):

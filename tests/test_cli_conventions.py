@@ -120,3 +120,18 @@ def test_config_example_prints_the_shipped_file(capsys: pytest.CaptureFixture[st
     assert capsys.readouterr().out == shipped.read_text(encoding="utf-8")
     assert main(["config", "example", "nonsense"]) == 2
     assert "must be one of daemon" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["bench", "fleet", "--robots", "0"], "--robots must be an integer >= 1, got 0"),
+    (["bench", "fleet", "--seconds", "-1"], "--seconds must be a number > 0, got -1.0"),
+    (["bench", "soak", "--minutes", "0"], "--minutes must be a number > 0, got 0.0"),
+    (["bench", "soak", "--interval", "0"], "--interval must be a number > 0, got 0.0"),
+])
+def test_benchmark_ranges_are_usage_errors_naming_the_value(
+    argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """Out-of-range benchmark options stop before anything starts: exit 2, the option, the
+    expected form and the value given."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err

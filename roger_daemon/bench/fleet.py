@@ -46,6 +46,7 @@ import numpy.typing as npt
 
 from roger_daemon.bench.fleet_client import FleetClient, feed, proc_cpu_s
 from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
+from roger_daemon.console import require
 from roger_daemon.harness import DaemonProcess, free_port, write_config
 from roger_daemon.machine import describe, finish, machine_record
 
@@ -251,9 +252,9 @@ def _print_table(result: dict[str, Any]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the phases; print a table or one JSON object."""
-    if args.robots < 1 or args.seconds <= 0 or args.rate <= 0:
-        print("roger bench fleet: --robots >= 1, --seconds > 0 and --rate > 0 are required")
-        return 2
+    require(args.robots >= 1, "--robots", "an integer >= 1", args.robots)
+    require(args.seconds > 0, "--seconds", "a number > 0", args.seconds)
+    require(args.rate > 0, "--rate", "a number > 0", args.rate)
     stream = feed_stream(args.stream)
     machine = machine_record()
     clocks = ("realtime", "lockstep") if args.clock == "both" else (args.clock,)

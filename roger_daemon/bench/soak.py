@@ -30,6 +30,7 @@ from typing import Any
 
 from roger_daemon.bench.fleet_client import FleetClient, child_pids, feed
 from roger_daemon.bench.streams import FLEET_STREAMS, feed_stream
+from roger_daemon.console import require
 from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.harness import DaemonProcess, free_port, write_config
 from roger_daemon.machine import describe, finish, machine_record
@@ -153,9 +154,9 @@ def _soak(workdir: Path, args: argparse.Namespace) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the soak; print a table or one JSON object."""
-    if args.minutes <= 0 or args.robots < 1 or args.interval <= 0:
-        print("roger bench soak: --minutes > 0, --robots >= 1 and --interval > 0 are required")
-        return 2
+    require(args.minutes > 0, "--minutes", "a number > 0", args.minutes)
+    require(args.robots >= 1, "--robots", "an integer >= 1", args.robots)
+    require(args.interval > 0, "--interval", "a number > 0", args.interval)
     warm = args.warmup_minutes
     if warm is None:
         warm = 10.0 if args.minutes >= 30 else args.minutes / 3.0
