@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner.buffers import BufferPool
 from roger_daemon.learner.gate import GatePool
 from roger_daemon.learner.history import SegmentationHistory
 from roger_daemon.learner.kernel import RBFKernel
@@ -137,6 +138,8 @@ class Roger:
         self._npts = np.zeros(cap, dtype=np.int64)
         self._ref = np.zeros(cap, dtype=np.int64)
         self._free: list[int] = list(range(cap - 1, -1, -1))  # pop() yields the lowest slot
+        # dropped experts' packed matrices, reused by copy-on-write copies (not state)
+        self._pool = BufferPool(limit=3 * p.particles)
         self._particles: list[IntArray] = [np.zeros(0, dtype=np.int64)]
         self._logw = np.zeros(1)
         self._history = SegmentationHistory(p.particles)

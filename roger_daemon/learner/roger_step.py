@@ -168,7 +168,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
                 t, gp = s, src
             else:
                 t = model._alloc_slot()
-                gp = src.copy()
+                gp = src.copy(model._pool)
                 model._gps[t] = gp
                 model._gates.copy_slot(t, s)
                 model._ids[t] = model._ids[s]
@@ -198,6 +198,9 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     cap = len(model._gps)
     new_ref = np.bincount(np.concatenate(new_parts), minlength=cap)
     for s in np.flatnonzero((model._ref > 0) & (new_ref == 0)).tolist():
+        dropped = model._gps[s]
+        if dropped is not None:
+            dropped.release(model._pool)  # its buffers serve later copies (.buffers)
         model._gps[s] = None
         model._ids[s] = -1
         model._npts[s] = 0

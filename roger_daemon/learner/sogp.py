@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from roger_daemon.learner import jit as _jit
 from roger_daemon.learner import packed as _packed
+from roger_daemon.learner.buffers import BufferPool
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
@@ -282,8 +283,9 @@ class SparseOnlineGP(SOGPSteps):
 
     # -- copies and state ----------------------------------------------------------------------
 
-    def copy(self) -> SparseOnlineGP:
-        """An independent copy (used for copy-on-write in :class:`~.roger.Roger`)."""
+    def copy(self, pool: BufferPool | None = None) -> SparseOnlineGP:
+        """An independent copy (used for copy-on-write in :class:`~.roger.Roger`); its packed
+        matrices go into buffers kept in ``pool`` when it has some of their size."""
         out = SparseOnlineGP(self.d_x, self.d_y, self.kernel, self.noise, self.capacity,
                              self.novelty_threshold, self.normaliser,
                              prior_mean=self.prior_mean, _alloc=0)
@@ -295,14 +297,22 @@ class SparseOnlineGP(SOGPSteps):
         # whole buffers: one memcpy each (the padding is never read)
         out._B = self._B.copy()
         out._A = self._A.copy()
-        out._Cp = self._Cp.copy()
-        out._Qp = self._Qp.copy()
-        out._Kp = self._Kp.copy()
+        if pool is None:
+            out._Cp, out._Qp, out._Kp = self._Cp.copy(), self._Qp.copy(), self._Kp.copy()
+        else:
+            out._Cp, out._Qp, out._Kp = (pool.copy_of(self._Cp), pool.copy_of(self._Qp),
+                                         pool.copy_of(self._Kp))
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
         out.q_refreshes = self.q_refreshes
         return out
 
+
+    def release(self, pool: BufferPool) -> None:
+        """Give this expert's packed matrices to ``pool`` for later copies (the model has
+        dropped it: it must not be used afterwards)."""
+        for buf in (self._Cp, self._Qp, self._Kp):
+            pool.give(buf)
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
              mean: FloatArray | None = None, gram: FloatArray | None = None) -> None:
