@@ -19,12 +19,11 @@ import pytest
 from protocols import Action, Control, Perception, decode, encode, keys
 from protocols.messages import Prediction
 from roger_daemon.config import ConfigError, DaemonConfig, parse_config
-from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
 from roger_daemon.daemon.learners import ProcessLearners, WorkerError
 from roger_daemon.daemon.main import build_robot
 from roger_daemon.daemon.service import Service
 from roger_daemon.daemon.wal import read_records, wal_dir
-from roger_daemon.daemon.worker import pack_arrays, unpack_arrays
 from roger_daemon.learner.synthetic import subtask_stream
 from roger_daemon.testing import MemoryTransport
 
@@ -108,19 +107,6 @@ def _same_prediction(a: Prediction, b: Prediction) -> None:
         assert (ea.expert, ea.p, ea.n, ea.label) == (eb.expert, eb.p, eb.n, eb.label)
         np.testing.assert_array_equal(ea.mean, eb.mean)
         np.testing.assert_array_equal(ea.var, eb.var)
-
-
-def test_arrays_round_trip_without_pickle() -> None:
-    arrays = {"f": np.arange(6.0).reshape(2, 3), "i": np.arange(4, dtype=np.int32),
-              "s": np.array('{"a": 1}'), "e": np.zeros((0, 5))}
-    back = unpack_arrays(pack_arrays(arrays))
-    assert array_digest(back) == array_digest(arrays)
-    with pytest.raises(TypeError):
-        pack_arrays({"o": np.array([object()])})
-    with pytest.raises(ValueError):
-        unpack_arrays({"o": {"t": "|O", "s": [1], "b": b"\0" * 8}})
-    with pytest.raises(ValueError):
-        unpack_arrays({"f": {"t": "<f8", "s": [3], "b": b"\0" * 8}})
 
 
 def test_workers_config_is_validated(tmp_path: Path) -> None:
@@ -362,6 +348,28 @@ def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
         .meta["updates"] == 12
 
 
+def test_realtime_reset_publishes_nothing_from_the_old_model(tmp_path: Path) -> None:
+    """A reset forgets the prepared prediction: after it, every prediction published counts
+    only pairs learned after the reset."""
+    proc = Loop(make_config(tmp_path, "rr", clock="realtime"), process=True)
+    try:
+        proc.send_paced("aibo", range(8))
+        proc.collect_until(lambda p: p.updates >= 8, "the pairs before the reset never counted")
+        proc.transport.inject(keys.key("aibo", "control"),
+                              encode(Control("aibo", 0, 0.0, op="reset")))
+        proc.service.step(0.005)
+        assert proc.learners is not None
+        assert proc.learners.prepared([proc.robots["aibo"]]) == []  # the old one is gone
+        before = len(proc.preds)
+        proc.send("aibo", 8)
+        proc.collect(before + 5)
+        after = proc.preds[before:]
+        assert all(p.updates <= 1 for p in after), [p.updates for p in after]
+        assert after[-1].tick == 8
+    finally:
+        proc.service.shutdown()
+
+
 def test_idle_worker_counts_labels_ahead_and_predicts_the_same() -> None:
     """After a learn with nothing waiting the worker counts the labels (``_Worker.idle``);
     the next prediction uses them unchanged and equals one that counted them itself."""
@@ -393,56 +401,3 @@ def test_idle_worker_counts_labels_ahead_and_predicts_the_same() -> None:
                           dims=ahead.rt.dims, robot="aibo") for w in (ahead, plain)]
             _same_prediction(got[0], got[1])  # type: ignore[arg-type]
             assert any(e.label for e in got[0].multimap)  # type: ignore[union-attr]
-
-
-def test_realtime_reset_publishes_nothing_from_the_old_model(tmp_path: Path) -> None:
-    """A reset forgets the prepared prediction: after it, every prediction published counts
-    only pairs learned after the reset."""
-    proc = Loop(make_config(tmp_path, "rr", clock="realtime"), process=True)
-    try:
-        proc.send_paced("aibo", range(8))
-        proc.collect_until(lambda p: p.updates >= 8, "the pairs before the reset never counted")
-        proc.transport.inject(keys.key("aibo", "control"),
-                              encode(Control("aibo", 0, 0.0, op="reset")))
-        proc.service.step(0.005)
-        assert proc.learners is not None
-        assert proc.learners.prepared([proc.robots["aibo"]]) == []  # the old one is gone
-        before = len(proc.preds)
-        proc.send("aibo", 8)
-        proc.collect(before + 5)
-        after = proc.preds[before:]
-        assert all(p.updates <= 1 for p in after), [p.updates for p in after]
-        assert after[-1].tick == 8
-    finally:
-        proc.service.shutdown()
-
-
-def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads() -> None:
-    """A fresh worker process compiles (or loads from numba's cache) the learner's kernels at
-    ``load``, not inside a robot's first steps (a first use mid-run stalled a step for
-    milliseconds to seconds): its load reply counts the compiled signatures, 0 in a process
-    that never warmed them up."""
-    import subprocess
-    import sys
-
-    from roger_daemon.daemon.worker import read_frame, write_frame
-    from roger_daemon.learner import RogerParams
-
-    proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker"],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-    try:
-        assert proc.stdin is not None and proc.stdout is not None
-        write_frame(proc.stdin, {"op": "load", "robot": "aibo", "x_dim": STREAM.x.shape[1],
-                                 "y_dim": STREAM.y.shape[1], "model": "roger", "seed": 0,
-                                 "params": RogerParams().to_mapping(), "state": None,
-                                 "codes": None})
-        reply = read_frame(proc.stdout)
-        assert reply is not None and reply["n"] == 0
-        assert reply["kernels"] > 0
-        write_frame(proc.stdin, {"op": "stop"})
-        assert read_frame(proc.stdout) == {}
-        assert proc.wait(timeout=120) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()

@@ -1,0 +1,55 @@
+"""One learner worker process on its own: its frames and arrays, its start-up
+(:mod:`roger_daemon.daemon.worker`; the daemon with workers: tests/test_workers.py)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from roger_daemon.daemon.checkpoint import array_digest
+from roger_daemon.daemon.worker import pack_arrays, read_frame, unpack_arrays, write_frame
+from roger_daemon.learner import RogerParams
+from roger_daemon.learner.synthetic import subtask_stream
+
+STREAM = subtask_stream(20)
+
+
+def test_arrays_round_trip_without_pickle() -> None:
+    arrays = {"f": np.arange(6.0).reshape(2, 3), "i": np.arange(4, dtype=np.int32),
+              "s": np.array('{"a": 1}'), "e": np.zeros((0, 5))}
+    back = unpack_arrays(pack_arrays(arrays))
+    assert array_digest(back) == array_digest(arrays)
+    with pytest.raises(TypeError):
+        pack_arrays({"o": np.array([object()])})
+    with pytest.raises(ValueError):
+        unpack_arrays({"o": {"t": "|O", "s": [1], "b": b"\0" * 8}})
+    with pytest.raises(ValueError):
+        unpack_arrays({"f": {"t": "<f8", "s": [3], "b": b"\0" * 8}})
+
+
+def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads() -> None:
+    """A fresh worker process compiles (or loads from numba's cache) the learner's kernels at
+    ``load``, not inside a robot's first steps (a first use mid-run stalled a step for
+    milliseconds to seconds): its load reply counts the compiled signatures, 0 in a process
+    that never warmed them up."""
+    proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert proc.stdin is not None and proc.stdout is not None
+        write_frame(proc.stdin, {"op": "load", "robot": "aibo", "x_dim": STREAM.x.shape[1],
+                                 "y_dim": STREAM.y.shape[1], "model": "roger", "seed": 0,
+                                 "params": RogerParams().to_mapping(), "state": None,
+                                 "codes": None})
+        reply = read_frame(proc.stdout)
+        assert reply is not None and reply["n"] == 0
+        assert reply["kernels"] > 0
+        write_frame(proc.stdin, {"op": "stop"})
+        assert read_frame(proc.stdout) == {}
+        assert proc.wait(timeout=120) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
