@@ -26,7 +26,6 @@ import logging
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -39,7 +38,7 @@ from protocols.messages import (
     Status,
 )
 from roger_daemon.config import DaemonConfig
-from roger_daemon.daemon.health import LOG_LEVEL_OF, Health
+from roger_daemon.daemon.health import Health
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.sdnotify import Notifier
 from roger_daemon.daemon.service.answers import (
@@ -54,7 +53,7 @@ from roger_daemon.daemon.service.outbox import Outbox
 from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
 from roger_daemon.daemon.service.schedule import LoopStats, TickSchedule
 from roger_daemon.daemon.service.shutdown import abort, shutdown
-from roger_daemon.daemon.service.status import invalid_counts, robot_status
+from roger_daemon.daemon.service.status import invalid_counts, publish_status, robot_status
 from roger_daemon.transport import Inbox, Incoming, Transport
 
 __all__ = ["Service"]
@@ -234,7 +233,7 @@ class Service:
             self._learn_once()
             now = self.clock.monotonic_ns()
         if now >= self._next_status:
-            self._publish_status(now)
+            publish_status(self, now)
             self._next_status += self._status_period_ns
             if self._next_status <= now:
                 self._next_status = now + self._status_period_ns
@@ -337,26 +336,6 @@ class Service:
     def status_of(self, rt: RobotRuntime, now: int) -> Status:
         """The status message of one robot at ``now`` (monotonic ns)."""
         return robot_status(self, rt, now)
-
-    def _publish_status(self, now: int) -> None:
-        lines = []
-        self._commit_all(self.robots.values())
-        for rt in self.robots.values():
-            self._commit(rt)
-            st = self.status_of(rt, now)
-            before = self.health[rt.robot].last[0]
-            level, reasons = self.health[rt.robot].assess(st.to_map(), now)
-            if level != before:  # into the journal too: journalctl -p warning shows it
-                log.log(LOG_LEVEL_OF[level], "%s: status %s%s", rt.robot, level,
-                        f" ({reasons})" if reasons else "")
-            st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
-            self.outbox.status(rt.robot, st)
-            lines.append(
-                f"{rt.robot}: {st.mode}, {st.updates} updates ({st.updates_per_s:.1f}/s), "
-                f"{st.experts} experts, queue {st.queue_depth}, dropped {st.dropped}, "
-                f"p99 {st.latency_ms_p99:.1f} ms, {level}"
-            )
-        self.notifier.status("; ".join(lines))
 
     # --- checkpoints and recording ---------------------------------------------------------
 

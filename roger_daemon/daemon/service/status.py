@@ -6,19 +6,24 @@ log, recording, control confirmation and health (``protocols/README.md``, status
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from protocols.messages import Status
+from roger_daemon.daemon.health import LOG_LEVEL_OF
 from roger_daemon.daemon.robot import RobotRuntime
 
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["invalid_counts", "robot_status"]
+__all__ = ["invalid_counts", "publish_status", "robot_status"]
+
+log = logging.getLogger(__name__)
 
 
 def _pct(values: Any, q: float) -> float:
@@ -87,3 +92,26 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int) -> Status:
         latency_ms_p99=rt.latency.pct(99), uptime_s=(now - svc.started_ns) / 1e9,
         info=info,
     )
+
+
+def publish_status(svc: Service, now: int) -> None:
+    """Every robot's status (after committing the logs it reports), its health level (a change
+    is logged), and the systemd status line."""
+    lines = []
+    svc._commit_all(svc.robots.values())
+    for rt in svc.robots.values():
+        svc._commit(rt)
+        st = svc.status_of(rt, now)
+        before = svc.health[rt.robot].last[0]
+        level, reasons = svc.health[rt.robot].assess(st.to_map(), now)
+        if level != before:  # into the journal too: journalctl -p warning shows it
+            log.log(LOG_LEVEL_OF[level], "%s: status %s%s", rt.robot, level,
+                    f" ({reasons})" if reasons else "")
+        st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
+        svc.outbox.status(rt.robot, st)
+        lines.append(
+            f"{rt.robot}: {st.mode}, {st.updates} updates ({st.updates_per_s:.1f}/s), "
+            f"{st.experts} experts, queue {st.queue_depth}, dropped {st.dropped}, "
+            f"p99 {st.latency_ms_p99:.1f} ms, {level}"
+        )
+    svc.notifier.status("; ".join(lines))
