@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from roger_daemon.bench.fleet import period_jitter_ms
 
@@ -51,3 +52,61 @@ def test_period_jitter_is_the_distance_of_each_interval_from_the_period() -> Non
     assert period_jitter_ms(late, 25.0).tolist() == [0.0, 0.0, 5.0, 5.0, 0.0]
     assert period_jitter_ms(on_time[:1], 25.0).size == 0
     assert period_jitter_ms([], 25.0).size == 0
+
+
+class _FakeClock:
+    """``time.monotonic`` and ``time.sleep`` of a clock that moves only when slept on."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+class _Recorder:
+    """The FleetClient calls ``feed`` makes, with the fake clock's time of each."""
+
+    def __init__(self, robots: list[str], clock: _FakeClock) -> None:
+        self.robots, self.clock = robots, clock
+        self.sends: list[tuple[str, str, int, float]] = []
+
+    def perception(self, robot: str, tick: int, x: np.ndarray) -> None:
+        self.sends.append(("perception", robot, tick, self.clock.now))
+
+    def action(self, robot: str, tick: int, y: np.ndarray, label: str) -> None:
+        self.sends.append(("action", robot, tick, self.clock.now))
+
+
+@pytest.mark.parametrize("stagger", [False, True])
+def test_feed_sends_every_robot_at_the_tick_or_staggered_over_the_period(
+        stagger: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Exact oracle on a fake clock (realtime feed, 4 robots at 25 Hz, 3 ticks): without
+    ``--stagger`` every perception of tick t goes at t0 + t/25, the order rotating; with it
+    robot i's goes i/4 of a period later, always in robot order."""
+    import argparse
+
+    from roger_daemon.bench import fleet_client
+    from roger_daemon.bench.streams import FeedStream
+
+    clock = _FakeClock()
+    monkeypatch.setattr(fleet_client, "time", clock)
+    robots = ["r0", "r1", "r2", "r3"]
+    fleet = _Recorder(robots, clock)
+    stream = FeedStream(x=np.zeros((8, 2)), y=np.zeros((8, 1)), labels=("a",) * 8)
+    ticks = fleet_client.feed(fleet, stream, argparse.Namespace(rate=25.0),  # type: ignore[arg-type]
+                              False, clock.now + 3 / 25 - 1e-9, stagger=stagger)
+    assert ticks == 3
+    perceptions = [(r, t, at) for kind, r, t, at in fleet.sends if kind == "perception"]
+    assert len(perceptions) == 12 and len(fleet.sends) == 24  # an action with each
+    for k, (robot, tick, at) in enumerate(perceptions):
+        j = k % 4
+        if stagger:
+            assert robot == robots[j]
+            assert at == pytest.approx(100.0 + tick / 25 + j / 100, abs=1e-12)
+        else:
+            assert robot == robots[(tick + j) % 4]
+            assert at == pytest.approx(100.0 + tick / 25, abs=1e-12)

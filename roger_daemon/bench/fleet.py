@@ -25,6 +25,10 @@ after a minute).  Two phases, each with a fresh daemon (``--clock both``, the de
   is perception(t) published -> prediction(t) received, measured here (one clock); it
   includes any time the perception waits for learning in the daemon.
 
+``--stagger`` spreads the robots' sends over the period (robot ``i`` of ``N`` at ``i/N`` of
+it) instead of sending every robot's perception at the tick; the issue's targets are measured
+without it, in that worst case.
+
 CPU: utime + stime of the daemon and its child processes (its learner workers), from
 ``/proc``, over the measured window, in % of one core. The first ``--warmup`` seconds of each
 phase are not measured. ``loadavg`` is reported before and after: the figures depend on what
@@ -77,6 +81,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-recording", action="store_true",
                         help="switch the daemon's MCAP recording off (on by default, as in "
                              "production)")
+    parser.add_argument("--stagger", action="store_true",
+                        help="robot i of N sends i/N of a period after the tick, as robots "
+                             "with free-running clocks would (default: all at the tick, the "
+                             "worst case, which the targets are measured with)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep the daemon's config, log, checkpoints and recordings here")
@@ -162,7 +170,8 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStre
         w0 = int((start + args.warmup) * 1e9)
         w1 = int((start + args.warmup + args.seconds) * 1e9)
         feeder = threading.Thread(target=feed, args=(fleet, stream, args, fleet.lockstep,
-                                                      start + args.warmup + args.seconds))
+                                                      start + args.warmup + args.seconds),
+                                  kwargs={"stagger": args.stagger})
         feeder.start()
         time.sleep(args.warmup)
         pid = daemon.proc.pid
@@ -264,12 +273,15 @@ def run(args: argparse.Namespace) -> int:
         workdir.mkdir(parents=True, exist_ok=True)
         for clock in clocks:
             phases[clock] = _phase(workdir, args, clock, stream)
+    summary = _summary(phases)
+    if args.stagger:  # the targets are judged in the worst case: every robot at the tick
+        summary["meets_targets"] = None
     result = {
-        "phases": phases, "summary": _summary(phases), "targets": TARGETS,
+        "phases": phases, "summary": summary, "targets": TARGETS,
         "settings": {"stream": args.stream, "robots": args.robots, "seconds": args.seconds,
                      "rate_hz": args.rate,
                      "warmup_s": args.warmup, "recording": not args.no_recording,
-                     "overrides": list(args.overrides)},
+                     "stagger": args.stagger, "overrides": list(args.overrides)},
         "machine": finish(machine),
     }
     if args.json:

@@ -152,33 +152,47 @@ def _stream_of(stream: FeedStream, i: int, n: int, tick: int
 
 
 def feed(fleet: FleetClient, stream: FeedStream, args: argparse.Namespace, lockstep: bool,
-          stop_at: float) -> int:
-    """Publish at ``args.rate`` until ``stop_at``; in lockstep actions follow predictions."""
+         stop_at: float, *, stagger: bool = False) -> int:
+    """Publish at ``args.rate`` until ``stop_at``; in lockstep actions follow predictions.
+
+    Every robot's perception of a tick is sent at the tick (the order rotating from tick to
+    tick), or with ``stagger`` robot ``i`` of ``N`` sends ``i/N`` of a period after it, as
+    robots with free-running clocks would."""
     n = len(fleet.robots)
     period = 1.0 / args.rate
+    slot = period / n if stagger else 0.0
     t0 = time.monotonic()
     tick = 0
     while time.monotonic() < stop_at:
         for j in range(n):
-            i = (tick + j) % n
+            i = j if stagger else (tick + j) % n
+            if stagger:
+                _answer_until(fleet, stream, lockstep, t0 + tick * period + j * slot)
             r = fleet.robots[i]
             x, y, label = _stream_of(stream, i, n, tick)
             fleet.perception(r, tick, x)
             if not lockstep:
                 fleet.action(r, tick, y, label)
         tick += 1
-        while True:  # lockstep: answer predictions with actions until the next tick
-            left = t0 + tick * period - time.monotonic()
-            if left <= 0:
-                break
-            if not lockstep:
-                time.sleep(left)
-                break
-            try:
-                r, t = fleet.answered.get(timeout=left)
-            except queue.Empty:
-                break
-            i = fleet.robots.index(r)
-            _x, y, label = _stream_of(stream, i, n, t)
-            fleet.action(r, t, y, label)
+        _answer_until(fleet, stream, lockstep, t0 + tick * period)
     return tick
+
+
+def _answer_until(fleet: FleetClient, stream: FeedStream, lockstep: bool,
+                  deadline: float) -> None:
+    """Wait until ``deadline`` (monotonic s); in lockstep answer predictions with actions."""
+    n = len(fleet.robots)
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return
+        if not lockstep:
+            time.sleep(left)
+            return
+        try:
+            r, t = fleet.answered.get(timeout=left)
+        except queue.Empty:
+            return
+        i = fleet.robots.index(r)
+        _x, y, label = _stream_of(stream, i, n, t)
+        fleet.action(r, t, y, label)
