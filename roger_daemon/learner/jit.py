@@ -24,7 +24,8 @@ SMALL = 64
 
 KERNELS = ("cholesky_inverse", "expert_terms",
            "fused_delete_index", "fused_step",
-           "gate_log_predictive", "gate_update", "kernel_vector", "packed_add_lowrank",
+           "gate_log_predictive", "gate_update", "kernel_vector", "min_argmax",
+           "packed_add_lowrank",
            "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row", "trace_lineages")
 
 
@@ -56,6 +57,7 @@ def warm_up() -> None:
     k.kernel_vector(basis, np.zeros(1), 1.0, n)
     k.sym_matvec(sym, np.zeros(n), n, n)
     k.sym_row(sym, n, n, 1)
+    k.min_argmax(np.ones(n))
     k.packed_add_lowrank(sym.copy(), n, n, np.zeros((1, n)), np.zeros(1))
     k.expert_terms(basis, sym, np.zeros((n, 1)), np.zeros(1), 1.0, n, n)
     k.rank_update_cq(sym.copy(), sym.copy(), n, n, 0, np.zeros((3, n)), np.zeros(3),

@@ -38,7 +38,7 @@ import numpy.typing as npt
 from roger_daemon.learner.jit_compile import compiled as _compiled
 
 __all__ = ["cholesky_inverse", "expert_terms", "fused_delete_index", "fused_step",
-           "kernel_vector", "packed_add_lowrank", "rank_update_cq", "sym_matvec",
+           "kernel_vector", "min_argmax", "packed_add_lowrank", "rank_update_cq", "sym_matvec",
            "sym_matvec_into", "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -287,9 +287,10 @@ def fused_delete_index(coef: FloatArray, dg: FloatArray, ck: FloatArray, e: Floa
 def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
                gram: FloatArray, dg: FloatArray, x: FloatArray, k: FloatArray, ck: FloatArray,
                e: FloatArray, cw: FloatArray, q: FloatArray, r: float, gamma: float,
-               kstar: float) -> tuple[FloatArray, FloatArray]:
+               kstar: float) -> tuple[FloatArray, FloatArray, float, int]:
     """One full expert's fused add-then-delete step (:func:`.sogp_fused.fused_add_delete`),
-    in place; returns the new ``diag(C) + diag(Q)`` (tracked) and ``diag(Q)`` (as stored).
+    in place; returns the new ``diag(C) + diag(Q)`` (tracked), ``diag(Q)`` (as stored) and
+    its minimum and first argmax (:func:`min_argmax`).
     The vectors ``s = [Ck; 1]``, ``e = [Qk; -1]`` and the columns ``i`` of ``C1`` and ``Q1``
     are permuted so that index ``n`` sits at ``i``; then ``A``, the diagonal, the basis and
     ``K_B`` are updated and :func:`rank_update_cq` does the rank-3 and rank-2 updates in one
@@ -366,4 +367,26 @@ def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Floa
         gram[off] = kstar
     dq = np.empty(n)
     rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
-    return diag, dq
+    dq_min, dq_argmax = min_argmax(dq)
+    return diag, dq, dq_min, dq_argmax
+
+
+@_compiled(nogil=True)
+def min_argmax(v: FloatArray) -> tuple[float, int]:
+    """``(np.min(v), np.argmax(v))`` of a non-empty vector, NaN included: a NaN makes the
+    minimum NaN and is the argmax (the first one); otherwise the first maximum."""
+    mn = v[0]
+    mx = v[0]
+    arg = 0
+    if v[0] != v[0]:
+        return math.nan, 0
+    for a in range(1, v.shape[0]):
+        x = v[a]
+        if x != x:
+            return math.nan, a
+        if x < mn:
+            mn = x
+        if x > mx:
+            mx = x
+            arg = a
+    return mn, arg

@@ -132,6 +132,7 @@ class SparseOnlineGP(SOGPSteps):
         self._Kp: FloatArray = np.zeros(_packed.packed_size(alloc))
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
         self._dq: FloatArray | None = None  # diag(Q) as stored, from the fused step
+        self._dq_min, self._dq_argmax = math.nan, -1
         self.q_refreshes = 0  # re-inversions of Q after detected drift
         # |gamma - threshold k*| / k* of the last update's novelty test (diagnostic, not state;
         # docs/reproducibility.md): how close that discrete decision was to going the other way
@@ -304,6 +305,7 @@ class SparseOnlineGP(SOGPSteps):
                                          pool.copy_of(self._Kp))
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
+        out._dq_min, out._dq_argmax = self._dq_min, self._dq_argmax
         out.q_refreshes = self.q_refreshes
         return out
 

@@ -59,9 +59,9 @@ def fused_add_delete(gp: SparseOnlineGP, x: FloatArray, y: FloatArray, k: FloatA
     denom = gp.noise + latent
     r = -1.0 / denom  # Csató's K2
     q = (y - mean) / denom  # Csató's K1
-    gp._dg, gp._dq = _jit.fused_step(gp._B, gp._A, gp._Cp, gp._Qp, gp._Kp, gp._diag_cq(), x, k, ck,
-                             e_hat, _output_weights(gp.a_cols, gp.d_y), q, r, gamma,
-                             gp.kernel.k_star)
+    gp._dg, gp._dq, gp._dq_min, gp._dq_argmax = _jit.fused_step(
+        gp._B, gp._A, gp._Cp, gp._Qp, gp._Kp, gp._diag_cq(), x, k, ck, e_hat,
+        _output_weights(gp.a_cols, gp.d_y), q, r, gamma, gp.kernel.k_star)
 
 
 @lru_cache(maxsize=8)

@@ -37,7 +37,8 @@ class SOGPSteps:
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
                  "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_Kp", "_dg",
-                 "_dq", "q_refreshes", "prior_mean", "_m", "novelty_margin")
+                 "_dq", "_dq_min", "_dq_argmax", "q_refreshes", "prior_mean", "_m",
+                 "novelty_margin")
     kernel: RBFKernel
     capacity: int | None
     novelty_threshold: float
@@ -54,6 +55,8 @@ class SOGPSteps:
     _Kp: FloatArray
     _dg: FloatArray | None
     _dq: FloatArray | None
+    _dq_min: float  # min and first argmax of _dq (valid while _dq is not None)
+    _dq_argmax: int
 
     def novelty(self, k: FloatArray) -> tuple[FloatArray, float]:
         """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma)`` with the projection residual
@@ -81,6 +84,8 @@ class SOGPSteps:
         kstar = self.kernel.k_star
         if gamma < -_Q_DRIFT_TOL * kstar:
             return True
+        if self._dq is not None:  # the fused step's copy, with its minimum
+            return self._dq_min * kstar < 1.0 - _Q_DRIFT_TOL
         diag = self._diag_q()
         return bool(diag.size and float(diag.min()) * kstar < 1.0 - _Q_DRIFT_TOL)
 
@@ -159,7 +164,7 @@ class SOGPSteps:
         floor = self.novelty_threshold * 1e-3
         while self.n > 1 and floor > 0.0:
             diag = self._diag_q()
-            i = int(np.argmax(diag))
+            i = self._dq_argmax if self._dq is not None else int(np.argmax(diag))
             if 1.0 / diag[i] >= floor:
                 break
             self.delete(i)

@@ -211,3 +211,17 @@ def test_warm_up_compiles_every_signature_a_learner_step_uses() -> None:
     model.predict_with_multimap(s.x[0])
     assert max(g.n for g in model.distinct_experts()) == 20  # the fused path ran
     assert compiled_signatures("roger_daemon.learner") == before
+
+
+@pytest.mark.parametrize("values", [
+    [3.0], [1.0, 5.0, 5.0, -2.0], [0.0, -0.0, 0.0], [2.0, np.nan, 7.0, np.nan],
+    [np.nan, 1.0], [-np.inf, np.inf, 4.0], list(np.random.default_rng(3).normal(size=301)),
+])
+def test_min_argmax_is_numpys_min_and_first_argmax(values: list[float]) -> None:
+    """Oracle: ``np.min`` and ``np.argmax``, ties (the first maximum), signed zeros and NaN
+    (minimum NaN, the first NaN the argmax) included."""
+    v = np.array(values)
+    got_min, got_arg = jit.min_argmax(v)
+    assert got_arg == int(np.argmax(v))
+    want = float(np.min(v))
+    assert (np.isnan(got_min) and np.isnan(want)) or got_min == want

@@ -238,6 +238,7 @@ def test_cached_diagonal_of_q_is_the_stored_one_bit_for_bit() -> None:
             if g._dq is not None:
                 cached += 1
                 assert np.array_equal(g._dq, stored)
+                assert g._dq_min == stored.min() and g._dq_argmax == int(np.argmax(stored))
     assert cached > 100 and sum(g.q_refreshes for g in gps) > 0
 
 
