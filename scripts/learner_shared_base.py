@@ -101,8 +101,8 @@ def following(gen: Genealogy) -> Iterator[None]:
             gen.updated(self)
         update(self, *a, **k)
 
-    def copy_(self: Any) -> Any:
-        out = copy(self)
+    def copy_(self: Any, *a: Any, **k: Any) -> Any:
+        out = copy(self, *a, **k)
         gen.updates[id(out)] = gen.updates.get(id(self), ())
         return out
 
