@@ -165,15 +165,32 @@ class SegmentationHistory:
     def state(self) -> dict[str, np.ndarray]:
         """``history_settled`` (M,), ``history_exception_points`` (K,) and
         ``history_exception_ids`` (K, P), ``history_ancestor`` and ``history_expert`` (the last
-        row, (1, P)): canonical (settled), so equal models give equal arrays."""
-        self.settle()
+        row, (1, P)): canonical (settled), so equal models give equal arrays.
+
+        Reads only: a settled copy is saved, this history is left as it is, so threads may
+        save one model at once (the experiment's daemon check beside its checkpoints did, and
+        two concurrent settles counted the window twice)."""
+        hist = self._copy()
+        hist.settle()
         return {
-            "history_settled": self._settled[:self.n_settled].copy(),
-            "history_exception_points": self._xpt.copy(),
-            "history_exception_ids": self._xid.copy(),
-            "history_ancestor": self._anc[:self.n_rows].copy(),
-            "history_expert": self._eid[:self.n_rows].copy(),
+            "history_settled": hist._settled[:hist.n_settled],
+            "history_exception_points": hist._xpt,
+            "history_exception_ids": hist._xid,
+            "history_ancestor": hist._anc[:hist.n_rows],
+            "history_expert": hist._eid[:hist.n_rows],
         }
+
+    def _copy(self) -> SegmentationHistory:
+        """An independent copy (of the rows in use)."""
+        out = SegmentationHistory(self.width)
+        out._settled = self._settled[:max(self.n_settled, _MIN_POINTS)].copy()
+        out.n_settled = self.n_settled
+        out._xpt = self._xpt.copy()
+        out._xid = self._xid.copy()
+        out._anc = self._anc.copy()
+        out._eid = self._eid.copy()
+        out.n_rows = self.n_rows
+        return out
 
     @classmethod
     def from_state(cls, width: int, settled: npt.ArrayLike | None, ancestors: npt.ArrayLike,

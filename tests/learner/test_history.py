@@ -191,3 +191,26 @@ def test_roger_history_settles_and_schemas_2_and_3_migrate() -> None:
     learn(model, s.x[1200:], s.y[1200:])
     learn(migrated, s.x[1200:], s.y[1200:])
     np.testing.assert_array_equal(migrated.assignments(), model.assignments())
+
+
+def test_saving_reads_only_so_threads_may_save_one_model_at_once() -> None:
+    """``state`` saves a settled copy and leaves the history as it is: a model saved from
+    several threads at once gives every thread the same arrays and keeps its assignments (two
+    concurrent settles once counted the window twice: 443 assignments for 411 points)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from roger_daemon.daemon.checkpoint import array_digest
+
+    s = subtask_stream(150)
+    model = Roger(23, 9, RogerParams(beta=20), seed=2)
+    learn(model, s.x, s.y)
+    hist = model._history
+    assert hist.n_rows > 1  # a window that saving settles
+    before = (hist.n_settled, hist.n_rows, model.assignments().tolist())
+    want = array_digest(model.state_dict())
+    assert (hist.n_settled, hist.n_rows) == before[:2]  # saving changed nothing
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        digests = list(pool.map(lambda _: array_digest(model.state_dict()), range(64)))
+    assert set(digests) == {want}
+    assert (hist.n_settled, hist.n_rows, model.assignments().tolist()) == before
+    assert len(before[2]) == 150
