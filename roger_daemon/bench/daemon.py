@@ -21,7 +21,8 @@ subtask labels). Three phases, each with a fresh daemon and model:
    publishing at 30 Hz (the queue overflows and drops are counted, as they should be).
 
 Warm-up: the first second of each phase is not measured. Numbers depend on the machine and on
-what else runs on it; ``loadavg`` is reported alongside.
+what else runs on it; the machine record (:mod:`roger_daemon.machine`: load average at start
+and end, speed probe) is reported alongside.
 """
 
 from __future__ import annotations

@@ -31,8 +31,9 @@ without it, in that worst case.
 
 CPU: utime + stime of the daemon and its child processes (its learner workers), from
 ``/proc``, over the measured window, in % of one core. The first ``--warmup`` seconds of each
-phase are not measured. ``loadavg`` is reported before and after: the figures depend on what
-else runs on the machine.
+phase are not measured. The machine record (:mod:`roger_daemon.machine`: load average at start
+and end, speed probe) is reported: the figures depend on what else runs on the machine and on
+how fast it runs.
 """
 
 from __future__ import annotations

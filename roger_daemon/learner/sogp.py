@@ -309,12 +309,12 @@ class SparseOnlineGP(SOGPSteps):
         out.q_refreshes = self.q_refreshes
         return out
 
-
     def release(self, pool: BufferPool) -> None:
         """Give this expert's packed matrices to ``pool`` for later copies (the model has
         dropped it: it must not be used afterwards)."""
         for buf in (self._Cp, self._Qp, self._Kp):
             pool.give(buf)
+
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
              mean: FloatArray | None = None, gram: FloatArray | None = None) -> None:
