@@ -21,10 +21,13 @@ and ``zenoh_config`` are re-exported here. Zenoh rules followed here (docs/zenoh
 
 from __future__ import annotations
 
+import os
 import queue
+import select
 import threading
 import time
-from collections.abc import Callable
+import weakref
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -60,7 +63,11 @@ class Incoming:
 
 
 Deliver = Callable[[Incoming], None]
-_WAKE = Incoming("", None, 0, 0, 0)  # Inbox.wake's marker, never handed to the loop
+
+
+def _close_fds(*fds: int) -> None:
+    for fd in fds:
+        os.close(fd)
 
 
 class Publisher(Protocol):
@@ -93,7 +100,10 @@ class Inbox:
     """The bounded hand-over from transport threads to the loop; overflow is counted.
 
     ``put`` never blocks (it runs on Zenoh's callback threads); ``get`` blocks the loop up to
-    a timeout.
+    a timeout, until an item arrives or one of the given file descriptors (the learner
+    workers' pipes) is readable: the loop waits for everything in one ``select`` (a
+    self-pipe wakes it for an item), so no thread stands between a worker's reply and the
+    loop (docs/fleet.md, *One wait*).
     """
 
     def __init__(self, capacity: int) -> None:
@@ -101,6 +111,11 @@ class Inbox:
         self._lock = threading.Lock()
         self._overflow = 0
         self.capacity = capacity
+        self._waiting = False  # the loop is (about to be) in select: put must wake it
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._close_fds = weakref.finalize(self, _close_fds, self._wake_r, self._wake_w)
 
     def put(self, item: Incoming) -> None:
         """Enqueue without blocking; count an overflow when full."""
@@ -109,25 +124,42 @@ class Inbox:
         except queue.Full:
             with self._lock:
                 self._overflow += 1
+            return
+        if self._waiting:
+            try:
+                os.write(self._wake_w, b"\0")
+            except OSError:  # full (a wake is pending anyway) or closed
+                pass
 
-    def get(self, timeout: float) -> Incoming | None:
-        """The next item, waiting up to ``timeout`` seconds (``None`` when none came)."""
+    def get(self, timeout: float, fds: Sequence[int] = ()) -> Incoming | None:
+        """The next item, waiting up to ``timeout`` seconds; ``None`` when none came (the
+        time ran out or one of ``fds`` became readable)."""
         try:
+            return self._q.get_nowait()
+        except queue.Empty:
             if timeout <= 0:
-                item = self._q.get_nowait()
-            else:
-                item = self._q.get(timeout=timeout)
+                return None
+        self._waiting = True  # before the second look: a put after it writes the wake byte
+        try:
+            if self._q.empty():
+                select.select([self._wake_r, *fds], [], [], timeout)
+        finally:
+            self._waiting = False
+        try:
+            while os.read(self._wake_r, 4096):
+                pass
+        except BlockingIOError:
+            pass
+        try:
+            return self._q.get_nowait()
         except queue.Empty:
             return None
-        return None if item is _WAKE else item
 
-    def wake(self) -> None:
-        """End the loop's current wait in :meth:`get` (a learner worker replied). Never
-        blocks; dropped when the inbox is full (the loop is not waiting then)."""
-        try:
-            self._q.put_nowait(_WAKE)
-        except queue.Full:
-            pass
+    def close(self) -> None:
+        """Release the wake pipe (idempotent; also done when the inbox is collected). Call
+        it after the transport closed: a late ``put`` no longer writes to the pipe."""
+        self._waiting = False
+        self._close_fds()
 
     @property
     def overflow(self) -> int:

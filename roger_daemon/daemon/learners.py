@@ -10,7 +10,8 @@ driven over its stdin/stdout with msgpack frames (the processes and pipes:
 replies). Robots learn in parallel on every core, and no robot waits for another's learning.
 
 Ordering is what keeps the daemon's guarantees: a worker answers its requests one by one, in
-order, and one reader thread per worker hands the replies to the loop in that order. So
+order, and the loop reads each worker's replies in that order (its wait includes the workers'
+pipes: :meth:`WorkerProcesses.read_replies`). So
 
 - a learn reply is bookkept (label code, write-ahead log record, ``updates``) exactly as an
   in-process ``learn_one`` would be, and in the same order;
@@ -37,9 +38,8 @@ deadline and never hangs.
 from __future__ import annotations
 
 import logging
-import queue
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -138,9 +138,9 @@ class ProcessLearners(WorkerProcesses):
         rt.model = model
         rt.make_model = model.fresh
 
-    def attach(self, service: Any, wake: Callable[[], None]) -> None:
-        """Route replies to ``service`` and wake its loop with ``wake`` on each."""
-        self._service, self._wake = service, wake
+    def attach(self, service: Any) -> None:
+        """Route replies to ``service`` (its loop waits for them: :meth:`fds`)."""
+        self._service = service
         self.period_ns = int(service.schedule.period_ns)
 
     # --- replies ---------------------------------------------------------------------------
@@ -155,11 +155,8 @@ class ProcessLearners(WorkerProcesses):
         are free when the loop wakes to publish (``None``: no timer)."""
         self.deadline_ns = deadline_ns
         batch: list[tuple[Any, ...]] = []
-        while True:
-            try:
-                item = self._replies.get_nowait()
-            except queue.Empty:
-                break
+        self.read_replies()
+        while (item := self.next_reply()) is not None:
             self._dispatch(*item, batch=batch)
         if batch:
             self._service.worker_predictions(batch)
@@ -336,9 +333,10 @@ class ProcessLearners(WorkerProcesses):
 
     def wait_one(self, timeout: float) -> None:
         """Handle the next reply (up to ``timeout`` s), then feed the workers."""
-        try:
-            item = self._replies.get(timeout=timeout)
-        except queue.Empty:
+        if not self._replies:
+            self.read_replies(timeout)
+        item = self.next_reply()
+        if item is None:
             return
         self._dispatch(*item)
         self.pump()

@@ -48,7 +48,7 @@ from typing import IO, Any
 import msgpack
 import numpy as np
 
-__all__ = ["pack_arrays", "read_frame", "unpack_arrays", "write_frame"]
+__all__ = ["FrameReader", "pack_arrays", "read_frame", "unpack_arrays", "write_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -122,10 +122,59 @@ def read_frame(f: IO[bytes]) -> dict[str, Any] | None:
     payload = _read_exact(f, length)
     if payload is None:
         return None
-    msg = msgpack.unpackb(payload, raw=False)
+    return _frame_map(payload)
+
+
+def _frame_map(payload: bytearray) -> dict[str, Any]:
+    try:
+        msg = msgpack.unpackb(payload, raw=False)
+    except (msgpack.UnpackException, ValueError) as exc:  # OutOfData is not a ValueError
+        raise ValueError(f"bad frame: {type(exc).__name__}: {exc}") from None
     if not isinstance(msg, dict):
         raise ValueError("frame is not a map")
     return msg
+
+
+class FrameReader:
+    """Reads frames from a non-blocking pipe as its bytes arrive (the daemon's side).
+
+    ``raw`` is the pipe's unbuffered file (``FileIO``, ``O_NONBLOCK``). :meth:`read` takes
+    whatever the pipe holds now and returns the frames completed by it; a frame is read in
+    place into a buffer of its size, so a model state is not held twice. ``eof`` is set at
+    end of input. A bad frame raises ``ValueError``, as :func:`read_frame` does.
+    """
+
+    def __init__(self, raw: Any) -> None:
+        self._raw = raw
+        self._head = bytearray(_LEN.size)
+        self._payload: bytearray | None = None
+        self._pos = 0
+        self.eof = False
+
+    def read(self) -> list[dict[str, Any]]:
+        """The frames completed by what the pipe holds now (none when it is empty)."""
+        frames: list[dict[str, Any]] = []
+        while not self.eof:
+            target = self._head if self._payload is None else self._payload
+            if self._pos < len(target):
+                got = self._raw.readinto(memoryview(target)[self._pos:])
+                if got is None:  # nothing more for now
+                    break
+                if got == 0:
+                    self.eof = True
+                    break
+                self._pos += got
+                if self._pos < len(target):
+                    continue
+            if self._payload is None:
+                (length,) = _LEN.unpack(self._head)
+                if length > MAX_FRAME:
+                    raise ValueError(f"frame of {length} bytes")
+                self._payload, self._pos = bytearray(length), 0
+            else:
+                payload, self._payload, self._pos = self._payload, None, 0
+                frames.append(_frame_map(payload))
+        return frames
 
 
 def _vec(b: Any, n: int) -> np.ndarray:

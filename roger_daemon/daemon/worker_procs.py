@@ -3,18 +3,22 @@
 The process side of :class:`~roger_daemon.daemon.learners.ProcessLearners` (which schedules
 the requests and books the replies): one ``python -m roger_daemon.daemon.worker`` per robot,
 started with ``subprocess`` (a fresh interpreter, nothing forked after Zenoh opened),
-``--nice`` lower than the loop, each with one reader thread that hands its replies, in order,
-to a queue and wakes the loop. A request's context waits in ``WorkerSlot.pending`` until its
-reply is dispatched; every blocking wait has a deadline (docs/fleet.md, *Failure*).
+``--nice`` lower than the loop. The loop reads the replies itself: the workers' output pipes
+are non-blocking and the loop waits for them and for its inbox in one ``select``
+(:meth:`WorkerProcesses.fds`, :class:`~roger_daemon.transport.Inbox`), then reads whatever
+arrived (:meth:`WorkerProcesses.read_replies`), in order per worker: no reader thread takes
+the GIL between a reply and the loop (docs/fleet.md, *One wait*). A request's context waits
+in ``WorkerSlot.pending`` until its reply is dispatched; every blocking wait has a deadline
+(docs/fleet.md, *Failure*).
 """
 
 from __future__ import annotations
 
 import logging
-import queue
+import os
+import select
 import subprocess
 import sys
-import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -22,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from roger_daemon.daemon.robot import RobotRuntime
-from roger_daemon.daemon.worker import read_frame, write_frame
+from roger_daemon.daemon.worker import FrameReader, write_frame
 
 if TYPE_CHECKING:
     from roger_daemon.daemon.learners import RemoteModel
@@ -58,11 +62,11 @@ class WorkerSlot:
     ready_updates: int = 0  # the model updates the ready one counts
     vocab_sent: int = -1  # the label vocabulary's length the worker was sent last
     waiting: tuple[Any, int] | None = None
-    thread: threading.Thread | None = None
+    reader: FrameReader | None = None  # the replies, read as they arrive (non-blocking)
 
 
 class WorkerProcesses:
-    """One worker process per robot, its pipe and its reader thread.
+    """One worker process per robot and its pipes.
 
     Parameters
     ----------
@@ -79,19 +83,19 @@ class WorkerProcesses:
                  nice: int = 0) -> None:
         self.timeout_s = timeout_s
         self.nice = nice
-        self._replies: queue.SimpleQueue[tuple[str, dict[str, Any] | None]] = \
-            queue.SimpleQueue()
-        self._wake: Callable[[], None] = lambda: None
+        self._replies: deque[tuple[str, dict[str, Any] | None]] = deque()
         self.slots: dict[str, WorkerSlot] = {}
+        self._by_fd: dict[int, str] = {}
         try:
             for robot, rt in robots.items():  # start them all first: they import in parallel
                 proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker",
                                          "--nice", str(nice)],
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-                reader = threading.Thread(target=self._read, args=(robot, proc), daemon=True,
-                                          name=f"roger-worker-{robot}")
-                self.slots[robot] = WorkerSlot(rt, proc, thread=reader)
-                reader.start()
+                assert proc.stdout is not None
+                raw = getattr(proc.stdout, "raw", proc.stdout)
+                os.set_blocking(raw.fileno(), False)
+                self.slots[robot] = WorkerSlot(rt, proc, reader=FrameReader(raw))
+                self._by_fd[raw.fileno()] = robot
         except BaseException:
             self.close(kill=True)
             raise
@@ -101,18 +105,41 @@ class WorkerProcesses:
         """Book one reply (the scheduler's part)."""
         raise NotImplementedError
 
-    def _read(self, robot: str, proc: subprocess.Popen[bytes]) -> None:
-        assert proc.stdout is not None
-        while True:
+    def fds(self) -> list[int]:
+        """The output pipes of the workers still answering: the loop's wait includes them."""
+        return [fd for fd, robot in self._by_fd.items()
+                if not self.slots[robot].reader.eof]  # type: ignore[union-attr]
+
+    def read_replies(self, timeout: float = 0.0) -> None:
+        """Queue the replies that arrived (waiting up to ``timeout`` s for one), in order per
+        worker; end of a worker's output, or a frame that cannot be read, queues ``None``
+        (the worker failed)."""
+        fds = self.fds()
+        if not fds:
+            return
+        ready, _, _ = select.select(fds, [], [], max(timeout, 0.0))
+        for fd in ready:
+            robot = self._by_fd[fd]
+            reader = self.slots[robot].reader
+            assert reader is not None
             try:
-                frame = read_frame(proc.stdout)
+                frames: list[dict[str, Any] | None] = list(reader.read())
             except (OSError, ValueError) as exc:
                 log.error("%s: unreadable reply from the learner worker: %s", robot, exc)
-                frame = None
-            self._replies.put((robot, frame))
-            self._wake()
-            if frame is None or "fatal" in frame:
-                return
+                reader.eof = True
+                frames = [None]
+            else:
+                if reader.eof:
+                    frames.append(None)
+            self._replies.extend((robot, f) for f in frames)
+
+    def has_replies(self) -> bool:
+        """Whether replies were read and not dispatched yet (the loop must not wait)."""
+        return bool(self._replies)
+
+    def next_reply(self) -> tuple[str, dict[str, Any] | None] | None:
+        """The oldest reply read and not yet dispatched (``None``: none)."""
+        return self._replies.popleft() if self._replies else None
 
     def send(self, robot: str, req: dict[str, Any], ctx: Any) -> None:
         """Send one request; its reply is handled with ``ctx`` (in order)."""
@@ -137,14 +164,14 @@ class WorkerProcesses:
     def _wait(self, done: Callable[[], bool], what: str) -> None:
         end = time.monotonic() + self.timeout_s
         while not done():
-            left = end - time.monotonic()
-            try:
-                if left <= 0:
-                    raise queue.Empty
-                item = self._replies.get(timeout=left)
-            except queue.Empty:
-                raise WorkerError(f"no reply from a learner worker within {self.timeout_s:g} s "
-                                  f"({what})") from None
+            item = self.next_reply()
+            if item is None:
+                left = end - time.monotonic()
+                if left <= 0 or not self.fds():
+                    raise WorkerError(f"no reply from a learner worker within "
+                                      f"{self.timeout_s:g} s ({what})")
+                self.read_replies(left)
+                continue
             self._dispatch(*item)
 
     def close(self, *, kill: bool = False, timeout: float = 10.0) -> None:

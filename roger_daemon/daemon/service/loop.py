@@ -153,7 +153,7 @@ class Service:
         self.transport.declare_token(keys.daemon_liveliness(self.config.id))
         self.checkpoints.start(now)
         if self.learners is not None:
-            self.learners.attach(self, self.inbox.wake)
+            self.learners.attach(self)
         if self.robots:  # fdatasync releases the GIL: the logs commit side by side, and early
             self._committer = ThreadPoolExecutor(max_workers=min(8, len(self.robots)),
                                                  thread_name_prefix="roger-wal")
@@ -206,11 +206,12 @@ class Service:
     def step(self, max_wait_s: float = 0.05) -> None:
         """One cycle of the loop (see the module docstring)."""
         now = self.clock.monotonic_ns()
-        if self._can_learn(now):
+        if self._can_learn(now) or (self.learners is not None and self.learners.has_replies()):
             wait = 0.0
         else:
             wait = max(0.0, min(max_wait_s, (self._next_deadline() - now) / 1e9))
-        item = self.inbox.get(wait)
+        # one wait for messages, worker replies and the next deadline (docs/fleet.md, One wait)
+        item = self.inbox.get(wait, self.learners.fds() if self.learners is not None else ())
         # bounded, so that a backlog (lockstep runs ahead of learning) never starves status,
         # checkpoints, the watchdog or a stop request: the rest waits for the next cycle
         budget = min(self.inbox.capacity, MAX_DRAIN_PER_STEP)

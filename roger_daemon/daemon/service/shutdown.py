@@ -74,6 +74,7 @@ def _release(svc: Service, *, aborting: bool) -> None:
     _close_wals(svc)
     svc.recorders.close()
     svc.transport.close()
+    svc.inbox.close()
 
 
 def _learn_queued(svc: Service, until: float) -> None:
