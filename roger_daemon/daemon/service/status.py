@@ -12,22 +12,26 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from protocols.messages import Status
 from roger_daemon.daemon.health import LOG_LEVEL_OF
 from roger_daemon.daemon.robot import RobotRuntime
+from roger_daemon.daemon.window import percentiles
 
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["invalid_counts", "publish_status", "robot_status"]
+__all__ = ["invalid_counts", "publish_status", "robot_status", "timer_info"]
 
 log = logging.getLogger(__name__)
 
 
-def _pct(values: Any, q: float) -> float:
-    return round(float(np.percentile(np.fromiter(values, float), q)), 4) if values else 0.0
+def timer_info(svc: Service) -> dict[str, float]:
+    """The daemon-wide timer figures every robot's status reports (computed once per round
+    of status: each percentile costs a sort of its window)."""
+    jitter_p50, jitter_p99 = svc.stats.jitter_ms.pcts(50, 99)
+    return {"period_jitter_ms_p50": round(jitter_p50, 4),
+            "period_jitter_ms_p99": round(jitter_p99, 4),
+            "tick_lateness_ms_p99": round(svc.stats.lateness_ms.pct(99), 4)}
 
 
 def invalid_counts(rt: RobotRuntime, unserved: Mapping[str, int]) -> dict[str, int]:
@@ -38,20 +42,23 @@ def invalid_counts(rt: RobotRuntime, unserved: Mapping[str, int]) -> dict[str, i
     return {k: int(v) for k, v in sorted(invalid.items())}
 
 
-def robot_status(svc: Service, rt: RobotRuntime, now: int) -> Status:
-    """The status message of ``rt`` served by ``svc`` at ``now`` (monotonic ns)."""
+def robot_status(svc: Service, rt: RobotRuntime, now: int,
+                 timer: Mapping[str, float] | None = None) -> Status:
+    """The status message of ``rt`` served by ``svc`` at ``now`` (monotonic ns); ``timer``:
+    :func:`timer_info` when the caller computed it already."""
     ck = svc.checkpoints.state[rt.robot]
     invalid = invalid_counts(rt, svc.unserved)
     commit_ms = rt.wal.commit_durations() if rt.wal is not None else []  # one copy
+    commit_p50, commit_p99 = percentiles(commit_ms, 50, 99)
+    learn_p50, learn_p99 = rt.learn_ms.pcts(50, 99)
+    latency_p50, latency_p99 = rt.latency.pcts(50, 99)
     info: dict[str, Any] = {
         "clock": svc.config.clock,
         "rate_hz": svc.config.rate_hz,
-        "period_jitter_ms_p50": round(svc.stats.jitter_ms.pct(50), 4),
-        "period_jitter_ms_p99": round(svc.stats.jitter_ms.pct(99), 4),
-        "tick_lateness_ms_p99": round(svc.stats.lateness_ms.pct(99), 4),
+        **(timer_info(svc) if timer is None else timer),
         "missed_ticks": svc.stats.missed_ticks,
-        "learn_ms_p50": round(rt.learn_ms.pct(50), 4),
-        "learn_ms_p99": round(rt.learn_ms.pct(99), 4),
+        "learn_ms_p50": round(learn_p50, 4),
+        "learn_ms_p99": round(learn_p99, 4),
         "predict_ms_p50": round(rt.predict_ms.pct(50), 4),
         "unpaired_actions": rt.unpaired,
         "learn_errors": rt.learn_errors,
@@ -71,8 +78,8 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int) -> Status:
         "recording_errors": svc.recorders.errors,
         "wal": rt.wal is not None,
         "wal_commits": 0 if rt.wal is None else rt.wal.commits,
-        "wal_commit_ms_p50": _pct(commit_ms, 50),
-        "wal_commit_ms_p99": _pct(commit_ms, 99),
+        "wal_commit_ms_p50": round(commit_p50, 4),
+        "wal_commit_ms_p99": round(commit_p99, 4),
         "wal_commit_ms_max": 0.0 if rt.wal is None else round(rt.wal.commit_ms_max, 3),
         "resent_pairs": rt.resent,
         "workers": "inline",
@@ -88,8 +95,8 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int) -> Status:
         rt.robot, rt.last_tick, rt.last_t, daemon=svc.config.id, mode=rt.mode,
         ticks=rt.ticks, updates=rt.updates, updates_per_s=rt.updates_per_s(now),
         experts=int(rt.model.n_experts), queue_depth=len(rt.queue), dropped=rt.dropped,
-        invalid=dict(invalid), latency_ms_p50=rt.latency.pct(50),
-        latency_ms_p99=rt.latency.pct(99), uptime_s=(now - svc.started_ns) / 1e9,
+        invalid=dict(invalid), latency_ms_p50=latency_p50,
+        latency_ms_p99=latency_p99, uptime_s=(now - svc.started_ns) / 1e9,
         info=info,
     )
 
@@ -99,9 +106,10 @@ def publish_status(svc: Service, now: int) -> None:
     is logged), and the systemd status line."""
     lines = []
     svc._commit_all(svc.robots.values())
+    timer = timer_info(svc)
     for rt in svc.robots.values():
         svc._commit(rt)
-        st = svc.status_of(rt, now)
+        st = robot_status(svc, rt, now, timer)
         before = svc.health[rt.robot].last[0]
         level, reasons = svc.health[rt.robot].assess(st.to_map(), now)
         if level != before:  # into the journal too: journalctl -p warning shows it
