@@ -388,6 +388,48 @@ def test_poll_after_flush_interval_puts_messages_on_disk(tmp_path: Path) -> None
     rec.close()
 
 
+def test_flush_phase_moves_the_first_flush_only(tmp_path: Path) -> None:
+    """Robot i of n flushes (i + 1)/n of an interval after the first poll, then every
+    interval: n recorders never compress their chunks in the same loop cycle."""
+    rec = SessionRecorder(tmp_path, robot="aibo", metadata=_meta(), flush_interval_s=1.0,
+                          flush_phase=0.25, chunk_size=1 << 20, start_ns=T0)
+    rec.poll(0)
+    _write_ticks(rec, range(10))
+    rec.poll(249_999_999)
+    assert rec.stats.flushes == 0
+    rec.poll(250_000_000)
+    assert rec.stats.flushes == 1 and len(_salvage(rec.path.read_bytes())) == 20
+    _write_ticks(rec, range(10, 15))
+    rec.poll(1_249_999_999)
+    assert rec.stats.flushes == 1
+    rec.poll(1_250_000_000)
+    assert rec.stats.flushes == 2 and len(_salvage(rec.path.read_bytes())) == 30
+    rec.close()
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValueError, match="flush_phase"):
+            SessionRecorder(tmp_path, robot="aibo", metadata={}, flush_phase=bad)
+
+
+def test_daemon_recorders_get_distinct_flush_phases(tmp_path: Path) -> None:
+    from protocols.messages import Dims
+    from roger_daemon.config import parse_config
+    from roger_daemon.daemon.main import make_model, open_recorders
+    from roger_daemon.daemon.robot import RobotRuntime
+
+    cfg = parse_config({"recording": {"dir": str(tmp_path)},
+                        "robots": [{"id": f"r{i}"} for i in range(4)]})
+
+    robots = {r.id: RobotRuntime(r.id, Dims(r.x_dim, r.y_dim), make_model(r), lambda: None)
+              for r in cfg.robots}
+    recs = open_recorders(cfg, robots, {})
+    try:
+        phases = [rec._first_flush_ns for rec in recs.values()]  # type: ignore[attr-defined]
+        assert phases == [250_000_000, 500_000_000, 750_000_000, 1_000_000_000]
+    finally:
+        for rec in recs.values():
+            rec.close()
+
+
 def test_flush_now_and_chunk_size_close_chunks(tmp_path: Path) -> None:
     rec = SessionRecorder(tmp_path, robot="aibo", metadata={}, chunk_size=2048, start_ns=T0)
     _write_ticks(rec, range(30))  # ~12 kB: several chunks closed by size

@@ -327,6 +327,10 @@ class ProcessLearners(WorkerProcesses):
         slots = list(self.slots.values()) if rt is None else [self.slots[rt.robot]]
         self._wait(lambda: not any(s.pending for s in slots), "drain")
 
+    def answering(self) -> bool:
+        """True while a prediction request is in flight."""
+        return any(s.predicts for s in self.slots.values())
+
     def learning(self) -> bool:
         """True while learn requests are in flight."""
         return any(s.learns for s in self.slots.values())

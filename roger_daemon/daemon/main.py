@@ -91,7 +91,7 @@ def open_recorders(
         except OSError:
             config_text = ""
     out: dict[str, Recorder] = {}
-    for robot in cfg.robots:
+    for i, robot in enumerate(cfg.robots):
         rt = robots[robot.id]
         where = resumed.get(robot.id, Resumed())
         meta = session_metadata(
@@ -110,8 +110,10 @@ def open_recorders(
                    "recovered_pairs": str(where.recovered_pairs),
                    "recovered_from": ",".join(where.recovered_from)},
         )
-        rec = SessionRecorder(cfg.recording.dir, robot=robot.id, metadata=meta,
-                              **(recorder_options or {}))
+        # robot i of n flushes (i + 1)/n of a flush interval after the others: one chunk
+        # compression per loop cycle, not n (docs/fleet.md, One wait)
+        options = {"flush_phase": (i + 1) / len(cfg.robots), **(recorder_options or {})}
+        rec = SessionRecorder(cfg.recording.dir, robot=robot.id, metadata=meta, **options)
         log.info("%s: recording to %s", robot.id, rec.path)
         out[robot.id] = rec
     return out

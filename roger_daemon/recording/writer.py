@@ -88,6 +88,11 @@ class SessionRecorder:
         settings.
     flush_interval_s
         Close the open chunk and flush to the OS at least this often (via :meth:`poll`).
+    flush_phase
+        The first flush comes this fraction of ``flush_interval_s`` after the first
+        :meth:`poll` (``0 < flush_phase <= 1``; then every ``flush_interval_s``). A daemon
+        recording several robots gives each recorder its own phase, so that their flushes
+        (each compresses a chunk and writes it) do not all fall in one cycle of its loop.
     chunk_size
         Close a chunk when it reaches this many uncompressed bytes.
     rotate_bytes, rotate_s
@@ -108,6 +113,7 @@ class SessionRecorder:
         robot: str,
         metadata: Mapping[str, str],
         flush_interval_s: float = 1.0,
+        flush_phase: float = 1.0,
         chunk_size: int = 256 * 1024,
         rotate_bytes: int | None = 256 * 1024 * 1024,
         rotate_s: float | None = 3600.0,
@@ -120,6 +126,8 @@ class SessionRecorder:
             raise ValueError(f"compression must be one of {sorted(COMPRESSIONS)}")
         if flush_interval_s <= 0:
             raise ValueError("flush_interval_s must be > 0")
+        if not 0 < flush_phase <= 1:
+            raise ValueError(f"flush_phase must be in (0, 1], got {flush_phase!r}")
         bad = [k for k, v in metadata.items() if not isinstance(k, str) or not isinstance(v, str)]
         if bad:
             raise TypeError(f"metadata must map str to str; bad keys: {bad}")
@@ -128,6 +136,7 @@ class SessionRecorder:
         self._robot = robot
         self._meta = dict(metadata)
         self._flush_ns = int(flush_interval_s * 1e9)
+        self._first_flush_ns = int(flush_phase * self._flush_ns)
         self._chunk_size = int(chunk_size)
         self._rotate_bytes = rotate_bytes
         self._rotate_ns = None if rotate_s is None else int(rotate_s * 1e9)
@@ -218,7 +227,8 @@ class SessionRecorder:
         if self._closed:
             return
         if self._last_flush is None or self._part_started is None:
-            self._last_flush = self._part_started = now_ns
+            self._part_started = now_ns
+            self._last_flush = now_ns - self._flush_ns + self._first_flush_ns
             return
         if now_ns - self._last_flush >= self._flush_ns:
             self.flush()

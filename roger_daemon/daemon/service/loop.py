@@ -53,7 +53,13 @@ from roger_daemon.daemon.service.outbox import Outbox
 from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
 from roger_daemon.daemon.service.schedule import LoopStats, TickSchedule
 from roger_daemon.daemon.service.shutdown import abort, shutdown
-from roger_daemon.daemon.service.status import invalid_counts, publish_status, robot_status
+from roger_daemon.daemon.service.status import (
+    invalid_counts,
+    publish_status,
+    robot_status,
+    status_deadline,
+    status_due,
+)
 from roger_daemon.transport import Inbox, Incoming, Transport
 
 __all__ = ["Service"]
@@ -209,7 +215,7 @@ class Service:
         if self._can_learn(now) or (self.learners is not None and self.learners.has_replies()):
             wait = 0.0
         else:
-            wait = max(0.0, min(max_wait_s, (self._next_deadline() - now) / 1e9))
+            wait = max(0.0, min(max_wait_s, (self._next_deadline(now) - now) / 1e9))
         # one wait for messages, worker replies and the next deadline (docs/fleet.md, One wait)
         item = self.inbox.get(wait, self.learners.fds() if self.learners is not None else ())
         # bounded, so that a backlog (lockstep runs ahead of learning) never starves status,
@@ -233,7 +239,7 @@ class Service:
         if self._can_learn(now):
             self._learn_once()
             now = self.clock.monotonic_ns()
-        if now >= self._next_status:
+        if status_due(self, now):
             publish_status(self, now)
             self._next_status += self._status_period_ns
             if self._next_status <= now:
@@ -256,8 +262,8 @@ class Service:
             if now >= self.schedule.next_tick:
                 on_timer(self, now)
 
-    def _next_deadline(self) -> int:
-        deadline = self._next_status
+    def _next_deadline(self, now: int) -> int:
+        deadline = status_deadline(self, now)
         if self._realtime and self._timer_active():
             deadline = min(deadline, self.schedule.next_tick)
         return deadline

@@ -20,7 +20,8 @@ from roger_daemon.daemon.window import percentiles
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["invalid_counts", "publish_status", "robot_status", "timer_info"]
+__all__ = ["invalid_counts", "publish_status", "robot_status", "status_deadline", "status_due",
+           "timer_info"]
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +100,30 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int,
         latency_ms_p99=latency_p99, uptime_s=(now - svc.started_ns) / 1e9,
         info=info,
     )
+
+
+def status_due(svc: Service, now: int) -> bool:
+    """Whether the status round runs now. It holds the loop for 1-4 ms with eight robots
+    (the logs committed first, then every robot's status built and published), so once due it
+    waits for a moment when it delays no answer: in realtime the first quarter of a period
+    after a tick, in lockstep while no prediction is being answered; at most a quarter of
+    its own period (docs/fleet.md, *Status after the answers*)."""
+    if now < svc._next_status:
+        return False
+    if now >= svc._next_status + svc._status_period_ns // 4:
+        return True
+    if svc._realtime and svc._timer_active():
+        return now < svc.schedule.next_tick - 3 * svc.schedule.period_ns // 4
+    answering = svc.learners is not None and svc.learners.answering()
+    return not answering and len(svc.inbox) == 0
+
+
+def status_deadline(svc: Service, now: int) -> int:
+    """When the loop must wake for status: when it is due, or, due and held back, when it
+    can be held no longer (the answers it waits for wake the loop anyway)."""
+    if svc._next_status > now:
+        return svc._next_status
+    return svc._next_status + svc._status_period_ns // 4
 
 
 def publish_status(svc: Service, now: int) -> None:
