@@ -186,6 +186,29 @@ def test_no_prediction_is_started_in_the_quiet_window_before_a_tick(tmp_path: Pa
         proc.service.shutdown()
 
 
+def test_lockstep_starts_no_learning_while_a_prediction_is_answered(tmp_path: Path) -> None:
+    """Without a timer the answers go first: a pair queued while any robot's prediction is
+    in flight waits in the queue; once answered, feeding sends it."""
+    proc = Loop(make_config(tmp_path, "hold"), process=True)
+    learners = proc.learners
+    assert learners is not None
+    try:
+        aibo, b2 = proc.robots["aibo"], proc.robots["b2"]
+        learners.predict(aibo, Perception("aibo", 0, 0.0, x=STREAM.x[0]), 0)
+        assert learners.answering()
+        b2.on_perception(Perception("b2", 0, 0.0, x=STREAM.x[0]), 0)
+        b2.on_action(Action("b2", 0, 0.0, y=STREAM.y[0], label="seek"))
+        assert len(b2.queue) == 1  # b2's pair of tick 0
+        learners.feed()
+        assert learners.slots["b2"].learns == 0 and len(b2.queue) == 1  # held
+        learners._wait(lambda: not learners.answering(), "test")
+        learners.feed()
+        assert learners.slots["b2"].learns == 1 and len(b2.queue) == 0  # sent
+        learners.drain()
+    finally:
+        proc.service.shutdown()
+
+
 def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path) -> None:
     """Lockstep predictions, label majorities, checkpoints and write-ahead log records of
     two robots learned by worker processes equal those of the in-process loop."""

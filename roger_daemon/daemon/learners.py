@@ -243,7 +243,12 @@ class ProcessLearners(WorkerProcesses):
     def feed(self) -> None:
         """Keep ``depth`` learn requests in flight per learning robot; in the quiet window
         before a tick only a robot that has not learned since the last tick starts one (so
-        learning always progresses)."""
+        learning always progresses). Without a timer (lockstep) no learning starts while a
+        prediction is being answered: the answers go first on the two cores, and a pair
+        still queued when its robot's next perception comes is sent before that perception's
+        request (:meth:`learn_all`), as before (docs/fleet.md, *Status after the answers*)."""
+        if self.deadline_ns is None and self.answering():
+            return
         for s in self.slots.values():
             while s.rt.learning and s.rt.queue and s.learns < self.depth:
                 if s.since_tick and self._quiet(s.learn_est_ns):
