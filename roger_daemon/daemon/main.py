@@ -111,7 +111,7 @@ def open_recorders(
                    "recovered_from": ",".join(where.recovered_from)},
         )
         # robot i of n flushes (i + 1)/n of a flush interval after the others: one chunk
-        # compression per loop cycle, not n (docs/fleet.md, One wait)
+        # compression per loop cycle, not n (docs/fleet.md, Status after the answers)
         options = {"flush_phase": (i + 1) / len(cfg.robots), **(recorder_options or {})}
         rec = SessionRecorder(cfg.recording.dir, robot=robot.id, metadata=meta, **options)
         log.info("%s: recording to %s", robot.id, rec.path)

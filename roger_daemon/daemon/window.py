@@ -35,7 +35,8 @@ def percentiles(values: Collection[float], *qs: float) -> list[float]:
     """The ``qs``-th percentiles of the finite ``values`` from one sort (0.0 each when there
     are none): the floats of ``np.percentile`` (its default linear method, the same
     interpolation step by step) at a tenth of its cost per call, which the status of every
-    robot pays once a second for each of its windows (docs/fleet.md, *One wait*)."""
+    robot pays once a second for each of its windows (docs/fleet.md, *Status after the
+    answers*)."""
     n = len(values)
     if n == 0:
         return [0.0] * len(qs)
