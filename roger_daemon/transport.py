@@ -103,7 +103,8 @@ class Inbox:
     a timeout, until an item arrives or one of the given file descriptors (the learner
     workers' pipes) is readable: the loop waits for everything in one ``select`` (a
     self-pipe wakes it for an item), so no thread stands between a worker's reply and the
-    loop (docs/fleet.md, *One wait*).
+    loop (docs/fleet.md, *One wait*). Without descriptors (models in the loop) it waits on
+    the queue itself, whose wake-up costs no system call of the callback.
     """
 
     def __init__(self, capacity: int) -> None:
@@ -135,9 +136,11 @@ class Inbox:
         """The next item, waiting up to ``timeout`` seconds; ``None`` when none came (the
         time ran out or one of ``fds`` became readable)."""
         try:
+            if not fds:  # nothing else to wait for: the queue's own wait wakes fastest
+                return self._q.get(timeout=timeout) if timeout > 0 else self._q.get_nowait()
             return self._q.get_nowait()
         except queue.Empty:
-            if timeout <= 0:
+            if timeout <= 0 or not fds:
                 return None
         self._waiting = True  # before the second look: a put after it writes the wake byte
         try:

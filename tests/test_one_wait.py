@@ -121,14 +121,16 @@ def test_inbox_overflow_is_counted_not_blocking() -> None:
     inbox.close()
 
 
-def test_a_put_from_another_thread_ends_the_wait() -> None:
+@pytest.mark.parametrize("with_fds", [True, False])
+def test_a_put_from_another_thread_ends_the_wait(with_fds: bool) -> None:
+    """With descriptors the self-pipe wakes the select; without, the queue's own wait."""
     inbox = Inbox(4)
     r, w = os.pipe()  # a worker pipe that stays silent
     try:
         t = threading.Timer(0.05, inbox.put, args=(_item(7),))
         t.start()
         t0 = time.monotonic()
-        got = inbox.get(LONG_S, fds=[r])
+        got = inbox.get(LONG_S, fds=[r] if with_fds else ())
         t.join()
         assert got is not None and got.key == "k7"
         assert time.monotonic() - t0 < LONG_S / 2  # woken, not timed out
