@@ -34,9 +34,10 @@ class Window:
 def percentiles(values: Collection[float], *qs: float) -> list[float]:
     """The ``qs``-th percentiles of the finite ``values`` from one sort (0.0 each when there
     are none): the floats of ``np.percentile`` (its default linear method, the same
-    interpolation step by step) at a tenth of its cost per call, which the status of every
-    robot pays once a second for each of its windows (docs/fleet.md, *Status after the
-    answers*)."""
+    interpolation step by step) without its per-call overhead: two percentiles of 1,000
+    samples in 34 µs against 62 µs for each ``np.percentile`` call. The status of every
+    robot computes them once a second for each of its windows (docs/fleet.md, *Status after
+    the answers*)."""
     n = len(values)
     if n == 0:
         return [0.0] * len(qs)
