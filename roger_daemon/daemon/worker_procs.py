@@ -47,6 +47,7 @@ class WorkerSlot:
 
     rt: RobotRuntime
     proc: subprocess.Popen[bytes]
+    reader: FrameReader  # its replies, read as they arrive (non-blocking)
     model: RemoteModel | None = None
     pending: deque[tuple[str, Any]] = field(default_factory=deque)
     learns: int = 0
@@ -62,7 +63,6 @@ class WorkerSlot:
     ready_updates: int = 0  # the model updates the ready one counts
     vocab_sent: int = -1  # the label vocabulary's length the worker was sent last
     waiting: tuple[Any, int] | None = None
-    reader: FrameReader | None = None  # the replies, read as they arrive (non-blocking)
 
 
 class WorkerProcesses:
@@ -94,7 +94,7 @@ class WorkerProcesses:
                 assert proc.stdout is not None
                 raw = getattr(proc.stdout, "raw", proc.stdout)
                 os.set_blocking(raw.fileno(), False)
-                self.slots[robot] = WorkerSlot(rt, proc, reader=FrameReader(raw))
+                self.slots[robot] = WorkerSlot(rt, proc, FrameReader(raw))
                 self._by_fd[raw.fileno()] = robot
         except BaseException:
             self.close(kill=True)
@@ -107,8 +107,7 @@ class WorkerProcesses:
 
     def fds(self) -> list[int]:
         """The output pipes of the workers still answering: the loop's wait includes them."""
-        return [fd for fd, robot in self._by_fd.items()
-                if not self.slots[robot].reader.eof]  # type: ignore[union-attr]
+        return [fd for fd, robot in self._by_fd.items() if not self.slots[robot].reader.eof]
 
     def read_replies(self, timeout: float = 0.0) -> None:
         """Queue the replies that arrived (waiting up to ``timeout`` s for one), in order per
@@ -121,7 +120,6 @@ class WorkerProcesses:
         for fd in ready:
             robot = self._by_fd[fd]
             reader = self.slots[robot].reader
-            assert reader is not None
             try:
                 frames: list[dict[str, Any] | None] = list(reader.read())
             except (OSError, ValueError) as exc:
@@ -167,7 +165,9 @@ class WorkerProcesses:
             item = self.next_reply()
             if item is None:
                 left = end - time.monotonic()
-                if left <= 0 or not self.fds():
+                if not self.fds():  # every worker's end of output was dispatched already
+                    raise WorkerError(f"no learner worker left to answer ({what})")
+                if left <= 0:
                     raise WorkerError(f"no reply from a learner worker within "
                                       f"{self.timeout_s:g} s ({what})")
                 self.read_replies(left)
