@@ -65,9 +65,19 @@ def sym_matvec_into(buf: FloatArray, v: FloatArray, n: int, alloc: int, out: Flo
     streaming pass over the upper triangle of the live block, each stored ``S_ij`` used for
     row ``i`` (a dot product) and row ``j`` (an axpy).  Two rows at a time, so that each
     load and store of the axpy's accumulator serves two rows (1.2x cache-cold, 1.5x cached
-    against one row at a time: /tmp micro-benchmark, 2026-11-25, issue 11)."""
+    against one row at a time: /tmp micro-benchmark, 2026-11-25, issue 11).
+
+    A ``v`` that is exactly zero (an expert far from the point: with a narrow kernel every
+    ``exp`` underflows) gives ``out = 0`` without reading ``S``: the same floats, since every
+    product would be a signed zero added to ``+0.0`` (docs/performance.md, *Zero kernel
+    vectors*)."""
+    nonzero = False
     for i in range(n):
         out[i] = 0.0
+        if v[i] != 0.0:
+            nonzero = True
+    if not nonzero:
+        return
     off = 0
     i = 0
     while i + 1 < n:
