@@ -24,7 +24,7 @@ SMALL = 64
 
 KERNELS = ("cholesky_inverse", "expert_terms",
            "fused_delete_index", "fused_step",
-           "gate_log_predictive", "gate_update", "kernel_vector", "min_argmax",
+           "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
            "packed_add_lowrank",
            "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row", "trace_lineages")
 
@@ -65,8 +65,9 @@ def warm_up() -> None:
     k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
     vn, one, weights = np.ones(n), np.ones(1), np.ones(1)
     weights.setflags(write=False)  # as sogp_fused passes them: read-only, its own signature
-    k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), sym.copy(), 2 * vn,
-                 np.zeros(1), 0.5 * vn, -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5, 1.0)
+    k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), 2 * vn, np.zeros(1),
+                 -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
+    k.gram_matrix(basis, 1.0, n)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
     gk.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),

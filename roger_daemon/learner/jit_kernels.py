@@ -38,8 +38,8 @@ import numpy.typing as npt
 from roger_daemon.learner.jit_compile import compiled as _compiled
 
 __all__ = ["cholesky_inverse", "expert_terms", "fused_delete_index", "fused_step",
-           "kernel_vector", "min_argmax", "packed_add_lowrank", "rank_update_cq", "sym_matvec",
-           "sym_matvec_into", "sym_row"]
+           "gram_matrix", "kernel_vector", "min_argmax", "packed_add_lowrank", "rank_update_cq",
+           "sym_matvec", "sym_matvec_into", "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
 _FM = {"reassoc", "contract"}
@@ -57,6 +57,27 @@ def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> Flo
             s += t * t
         k[i] = math.exp(-gamma * s)
     return k
+
+
+@_compiled(fastmath=_FM, nogil=True)
+def gram_matrix(basis: FloatArray, gamma: float, n: int) -> FloatArray:
+    """``K[i, m] = exp(-gamma |b_i - b_m|^2)`` over the first ``n`` rows of ``basis``, full
+    (n, n), exactly symmetric.  Each entry is computed by the loop of :func:`kernel_vector` and
+    :func:`expert_terms` (``(a - b)^2`` equals ``(b - a)^2`` exactly), so the re-inversion of
+    ``Q`` sees the very floats of the kernel vectors computed when each basis vector entered
+    (tested); the diagonal is ``exp(0) = 1 = k*``."""
+    d = basis.shape[1]
+    out = np.empty((n, n))
+    for m in range(n):
+        for i in range(m, n):
+            s = 0.0
+            for j in range(d):
+                t = basis[i, j] - basis[m, j]
+                s += t * t
+            v = math.exp(-gamma * s)
+            out[i, m] = v
+            out[m, i] = v
+    return out
 
 
 @_compiled(fastmath=_FM, nogil=True)
@@ -295,17 +316,17 @@ def fused_delete_index(coef: FloatArray, dg: FloatArray, ck: FloatArray, e: Floa
 
 @_compiled(fastmath={"contract"}, nogil=True)
 def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
-               gram: FloatArray, dg: FloatArray, x: FloatArray, k: FloatArray, ck: FloatArray,
-               e: FloatArray, cw: FloatArray, q: FloatArray, r: float, gamma: float,
-               kstar: float) -> tuple[FloatArray, FloatArray, float, int]:
+               dg: FloatArray, x: FloatArray, ck: FloatArray, e: FloatArray, cw: FloatArray,
+               q: FloatArray, r: float, gamma: float
+               ) -> tuple[FloatArray, FloatArray, float, int]:
     """One full expert's fused add-then-delete step (:func:`.sogp_fused.fused_add_delete`),
     in place; returns the new ``diag(C) + diag(Q)`` (tracked), ``diag(Q)`` (as stored) and
     its minimum and first argmax (:func:`min_argmax`).
     The vectors ``s = [Ck; 1]``, ``e = [Qk; -1]`` and the columns ``i`` of ``C1`` and ``Q1``
-    are permuted so that index ``n`` sits at ``i``; then ``A``, the diagonal, the basis and
-    ``K_B`` are updated and :func:`rank_update_cq` does the rank-3 and rank-2 updates in one
-    pass.  ``C``, ``Q`` and ``K_B`` are packed (:mod:`.packed`) for as many basis vectors as
-    the expert holds (full)."""
+    are permuted so that index ``n`` sits at ``i``; then ``A``, the diagonal and the basis are
+    updated and :func:`rank_update_cq` does the rank-3 and rank-2 updates in one pass.  ``C``
+    and ``Q`` are packed (:mod:`.packed`) for as many basis vectors as the expert holds
+    (full)."""
     n = basis.shape[0]
     d_a = coef.shape[1]
     inv_gamma = 1.0 / gamma
@@ -368,13 +389,6 @@ def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Floa
     if old:
         i = idx
         basis[i, :] = x
-        off = 0  # K_B's row and column i (packed, like C and Q) := k, with k* on the diagonal
-        for a in range(i):
-            gram[off + i - a] = k[a]
-            off += n - a
-        for a in range(n - i):
-            gram[off + a] = k[i + a]
-        gram[off] = kstar
     dq = np.empty(n)
     rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
     dq_min, dq_argmax = min_argmax(dq)

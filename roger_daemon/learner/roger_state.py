@@ -88,4 +88,4 @@ def load_roger_state(model: Roger, state: dict[str, np.ndarray], meta: dict[str,
     model._history = SegmentationHistory.from_state(
         model.params.particles, state.get("history_settled"),  # absent before schema 3
         state["history_ancestor"], state["history_expert"],
-        state.get("history_exception_points"), state.get("history_exception_ids"))  # schema 4
+        state.get("history_exception_points"), state.get("history_exception_ids"))  # schema >= 4

@@ -126,10 +126,8 @@ class SparseOnlineGP(SOGPSteps):
         # C and Q packed: their upper triangles, row by row (:mod:`.packed`)
         self._Cp: FloatArray = np.zeros(_packed.packed_size(alloc))
         self._Qp: FloatArray = np.zeros(_packed.packed_size(alloc))
-        # K_B, kept alongside Q (its rows are the kernel vectors already computed when each
-        # basis vector entered), so a re-inversion of Q costs a Cholesky, not a Gram matrix;
-        # packed like C and Q (exactly symmetric: both halves are written from one k)
-        self._Kp: FloatArray = np.zeros(_packed.packed_size(alloc))
+        # K_B is not kept: a re-inversion of Q recomputes it from B, to the same floats as the
+        # kernel vectors computed when each basis vector entered (.jit_kernels.gram_matrix)
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
         self._dq: FloatArray | None = None  # diag(Q) as stored, from the fused step
         self._dq_min, self._dq_argmax = math.nan, -1
@@ -180,8 +178,9 @@ class SparseOnlineGP(SOGPSteps):
 
     @property
     def gram(self) -> FloatArray:
-        """The kept Gram matrix ``K_B`` of the basis (n, n) (a copy, unpacked)."""
-        return _packed.unpack(self._Kp, self._alloc, self.n)
+        """The Gram matrix ``K_B`` of the basis (n, n), computed from :attr:`B` (the floats a
+        re-inversion of ``Q`` uses: :func:`.jit_kernels.gram_matrix`)."""
+        return self._gram_matrix()
 
     # -- prediction ------------------------------------------------------------------------------
 
@@ -260,7 +259,6 @@ class SparseOnlineGP(SOGPSteps):
                 self._A[0] = y / (kstar + s0)
             self._Cp[0] = -1.0 / (kstar + s0)  # C[0, 0]: the packed buffer starts with it
             self._Qp[0] = 1.0 / kstar
-            self._Kp[0] = kstar
             self.n = 1
             self._shift_mean(y)
             return
@@ -274,9 +272,9 @@ class SparseOnlineGP(SOGPSteps):
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
         elif self._fusable():
             # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix
-            _fused_add_delete(self, x, y, k, ck, mean, latent, e_hat, gamma)
+            _fused_add_delete(self, x, y, ck, mean, latent, e_hat, gamma)
         else:
-            self._full_update(x, k, ck, e_hat, gamma, r, q)  # step 4b
+            self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6
         if 0.0 < gamma < _NEAR_DEPENDENT * kstar and self.n > 1:
             self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
@@ -299,10 +297,9 @@ class SparseOnlineGP(SOGPSteps):
         out._B = self._B.copy()
         out._A = self._A.copy()
         if pool is None:
-            out._Cp, out._Qp, out._Kp = self._Cp.copy(), self._Qp.copy(), self._Kp.copy()
+            out._Cp, out._Qp = self._Cp.copy(), self._Qp.copy()
         else:
-            out._Cp, out._Qp, out._Kp = (pool.copy_of(self._Cp), pool.copy_of(self._Qp),
-                                         pool.copy_of(self._Kp))
+            out._Cp, out._Qp = pool.copy_of(self._Cp), pool.copy_of(self._Qp)
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
         out._dq_min, out._dq_argmax = self._dq_min, self._dq_argmax
@@ -312,16 +309,16 @@ class SparseOnlineGP(SOGPSteps):
     def release(self, pool: BufferPool) -> None:
         """Give this expert's packed matrices to ``pool`` for later copies (the model has
         dropped it: it must not be used afterwards)."""
-        for buf in (self._Cp, self._Qp, self._Kp):
+        for buf in (self._Cp, self._Qp):
             pool.give(buf)
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
-             mean: FloatArray | None = None, gram: FloatArray | None = None) -> None:
+             mean: FloatArray | None = None) -> None:
         """Set the state from arrays (inverse of reading :attr:`B`, :attr:`A`, :attr:`C`, ...).
 
         ``A`` has :attr:`a_cols` columns (``a1`` last with a prior mean); ``mean`` is
-        :attr:`mean_offset`, ``gram`` the kept ``K_B`` (recomputed from ``B`` if ``None``).
+        :attr:`mean_offset`.
         ``alloc`` restores the buffer size too, so that a restored expert
         computes with the same memory layout as the saved one.
         """
@@ -335,15 +332,12 @@ class SparseOnlineGP(SOGPSteps):
             self._alloc = size
         self._Cp = np.zeros(_packed.packed_size(size))
         self._Qp = np.zeros(_packed.packed_size(size))
-        self._Kp = np.zeros(_packed.packed_size(size))
         self._B[:n] = B
         self._A[:n] = A
         # the upper triangles (a state from before packed storage may hold a C or Q that is
         # symmetric only to round-off: its upper triangle is taken)
         _packed.pack_into(self._Cp, size, np.asarray(C, dtype=np.float64), n)
         _packed.pack_into(self._Qp, size, np.asarray(Q, dtype=np.float64), n)
-        _packed.pack_into(self._Kp, size, self.kernel.gram(B, B) if gram is None
-                          else np.asarray(gram, dtype=np.float64), n)
         self.n = n
         self.n_points = int(n_points)
         self._m = np.zeros(self.d_y) if mean is None else np.array(mean, dtype=np.float64)

@@ -60,7 +60,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
                               (y_ext - mean) / (s0 + latent))
             gp._clean_up()
         else:
-            _fused_add_delete(gp, x, y_ext, k, ck, mean, latent, e_hat, gamma)
+            _fused_add_delete(gp, x, y_ext, ck, mean, latent, e_hat, gamma)
             gp._clean_up()
             if gamma < _NEAR_DEPENDENT * kstar and gp.n > 1:
                 gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q

@@ -28,12 +28,12 @@ __all__ = ["fused_add_delete"]
 FloatArray = npt.NDArray[np.float64]
 
 
-def fused_add_delete(gp: SparseOnlineGP, x: FloatArray, y: FloatArray, k: FloatArray,
-                     ck: FloatArray, mean: FloatArray, latent: float, e_hat: FloatArray,
+def fused_add_delete(gp: SparseOnlineGP, x: FloatArray, y: FloatArray, ck: FloatArray,
+                     mean: FloatArray, latent: float, e_hat: FloatArray,
                      gamma: float) -> None:
     """Full update to n + 1 BVs then one KL-optimal deletion of one full expert, in place.
 
-    ``k``, ``ck``, ``mean``, ``latent`` are the expert's terms at ``x`` (with a prior mean,
+    ``ck``, ``mean``, ``latent`` are the expert's terms at ``x`` (with a prior mean,
     ``y`` and ``mean`` extended by the ``a1`` column), ``e_hat = Q k`` and ``gamma`` the
     novelty (docs/learner-math.md §2.5 step 3).
 
@@ -49,8 +49,8 @@ def fused_add_delete(gp: SparseOnlineGP, x: FloatArray, y: FloatArray, k: FloatA
         A2 = A1 - w a*^T / (q* + c*)
 
     (``C_z``: ``C`` with row and column ``i`` zeroed): one rank-3 and one rank-2 in-place
-    update instead of five passes.  The whole step (scores, vectors, ``A``, ``B``, ``K_B``, the
-    diagonal cache and the one pass over ``C`` and ``Q``) is one compiled call,
+    update instead of five passes.  The whole step (scores, vectors, ``A``, ``B``, the diagonal
+    cache and the one pass over ``C`` and ``Q``) is one compiled call,
     :func:`.jit_kernels.fused_step` (the numpy version batched over experts spent ~0.35 ms
     per ROGER step in ~60 small array calls at beta = 300, issue 11).
     Equal to :meth:`SparseOnlineGP._full_update` then :meth:`SparseOnlineGP.delete` up to
@@ -60,8 +60,8 @@ def fused_add_delete(gp: SparseOnlineGP, x: FloatArray, y: FloatArray, k: FloatA
     r = -1.0 / denom  # Csató's K2
     q = (y - mean) / denom  # Csató's K1
     gp._dg, gp._dq, gp._dq_min, gp._dq_argmax = _jit.fused_step(
-        gp._B, gp._A, gp._Cp, gp._Qp, gp._Kp, gp._diag_cq(), x, k, ck, e_hat,
-        _output_weights(gp.a_cols, gp.d_y), q, r, gamma, gp.kernel.k_star)
+        gp._B, gp._A, gp._Cp, gp._Qp, gp._diag_cq(), x, ck, e_hat,
+        _output_weights(gp.a_cols, gp.d_y), q, r, gamma)
 
 
 @lru_cache(maxsize=8)

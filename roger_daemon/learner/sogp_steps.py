@@ -2,7 +2,7 @@
 the re-inversion of ``Q`` (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5-§2.7).
 
 A base class of :class:`.sogp.SparseOnlineGP`, split from it: these methods change the buffers
-``_B``, ``_A``, ``_Cp``, ``_Qp``, ``_Kp`` in place; the class there owns them, predicts and
+``_B``, ``_A``, ``_Cp``, ``_Qp`` in place; the class there owns them, predicts and
 dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.  ``C`` and ``Q`` are stored
 packed (their upper triangles, :mod:`.packed`) in buffers sized for ``_alloc`` basis vectors.
 """
@@ -36,7 +36,7 @@ class SOGPSteps:
     """The in-place matrix steps of a sparse online GP (state: :class:`.sogp.SparseOnlineGP`)."""
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_Kp", "_dg",
+                 "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_dg",
                  "_dq", "_dq_min", "_dq_argmax", "q_refreshes", "prior_mean", "_m",
                  "novelty_margin")
     kernel: RBFKernel
@@ -52,7 +52,6 @@ class SOGPSteps:
     _A: FloatArray
     _Cp: FloatArray
     _Qp: FloatArray
-    _Kp: FloatArray
     _dg: FloatArray | None
     _dq: FloatArray | None
     _dq_min: float  # min and first argmax of _dq (valid while _dq is not None)
@@ -93,7 +92,8 @@ class SOGPSteps:
         """Re-invert ``Q = K_B^-1`` by Cholesky (docs/learner-math.md, matrix drift).
 
         Only ``Q`` is a function of the basis alone; ``A`` and ``C`` carry the data and are kept.
-        ``K_B`` is the kept copy (no Gram matrix is recomputed); LAPACK ``dpotrf`` then
+        ``K_B`` is recomputed from the basis (:meth:`_gram_matrix`, the same floats as the
+        kernel vectors computed when each basis vector entered); LAPACK ``dpotrf`` then
         ``dpotri`` (the inverse from the factor, lower triangle mirrored, so ``Q`` is exactly
         symmetric).  Counted in :attr:`q_refreshes`.
         """
@@ -101,14 +101,14 @@ class SOGPSteps:
         jitter = 0.0
         if n <= _jit.SMALL:  # compiled: no LAPACK call overhead at this size
             inverse = np.empty((n, n))
-            gram = _packed.unpack(self._Kp, self._alloc, n)
+            gram = self._gram_matrix()
             while not _jit.cholesky_inverse(gram, n, jitter, inverse):
                 jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
             _packed.pack_into(self._Qp, self._alloc, inverse, n)
             self._forget_diagonals()
             self.q_refreshes += 1
             return
-        gram = _packed.unpack(self._Kp, self._alloc, n)
+        gram = self._gram_matrix()
         while True:  # K_B is SPD in exact arithmetic; add jitter only if round-off says no
             factor, info = _dpotrf(gram if jitter == 0.0 else gram + jitter * np.eye(n),
                                    lower=1, clean=0)
@@ -120,6 +120,12 @@ class SOGPSteps:
         _packed.pack_into(self._Qp, self._alloc, np.ascontiguousarray(inv.T), n)
         self._forget_diagonals()
         self.q_refreshes += 1
+
+    def _gram_matrix(self) -> FloatArray:
+        """``K_B`` (n, n) of the live basis, recomputed: not kept, so that a copy-on-write copy
+        moves two packed matrices, not three (docs/performance.md, *K_B recomputed*)."""
+        gram: FloatArray = _jit.gram_matrix(self._B, self.kernel.gamma, self.n)
+        return gram
 
     def _forget_diagonals(self) -> None:
         """``C`` or ``Q`` is about to change: drop the cached diagonals."""
@@ -169,7 +175,7 @@ class SOGPSteps:
                 break
             self.delete(i)
 
-    def _full_update(self, x: FloatArray, k: FloatArray, ck: FloatArray, e_hat: FloatArray,
+    def _full_update(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray,
                      gamma: float, r: float, q: FloatArray) -> None:
         """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
         n = self.n
@@ -187,8 +193,6 @@ class SOGPSteps:
         column = _packed.row_offsets(self._alloc)[: n + 1] + (n - np.arange(n + 1))
         for buf in (self._Cp, self._Qp):
             buf[column] = 0.0  # row and column n (stale padding after a deletion)
-        self._Kp[column[:n]] = k
-        self._Kp[column[n]] = self.kernel.k_star
         _jit.packed_add_lowrank(self._Cp, self._alloc, n + 1, s[None], np.array([r]))
         _jit.packed_add_lowrank(self._Qp, self._alloc, n + 1, e[None], np.array([1.0 / gamma]))
         self.n = n + 1
@@ -213,11 +217,10 @@ class SOGPSteps:
         j = n - 1
         cmat = _packed.unpack(self._Cp, self._alloc, n)
         qmat = _packed.unpack(self._Qp, self._alloc, n)
-        kmat = _packed.unpack(self._Kp, self._alloc, n)
         if i != j:  # permute i to the end
             idx = [i, j]
             rev = [j, i]
-            for v in (cmat, qmat, kmat):
+            for v in (cmat, qmat):
                 v[idx] = v[rev]
                 v[:, idx] = v[:, rev]
             self._A[idx] = self._A[rev]
@@ -232,7 +235,6 @@ class SOGPSteps:
         self._A[:j] -= np.outer(w, a_star) * inv_den
         _packed.pack_into(self._Cp, self._alloc, cmat, j)
         _packed.pack_into(self._Qp, self._alloc, qmat, j)
-        _packed.pack_into(self._Kp, self._alloc, kmat, j)
         cols = np.stack([q_v, w])
         _jit.packed_add_lowrank(self._Cp, self._alloc, j, cols,
                                 np.array([1.0 / q_star, -inv_den]))
@@ -255,5 +257,4 @@ class SOGPSteps:
             setattr(self, name, buf)
         self._Cp = _packed.repack(self._Cp, alloc, new, n)
         self._Qp = _packed.repack(self._Qp, alloc, new, n)
-        self._Kp = _packed.repack(self._Kp, alloc, new, n)
         self._alloc = new

@@ -3,12 +3,12 @@
 A state dict is ``dict[str, np.ndarray]`` with numeric arrays only, plus ``"meta"``: a 0-d
 unicode array holding a JSON object (schema version, model kind, dimensions, parameters,
 random-generator states, counters).  ``np.savez`` and ``np.load(allow_pickle=False)`` round-trip
-it unchanged.  Layout (schema 4):
+it unchanged.  Layout (schema 5):
 
 * ``expert_*``: the U distinct experts, concatenated: ``expert_n_bv`` (U,), ``expert_n_points``
   (U,), ``expert_alloc`` (U,), ``expert_B`` (sum n, d_m), ``expert_A`` (sum n, d_y, or d_y + 1
   with ``gp_prior_mean = "expert"``: the ``a1`` column last), ``expert_mean`` (U, d_y, the GP
-  prior means), ``expert_C``, ``expert_Q`` and ``expert_K`` (``K_B``) (sum n^2, row-major blocks),
+  prior means), ``expert_C`` and ``expert_Q`` (sum n^2, row-major blocks),
   ``expert_diag_cache`` (sum n);
 * ROGER only: ``expert_id``, ``expert_count`` (CRP counts), ``gate_*`` (the NIW statistics and
   cached predictive of each expert), ``particle_log_weights`` (P,), ``particle_offsets`` (P+1,)
@@ -22,12 +22,14 @@ it unchanged.  Layout (schema 4):
 Everything that influences future results is stored (including caches), so a restored model
 continues bit-identically.
 
-Migration: schema 1 (before the issue-13 levers) had no ``expert_mean`` and no ``expert_K``;
-the means are read as zeros and ``K_B`` is recomputed from the basis vectors,
+Migration: schema 1 (before the issue-13 levers) had no ``expert_mean``;
+the means are read as zeros,
 and its params lack the new fields, which take their defaults (the paper's, all levers off), so
 a schema-1 state loads as the same model.  Schema 2 kept the whole (N, P) history and no
 ``history_settled``, schema 3 a prefix settled where all lineages met and every row after it,
-no exceptions; both load as the same history, settled on load.
+no exceptions; both load as the same history, settled on load.  Schemas 2-4 also stored
+``expert_K`` (``K_B``), which is ignored: the learner recomputes ``K_B`` from the basis vectors
+to the same floats (:func:`.jit_kernels.gram_matrix`).
 """
 
 from __future__ import annotations
@@ -52,9 +54,10 @@ __all__ = [
     "unpack_meta",
 ]
 
-SCHEMA_VERSION = 4
-# 1: before the GP prior mean; 2: the full history; 3: no exceptions (all migrated on load)
-READABLE_SCHEMAS = (1, 2, 3, 4)
+SCHEMA_VERSION = 5
+# 1: before the GP prior mean; 2: the full history; 3: no exceptions; 4: K_B stored (all
+# migrated on load)
+READABLE_SCHEMAS = (1, 2, 3, 4, 5)
 
 Seed = int | np.random.Generator | None
 
@@ -143,8 +146,6 @@ def pack_experts(gps: list[SparseOnlineGP], d_x: int, d_y: int) -> dict[str, np.
                         else np.zeros((0, d_y))),
         "expert_C": np.concatenate([g.C.ravel() for g in gps]) if gps else np.zeros(0),
         "expert_Q": np.concatenate([g.Q.ravel() for g in gps]) if gps else np.zeros(0),
-        "expert_K": (np.concatenate([g.gram.ravel() for g in gps]) if gps
-                     else np.zeros(0)),
         # the hot path's cached diag(C) + diag(Q) (NaN where none): restores bit-exactly
         "expert_diag_cache": (np.concatenate([np.full(g.n, np.nan) if g._dg is None else g._dg
                                               for g in gps]) if gps else np.zeros(0)),
@@ -161,7 +162,6 @@ def unpack_experts(state: Mapping[str, np.ndarray],
     c_all, q_all = state["expert_C"], state["expert_Q"]
     dg_all = state["expert_diag_cache"]
     means = state.get("expert_mean")  # absent in schema 1: zero prior means
-    k_all = state.get("expert_K")  # absent in schema 1: recomputed
     out: list[SparseOnlineGP] = []
     row = 0
     flat = 0
@@ -171,8 +171,7 @@ def unpack_experts(state: Mapping[str, np.ndarray],
         gp.load(b_all[row:row + n], a_all[row:row + n],
                 c_all[flat:flat + n * n].reshape(n, n), q_all[flat:flat + n * n].reshape(n, n),
                 cnt, alloc=alloc, diag_cache=None if np.isnan(dg).any() else dg,
-                mean=None if means is None else means[len(out)],
-                gram=None if k_all is None else k_all[flat:flat + n * n].reshape(n, n))
+                mean=None if means is None else means[len(out)])
         row += n
         flat += n * n
         out.append(gp)

@@ -333,7 +333,6 @@ def test_state_round_trip_with_every_lever_and_schema_1_migration() -> None:
         del meta["params"][key]
     state["meta"] = np.array(json.dumps(meta))
     del state["expert_mean"]
-    del state["expert_K"]
     migrated = load_model(state)
     learn(old, s.x[100:], s.y[100:])
     learn(migrated, s.x[100:], s.y[100:])
@@ -341,13 +340,59 @@ def test_state_round_trip_with_every_lever_and_schema_1_migration() -> None:
     np.testing.assert_array_equal(old.particle_log_weights(), migrated.particle_log_weights())
 
 
-# -- the kept K_B (cheap re-inversions of Q) ----------------------------------------------
+def test_a_schema_4_state_with_its_kept_gram_matrix_loads_as_the_same_model() -> None:
+    """Schemas 2-4 stored ``K_B`` (``expert_K``); it is ignored on load (recomputed to the same
+    floats), and the model continues bit-identically."""
+    s = subtask_stream(200)
+    params = RogerParams.preset("default", beta=20, theta_w=3.0)
+    model = Roger(23, 9, params, seed=3)
+    learn(model, s.x[:120], s.y[:120])
+    state = model.state_dict()
+    assert "expert_K" not in state
+    meta = json.loads(str(state["meta"]))
+    meta["schema"] = 4
+    state["meta"] = np.array(json.dumps(meta))
+    ns = state["expert_n_bv"]
+    starts = np.concatenate([[0], np.cumsum(ns)])
+    kern = RBFKernel(params.theta_w, 23, params.kernel_dim_scaling)
+    state["expert_K"] = np.concatenate(
+        [kern.gram(state["expert_B"][a:b], state["expert_B"][a:b]).ravel()
+         for a, b in zip(starts[:-1], starts[1:], strict=True)])
+    loaded = load_model(state)
+    learn(model, s.x[120:], s.y[120:])
+    learn(loaded, s.x[120:], s.y[120:])
+    np.testing.assert_array_equal(model.assignments(), loaded.assignments())
+    np.testing.assert_array_equal(model.particle_log_weights(), loaded.particle_log_weights())
+
+
+# -- K_B recomputed for a re-inversion of Q ------------------------------------------------
+
+
+def test_the_recomputed_gram_matrix_has_the_floats_of_the_kernel_vectors() -> None:
+    """``K_B`` is not kept: a re-inversion recomputes it, and each entry must be the very float
+    of the kernel vector computed when that basis vector entered (``expert_terms``, as a
+    kept ``K_B`` held), so that recomputing changes no result."""
+    from roger_daemon.learner import jit
+
+    rng = np.random.default_rng(5)
+    for n, d, width in ((1, 1, 0.5), (7, 3, 0.3), (40, 23, 0.1), (60, 9, 2.0)):
+        basis = rng.normal(scale=0.2, size=(n, d))
+        basis[n // 2] = basis[0] + 1e-9  # a near-duplicate
+        gamma = RBFKernel(width, d).gamma
+        gram = jit.gram_matrix(basis, gamma, n)
+        zeros = np.zeros(n * (n + 1) // 2)
+        for m in range(n):
+            k = jit.expert_terms(basis, zeros, np.zeros((n, 2)), basis[m].copy(), gamma, n,
+                                 n)[:n]
+            np.testing.assert_array_equal(gram[:, m], k)
+            np.testing.assert_array_equal(gram[m], k)
+        assert np.all(np.diagonal(gram) == 1.0)
 
 
 @pytest.mark.parametrize("prior_mean", [False, True])
-def test_kept_gram_matrix_tracks_the_basis(prior_mean: bool) -> None:
+def test_gram_matrix_tracks_the_basis(prior_mean: bool) -> None:
     """Through full updates, fused add-then-delete, KL and geometric deletions and copies, the
-    kept K_B equals the Gram matrix of the basis vectors, and a re-inversion gives K_B^-1."""
+    recomputed K_B is the Gram matrix of the basis vectors, and a re-inversion gives K_B^-1."""
     rng = np.random.default_rng(8)
     model = gp(3, 2, width=1.5, capacity=15, threshold=1e-6, prior_mean=prior_mean)
     plain = model.copy()
