@@ -165,9 +165,10 @@ def test_trace_lineages_matches_the_python_pointer_chase() -> None:
             assert origin[s] == j
 
 
-def test_fused_step_keeps_the_gram_matrix_and_the_diagonal_cache_consistent() -> None:
-    """After compiled fused steps (issue 11): ``K_B`` is the Gram matrix of the basis and the
-    cached ``diag(C) + diag(Q)`` is the matrices' diagonal, up to round-off."""
+def test_fused_step_keeps_the_basis_and_the_diagonal_cache_consistent() -> None:
+    """After compiled fused steps (issue 11): ``K_B`` recomputed from the basis is the Gram
+    matrix of the basis vectors (numpy oracle) and the cached ``diag(C) + diag(Q)`` is the
+    matrices' diagonal, up to round-off."""
     from roger_daemon.learner.sogp import SparseOnlineGP
 
     rng = np.random.default_rng(11)
