@@ -139,7 +139,7 @@ class Roger:
         self._ref = np.zeros(cap, dtype=np.int64)
         self._free: list[int] = list(range(cap - 1, -1, -1))  # pop() yields the lowest slot
         # dropped experts' packed matrices (C and Q), reused by copy-on-write copies (not
-        # state): as many as a step can drop, one per particle
+        # state): those of at most as many experts as there are particles
         self._pool = BufferPool(limit=2 * p.particles)
         self._particles: list[IntArray] = [np.zeros(0, dtype=np.int64)]
         self._logw = np.zeros(1)
