@@ -5,8 +5,6 @@ table; a settled prefix and a long window) load as the same model."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -14,6 +12,8 @@ from hypothesis import strategies as st
 from roger_daemon.learner import Roger, RogerParams, load_model
 from roger_daemon.learner.history import WINDOW, SegmentationHistory
 from roger_daemon.learner.synthetic import subtask_stream
+
+from .states import with_schema as older_schema
 
 WIDTH = 4
 
@@ -158,12 +158,10 @@ def older_tables(state: dict[str, np.ndarray], width: int) -> tuple[np.ndarray, 
 
 
 def with_schema(state: dict[str, np.ndarray], schema: int) -> dict[str, np.ndarray]:
-    out = dict(state)
-    meta = json.loads(str(out["meta"]))
-    meta["schema"] = schema
-    out["meta"] = np.array(json.dumps(meta))
-    del out["history_exception_points"], out["history_exception_ids"]
-    return out
+    """``state`` as schemas 2 and 3 stored it: no exceptions (the history arrays are set by
+    the caller)."""
+    return older_schema(state, schema,
+                        drop=("history_exception_points", "history_exception_ids"))
 
 
 def test_roger_history_settles_and_schemas_2_and_3_migrate() -> None:

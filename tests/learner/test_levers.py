@@ -24,6 +24,8 @@ from roger_daemon.learner.params import PRESETS
 from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
 from roger_daemon.learner.synthetic import sqrt_multimap, subtask_stream
 
+from .states import with_schema
+
 
 def learn(model: Roger | UnimapGP, x: np.ndarray, y: np.ndarray) -> None:
     for xi, yi in zip(x, y, strict=True):
@@ -326,18 +328,20 @@ def test_state_round_trip_with_every_lever_and_schema_1_migration() -> None:
     # a schema-1 state (saved before the levers existed) loads as the same paper model
     old = Roger(23, 9, RogerParams(beta=20), seed=7)
     learn(old, s.x[:100], s.y[:100])
-    state = old.state_dict()
-    meta = json.loads(str(state["meta"]))
-    meta["schema"] = 1
-    for key in ("gp_prior_mean", "sticky_kappa", "min_support", "input_weights"):
-        del meta["params"][key]
-    state["meta"] = np.array(json.dumps(meta))
-    del state["expert_mean"]
-    migrated = load_model(state)
-    learn(old, s.x[100:], s.y[100:])
-    learn(migrated, s.x[100:], s.y[100:])
-    np.testing.assert_array_equal(old.assignments(), migrated.assignments())
-    np.testing.assert_array_equal(old.particle_log_weights(), migrated.particle_log_weights())
+    state = with_schema(old.state_dict(), 1, drop=("expert_mean",),
+                        drop_params=("gp_prior_mean", "sticky_kappa", "min_support",
+                                     "input_weights"))
+    assert_same_continuation(old, load_model(state), s.x[100:], s.y[100:])
+
+
+def assert_same_continuation(model: Roger, restored: Roger, x: np.ndarray,
+                             y: np.ndarray) -> None:
+    """``restored`` learns ``x, y`` exactly as ``model`` does (partition and weights)."""
+    learn(model, x, y)
+    learn(restored, x, y)
+    np.testing.assert_array_equal(model.assignments(), restored.assignments())
+    np.testing.assert_array_equal(model.particle_log_weights(),
+                                  restored.particle_log_weights())
 
 
 def test_a_schema_4_state_with_its_kept_gram_matrix_loads_as_the_same_model() -> None:
@@ -347,22 +351,15 @@ def test_a_schema_4_state_with_its_kept_gram_matrix_loads_as_the_same_model() ->
     params = RogerParams.preset("default", beta=20, theta_w=3.0)
     model = Roger(23, 9, params, seed=3)
     learn(model, s.x[:120], s.y[:120])
-    state = model.state_dict()
-    assert "expert_K" not in state
-    meta = json.loads(str(state["meta"]))
-    meta["schema"] = 4
-    state["meta"] = np.array(json.dumps(meta))
+    assert "expert_K" not in model.state_dict()
+    state = with_schema(model.state_dict(), 4)
     ns = state["expert_n_bv"]
     starts = np.concatenate([[0], np.cumsum(ns)])
     kern = RBFKernel(params.theta_w, 23, params.kernel_dim_scaling)
     state["expert_K"] = np.concatenate(
         [kern.gram(state["expert_B"][a:b], state["expert_B"][a:b]).ravel()
          for a, b in zip(starts[:-1], starts[1:], strict=True)])
-    loaded = load_model(state)
-    learn(model, s.x[120:], s.y[120:])
-    learn(loaded, s.x[120:], s.y[120:])
-    np.testing.assert_array_equal(model.assignments(), loaded.assignments())
-    np.testing.assert_array_equal(model.particle_log_weights(), loaded.particle_log_weights())
+    assert_same_continuation(model, load_model(state), s.x[120:], s.y[120:])
 
 
 # -- K_B recomputed for a re-inversion of Q ------------------------------------------------
