@@ -1,9 +1,9 @@
-"""The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_particles`), loaded on
-first use.
+"""The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`,
+:mod:`.jit_particles`), loaded on first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
-kernel here imports both modules and binds its functions into this module, so later
+kernel here imports the three modules and binds its functions into this module, so later
 accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles every kernel
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
 """
@@ -30,9 +30,9 @@ KERNELS = ("cholesky_inverse", "expert_terms",
 
 
 def _load() -> None:
-    from roger_daemon.learner import jit_kernels, jit_particles
+    from roger_daemon.learner import jit_fused, jit_kernels, jit_particles
 
-    for module in (jit_kernels, jit_particles):
+    for module in (jit_kernels, jit_fused, jit_particles):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 
@@ -46,6 +46,7 @@ def __getattr__(name: str) -> Any:
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel now, not inside a first step."""
+    from roger_daemon.learner import jit_fused as fk
     from roger_daemon.learner import jit_kernels as k
     from roger_daemon.learner import jit_particles as gk
 
@@ -65,8 +66,8 @@ def warm_up() -> None:
     k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
     vn, one, weights = np.ones(n), np.ones(1), np.ones(1)
     weights.setflags(write=False)  # as sogp_fused passes them: read-only, its own signature
-    k.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), 2 * vn, np.zeros(1),
-                 -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
+    fk.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), 2 * vn,
+                  np.zeros(1), -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
     k.gram_matrix(basis, 1.0, n)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))

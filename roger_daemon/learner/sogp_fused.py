@@ -51,7 +51,7 @@ def fused_add_delete(gp: SparseOnlineGP, x: FloatArray, y: FloatArray, ck: Float
     (``C_z``: ``C`` with row and column ``i`` zeroed): one rank-3 and one rank-2 in-place
     update instead of five passes.  The whole step (scores, vectors, ``A``, ``B``, the diagonal
     cache and the one pass over ``C`` and ``Q``) is one compiled call,
-    :func:`.jit_kernels.fused_step` (the numpy version batched over experts spent ~0.35 ms
+    :func:`.jit_fused.fused_step` (the numpy version batched over experts spent ~0.35 ms
     per ROGER step in ~60 small array calls at beta = 300, issue 11).
     Equal to :meth:`SparseOnlineGP._full_update` then :meth:`SparseOnlineGP.delete` up to
     round-off (tested).  ``n_points`` is not touched.

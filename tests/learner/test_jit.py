@@ -182,16 +182,18 @@ def test_fused_step_keeps_the_basis_and_the_diagonal_cache_consistent() -> None:
     np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
 
 
-def test_the_lazy_loader_binds_exactly_the_kernels_of_both_modules() -> None:
+def test_the_lazy_loader_binds_exactly_the_kernels_of_the_three_modules() -> None:
     """``jit.KERNELS`` (what ``roger_daemon.learner.jit`` serves and ``warm_up`` compiles) is
     the union of the kernel modules' exports, and each name resolves to that module's kernel."""
     from roger_daemon.learner import jit as lazy
-    from roger_daemon.learner import jit_particles
+    from roger_daemon.learner import jit_fused, jit_particles
 
-    assert set(lazy.KERNELS) == set(jit.__all__) | set(jit_particles.__all__)
-    assert not set(jit.__all__) & set(jit_particles.__all__)
+    modules = (jit, jit_fused, jit_particles)
+    exports = [set(m.__all__) for m in modules]
+    assert set(lazy.KERNELS) == set().union(*exports)
+    assert sum(map(len, exports)) == len(set().union(*exports))  # no name in two modules
     for name in lazy.KERNELS:
-        module = jit if name in jit.__all__ else jit_particles
+        module = next(m for m in modules if name in m.__all__)
         assert getattr(lazy, name) is getattr(module, name)
 
 
