@@ -236,3 +236,31 @@ def test_a_reset_after_the_checkpoint_is_replayed(tmp_path: Path) -> None:
     b = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))  # a's kill -9
     assert b.rt.updates == 6 and b.rt.recovered_pairs == 11  # 5, the reset, then 6
     assert_same(b.rt.model, reference(list(range(15, 21))))
+
+
+def test_a_pair_re_sent_after_a_recovery_checkpoint_is_not_learned_twice(
+        tmp_path: Path) -> None:
+    """The rare sequence of the 20-kill durability test, made deterministic: life a learns
+    pairs 0-9 (logged) and dies before answering pair 9; life b re-learns them from the log,
+    writes its recovery checkpoint, recognises the re-sent pair 9 and dies before answering
+    it; life c resumes from that checkpoint, after which the log holds nothing, and gets
+    pair 9 a third time. The checkpoint carries the newest pair received, so c recognises it
+    too (before 2026-11-26 it learned it a second time: 11 updates for 10 pairs)."""
+    from test_recovery import Life, assert_same, make_cfg, reference
+
+    def life() -> Life:
+        return Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))
+
+    a = life()
+    a.pairs(range(10))
+    assert a.rt.updates == 10
+    b = life()  # a's kill -9
+    assert b.rt.updates == 10 and b.rt.recovered_pairs == 10
+    assert list_checkpoints(tmp_path / "ckpt", "sim")  # the recovery checkpoint
+    b.pairs(range(9, 10))  # the sender re-sends the tick it got no answer for
+    assert b.rt.updates == 10 and b.rt.resent == 1
+    c = life()  # b's kill -9, before its answer
+    assert c.rt.updates == 10 and c.rt.recovered_pairs == 0
+    c.pairs(range(9, 10))
+    assert c.rt.updates == 10 and c.rt.resent == 1
+    assert_same(c.rt.model, reference(list(range(10))))

@@ -28,7 +28,7 @@ import numpy as np
 from protocols.errors import REASONS
 from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
 from roger_daemon.daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
-from roger_daemon.daemon.robot_state import Pair, RobotState
+from roger_daemon.daemon.robot_state import NewestPair, Pair, RobotState
 from roger_daemon.daemon.window import Window
 from roger_daemon.labels import LabelTally, majority_labels_coded
 
@@ -356,8 +356,13 @@ class RobotRuntime:
     def daemon_arrays(self, ahead: Sequence[Pair] = ()) -> dict[str, np.ndarray]:
         """Daemon state that must survive a restart, as named arrays (``ahead``: pairs
         taken off the queue but not yet learned, saved in front of it)."""
-        return RobotState(list(self.vocab), self.codes, [*ahead, *self.queue]).to_arrays(
-            self.dims)
+        newest = None
+        if self._newest_pair is not None:  # a re-sent copy is recognised after a restart too
+            tick, xb, yb = self._newest_pair
+            newest = NewestPair(tick, np.frombuffer(xb, dtype=np.float64),
+                                np.frombuffer(yb, dtype=np.float64))
+        return RobotState(list(self.vocab), self.codes, [*ahead, *self.queue],
+                          newest).to_arrays(self.dims)
 
     def counters(self) -> dict[str, Any]:
         """The runtime's counters, as checkpointed and reported in status."""
@@ -380,6 +385,8 @@ class RobotRuntime:
         self.n_codes = state.n_learned
         self.queue.clear()
         self.queue.extend(state.queue)
+        n = state.newest
+        self._newest_pair = None if n is None else (n.tick, n.x.tobytes(), n.y.tobytes())
         self.ticks = int(counters.get("ticks", 0))
         self.dropped = int(counters.get("dropped", 0))
         self.unpaired = int(counters.get("unpaired_actions", 0))

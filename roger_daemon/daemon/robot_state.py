@@ -10,7 +10,11 @@ The arrays:
   the demonstrator's subtask label of every pair the model learned, as codes into the
   vocabulary. They name experts (majority label); the learner never sees them.
 * ``queue_x``, ``queue_y``, ``queue_labels``, ``queue_ticks``: the training queue, pairs
-  received but not yet learned, learned first after a restart.
+  received but not yet learned, learned first after a restart;
+* ``newest_pair_tick``, ``newest_pair_x``, ``newest_pair_y`` (one row, or none): the newest
+  pair received (learned or queued), so that a restarted daemon recognises the sender's
+  re-sent copy of it and does not learn it twice (docs/durability.md). Absent in checkpoints
+  written before 2026-11-26: read as none.
 """
 
 from __future__ import annotations
@@ -23,11 +27,13 @@ import numpy.typing as npt
 
 from protocols.messages import Dims
 
-__all__ = ["DAEMON_KEYS", "Pair", "RobotState"]
+__all__ = ["DAEMON_KEYS", "NEWEST_KEYS", "NewestPair", "Pair", "RobotState"]
 
 #: The arrays of a checkpoint's daemon state.
 DAEMON_KEYS = frozenset({"label_vocab", "label_codes", "queue_x", "queue_y", "queue_labels",
                          "queue_ticks"})
+#: The optional arrays of the newest pair received (absent in older checkpoints).
+NEWEST_KEYS = ("newest_pair_tick", "newest_pair_x", "newest_pair_y")
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,13 +47,24 @@ class Pair:
     t: float = 0.0
 
 
+@dataclass(frozen=True, slots=True)
+class NewestPair:
+    """The newest pair a robot's daemon received: its tick, perception and action."""
+
+    tick: int
+    x: np.ndarray
+    y: np.ndarray
+
+
 @dataclass
 class RobotState:
-    """Label vocabulary, one label code per learned pair, and the queued pairs."""
+    """Label vocabulary, one label code per learned pair, the queued pairs and the newest
+    pair received."""
 
     vocab: list[str] = field(default_factory=list)
     codes: npt.NDArray[np.int32] = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     queue: list[Pair] = field(default_factory=list)
+    newest: NewestPair | None = None
 
     @classmethod
     def from_labels(cls, labels: Sequence[str], *, vocab: Sequence[str] = ()) -> RobotState:
@@ -79,7 +96,8 @@ class RobotState:
                                             np.asarray(arrays["queue_ticks"]).tolist(),
                                             strict=True)]
         return cls([str(s) for s in np.asarray(arrays["label_vocab"]).tolist()],
-                   np.asarray(arrays["label_codes"], dtype=np.int32).copy(), queue)
+                   np.asarray(arrays["label_codes"], dtype=np.int32).copy(), queue,
+                   _newest_from(arrays))
 
     def to_arrays(self, dims: Dims) -> dict[str, np.ndarray]:
         """The checkpoint's daemon arrays (plain dtypes: no object arrays, no pickle)."""
@@ -92,6 +110,7 @@ class RobotState:
             "queue_y": np.array([p.y for p in q], dtype=np.float64).reshape(len(q), dims.y),
             "queue_labels": np.array([p.label for p in q], dtype=np.int32),
             "queue_ticks": np.array([p.tick for p in q], dtype=np.int64),
+            **_newest_arrays(self.newest, dims),
         }
 
     @property
@@ -110,3 +129,27 @@ class RobotState:
     def queued_labels(self) -> list[str]:
         """The label of every queued pair, in queue order."""
         return [self.label(p.label) for p in self.queue]
+
+
+def _newest_arrays(newest: NewestPair | None, dims: Dims) -> dict[str, np.ndarray]:
+    rows = [] if newest is None else [newest]
+    return {
+        "newest_pair_tick": np.array([n.tick for n in rows], dtype=np.int64),
+        "newest_pair_x": np.array([n.x for n in rows], dtype=np.float64).reshape(len(rows),
+                                                                                  dims.x),
+        "newest_pair_y": np.array([n.y for n in rows], dtype=np.float64).reshape(len(rows),
+                                                                                  dims.y),
+    }
+
+
+def _newest_from(arrays: Mapping[str, npt.ArrayLike]) -> NewestPair | None:
+    """The newest pair of a checkpoint's daemon arrays (``None``: none, or an older
+    checkpoint without them)."""
+    if not all(k in arrays for k in NEWEST_KEYS):
+        return None
+    ticks = np.asarray(arrays["newest_pair_tick"]).reshape(-1)
+    if ticks.size == 0:
+        return None
+    return NewestPair(int(ticks[0]), np.array(np.asarray(arrays["newest_pair_x"])[0],
+                                               dtype=np.float64),
+                      np.array(np.asarray(arrays["newest_pair_y"])[0], dtype=np.float64))
