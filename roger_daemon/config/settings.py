@@ -116,9 +116,10 @@ class DaemonConfig:
     #: "inline": every model in the service loop's thread; "auto": inline for one robot (lower
     #: latency), processes for several (learning on every core); docs/fleet.md
     workers: str = "auto"
-    #: realtime clock: learner workers run this much nicer than the loop (0..19), so the loop
-    #: and Zenoh's threads publish the tick's predictions before learning takes the CPU
-    #: (lockstep: 0, the worker answers on the critical path; docs/fleet.md)
+    #: learner workers run this much nicer than the loop (0..19), so the loop and Zenoh's
+    #: threads (and the robots' own processes on this machine) get a core before learning
+    #: does: realtime ticks publish on time, lockstep answers reach the robot sooner
+    #: (docs/fleet.md, *Scheduling and fairness*)
     worker_nice: int = 5
     log_dir: Path | None = None
     robots: tuple[RobotConfig, ...] = ()
@@ -133,12 +134,6 @@ class DaemonConfig:
             return self.workers
         return "process" if len(self.robots) > 1 else "inline"
 
-    @property
-    def learner_worker_nice(self) -> int:
-        """The workers' niceness: ``worker_nice`` with the realtime clock, whose ticks publish
-        predictions prepared ahead; 0 in lockstep, where a worker answers each perception on
-        the critical path (docs/fleet.md)."""
-        return self.worker_nice if self.clock == "realtime" else 0
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     source: Path | None = None

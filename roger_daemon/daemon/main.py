@@ -121,13 +121,13 @@ def open_recorders(
 
 def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Any:
     """``[daemon] workers`` = ``"process"`` (or ``"auto"`` with several robots): hand every
-    model to its own worker process, at ``learner_worker_nice``."""
+    model to its own worker process, at ``worker_nice``."""
     if cfg.learner_workers != "process":
         return None
     from roger_daemon.daemon.learners import ProcessLearners
 
     return ProcessLearners(robots, {r.id: r for r in cfg.robots},
-                           nice=cfg.learner_worker_nice)
+                           nice=cfg.worker_nice)
 
 
 def _describe(cfg: DaemonConfig) -> dict[str, Any]:
