@@ -4,6 +4,7 @@ received round-trips, and a checkpoint written before it existed reads as none."
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from protocols.messages import Dims
 from roger_daemon.daemon.robot_state import NEWEST_KEYS, NewestPair, Pair, RobotState
@@ -35,3 +36,10 @@ def test_no_newest_pair_and_an_older_checkpoint_read_as_none() -> None:
         DIMS).items() if k not in NEWEST_KEYS}
     back = RobotState.from_arrays(older)
     assert back.newest is None and back.n_learned == 3
+
+
+def test_newest_pair_arrays_that_do_not_fit_together_are_refused() -> None:
+    arrays = _state(NewestPair(7, np.zeros(2), np.zeros(1))).to_arrays(DIMS)
+    arrays["newest_pair_x"] = np.zeros((0, 2))  # a tick without its perception
+    with pytest.raises(ValueError, match="newest pair has 1 ticks, x of shape"):
+        RobotState.from_arrays(arrays)

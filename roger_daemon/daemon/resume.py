@@ -84,7 +84,7 @@ def load_robot(
             raise CheckpointError(f"the learner cannot load its model state ({exc})") from None
         try:
             state = RobotState.from_arrays(ck.daemon)
-        except KeyError as exc:
+        except (KeyError, ValueError) as exc:  # missing, or arrays that do not fit together
             raise CheckpointError(str(exc)) from None
         if int(loaded["model"].n_learned) != state.n_learned:
             raise CheckpointError("model and label counts disagree")

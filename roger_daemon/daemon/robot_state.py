@@ -84,7 +84,8 @@ class RobotState:
 
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, npt.ArrayLike]) -> RobotState:
-        """Read a checkpoint's daemon arrays; ``KeyError`` names a missing one."""
+        """Read a checkpoint's daemon arrays; ``KeyError`` names a missing one, ``ValueError``
+        arrays that do not fit together."""
         missing = sorted(DAEMON_KEYS - set(arrays))
         if missing:
             raise KeyError(f"daemon state lacks {', '.join(missing)}")
@@ -148,8 +149,13 @@ def _newest_from(arrays: Mapping[str, npt.ArrayLike]) -> NewestPair | None:
     if not all(k in arrays for k in NEWEST_KEYS):
         return None
     ticks = np.asarray(arrays["newest_pair_tick"]).reshape(-1)
+    x, y = np.asarray(arrays["newest_pair_x"]), np.asarray(arrays["newest_pair_y"])
+    if ticks.size > 1 or x.ndim != 2 or y.ndim != 2 or len(x) != ticks.size \
+            or len(y) != ticks.size:
+        raise ValueError(f"daemon state's newest pair has {ticks.size} ticks, x of shape "
+                         f"{x.shape} and y of shape {y.shape}; expected one row of each, "
+                         "or none")
     if ticks.size == 0:
         return None
-    return NewestPair(int(ticks[0]), np.array(np.asarray(arrays["newest_pair_x"])[0],
-                                               dtype=np.float64),
-                      np.array(np.asarray(arrays["newest_pair_y"])[0], dtype=np.float64))
+    return NewestPair(int(ticks[0]), np.array(x[0], dtype=np.float64),
+                      np.array(y[0], dtype=np.float64))
