@@ -423,6 +423,30 @@ def test_replay_of_a_session_resumed_from_a_daemon_checkpoint_with_a_queue(
     assert roger(["replay", str(b.paths[0]), "--check", "--no-progress"]) == 1
 
 
+def test_replay_names_a_checkpoint_whose_daemon_arrays_do_not_fit_together(
+    crash, tmp_path: Path, capsys: pytest.CaptureFixture[str]  # type: ignore[no-untyped-def]
+) -> None:
+    """A checkpoint whose newest-pair arrays disagree stops ``roger replay --checkpoint`` with
+    exit 2 and a message naming the file and the fault (no traceback)."""
+    from roger_daemon.daemon.checkpoint import read_checkpoint, write_checkpoint
+
+    a = crash["a"]
+    good = read_checkpoint(daemon_checkpoint(tmp_path / "ck", "sim", a.checkpoints[60],
+                                             dims=a.dims, labels=[p[3] for p in a.pairs[:60]],
+                                             last_tick=a.pairs[59][0]))
+    daemon = dict(good.daemon)
+    daemon["newest_pair_tick"] = np.array([59], dtype=np.int64)  # a tick without its pair
+    daemon["newest_pair_x"] = np.zeros((0, a.dims.x))
+    daemon["newest_pair_y"] = np.zeros((0, a.dims.y))
+    bad, _ = write_checkpoint(tmp_path / "bad", "sim", dict(good.model), daemon, good.meta)
+    capsys.readouterr()
+    assert roger(["replay", str(crash["b"].paths[0]), "--checkpoint", str(bad),
+                  "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"checkpoint {bad}: daemon state's newest pair has 1 ticks" in err
+    assert "Traceback" not in err
+
+
 def test_replay_refuses_files_of_different_sessions(crash) -> None:  # type: ignore[no-untyped-def]
     files = sorted(crash["logs"].glob("*.mcap"))
     assert len(files) == 2

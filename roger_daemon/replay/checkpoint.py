@@ -20,7 +20,9 @@ __all__ = ["load_checkpoint", "resume_timeline", "save_checkpoint"]
 def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[str, Any]]:
     """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.daemon.checkpoint``;
     its queue read by :class:`~roger_daemon.daemon.robot_state.RobotState`), or from a plain
-    ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles."""
+    ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles.  Raises
+    :class:`ReplayError` naming the file when the checkpoint's daemon arrays do not fit
+    together."""
     from roger_daemon.daemon.checkpoint import CheckpointError, read_checkpoint
     from roger_daemon.learner import load_model
 
@@ -34,6 +36,8 @@ def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[st
         state = RobotState.from_arrays(ck.daemon)
     except KeyError:  # an older checkpoint without a queue
         return model, [], dict(ck.meta)
+    except ValueError as exc:  # daemon arrays that do not fit together
+        raise ReplayError(f"checkpoint {path}: {exc}") from None
     start = int(model.n_learned)
     pairs = [LearnedPair(start + i, p.tick, p.x, p.y, state.label(p.label), 0)
              for i, p in enumerate(state.queue)]
