@@ -1,9 +1,9 @@
 """The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`,
-:mod:`.jit_particles`), loaded on first use.
+:mod:`.jit_particles`, :mod:`.jit_resampling`), loaded on first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
-kernel here imports the three modules and binds its functions into this module, so later
+kernel here imports the four modules and binds its functions into this module, so later
 accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles every kernel
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
 """
@@ -22,17 +22,18 @@ __all__ = ["KERNELS", "SMALL", "compiled_signatures", "warm_up"]
 #: are compiled at every size since issue 11's second pass.)
 SMALL = 64
 
-KERNELS = ("cholesky_inverse", "expert_terms",
+KERNELS = ("cholesky_inverse", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
            "packed_add_lowrank",
-           "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row", "trace_lineages")
+           "rank_update_cq", "sorted_threshold", "stratified_pass", "sym_matvec", "sym_matvec_into",
+           "sym_row", "trace_lineages")
 
 
 def _load() -> None:
-    from roger_daemon.learner import jit_fused, jit_kernels, jit_particles
+    from roger_daemon.learner import jit_fused, jit_kernels, jit_particles, jit_resampling
 
-    for module in (jit_kernels, jit_fused, jit_particles):
+    for module in (jit_kernels, jit_fused, jit_particles, jit_resampling):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 
@@ -49,6 +50,7 @@ def warm_up() -> None:
     from roger_daemon.learner import jit_fused as fk
     from roger_daemon.learner import jit_kernels as k
     from roger_daemon.learner import jit_particles as gk
+    from roger_daemon.learner import jit_resampling as rk
 
     _load()
     n = 2
@@ -76,6 +78,8 @@ def warm_up() -> None:
     gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
     gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                      np.zeros(1, dtype=np.int64))
+    w, order, _, inv_c, n_top = rk.fearnhead_split(np.array([1.0, 0.5, 0.25]), 1.75, 2)
+    rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), 0.0, 0.0)
 
 
 def compiled_signatures(package: str) -> int:

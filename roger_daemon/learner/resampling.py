@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner import jit as _jit
+
 __all__ = ["fearnhead_resample", "fearnhead_threshold"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -41,24 +43,17 @@ def fearnhead_threshold(weights: FloatArray, n_keep: int) -> tuple[float, int]:
 
     ``weights`` are normalised and ``len(weights) > n_keep``.  ``1/c = R_L / (P - L)`` for the
     first ``L`` (in descending order of weight) with ``w_(L+1) <= R_L / (P - L)``, where ``R_L``
-    is the mass outside the top ``L`` (docs/learner-math.md §5 step 1).
+    is the mass outside the top ``L`` (docs/learner-math.md §5 step 1;
+    :func:`.jit_resampling.sorted_threshold`).
     """
-    return _threshold(np.sort(weights)[::-1], n_keep)
-
-
-def _threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
-    """:func:`fearnhead_threshold` for weights already sorted in descending order."""
-    suffix = np.cumsum(ws[::-1])[::-1]  # suffix[L] = sum_{j >= L} ws[j] = R_L
-    tau = suffix[:n_keep] / np.arange(n_keep, 0, -1)
-    # L = P - 1 always qualifies (tau = R_{P-1} >= ws[P-1]); argmax finds the first True
-    first = int(np.argmax(ws[:n_keep] <= tau))
-    return float(tau[first]), first
+    inv_c, n_top = _jit.sorted_threshold(np.ascontiguousarray(np.sort(weights)[::-1]), n_keep)
+    return float(inv_c), int(n_top)
 
 
 def _decision_margin(ws: FloatArray, n_keep: int, n_top: int, inv_c: float, u0: float,
                      cum: FloatArray) -> float:
     """Smallest relative distance of a threshold test (``w_(L+1) <= R_L / (P - L)`` for L up
-    to the chosen one, :func:`_threshold`) or of a stratified crossing (``cum_i`` against
+    to the chosen one, :func:`fearnhead_threshold`) or of a stratified crossing (``cum_i`` against
     ``U0 + j/c``) from its boundary, relative to the larger of the two compared values."""
     # the test at L = P - 1 always passes (tau = R_{P-1} >= w_P): not a decision
     n_tests = min(n_top + 1, n_keep - 1)
@@ -114,41 +109,19 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Gene
     if lv.size <= n_keep:  # M <= P: keep them all
         keep_all = np.arange(lv.size) if valid is None else valid
         return keep_all, lv - lse
-    w = expw / total
-    order = np.argsort(-w, kind="stable")  # ties broken by index
-    ws = w[order]
-    inv_c, n_top = _threshold(ws, n_keep)
+    # the threshold, the stratified pass and the new weights: two compiled calls
+    # (exact operations only, :mod:`.jit_resampling`); exp, log and the draw stay here
+    w, order, ws, inv_c, n_top = _jit.fearnhead_split(expw, total, n_keep)
     if inv_c <= 0.0:  # fewer than P weights survive exp(): resample the rest in log space
         sel, out = _underflow_resample(lv, lse, order[:n_top], n_keep, rng)
         return (sel if valid is None else valid[sel]), out
-    keep = np.zeros(lv.size, dtype=bool)
-    keep[order[:n_top]] = True  # kept outright, weight unchanged
-    rest = np.flatnonzero(~keep)  # fixed (original) order
-    need = n_keep - n_top
     # stratified pass: with U0 ~ U(0, 1/c), i is picked when cum_{i-1} <= U0 + j/c < cum_i
     u0 = float(rng.uniform(0.0, inv_c))
-    cum = np.cumsum(w[rest])
-    crossings = np.ceil((cum - u0) / inv_c)
+    sel, out, cum = _jit.stratified_pass(w, order, n_top, n_keep, inv_c, u0, lv, lse,
+                                         math.log(inv_c))
     if diagnostics is not None:
         margin = partial(_decision_margin, ws, n_keep, n_top, inv_c, u0, cum)
         diagnostics["margin"] = margin if lazy else margin()
-    np.maximum(crossings, 0.0, out=crossings)
-    picked = np.empty(rest.size, dtype=bool)
-    picked[0] = crossings[0] > 0.0
-    np.greater(crossings[1:], crossings[:-1], out=picked[1:])
-    chosen = rest[picked]
-    if chosen.size > need:  # round-off surplus: drop the last picks
-        chosen = chosen[:need]
-    elif chosen.size < need:  # round-off deficit: top up with the largest unpicked weights
-        left = rest[~picked]
-        extra = left[np.argsort(-w[left], kind="stable")[: need - chosen.size]]
-        chosen = np.concatenate([chosen, extra])
-    new_lw = np.full(lv.size, -np.inf)
-    new_lw[keep] = lv[keep] - lse
-    new_lw[chosen] = math.log(inv_c)
-    keep[chosen] = True
-    sel = np.flatnonzero(keep)
-    out = new_lw[sel]
     out -= _logsumexp(out)
     return (sel if valid is None else valid[sel]), out
 

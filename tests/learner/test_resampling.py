@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 
 from roger_daemon.learner.resampling import fearnhead_resample, fearnhead_threshold
 
+from .resampling_numpy import numpy_resample
+
 log_weight = st.one_of(st.floats(-50.0, 50.0), st.just(-np.inf))
 
 
@@ -51,6 +53,26 @@ def test_resampling_properties(lw: list[float], p: int, seed: int) -> None:
     # the resampled ones all carry weight 1/c
     small = np.setdiff1d(idx, np.flatnonzero(full_w >= inv_c))
     np.testing.assert_allclose(np.exp(out[np.searchsorted(idx, small)]), inv_c, rtol=1e-9)
+
+
+@given(lw=st.lists(st.floats(-40.0, 5.0), min_size=2, max_size=60), p=st.integers(1, 15),
+       seed=st.integers(0, 2**16), ties=st.booleans())
+@settings(max_examples=400, deadline=None)
+def test_the_compiled_resampler_gives_the_numpy_codes_bits(lw: list[float], p: int, seed: int,
+                                                          ties: bool) -> None:
+    """Same survivors, same log weights to the last bit, same draws as the numpy code the
+    kernels replaced (tests/learner/resampling_numpy.py); ties (rounded weights) included."""
+    arr = np.round(np.array(lw), 0) if ties else np.array(lw)
+    if arr.size <= p:
+        return
+    rng_a, rng_b = np.random.default_rng(seed), np.random.default_rng(seed)
+    idx, out = fearnhead_resample(arr, p, rng_a)
+    ref_idx, ref_out, inv_c = numpy_resample(arr, p, rng_b)
+    assert idx.tolist() == ref_idx.tolist()
+    assert out.tobytes() == ref_out.tobytes()
+    assert rng_a.bit_generator.state == rng_b.bit_generator.state
+    w = np.exp(arr - arr.max())
+    assert fearnhead_threshold(w / w.sum(), p)[0] == inv_c
 
 
 def test_resampling_is_unbiased() -> None:

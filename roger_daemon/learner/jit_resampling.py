@@ -1,0 +1,103 @@
+"""Compiled steps of Fearnhead & Clifford's resampling (numba; :mod:`.resampling`,
+docs/learner-math.md §5).
+
+Imported through :mod:`.jit` with the other kernels.  Only exact IEEE operations happen here
+(divisions, sequential sums, comparisons, a stable sort): ``exp`` and ``log`` stay with numpy
+and the C library in :mod:`.resampling`, so the floats are those of the numpy code they
+replaced, bit for bit (tests/learner/test_resampling.py runs that code as the oracle).  Two
+calls per step instead of ~30 small numpy calls (~40 µs per step, issue 11).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner.jit_compile import compiled
+
+__all__ = ["fearnhead_split", "sorted_threshold", "stratified_pass"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+@compiled(nogil=True)
+def sorted_threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
+    """``(1/c, L)`` for normalised weights ``ws`` sorted in descending order: the first ``L``
+    with ``ws[L] <= R_L / (P - L)``, ``R_L`` the mass from ``L`` on (a sum from the smallest
+    weight up, as ``np.cumsum`` of the reversed weights gives it)."""
+    m = ws.shape[0]
+    suffix = np.empty(m)
+    acc = 0.0
+    for i in range(m - 1, -1, -1):
+        acc += ws[i]
+        suffix[i] = acc
+    # L = P - 1 always qualifies (tau = R_{P-1} >= ws[P-1]); the first that does is taken
+    for first in range(n_keep):
+        tau = suffix[first] / float(n_keep - first)
+        if ws[first] <= tau:
+            return tau, first
+    return suffix[0] / float(n_keep), 0  # unreachable for n_keep < m (numpy's argmax of none)
+
+
+@compiled(nogil=True)
+def fearnhead_split(expw: FloatArray, total: float, n_keep: int
+                    ) -> tuple[FloatArray, IntArray, FloatArray, float, int]:
+    """``(w, order, ws, 1/c, L)``: the normalised weights ``expw / total``, their order by
+    decreasing weight (ties by index), the sorted weights, and :func:`sorted_threshold`."""
+    w = expw / total
+    order = np.argsort(-w, kind="mergesort")  # stable: ties broken by index
+    ws = w[order]
+    inv_c, n_top = sorted_threshold(ws, n_keep)
+    return w, order, ws, inv_c, n_top
+
+
+@compiled(nogil=True)
+def stratified_pass(w: FloatArray, order: IntArray, n_top: int, n_keep: int, inv_c: float,
+                    u0: float, lv: FloatArray, lse: float, log_inv_c: float
+                    ) -> tuple[IntArray, FloatArray, FloatArray]:
+    """``(selected indices, their log weights before normalising, cumulative weights)``.
+
+    The top ``n_top`` are kept with their weights ``lv - lse``; the others, in their original
+    order, are picked where the running sum ``cum_i`` crosses ``u0 + j/c`` and get weight
+    ``log_inv_c``; a round-off surplus drops the last picks, a deficit is topped up by the
+    largest unpicked weights (:func:`.resampling.fearnhead_resample`).
+    """
+    m = w.shape[0]
+    keep = np.zeros(m, dtype=np.bool_)
+    for i in range(n_top):
+        keep[order[i]] = True
+    rest = np.flatnonzero(~keep)  # fixed (original) order
+    need = n_keep - n_top
+    cum = np.empty(rest.shape[0])
+    acc = 0.0
+    for j in range(rest.shape[0]):
+        acc += w[rest[j]]
+        cum[j] = acc
+    picked = np.zeros(rest.shape[0], dtype=np.bool_)
+    prev = 0.0
+    n_picked = 0
+    for j in range(rest.shape[0]):
+        crossing = np.ceil((cum[j] - u0) / inv_c)
+        if crossing < 0.0:
+            crossing = 0.0
+        picked[j] = crossing > prev if j > 0 else crossing > 0.0
+        prev = crossing
+        if picked[j]:
+            n_picked += 1
+    chosen = rest[picked]
+    if n_picked > need:  # round-off surplus: drop the last picks
+        chosen = chosen[:need]
+    elif n_picked < need:  # round-off deficit: top up with the largest unpicked weights
+        left = rest[~picked]
+        extra = left[np.argsort(-w[left], kind="mergesort")[: need - n_picked]]
+        chosen = np.concatenate((chosen, extra))
+    new_lw = np.full(m, -np.inf)
+    for i in range(m):
+        if keep[i]:
+            new_lw[i] = lv[i] - lse
+    for i in chosen:
+        new_lw[i] = log_inv_c
+        keep[i] = True
+    sel = np.flatnonzero(keep)
+    return sel, new_lw[sel], cum
