@@ -40,6 +40,22 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
         assert 0 < robot["latency_p50_ms"] <= robot["latency_p99_ms"]
 
 
+def test_a_daemon_that_was_killed_fails_the_targets() -> None:
+    """Figures within every target, but one phase's daemon had to be killed (exit -9, the
+    harness's SIGKILL after 60 s): the run does not meet the targets, and says why."""
+    from roger_daemon.bench.fleet import _summary
+
+    robot = {"dropped": 0, "updates_per_s": 30.0, "predictions_per_s": 30.0,
+             "jitter_p99_ms": 1.0, "latency_p99_ms": 5.0, "latency_p50_ms": 2.0}
+    phases = {clock: {"robots": {"r0": robot}, "daemon_period_jitter_p99_ms": 0.5,
+                      "exit_code": 0} for clock in ("realtime", "lockstep")}
+    assert _summary(phases)["meets_targets"] is True
+    phases["lockstep"]["exit_code"] = -9
+    summary = _summary(phases)
+    assert summary["meets_targets"] is False
+    assert summary["daemon_exit_codes"] == {"realtime": 0, "lockstep": -9}
+
+
 def test_period_jitter_is_the_distance_of_each_interval_from_the_period() -> None:
     """Exact oracle: stamps one period apart have no jitter; a publication 5 ms late shows
     as +5 ms on its interval and -5 ms on the next (both |.| = 5); fewer than 2 stamps give

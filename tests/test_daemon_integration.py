@@ -151,6 +151,19 @@ def test_bad_input_is_counted_and_leaves_the_model_unchanged(
         client.close()
 
 
+def test_a_daemon_that_does_not_stop_in_time_is_killed_not_left_behind(
+    tmp_path: Path, procs: list[DaemonProcess]
+) -> None:
+    """``DaemonProcess.terminate`` kills a daemon that has not exited ``timeout`` seconds after
+    SIGTERM (here: stopped by SIGSTOP, so the SIGTERM stays pending) and reports exit code -9;
+    the benchmarks record that instead of stopping with the daemon still running."""
+    cfg = write_config(tmp_path / "d.toml", port=free_port(), workdir=tmp_path)
+    d = start(procs, cfg)
+    os.kill(d.proc.pid, signal.SIGSTOP)
+    code, _ = d.terminate(timeout=1.0)
+    assert code == -signal.SIGKILL and d.proc.poll() == -signal.SIGKILL
+
+
 def test_sigterm_checkpoints_and_restart_resumes_identical_model(
     tmp_path: Path, procs: list[DaemonProcess]
 ) -> None:

@@ -235,6 +235,9 @@ def _summary(phases: dict[str, Any]) -> dict[str, Any]:
                    s["jitter_p99_ms_max"] <= TARGETS["jitter_p99_ms"]]
     if ls:
         checks.append(s["latency_p99_ms_max"] <= TARGETS["latency_p99_ms"])
+    # each phase's daemon stopped on SIGTERM by itself (-9: killed after 60 s, harness)
+    s["daemon_exit_codes"] = {name: ph["exit_code"] for name, ph in phases.items()}
+    checks.append(all(code == 0 for code in s["daemon_exit_codes"].values()))
     s["meets_targets"] = bool(checks) and all(checks)
     return s
 

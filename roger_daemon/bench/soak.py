@@ -188,7 +188,9 @@ def run(args: argparse.Namespace) -> int:
                      "overrides": list(args.overrides)},
         "machine": finish(machine),
     }
-    result["meets_target"] = bool(result["rss_growth_after_warmup_pct"] < TARGET_GROWTH_PCT)
+    # a daemon that had to be killed (or crashed) at the end did not finish the run cleanly
+    result["meets_target"] = bool(result["rss_growth_after_warmup_pct"] < TARGET_GROWTH_PCT
+                                  and out["exit_code"] == 0)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -203,4 +205,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{ck['distinct_experts']} distinct experts, "
                   f"{ck['bytes_per_expert'] / 1e3:.0f} kB per expert (+ history "
                   f"{ck['history_bytes'] / 1e3:.0f} kB)")
+    if out["exit_code"] != 0:
+        print(f"the daemon exited with {out['exit_code']} (-9: killed, it had not stopped 60 s "
+              "after SIGTERM): target not met")
     return 0
