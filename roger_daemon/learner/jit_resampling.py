@@ -33,11 +33,12 @@ def sorted_threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
         acc += ws[i]
         suffix[i] = acc
     # L = P - 1 always qualifies (tau = R_{P-1} >= ws[P-1]); the first that does is taken
-    for first in range(n_keep):
+    # (never past the weights: numba does not check bounds)
+    for first in range(min(n_keep, m)):
         tau = suffix[first] / float(n_keep - first)
         if ws[first] <= tau:
             return tau, first
-    return suffix[0] / float(n_keep), 0  # unreachable for n_keep < m (numpy's argmax of none)
+    return suffix[0] / float(n_keep), 0  # unreachable for n_keep <= m (numpy's argmax of none)
 
 
 @compiled(nogil=True)

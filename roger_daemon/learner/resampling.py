@@ -46,7 +46,11 @@ def fearnhead_threshold(weights: FloatArray, n_keep: int) -> tuple[float, int]:
     is the mass outside the top ``L`` (docs/learner-math.md §5 step 1;
     :func:`.jit_resampling.sorted_threshold`).
     """
-    inv_c, n_top = _jit.sorted_threshold(np.ascontiguousarray(np.sort(weights)[::-1]), n_keep)
+    ws = np.ascontiguousarray(np.sort(np.asarray(weights, dtype=np.float64))[::-1])
+    if ws.size < n_keep:
+        raise ValueError(f"fearnhead_threshold needs at least n_keep = {n_keep} weights, "
+                         f"got {ws.size}")
+    inv_c, n_top = _jit.sorted_threshold(ws, n_keep)
     return float(inv_c), int(n_top)
 
 

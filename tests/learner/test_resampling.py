@@ -75,6 +75,15 @@ def test_the_compiled_resampler_gives_the_numpy_codes_bits(lw: list[float], p: i
     assert fearnhead_threshold(w / w.sum(), p)[0] == inv_c
 
 
+def test_the_threshold_refuses_fewer_weights_than_survivors() -> None:
+    """The compiled loop does not check bounds: too few weights is an error, not a read past
+    the array; exactly ``n_keep`` weights keep them all (threshold below every weight)."""
+    with pytest.raises(ValueError, match="at least n_keep = 3 weights, got 2"):
+        fearnhead_threshold(np.array([0.5, 0.5]), 3)
+    inv_c, n_top = fearnhead_threshold(np.array([0.5, 0.3, 0.2]), 3)
+    assert n_top == 2 and inv_c == pytest.approx(0.2)
+
+
 def test_resampling_is_unbiased() -> None:
     """E[new weight_i] = w_i, with weight 0 when not selected (a test that can fail)."""
     rng = np.random.default_rng(12345)
