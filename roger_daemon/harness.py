@@ -128,8 +128,8 @@ class DaemonProcess:
         try:
             code = self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            self.proc.kill()
-            code = self.proc.wait(10)
+            self.kill()
+            code = self.proc.returncode
         self._log.close()
         return code, time.monotonic() - t0
 
