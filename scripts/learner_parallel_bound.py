@@ -1,0 +1,146 @@
+"""The fastest an exact learner step could be on this machine, with no Python and both cores
+(issue 11, docs/performance.md, *An exact step on both cores, measured*).
+
+A ROGER step at the paper's parameters evaluates every distinct expert version (``k``,
+``C k``, ``k^T C k``: one pass over its packed ``C``) and then updates the chosen versions
+(``Q k``, then the rank-3 update of ``C`` and rank-2 update of ``Q``: a read-and-write pass
+over each).  This script runs exactly those passes, with the learner's own compiled kernels
+(:func:`~roger_daemon.learner.jit_kernels.expert_terms`,
+:func:`~roger_daemon.learner.jit_kernels.sym_matvec`,
+:func:`~roger_daemon.learner.jit_kernels.rank_update_cq`), inside one compiled call per step,
+first on one thread and then split over ``--threads`` threads (numba ``prange``: the
+evaluations in parallel, then the updates in parallel), over as many ``beta x beta`` versions
+as the benchmark stream has.  Nothing else of a step (gates, resampling, bookkeeping) is
+counted, so the rate it prints is an upper bound for any exact implementation of the step.
+
+    .venv/bin/python scripts/learner_parallel_bound.py [--versions 20] [--updated 10]
+        [--beta 300] [--dim 3] [--steps 2000] [--threads 2] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numba
+import numpy as np
+from numba import njit, prange
+from threadpoolctl import threadpool_limits
+
+from roger_daemon.bench.learner import print_report
+from roger_daemon.learner import jit_fused, jit_kernels, packed
+from roger_daemon.machine import finish, machine_record
+
+FloatArray = np.ndarray
+
+
+@njit(parallel=True, nogil=True)
+def exact_step_passes(bases: FloatArray, cs: FloatArray, qs: FloatArray, coefs: FloatArray,
+                      x: FloatArray, gamma: float, n: int, updated: np.ndarray,
+                      scale: float) -> float:
+    """One step's matrix passes: every version evaluated, then the ``updated`` ones updated
+    (a tiny symmetric rank-3 / rank-2 update, so the matrices stay what they were)."""
+    versions = cs.shape[0]
+    kck = np.zeros(versions)
+    ks = np.zeros((versions, n))
+    cks = np.zeros((versions, n))
+    for v in prange(versions):
+        terms = jit_kernels.expert_terms(bases[v], cs[v], coefs[v], x, gamma, n, n)
+        kck[v] = terms[2 * n]
+        ks[v] = terms[:n]
+        cks[v] = terms[n: 2 * n]
+    for u in prange(updated.shape[0]):
+        v = updated[u]
+        qk = jit_kernels.sym_matvec(qs[v], ks[v], n, n)
+        uc = np.empty((3, n))
+        uc[0] = cks[v]
+        uc[1] = qk
+        uc[2] = ks[v]
+        uq = np.empty((2, n))
+        uq[0] = qk
+        uq[1] = ks[v]
+        cc = np.array([scale, -scale, scale])
+        cq = np.array([scale, -scale])
+        jit_kernels.rank_update_cq(cs[v], qs[v], n, n, -1, uc, cc, uq, cq, np.empty(n))
+    return float(kck.sum())
+
+
+def versions_like_the_learner(count: int, beta: int, dim: int, rng: np.random.Generator,
+                              dtype: type = np.float64) -> tuple[FloatArray, ...]:
+    """``count`` full versions: a basis, a packed SPD ``C``-like and ``Q``-like matrix
+    (stored as ``dtype``), one output column."""
+    size = packed.packed_size(beta)
+    bases = rng.uniform(-1.0, 1.0, (count, beta, dim))
+    cs: FloatArray = np.empty((count, size), dtype=dtype)
+    qs: FloatArray = np.empty((count, size), dtype=dtype)
+    for v in range(count):
+        a = rng.standard_normal((beta, beta)) / beta
+        spd = a @ a.T + np.eye(beta)
+        cs[v] = packed.pack(-spd, beta)
+        qs[v] = packed.pack(spd, beta)
+    coefs = rng.standard_normal((count, beta, 1))
+    return bases, cs, qs, coefs
+
+
+def per_step_ms(threads: int, data: tuple[FloatArray, ...], steps: int, updated: int,
+                dim: int, gamma: float, rng: np.random.Generator) -> float:
+    """Milliseconds per step with ``threads`` numba threads (median of five blocks)."""
+    numba.set_num_threads(threads)
+    bases, cs, qs, coefs = data
+    versions, beta = bases.shape[0], bases.shape[1]
+    xs = rng.uniform(-1.0, 1.0, (steps, dim))
+    chosen = [np.sort(rng.choice(versions, updated, replace=False)) for _ in range(steps)]
+    exact_step_passes(bases, cs, qs, coefs, xs[0], gamma, beta, chosen[0], 1e-12)
+    blocks = []
+    block = max(1, steps // 5)
+    for start in range(0, steps - block + 1, block):
+        t0 = time.perf_counter()
+        for s in range(start, start + block):
+            exact_step_passes(bases, cs, qs, coefs, xs[s], gamma, beta, chosen[s], 1e-12)
+        blocks.append((time.perf_counter() - t0) / block * 1e3)
+    return float(np.median(blocks))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--versions", type=int, default=20)
+    parser.add_argument("--updated", type=int, default=10)
+    parser.add_argument("--beta", type=int, default=300)
+    parser.add_argument("--dim", type=int, default=3)
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--float32", action="store_true",
+                        help="store C and Q in float32 (arithmetic stays float64): what halving "
+                             "the bytes would buy; not exact (docs/performance.md)")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    for name in ("versions", "beta", "dim", "steps", "threads"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1 (got {getattr(args, name)})")
+    if not 0 <= args.updated <= args.versions:
+        parser.error(f"--updated must be between 0 and --versions (got {args.updated})")
+    jit_fused.fused_step  # noqa: B018  (the learner's kernels compiled before timing)
+    machine = machine_record()
+    rng = np.random.default_rng(0)
+    data = versions_like_the_learner(args.versions, args.beta, args.dim, rng,
+                                     np.float32 if args.float32 else np.float64)
+    with threadpool_limits(1):
+        one = per_step_ms(1, data, args.steps, args.updated, args.dim, 1.0, rng)
+        many = per_step_ms(args.threads, data, args.steps, args.updated, args.dim, 1.0, rng)
+    out = {
+        "versions": args.versions, "updated_per_step": args.updated, "beta": args.beta,
+        "storage": "float32" if args.float32 else "float64",
+        "threads": args.threads, "threading_layer": numba.threading_layer(),  # type: ignore[attr-defined]
+        "one_thread_ms_per_step": round(one, 3),
+        "one_thread_updates_per_s_bound": round(1e3 / one, 1),
+        f"{args.threads}_threads_ms_per_step": round(many, 3),
+        f"{args.threads}_threads_updates_per_s_bound": round(1e3 / many, 1),
+        "speed_up": round(one / many, 2),
+        "machine": finish(machine),
+    }
+    print_report(out, as_json=args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,65 @@
+"""``scripts/learner_parallel_bound.py`` (docs/performance.md, *An exact step on both cores*):
+its compiled step does the passes it claims, on one thread and on two: every version's
+``k^T C k`` as the learner's own kernel gives it, and a read-and-write pass over the ``C`` and
+``Q`` of the updated versions only."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numba
+import numpy as np
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_parallel_bound.py"
+
+
+def _script() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("learner_parallel_bound", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_step_reads_every_version_and_writes_the_updated_ones(threads: int) -> None:
+    from roger_daemon.learner import jit
+
+    script = _script()
+    beta, versions = 12, 5
+    bases, cs, qs, coefs = script.versions_like_the_learner(versions, beta, 3,
+                                                            np.random.default_rng(1))
+    x = np.array([0.1, -0.2, 0.3])
+    expected = sum(jit.expert_terms(bases[v], cs[v], coefs[v], x, 1.0, beta, beta)[2 * beta]
+                   for v in range(versions))
+    before_c, before_q = cs.copy(), qs.copy()
+    updated = np.array([1, 3])
+    default = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        total = script.exact_step_passes(bases, cs, qs, coefs, x, 1.0, beta, updated, 1e-3)
+    finally:
+        numba.set_num_threads(default)
+    assert total == pytest.approx(expected, rel=1e-12)
+    changed = [v for v in range(versions)
+               if not (np.array_equal(cs[v], before_c[v]) and np.array_equal(qs[v], before_q[v]))]
+    assert changed == [1, 3]
+
+
+def test_cli_reports_both_thread_counts() -> None:
+    out = subprocess.run([sys.executable, str(SCRIPT), "--versions", "4", "--updated", "2",
+                          "--beta", "40", "--steps", "20", "--json"],
+                         capture_output=True, text=True, timeout=600, check=True)
+    report = json.loads(out.stdout)
+    assert report["one_thread_ms_per_step"] > 0 and report["2_threads_ms_per_step"] > 0
+    assert report["storage"] == "float64" and report["updated_per_step"] == 2
+    bad = subprocess.run([sys.executable, str(SCRIPT), "--updated", "30"],
+                         capture_output=True, text=True, timeout=600)
+    assert bad.returncode == 2
+    assert "--updated must be between 0 and --versions (got 30)" in bad.stderr
