@@ -26,6 +26,8 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
         phase = report["phases"][clock]
         assert phase["exit_code"] == 0 and phase["decode_errors"] == 0
         assert phase["workers"] == "process"
+        assert phase["predictions_received_by"] == (
+            "feeding process" if clock == "lockstep" else "receiver process")
         assert set(phase["robots"]) == {"r0", "r1"}
         for robot in phase["robots"].values():
             assert robot["predictions_per_s"] > 0 and robot["updates"] > 0
@@ -38,6 +40,25 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
             assert math.isfinite(robot["delivery_p99_ms"])
     for robot in report["phases"]["lockstep"]["robots"].values():
         assert 0 < robot["latency_p50_ms"] <= robot["latency_p99_ms"]
+
+
+def test_index_predictions_counts_what_does_not_decode() -> None:
+    """The one decoder of received predictions (the receiver process's and the feeding
+    process's): each valid one lands under its robot with its tick and publish stamp on the
+    monotonic clock; a bad payload or a robot not in the fleet is counted, not raised."""
+    from protocols import Prediction, encode
+    from protocols.aibo import DIMS
+    from roger_daemon.bench.fleet_client import index_predictions
+
+    pred = encode(Prediction("r0", 7, 0.2, mean=np.zeros(DIMS.y), var=np.ones(DIMS.y),
+                             expert=-1, stamp_ns=5_000))
+    stray = encode(Prediction("r9", 1, 0.0, mean=np.zeros(DIMS.y),
+                              var=np.ones(DIMS.y), expert=-1))
+    raw = [(100, "roger/r0/prediction", pred), (101, "roger/r1/prediction", b"\x00junk"),
+           (102, "roger/r9/prediction", stray)]
+    preds, errors = index_predictions(raw, ["r0", "r1"], 1_000)
+    assert preds == {"r0": [(100, 7, 4_000)], "r1": []}
+    assert errors == 2
 
 
 def test_a_daemon_that_was_killed_fails_the_targets() -> None:

@@ -49,7 +49,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.bench.fleet_client import FleetClient, feed, proc_cpu_s
+from roger_daemon.bench import fleet_receiver
+from roger_daemon.bench.fleet_client import (
+    FleetClient,
+    Received,
+    feed,
+    index_predictions,
+    proc_cpu_s,
+)
 from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
 from roger_daemon.console import require
 from roger_daemon.harness import DaemonProcess, free_port, write_config
@@ -108,29 +115,42 @@ def period_jitter_ms(stamps_ns: npt.ArrayLike, rate: float) -> FloatArray:
     return np.abs(np.diff(a) / 1e6 - 1000.0 / rate)
 
 
-def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, Any, Any],
-                  rate: float, lockstep: bool) -> dict[str, Any]:
-    s0, s1, end = st
-    preds = [(t, k, p) for t, k, p in fleet.preds[r] if w0 <= t < w1]
+def _receipt_figures(preds: Received, sent_at: dict[int, int], rate: float, lockstep: bool,
+                     window_s: float) -> dict[str, Any]:
+    """Prediction rate, period jitter, its split into publishing and delivery, and (lockstep)
+    the latency, from one receiver's receipts of one robot's predictions in the window."""
     recv = np.asarray([t for t, _, _ in preds], dtype=np.int64)
     sent = np.asarray([p for _, _, p in preds], dtype=np.int64)
-    jitter = period_jitter_ms(recv, rate)
-    # the same split into the daemon's publishing and the delivery (docs/fleet.md)
-    published = period_jitter_ms(sent, rate)
     delivery = (recv - sent) / 1e6
+    out: dict[str, Any] = {
+        "predictions_per_s": len(preds) / window_s,
+        "jitter_p99_ms": _pct(period_jitter_ms(recv, rate), 99),
+        # |interval between two publications - 1/rate| (the daemon's stamps) and publish ->
+        # received: which side of the link the jitter comes from
+        "publish_jitter_p99_ms": _pct(period_jitter_ms(sent, rate), 99),
+        "delivery_p50_ms": _pct(delivery, 50),
+        "delivery_p99_ms": _pct(delivery, 99),
+    }
+    if lockstep:
+        lat = [(t - sent_at[k]) / 1e6 for t, k, _ in preds if k in sent_at]
+        out["latency_p50_ms"] = _pct(lat, 50)
+        out["latency_p99_ms"] = _pct(lat, 99)
+        out["latency_max_ms"] = max(lat) if lat else float("nan")
+    return out
+
+
+def _robot_result(fleet: FleetClient, received: Received, r: str, w0: int, w1: int,
+                  st: tuple[Any, Any, Any], rate: float, lockstep: bool) -> dict[str, Any]:
+    """One robot's figures: receipts from whichever process received its predictions
+    (``received``), learning from the daemon's status."""
+    s0, s1, end = st
+    window_s = (w1 - w0) / 1e9
     dt = s1.uptime_s - s0.uptime_s
     out: dict[str, Any] = {
         "updates_per_s": (s1.updates - s0.updates) / dt if dt > 0 else float("nan"),
         "dropped": int(end.dropped),
-        "predictions_per_s": len(preds) / ((w1 - w0) / 1e9),
         # what this process managed to send: on a starved machine the feed itself lags
-        "fed_per_s": sum(w0 <= t < w1 for t in fleet.sent[r].values()) / ((w1 - w0) / 1e9),
-        "jitter_p99_ms": _pct(jitter, 99),
-        # |interval between two publications - 1/rate| (the daemon's stamps) and publish ->
-        # received: which side of the link the jitter comes from
-        "publish_jitter_p99_ms": _pct(published, 99),
-        "delivery_p50_ms": _pct(delivery, 50),
-        "delivery_p99_ms": _pct(delivery, 99),
+        "fed_per_s": sum(w0 <= t < w1 for t in fleet.sent[r].values()) / window_s,
         "queue_depth_end": int(end.queue_depth),
         "updates": int(end.updates), "experts": int(end.experts),
         # the status at the window's end: after it the timer keeps answering the last
@@ -140,12 +160,8 @@ def _robot_result(fleet: FleetClient, r: str, w0: int, w1: int, st: tuple[Any, A
         "busy_ticks": int(s1.info.get("worker_busy_ticks", 0))
         - int(s0.info.get("worker_busy_ticks", 0)),
     }
-    if lockstep:
-        sent_at = fleet.sent[r]
-        lat = [(t - sent_at[k]) / 1e6 for t, k, _ in preds if k in sent_at]
-        out["latency_p50_ms"] = _pct(lat, 50)
-        out["latency_p99_ms"] = _pct(lat, 99)
-        out["latency_max_ms"] = max(lat) if lat else float("nan")
+    preds = [(t, k, p) for t, k, p in received if w0 <= t < w1]
+    out.update(_receipt_figures(preds, fleet.sent[r], rate, lockstep, window_s))
     return out
 
 
@@ -161,11 +177,16 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStre
     daemon = DaemonProcess(cfg, args=["--fresh", *(a for o in args.overrides
                                                    for a in ("--set", o))])
     fleet: FleetClient | None = None
+    receiver = None
+    receipts = workdir / f"{clock}-receipts.msgpack"
+    lockstep = clock == "lockstep"
     code = None
     try:
         daemon.wait_ready(120.0)
-        fleet = FleetClient(f"tcp/127.0.0.1:{port}", robots)
-        fleet.lockstep = clock == "lockstep"
+        if not lockstep:  # a process that only receives (docs/fleet.md)
+            receiver = fleet_receiver.start(f"tcp/127.0.0.1:{port}", receipts)
+        fleet = FleetClient(f"tcp/127.0.0.1:{port}", robots, predictions=lockstep)
+        fleet.lockstep = lockstep
         time.sleep(1.0)  # let the link and the declarations settle
         start = time.monotonic()
         w0 = int((start + args.warmup) * 1e9)
@@ -183,8 +204,13 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStre
         end = fleet.wait_status(w1 + 500_000_000)
         s1 = fleet.last_status(w1)
         fleet.decode_predictions()
-        per = {r: _robot_result(fleet, r, w0, w1, (s0[r], s1[r], end[r]), args.rate,
-                                fleet.lockstep) for r in robots}
+        received, receiver_errors = fleet.preds, 0
+        if receiver is not None:
+            raw, wall_to_mono = fleet_receiver.stop(receiver, receipts)
+            receiver = None
+            received, receiver_errors = index_predictions(raw, robots, wall_to_mono)
+        per = {r: _robot_result(fleet, received[r], r, w0, w1, (s0[r], s1[r], end[r]),
+                                args.rate, lockstep) for r in robots}
         info = end[robots[0]].info
         result: dict[str, Any] = {
             "robots": per,
@@ -194,11 +220,16 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStre
                 s1[robots[0]].info.get("period_jitter_ms_p99", 0.0)),
             "missed_ticks": int(info.get("missed_ticks", 0)),
             "workers": info.get("workers", "inline"),
-            "decode_errors": fleet.errors,
+            # which process's receipts the per-robot prediction figures are
+            "predictions_received_by": "feeding process" if lockstep else "receiver process",
+            "decode_errors": fleet.errors + receiver_errors,
         }
     finally:
         if fleet is not None:
             fleet.close()
+        if receiver is not None:  # the phase failed: the receiver's figures are not needed
+            receiver.kill()
+            receiver.wait(60.0)
         if daemon.proc.poll() is None:
             code, _ = daemon.terminate(60.0)
         else:

@@ -17,7 +17,11 @@ from protocols import Action, Perception, decode, encode, keys
 from protocols.aibo import DIMS
 from roger_daemon.bench.streams import FeedStream
 
-__all__ = ["FleetClient", "child_pids", "feed", "proc_cpu_s"]
+__all__ = ["FleetClient", "child_pids", "feed", "index_predictions", "proc_cpu_s"]
+
+#: a robot's predictions as received: (received, tick, published), monotonic ns of the
+#: machine (the daemon's wall-clock ``stamp_ns`` moved onto the monotonic clock)
+Received = list[tuple[int, int, int]]
 
 
 def child_pids(pid: int) -> list[int]:
@@ -46,10 +50,30 @@ def proc_cpu_s(pid: int, *, children: bool = True) -> float:
     return total
 
 
-class FleetClient:
-    """One Zenoh session playing every robot; collects predictions and status."""
+def index_predictions(raw: list[tuple[int, str, bytes]], robots: list[str], wall_to_mono: int
+                      ) -> tuple[dict[str, Received], int]:
+    """Every received prediction validated and indexed by robot; and how many did not decode.
 
-    def __init__(self, connect: str, robots: list[str]) -> None:
+    ``raw`` holds (received monotonic ns, key, payload); ``wall_to_mono`` is the receiving
+    process's ``time.time_ns() - time.monotonic_ns()``."""
+    preds: dict[str, Received] = {r: [] for r in robots}
+    errors = 0
+    for now, key, payload in raw:
+        try:
+            robot, kind = keys.parse(key)
+            msg = decode(kind, payload, dims=DIMS, robot=robot)
+            preds[robot].append((now, msg.tick, msg.stamp_ns - wall_to_mono))
+        except Exception:
+            errors += 1
+    return preds, errors
+
+
+class FleetClient:
+    """One Zenoh session playing every robot; collects status, and predictions unless another
+    process receives them (``predictions=False``: ``roger bench fleet``'s realtime phase,
+    :mod:`.fleet_receiver`)."""
+
+    def __init__(self, connect: str, robots: list[str], *, predictions: bool = True) -> None:
         import zenoh
 
         from roger_daemon.zenoh_session import ZenohSettings, open_session
@@ -57,9 +81,7 @@ class FleetClient:
         self.session = open_session(ZenohSettings(listen=(), connect=(connect,)))
         self.robots = robots
         self.sent: dict[str, dict[int, int]] = {r: {} for r in robots}
-        # (received, tick, published): monotonic ns here; the daemon's stamp_ns (wall clock,
-        # same machine) moved onto this process's monotonic clock
-        self.preds: dict[str, list[tuple[int, int, int]]] = {r: [] for r in robots}
+        self.preds: dict[str, Received] = {r: [] for r in robots}
         self._wall_to_mono = time.time_ns() - time.monotonic_ns()
         self.status: dict[str, list[tuple[int, Any]]] = {r: [] for r in robots}
         self.answered: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
@@ -69,8 +91,11 @@ class FleetClient:
         self._pubs = {(r, k): self.session.declare_publisher(
             keys.key(r, k), congestion_control=cc, priority=zenoh.Priority.REAL_TIME,
             express=True) for r in robots for k in ("perception", "action")}
-        self._subs = [self.session.declare_subscriber("roger/*/prediction", self._on_pred),
-                      self.session.declare_subscriber("roger/*/status", self._on_status)]
+        self._subs = [self.session.declare_subscriber(keys.all_of_kind("status"),
+                                                      self._on_status)]
+        if predictions:
+            self._subs.append(self.session.declare_subscriber(keys.all_of_kind("prediction"),
+                                                              self._on_pred))
         self.lockstep = False
 
     def _decode(self, sample: Any) -> tuple[str, Any] | None:
@@ -100,14 +125,10 @@ class FleetClient:
     def decode_predictions(self) -> None:
         """Validate every prediction received (decode_errors) and index them by robot."""
         raw, self._raw = self._raw, []
-        for now, key, payload in raw:
-            try:
-                robot, kind = keys.parse(key)
-                msg = decode(kind, payload, dims=DIMS, robot=robot)
-            except Exception:
-                self.errors += 1
-                continue
-            self.preds[robot].append((now, msg.tick, msg.stamp_ns - self._wall_to_mono))
+        preds, errors = index_predictions(raw, self.robots, self._wall_to_mono)
+        for robot, got in preds.items():
+            self.preds[robot] += got
+        self.errors += errors
 
     def _on_status(self, sample: Any) -> None:
         got = self._decode(sample)
