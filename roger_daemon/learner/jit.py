@@ -27,7 +27,7 @@ KERNELS = ("cholesky_inverse", "expert_terms", "fearnhead_split",
            "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
            "packed_add_lowrank",
            "rank_update_cq", "sorted_threshold", "stratified_pass", "sym_matvec", "sym_matvec_into",
-           "sym_row", "trace_lineages")
+           "sym_row", "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:
@@ -80,6 +80,7 @@ def warm_up() -> None:
                      np.zeros(1, dtype=np.int64))
     w, order, _, inv_c, n_top = rk.fearnhead_split(np.array([1.0, 0.5, 0.25]), 1.75, 2)
     rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), 0.0, 0.0)
+    rk.threshold_taus(np.array([0.5, 0.25]), 2)  # the resampler's decision margin
 
 
 def compiled_signatures(package: str) -> int:

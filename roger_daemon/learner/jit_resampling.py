@@ -15,30 +15,42 @@ import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled
 
-__all__ = ["fearnhead_split", "sorted_threshold", "stratified_pass"]
+__all__ = ["fearnhead_split", "sorted_threshold", "stratified_pass", "threshold_taus"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 
 @compiled(nogil=True)
-def sorted_threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
-    """``(1/c, L)`` for normalised weights ``ws`` sorted in descending order: the first ``L``
-    with ``ws[L] <= R_L / (P - L)``, ``R_L`` the mass from ``L`` on (a sum from the smallest
-    weight up, as ``np.cumsum`` of the reversed weights gives it)."""
+def threshold_taus(ws: FloatArray, n_keep: int) -> FloatArray:
+    """``R_L / (P - L)`` for every ``L < min(P, len(ws))``: the right-hand side of the
+    threshold test ``ws[L] <= R_L / (P - L)`` for weights ``ws`` sorted in descending order,
+    ``R_L`` the mass from ``L`` on (a sum from the smallest weight up, as ``np.cumsum`` of the
+    reversed weights gives it).  The one computation of the rule's values: the threshold
+    (:func:`sorted_threshold`) and the resampler's decision margin read them."""
     m = ws.shape[0]
     suffix = np.empty(m)
     acc = 0.0
     for i in range(m - 1, -1, -1):
         acc += ws[i]
         suffix[i] = acc
+    # never past the weights: numba does not check bounds
+    taus = np.empty(min(n_keep, m))
+    for first in range(taus.shape[0]):
+        taus[first] = suffix[first] / float(n_keep - first)
+    return taus
+
+
+@compiled(nogil=True)
+def sorted_threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
+    """``(1/c, L)`` for normalised weights ``ws`` sorted in descending order: the first ``L``
+    with ``ws[L] <= R_L / (P - L)`` (:func:`threshold_taus`)."""
+    taus = threshold_taus(ws, n_keep)
     # L = P - 1 always qualifies (tau = R_{P-1} >= ws[P-1]); the first that does is taken
-    # (never past the weights: numba does not check bounds)
-    for first in range(min(n_keep, m)):
-        tau = suffix[first] / float(n_keep - first)
-        if ws[first] <= tau:
-            return tau, first
-    return suffix[0] / float(n_keep), 0  # unreachable for n_keep <= m (numpy's argmax of none)
+    for first in range(taus.shape[0]):
+        if ws[first] <= taus[first]:
+            return taus[first], first
+    return taus[0], 0  # unreachable for 1 <= n_keep <= m (numpy's argmax of none)
 
 
 @compiled(nogil=True)

@@ -61,8 +61,7 @@ def _decision_margin(ws: FloatArray, n_keep: int, n_top: int, inv_c: float, u0: 
     ``U0 + j/c``) from its boundary, relative to the larger of the two compared values."""
     # the test at L = P - 1 always passes (tau = R_{P-1} >= w_P): not a decision
     n_tests = min(n_top + 1, n_keep - 1)
-    suffix = np.cumsum(ws[::-1])[::-1]
-    tau = suffix[:n_tests] / np.arange(n_keep, n_keep - n_tests, -1)
+    tau = _jit.threshold_taus(ws, n_keep)[:n_tests]
     tested = ws[:n_tests]
     thr = float(np.min(np.abs(tested - tau) / np.maximum(tested, tau), initial=math.inf))
     points = u0 + np.maximum(np.rint((cum - u0) / inv_c), 0.0) * inv_c  # nearest U0 + j/c

@@ -75,6 +75,21 @@ def test_the_compiled_resampler_gives_the_numpy_codes_bits(lw: list[float], p: i
     assert fearnhead_threshold(w / w.sum(), p)[0] == inv_c
 
 
+@given(lw=st.lists(st.floats(-40.0, 5.0), min_size=1, max_size=60), p=st.integers(1, 15))
+@settings(max_examples=200, deadline=None)
+def test_threshold_taus_are_the_numpy_formulas_bits(lw: list[float], p: int) -> None:
+    """The one computation of ``R_L / (P - L)`` (read by the threshold and by the decision
+    margin) gives the numpy formula's floats to the last bit, for as many ``L`` as there are
+    weights and survivors."""
+    from roger_daemon.learner import jit
+
+    w = np.exp(np.array(lw) - max(lw))
+    ws = np.ascontiguousarray(np.sort(w / w.sum())[::-1])
+    n = min(p, ws.size)
+    expected = np.cumsum(ws[::-1])[::-1][:n] / np.arange(p, p - n, -1)
+    assert jit.threshold_taus(ws, p).tobytes() == expected.tobytes()
+
+
 def test_the_threshold_refuses_fewer_weights_than_survivors() -> None:
     """The compiled loop does not check bounds: too few weights is an error, not a read past
     the array; exactly ``n_keep`` weights keep them all (threshold below every weight)."""
