@@ -6,6 +6,7 @@ import json
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,3 +148,13 @@ def test_feed_sends_every_robot_at_the_tick_or_staggered_over_the_period(
         else:
             assert robot == robots[(tick + j) % 4]
             assert at == pytest.approx(100.0 + tick / 25, abs=1e-12)
+
+
+def test_a_receiver_that_cannot_start_is_an_error_not_a_hang(tmp_path: Path) -> None:
+    """The realtime phase's receiver process (``bench/fleet_receiver.py``) given an endpoint
+    Zenoh refuses exits before it is ready: ``start`` says so instead of waiting forever."""
+    from roger_daemon.bench import fleet_receiver
+
+    with pytest.raises(RuntimeError, match="fleet receiver was not ready within 60 s"):
+        fleet_receiver.start("not-an-endpoint", tmp_path / "receipts.msgpack", timeout=60.0)
+    assert not (tmp_path / "receipts.msgpack").exists()

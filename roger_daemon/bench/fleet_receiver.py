@@ -3,7 +3,8 @@
 
 In the realtime phase the bench's client process publishes every robot's perception and
 action in one burst per tick; a prediction that reached that process during its own burst
-waited for the interpreter, so its receipt time measured the client as well as the daemon.
+could wait for the interpreter, so its receipt time could measure the client as well as the
+daemon (in the runs where both processes received, docs/fleet.md found no difference).
 A robot is a process (a machine) of its own: in that phase this process alone subscribes to
 the robots' predictions and notes when each arrived (``time.monotonic_ns``: one clock for
 every process of the machine), with nothing else to do.  (In the lockstep phase the feeding
@@ -18,6 +19,7 @@ input is closed, then writes what it received to ``--out`` (msgpack) and exits 0
 from __future__ import annotations
 
 import argparse
+import select
 import subprocess
 import sys
 import time
@@ -39,11 +41,13 @@ def start(connect: str, out: Path, timeout: float = 120.0) -> subprocess.Popen[s
         [sys.executable, "-m", "roger_daemon.bench.fleet_receiver", "--connect", connect,
          "--out", str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
-    line = proc.stdout.readline()  # blocks until ready (or the process ended)
+    ready, _, _ = select.select([proc.stdout], [], [], timeout)
+    line = proc.stdout.readline() if ready else ""  # "ready", or "" if it ended or hung
     if line.strip() != "ready":
         proc.kill()
         proc.wait(timeout)
-        raise RuntimeError(f"the fleet receiver did not start (exit {proc.returncode})")
+        raise RuntimeError(f"the fleet receiver was not ready within {timeout:g} s "
+                           f"(exit {proc.returncode})")
     return proc
 
 
