@@ -11,7 +11,9 @@ over each).  This script runs exactly those passes, with the learner's own compi
 first on one thread and then split over ``--threads`` threads (numba ``prange``: the
 evaluations in parallel, then the updates in parallel), over as many ``beta x beta`` versions
 as the benchmark stream has.  Nothing else of a step (gates, resampling, bookkeeping) is
-counted, so the rate it prints is an upper bound for any exact implementation of the step.
+counted, so the rate it prints is an upper bound for any exact step that makes these passes
+over packed float64 matrices (each version's ``C`` read, each updated ``C`` and ``Q`` read and
+written), as the learner's does.
 
     .venv/bin/python scripts/learner_parallel_bound.py [--versions 20] [--updated 10]
         [--beta 300] [--dim 3] [--steps 2000] [--threads 2] [--json]
