@@ -37,7 +37,7 @@ import threading
 import time
 import zlib
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 from pathlib import Path
@@ -162,6 +162,9 @@ class WriteAheadLog:
         self._fd = -1
         self._pos = self._end = 0
         self._dirty_since: int | None = None
+        #: the monotonic clock of the appends' age (:meth:`due`); the daemon sets its own
+        #: (``Service.clock``), whose ``now`` it passes to :meth:`commit_early`
+        self.clock: Callable[[], int] = time.monotonic_ns
         self._lock = threading.Lock()  # the bookkeeping shared with a background commit
         self._inflight: Future[None] | None = None
         self._open(next_seq)
@@ -199,7 +202,7 @@ class WriteAheadLog:
         with self._lock:
             self.next_seq += 1
             if self._dirty_since is None:
-                self._dirty_since = time.monotonic_ns()
+                self._dirty_since = self.clock()
         return seq
 
     def append_pair(self, index: int, tick: int, x: np.ndarray, y: np.ndarray,

@@ -160,6 +160,9 @@ class Service:
         self.checkpoints.start(now)
         if self.learners is not None:
             self.learners.attach(self)
+        for rt in self.robots.values():  # an append's age is judged on the loop's clock
+            if rt.wal is not None:
+                rt.wal.clock = self.clock.monotonic_ns
         if self.robots:  # fdatasync releases the GIL: the logs commit side by side, and early
             self._committer = ThreadPoolExecutor(max_workers=min(8, len(self.robots)),
                                                  thread_name_prefix="roger-wal")
