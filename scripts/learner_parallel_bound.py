@@ -30,7 +30,7 @@ from numba import njit, prange
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import print_report
-from roger_daemon.learner import jit_fused, jit_kernels, packed
+from roger_daemon.learner import jit_kernels, packed
 from roger_daemon.machine import finish, machine_record
 
 FloatArray = np.ndarray
@@ -85,11 +85,12 @@ def versions_like_the_learner(count: int, beta: int, dim: int, rng: np.random.Ge
 
 
 def per_step_ms(threads: int, data: tuple[FloatArray, ...], steps: int, updated: int,
-                dim: int, gamma: float, rng: np.random.Generator) -> float:
-    """Milliseconds per step with ``threads`` numba threads (median of five blocks)."""
+                gamma: float, rng: np.random.Generator) -> float:
+    """Milliseconds per step with ``threads`` numba threads (median of five blocks, after one
+    untimed step that compiles the call)."""
     numba.set_num_threads(threads)
     bases, cs, qs, coefs = data
-    versions, beta = bases.shape[0], bases.shape[1]
+    versions, beta, dim = bases.shape
     xs = rng.uniform(-1.0, 1.0, (steps, dim))
     chosen = [np.sort(rng.choice(versions, updated, replace=False)) for _ in range(steps)]
     exact_step_passes(bases, cs, qs, coefs, xs[0], gamma, beta, chosen[0], 1e-12)
@@ -121,14 +122,13 @@ def main() -> int:
             parser.error(f"--{name} must be at least 1 (got {getattr(args, name)})")
     if not 0 <= args.updated <= args.versions:
         parser.error(f"--updated must be between 0 and --versions (got {args.updated})")
-    jit_fused.fused_step  # noqa: B018  (the learner's kernels compiled before timing)
     machine = machine_record()
     rng = np.random.default_rng(0)
     data = versions_like_the_learner(args.versions, args.beta, args.dim, rng,
                                      np.float32 if args.float32 else np.float64)
     with threadpool_limits(1):
-        one = per_step_ms(1, data, args.steps, args.updated, args.dim, 1.0, rng)
-        many = per_step_ms(args.threads, data, args.steps, args.updated, args.dim, 1.0, rng)
+        one = per_step_ms(1, data, args.steps, args.updated, 1.0, rng)
+        many = per_step_ms(args.threads, data, args.steps, args.updated, 1.0, rng)
     out = {
         "versions": args.versions, "updated_per_step": args.updated, "beta": args.beta,
         "storage": "float32" if args.float32 else "float64",
