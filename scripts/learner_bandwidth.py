@@ -25,12 +25,16 @@ from roger_daemon.learner import jit, packed
 
 
 def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
-    """Compiled calls per step by kind, measured ms per step, distinct experts, beta."""
+    """Compiled calls per step by kind, measured ms per step, distinct experts, beta.
+
+    The learner runs on one thread, where it calls each expert's kernels from Python (on
+    several it batches them, :mod:`roger_daemon.learner.jit_batch`): the same passes."""
+    jit.set_threads(1)
     warm = points // 4
     model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
     jit._load()
-    originals = {name: getattr(jit, name) for name in ("expert_terms", "sym_matvec", "fused_step")}
+    originals = {name: getattr(jit, name) for name in ("expert_terms", "projection", "fused_step")}
 
     def counted(name: str, fn: Any) -> Any:
         def wrapper(*args: Any) -> Any:
@@ -81,7 +85,7 @@ def main() -> int:
         hot = stream_us(mats[:1], beta, 2000)
     mb = packed.packed_size(beta) * 8 / 1e6
     # a C k or Q k pass reads one matrix; the fused step reads and writes C and Q
-    reads = per_step.get("expert_terms", 0.0) + per_step.get("sym_matvec", 0.0)
+    reads = per_step.get("expert_terms", 0.0) + per_step.get("projection", 0.0)
     rw = 2 * per_step.get("fused_step", 0.0)
     bound_ms = (reads * cold + rw * 2 * cold) / 1e3
     out = {

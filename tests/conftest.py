@@ -2,8 +2,23 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
+import pytest
+
 from roger_daemon.blas import pin_blas_threads
 
 # The learner runs with one BLAS thread wherever it runs (roger_daemon/blas.py); tests that
 # learn in-process get the same pinning as every `roger` command, whatever the shell says.
 pin_blas_threads(1)
+
+
+@pytest.fixture(autouse=True)
+def _restore_learner_threads() -> Iterator[None]:
+    """A test that sets the learner's thread count (``jit.set_threads``) gets it reset after."""
+    from roger_daemon.learner import jit
+
+    before = jit._threads
+    yield
+    if jit._threads != before:
+        jit.set_threads(before)

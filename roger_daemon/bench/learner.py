@@ -28,7 +28,7 @@ import numpy as np
 
 from roger_daemon.console import UsageError
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
-from roger_daemon.learner.jit import warm_up
+from roger_daemon.learner.jit import set_threads, threads, warm_up
 from roger_daemon.learner.params import ParameterError
 from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
 from roger_daemon.machine import describe, finish, machine_record
@@ -55,6 +55,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                         help="override a RogerParams field (VALUE as JSON), repeatable")
     parser.add_argument("--no-unimap", action="store_true", help="skip the unimap baseline")
+    parser.add_argument("--threads", type=int, default=None, metavar="N",
+                        help="threads of the learner's batched kernels (default: every core; "
+                             "the results do not depend on it)")
     parser.add_argument("--compare", metavar="REF", default=None,
                         help="instead, time git revision REF's learner (e.g. main, HEAD~3) "
                              "and this one in this process, one update of each in turn on the "
@@ -224,6 +227,7 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
         "segmentation_purity": round(_purity(assign, stream.labels), 3),
         "segmentation_ari": round(_ari(assign, stream.labels), 3),
         "roger_wall_s": round(wall, 2),
+        "learner_threads": threads(),
     }
     if unimap:
         base = UnimapGP(d_x, d_y, params, seed=seed)
@@ -257,6 +261,7 @@ def _table(res: dict[str, Any]) -> str:
         ("expert sizes", res["expert_sizes"][:12]),
         ("unique experts / particles", f"{res['unique_experts']} / {res['particles']}"),
         ("max basis vectors", res["max_basis_vectors"]),
+        ("learner threads", res["learner_threads"]),
         ("segmentation purity / ARI",
          f"{res['segmentation_purity']} / {res['segmentation_ari']}"),
     ]
@@ -274,6 +279,9 @@ def run(args: argparse.Namespace) -> int:
     if args.points is not None and args.points < 1:
         print("--points must be >= 1", file=sys.stderr)
         return 2
+    if args.threads is not None and args.threads < 1:
+        raise UsageError(f"--threads must be an integer >= 1, got {args.threads}")
+    set_threads(args.threads)
     stream = load_stream(args.stream, args.points, args.stream_seed, args.param)
     if args.compare is not None:
         from roger_daemon.bench.learner_compare import compare, compare_table

@@ -20,7 +20,7 @@ import numpy as np
 from roger_daemon.bench.learner import NOTE, BenchStream, _ms
 from roger_daemon.bench.reference import load_reference
 from roger_daemon.learner import Roger
-from roger_daemon.learner.jit import compiled_signatures, warm_up
+from roger_daemon.learner.jit import compiled_signatures, threads, warm_up
 from roger_daemon.machine import describe, finish, machine_record
 
 __all__ = ["compare", "compare_table"]
@@ -90,6 +90,7 @@ def compare(stream: BenchStream, rev: str, seed: int) -> dict[str, Any]:
         # kernels compiled inside the timed steps (a signature first met mid-run): then the
         # figures include compilation, and a second run (numba's cache filled) is the one
         "compiled_while_timing": {"ref": compiled[0], "new": compiled[1]},
+        "learner_threads": threads(),  # this learner's batched kernels (the reference's: its own)
         "seed": seed,
         "params": stream.params.to_mapping(),
         "machine": machine,

@@ -283,13 +283,17 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s (worker): %(message)s")
     from roger_daemon.blas import pin_blas_threads
     from roger_daemon.daemon.memory import limit_heap_growth
+    from roger_daemon.learner.jit import set_threads
 
     parser = argparse.ArgumentParser(prog="python -m roger_daemon.daemon.worker")
     parser.add_argument("--nice", type=int, default=0, choices=range(20), metavar="0..19")
-    nice = parser.parse_args(argv).nice
-    if nice:
-        os.nice(nice)
+    parser.add_argument("--threads", type=int, default=1, choices=range(1, 1025),
+                        metavar="1..1024", help="the learner's threads (roger_daemon.learner.jit)")
+    args = parser.parse_args(argv)
+    if args.nice:
+        os.nice(args.nice)
     pin_blas_threads(1)
+    set_threads(args.threads)
     limit_heap_growth()
     # unbuffered input, so that select() tells whether the daemon sent another request
     stdin, stdout = getattr(sys.stdin.buffer, "raw", sys.stdin.buffer), sys.stdout.buffer

@@ -31,7 +31,7 @@ from roger_daemon.daemon.worker import FrameReader, write_frame
 if TYPE_CHECKING:
     from roger_daemon.daemon.learners import RemoteModel
 
-__all__ = ["WorkerError", "WorkerProcesses", "WorkerSlot"]
+__all__ = ["WorkerError", "WorkerProcesses", "WorkerSlot", "threads_per_worker"]
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,12 @@ class WorkerSlot:
     waiting: tuple[Any, int] | None = None
 
 
+def threads_per_worker(robots: int) -> int:
+    """Learner threads of each of ``robots`` worker processes: this process's usable cores
+    shared out, at least one (docs/fleet.md)."""
+    return max(1, len(os.sched_getaffinity(0)) // max(1, robots))
+
+
 class WorkerProcesses:
     """One worker process per robot and its pipes.
 
@@ -77,19 +83,23 @@ class WorkerProcesses:
     nice
         How much lower the workers' CPU priority is than the loop's (``[daemon]
         worker_nice``): the loop and Zenoh's threads publish before learning runs.
+
+    Each worker's learner runs its batched kernels on :func:`threads_per_worker` threads:
+    the robots share the cores, so with as many robots as cores or more each learns on one.
     """
 
     def __init__(self, robots: Mapping[str, RobotRuntime], *, timeout_s: float = 120.0,
                  nice: int = 0) -> None:
         self.timeout_s = timeout_s
         self.nice = nice
+        threads = threads_per_worker(len(robots))
         self._replies: deque[tuple[str, dict[str, Any] | None]] = deque()
         self.slots: dict[str, WorkerSlot] = {}
         self._by_fd: dict[int, str] = {}
         try:
             for robot, rt in robots.items():  # start them all first: they import in parallel
                 proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker",
-                                         "--nice", str(nice)],
+                                         "--nice", str(nice), "--threads", str(threads)],
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE)
                 assert proc.stdout is not None
                 raw = getattr(proc.stdout, "raw", proc.stdout)

@@ -6,34 +6,65 @@ Importing numba takes about a second, so commands that import the learner withou
 kernel here imports the four modules and binds its functions into this module, so later
 accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles every kernel
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
+
+The batched kernels (:mod:`.jit_batch`) take several experts per call and run them on
+:func:`set_threads` threads; :func:`padded` builds their tuples of :data:`WIDTH` buffers.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
-__all__ = ["KERNELS", "SMALL", "compiled_signatures", "warm_up"]
+__all__ = ["BATCH_LOCK", "DRIFTED", "FUSED", "KEPT", "KERNELS", "SMALL", "WIDTH",
+           "compiled_signatures", "padded", "set_threads", "threads", "use_threads", "warm_up"]
 
 #: up to this many basis vectors ``Q`` is re-inverted by the compiled Cholesky
 #: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK.  (Expert evaluation and ``Q k``
 #: are compiled at every size since issue 11's second pass.)
 SMALL = 64
 
+#: experts per call of a batched kernel (:mod:`.jit_batch`): its buffers come as tuples of
+#: exactly this many arrays, so each kernel has one compiled signature; at the paper's
+#: parameters a step makes two calls for its 20 distinct experts and one for its ~10 updates
+WIDTH = 16
+
+#: held while a batched kernel runs: numba's ``workqueue`` threading layer (used where neither
+#: TBB nor OpenMP is available) must not be entered by two threads at once
+BATCH_LOCK = threading.Lock()
+
+#: :func:`.jit_batch.learn_batch`'s outcome for an expert: the fused step done; not novel
+#: (the caller makes the projection update); ``Q`` drifted (the caller re-inverts it first)
+FUSED, KEPT, DRIFTED = 0, 1, 2
+
+_threads: int | None = None  # set_threads(): None until set or first used
+_threads_default = True  # set_threads(None) (or never called)
+_workqueue = False  # warm_up found numba's threading layer to be workqueue
+_applied = threading.local()  # .count: what numba.set_num_threads was given in this thread
+
 KERNELS = ("cholesky_inverse", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
-           "packed_add_lowrank",
+           "learn_batch", "novelty_test", "packed_add_lowrank", "projection",
            "rank_update_cq", "sorted_threshold", "stratified_pass", "sym_matvec", "sym_matvec_into",
-           "sym_row", "threshold_taus", "trace_lineages")
+           "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:
-    from roger_daemon.learner import jit_fused, jit_kernels, jit_particles, jit_resampling
+    from roger_daemon.learner import (
+        jit_batch,
+        jit_fused,
+        jit_kernels,
+        jit_particles,
+        jit_resampling,
+    )
 
-    for module in (jit_kernels, jit_fused, jit_particles, jit_resampling):
+    for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_resampling):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 
@@ -43,6 +74,51 @@ def __getattr__(name: str) -> Any:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     _load()
     return globals()[name]
+
+
+def padded(arrays: Sequence[npt.NDArray[Any]], start: int) -> tuple[npt.NDArray[Any], ...]:
+    """``arrays[start:start + WIDTH]`` as a tuple of exactly :data:`WIDTH` arrays, the last
+    one repeated (a batched kernel reads only its first ``count``)."""
+    chunk = tuple(arrays[start: start + WIDTH])
+    return chunk + (chunk[-1],) * (WIDTH - len(chunk))
+
+
+def set_threads(count: int | None) -> None:
+    """Threads of the batched kernels: ``count`` (capped at numba's ``NUMBA_NUM_THREADS``,
+    every core unless that is set), or ``None`` for the default: every core, but one once
+    :func:`warm_up` finds numba on its ``workqueue`` threading layer (no TBB, no OpenMP: its
+    threads sleep between calls and wake slower than the kernels run).  The results do not
+    depend on it (docs/performance.md, *Both cores in one step*)."""
+    global _threads, _threads_default
+    if count is not None and count < 1:
+        raise ValueError(f"threads must be an integer >= 1 or None, got {count!r}")
+    import numba
+
+    most = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    _threads_default = count is None
+    _threads = (1 if _workqueue else most) if count is None else min(int(count), most)
+    numba.set_num_threads(_threads)
+    _applied.count = _threads
+
+
+def threads() -> int:
+    """The batched kernels' thread count (:func:`set_threads`; the default until set)."""
+    if _threads is None:
+        set_threads(None)
+    assert _threads is not None
+    return _threads
+
+
+def use_threads() -> int:
+    """Apply :func:`threads` to the calling thread (numba's count is per thread) and return
+    it: called before each learner step's batched kernels."""
+    count = threads()
+    if getattr(_applied, "count", None) != count:
+        import numba
+
+        numba.set_num_threads(count)
+        _applied.count = count
+    return count
 
 
 def warm_up() -> None:
@@ -81,6 +157,41 @@ def warm_up() -> None:
     w, order, _, inv_c, n_top = rk.fearnhead_split(np.array([1.0, 0.5, 0.25]), 1.75, 2)
     rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), 0.0, 0.0)
     rk.threshold_taus(np.array([0.5, 0.25]), 2)  # the resampler's decision margin
+    _warm_up_batches(basis, sym, weights)
+    _check_threading_layer()
+
+
+def _check_threading_layer() -> None:
+    """After the first parallel call: on ``workqueue`` the default is one thread."""
+    global _workqueue
+    import numba
+
+    _workqueue = numba.threading_layer() == "workqueue"  # type: ignore[attr-defined]
+    if _workqueue and _threads_default:
+        set_threads(None)
+
+
+def _warm_up_batches(basis: npt.NDArray[np.float64], sym: npt.NDArray[np.float64],
+                     weights: npt.NDArray[np.float64]) -> None:
+    """Compile the batched kernels (and the novelty test's) with the argument types the
+    learner passes them."""
+    from roger_daemon.learner import jit_batch as bk
+    from roger_daemon.learner import jit_kernels as k
+
+    n = basis.shape[0]
+    use_threads()
+    ints = np.full(WIDTH, n, dtype=np.int64)
+    coef = np.zeros((n, 1))
+    bk.terms_batch(padded([basis], 0), padded([sym], 0), padded([coef], 0), 1, ints, ints,
+                   np.zeros(1), 1.0, np.zeros(2 * n + 2), np.zeros(WIDTH, dtype=np.int64))
+    rows = np.ones((1, n))
+    k.projection(sym, np.zeros(n), n, n)
+    k.novelty_test(0.5, 1.0, 1e-6, 1e-12, 1e-6)
+    bk.learn_batch(padded([basis.copy()], 0), padded([coef.copy()], 0), padded([-sym], 0),
+                   padded([sym.copy()], 0), 1, np.zeros(1), 0.5 * rows, -0.1 * rows, 2 * rows,
+                   np.ones((1, 1)), np.array([-0.5]), weights, np.array([1.0, 1e-6, 1e-12, 1e-6]),
+                   np.empty((1, n)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, n)),
+                   np.empty((1, n)), np.empty(1), np.empty(1, dtype=np.int64))
 
 
 def compiled_signatures(package: str) -> int:

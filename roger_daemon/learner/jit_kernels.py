@@ -11,8 +11,9 @@ expert's work in one call:
 them streams half the bytes of a full matrix.
 
 * :func:`expert_terms`: ``k``, ``C k``, ``k^T C k`` and ``k^T A`` in one pass, at every size;
-* :func:`sym_matvec`: ``Q k`` for the novelty test, the same packed loop
-  (:func:`sym_matvec_into`), and :func:`sym_row`, one row of a packed matrix;
+* :func:`sym_matvec`: ``S v`` of a packed matrix (:func:`sym_matvec_into`), and
+  :func:`sym_row`, one row of it; :func:`projection`: ``Q k`` and ``k^T Q k`` for the novelty
+  test, whose rule is :func:`novelty_test`;
 * :func:`rank_update_cq`: the fused hot path's rank-3 update of ``C`` and rank-2 update of
   ``Q`` in one pass over the two buffers, with row and column ``i`` zeroed first;
   :func:`packed_add_lowrank`: the other steps' low-rank updates;
@@ -40,7 +41,8 @@ import numpy.typing as npt
 from roger_daemon.learner.jit_compile import compiled as _compiled
 
 __all__ = ["cholesky_inverse", "expert_terms", "gram_matrix", "kernel_vector", "min_argmax",
-           "packed_add_lowrank", "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row"]
+           "novelty_test", "packed_add_lowrank", "projection", "rank_update_cq", "sym_matvec",
+           "sym_matvec_into", "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
 _FM = {"reassoc", "contract"}
@@ -136,6 +138,34 @@ def sym_matvec(buf: FloatArray, v: FloatArray, n: int, alloc: int) -> FloatArray
     out = np.empty(n)
     sym_matvec_into(buf, v, n, alloc, out)
     return out
+
+
+@_compiled(fastmath=_FM, nogil=True)
+def projection(buf: FloatArray, k: FloatArray, n: int, alloc: int) -> tuple[FloatArray, float]:
+    """``(Q k, k^T Q k)`` for the packed ``Q`` (docs/learner-math.md §2.5 step 3): the
+    novelty test's projection of the kernel vector ``k`` onto the basis."""
+    e_hat = sym_matvec(buf, k, n, alloc)
+    kqk = 0.0
+    for i in range(n):
+        kqk += k[i] * e_hat[i]
+    return e_hat, kqk
+
+
+@_compiled(nogil=True)
+def novelty_test(kqk: float, kstar: float, threshold: float, floor: float,
+                 drift_tol: float) -> tuple[float, bool, bool]:
+    """Step 3's decision (docs/learner-math.md §2.5): ``(gamma, drifted, novel)`` for the
+    projection residual ``gamma = k* - k^T Q k``.  ``drifted``: ``gamma < -drift_tol k*``,
+    impossible in exact arithmetic (``Q`` must be re-inverted and the test redone);
+    ``gamma`` is 0 below ``floor``; ``novel`` (a full update) iff ``gamma >= threshold k*``
+    and ``gamma > 0``.  The one owner of the rule, for one expert at a time
+    (:meth:`.sogp_steps.SOGPSteps.novelty_from`) or several (:func:`.jit_batch.learn_batch`)."""
+    gamma = kstar - kqk
+    drifted = gamma < -drift_tol * kstar
+    if gamma < floor:
+        gamma = 0.0
+    novel = not (gamma < threshold * kstar or gamma <= 0.0)
+    return gamma, drifted, novel
 
 
 @_compiled(nogil=True)

@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
+from roger_daemon.learner.sogp_batch import terms_many
 
 if TYPE_CHECKING:
     from roger_daemon.learner.roger import Roger
@@ -109,13 +110,9 @@ def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, bas
     def evaluate(slots: IntArray) -> None:
         if slots.size == 0:
             return
-        batch = []
-        for s in slots.tolist():
-            gp = gps[s]
-            assert gp is not None
-            t = gp.terms(xs)
-            terms[s] = t
-            batch.append(t)
+        chosen = slots.tolist()
+        batch = terms_many([gps[s] for s in chosen], xs)
+        terms.update(zip(chosen, batch, strict=True))
         diff = ys - np.stack([t[2] for t in batch])
         var = p.theta_n + np.array([t[3] for t in batch])
         slot_ll[slots] = gaussian_log_likelihood(np.einsum("ij,ij->i", diff, diff), var,

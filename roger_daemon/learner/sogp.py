@@ -191,8 +191,14 @@ class SparseOnlineGP(SOGPSteps):
             empty = np.zeros(0)
             return empty, empty, self._m.copy(), self.kernel.k_star
         # one compiled call: kernel, C k, k^T C k, k^T A (one pass over C, no BLAS)
-        packed = _jit.expert_terms(self._B, self._Cp, self._A, x, self.kernel.gamma, n,
-                                   self._alloc)
+        return self._terms_from(_jit.expert_terms(self._B, self._Cp, self._A, x,
+                                                  self.kernel.gamma, n, self._alloc))
+
+    def _terms_from(self, packed: FloatArray
+                    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+        """:meth:`terms` from the compiled ``[k, C k, k^T C k, k^T A]`` of this expert (one
+        call, :func:`.jit_kernels.expert_terms`, or several, :func:`.sogp_batch.terms_many`)."""
+        n = self.n
         k, ck, mean = packed[:n], packed[n: 2 * n], packed[2 * n + 1:]
         kck = float(packed[2 * n])
         latent = max(self.kernel.k_star + kck, LATENT_FLOOR)
@@ -267,8 +273,8 @@ class SparseOnlineGP(SOGPSteps):
         # step 2: Gaussian-likelihood scalars (Csató's K2 = r and K1 = q)
         r = -1.0 / (s0 + latent)
         q = (y - mean) / (s0 + latent)
-        e_hat, gamma = self.novelty(k)  # step 3
-        if not self.is_novel(gamma):
+        e_hat, gamma, novel = self.novelty(k)  # step 3
+        if not novel:
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
         elif self._fusable():
             # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix

@@ -1,30 +1,67 @@
-"""Learning one pair in several experts at once: one ROGER step's chosen experts.
+"""Several experts at once: one ROGER step's evaluation and its chosen experts' updates.
 
-:func:`update_many` is :meth:`.sogp.SparseOnlineGP.update` for each expert, but the experts on
-the hot path (full: ``n = beta`` basis vectors in buffers for ``beta``) take the fused
-add-then-delete step (:mod:`.sogp_fused`), one compiled call each.  Split from :mod:`.sogp`
-(which re-exports it).
+:func:`terms_many` is :meth:`.sogp.SparseOnlineGP.terms` of every expert a step evaluates;
+:func:`update_many` is :meth:`.sogp.SparseOnlineGP.update` for each expert it updates, where
+the experts on the hot path (full: ``n = beta`` basis vectors in buffers for ``beta``) take
+the fused add-then-delete step (:mod:`.sogp_fused`).  Both run the experts' compiled kernels
+several per call, spread over the cores (:mod:`.jit_batch`; docs/performance.md, *Both cores
+in one step*); each expert's floats are those of a call of its own.  Split from :mod:`.sogp`
+(which re-exports :func:`update_many`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
+from roger_daemon.learner import jit as _jit
+from roger_daemon.learner.sogp_fused import output_weights
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
 
-__all__ = ["update_many"]
+__all__ = ["terms_many", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 
 Terms = tuple[FloatArray, FloatArray, FloatArray, float]
+
+
+def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
+    """``[gp.terms(x) for gp in gps]``; on several threads (:func:`.jit.threads`) the experts
+    with basis vectors are evaluated by compiled calls of up to :data:`.jit.WIDTH` experts
+    each (:func:`.jit_batch.terms_batch`), the same floats."""
+    live = [j for j, gp in enumerate(gps) if gp.n > 0]
+    if _jit.use_threads() == 1 or not live:
+        return [gp.terms(x) for gp in gps]
+    out: list[Terms | None] = [None if gp.n > 0 else gp.terms(x) for gp in gps]
+    m = len(live)
+    ints = np.zeros((3, -(-m // _jit.WIDTH) * _jit.WIDTH), dtype=np.int64)  # padded rows
+    ns, allocs, offsets = ints
+    for i, j in enumerate(live):
+        ns[i], allocs[i] = gps[j].n, gps[j].alloc
+    sizes = 2 * ns[:m] + 1 + np.array([gps[j].a_cols for j in live], dtype=np.int64)
+    offsets[:m] = np.cumsum(sizes) - sizes
+    packed = np.zeros(int(sizes.sum()))
+    bases = [gps[j]._B for j in live]
+    covs = [gps[j]._Cp for j in live]
+    coefs = [gps[j]._A for j in live]
+    gamma = gps[live[0]].kernel.gamma
+    with _jit.BATCH_LOCK:
+        for lo in range(0, m, _jit.WIDTH):
+            hi = lo + _jit.WIDTH
+            _jit.terms_batch(_jit.padded(bases, lo), _jit.padded(covs, lo),
+                             _jit.padded(coefs, lo), min(hi, m) - lo, ns[lo:hi],
+                             allocs[lo:hi], x, gamma, packed, offsets[lo:hi])
+    for j, start, size in zip(live, offsets[:m].tolist(), sizes.tolist(), strict=True):
+        out[j] = gps[j]._terms_from(packed[start: start + size])
+    return [t for t in out if t is not None]
 
 
 def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
@@ -33,13 +70,15 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
 
     Equivalent to ``gp.update(x, y, t)`` for each (except that a non-novel point never
     re-inverts ``Q``: a projection update leaves ``Q`` unchanged).  The experts on the hot path
-    (full, contiguous) are updated one after the other, each by ``Q k``, the novelty test and
-    then one compiled fused add-then-delete step (:mod:`.sogp_fused`) or a projection update.
+    (full, contiguous, the same ``n``, no drift in ``diag(Q)``) take ``Q k``, the novelty
+    test and the fused add-then-delete step (:mod:`.sogp_fused`) in compiled calls of up to
+    :data:`.jit.WIDTH` experts each (:func:`.jit_batch.learn_batch`); a non-novel point then
+    gets its projection update here, and an expert whose ``Q`` drifted learns on its own.
     """
     full: list[SparseOnlineGP] = []
     full_terms: list[Terms] = []
     for gp, t in zip(gps, terms, strict=True):
-        if gp._fusable():
+        if gp._fusable() and (not full or gp.n == full[0].n) and not gp.q_drifted():
             full.append(gp)
             full_terms.append(t if t is not None else gp.terms(x))
         else:
@@ -47,21 +86,97 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     if not full:
         return
     kstar = full[0].kernel.k_star
-    # one expert at a time, its Q k right before its own pass over Q (the step's other experts
-    # would evict Q from the core's cache in between: docs/performance.md)
-    for gp, t in zip(full, full_terms, strict=True):
-        k, ck, mean, latent = t
-        y_ext, mean = gp._targets(y, mean, k)  # with a prior mean, the a1 column too
-        e_hat, gamma = gp.novelty(k)  # step 3
+    for gp, t, res in zip(full, full_terms, _learn_full(full, full_terms, x, y), strict=True):
+        if res.outcome == _jit.DRIFTED:  # Q re-inverted and the point learned on its own
+            gp.update(x, y, t)
+            continue
+        gp.record_novelty_margin(res.gamma)
         gp.n_points += 1
-        s0 = gp.noise
-        if not gp.is_novel(gamma):  # step 4a for the non-novel few
-            gp._sparse_update(ck, e_hat, gamma, -1.0 / (s0 + latent),
+        if res.outcome == _jit.KEPT:  # step 4a for the non-novel few
+            k, ck, mean, latent = t
+            y_ext, mean = gp._targets(y, mean, k)
+            s0 = gp.noise
+            gp._sparse_update(ck, res.e_hat, res.gamma, -1.0 / (s0 + latent),
                               (y_ext - mean) / (s0 + latent))
-            gp._clean_up()
         else:
-            _fused_add_delete(gp, x, y_ext, ck, mean, latent, e_hat, gamma)
-            gp._clean_up()
-            if gamma < _NEAR_DEPENDENT * kstar and gp.n > 1:
-                gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+            gp._dg, gp._dq, gp._dq_min, gp._dq_argmax = res.diag, res.dq, res.dq_min, \
+                res.dq_argmax
+        gp._clean_up()
+        if res.outcome == _jit.FUSED and res.gamma < _NEAR_DEPENDENT * kstar and gp.n > 1:
+            gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
         gp._shift_mean(y)
+
+
+class _Result(NamedTuple):
+    """One full expert's steps 3-5 (:func:`.jit_batch.learn_batch`): the outcome
+    (:data:`.jit.FUSED`, :data:`.jit.KEPT` or :data:`.jit.DRIFTED`), ``Q k``, ``gamma``, and
+    after a fused step the diagonals it returns."""
+
+    outcome: int
+    e_hat: FloatArray
+    gamma: float
+    diag: FloatArray | None = None
+    dq: FloatArray | None = None
+    dq_min: float = math.nan
+    dq_argmax: int = -1
+
+
+def _learn_full(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: FloatArray,
+                y: FloatArray) -> list[_Result]:
+    """Steps 3-5 of the full experts ``gps`` (the same ``n`` and kernel): by
+    :func:`.jit_batch.learn_batch`, ``WIDTH`` at a time, on several threads
+    (:func:`.jit.threads`); on one, its body's kernels one expert at a time (faster there:
+    docs/performance.md); the same floats."""
+    first = gps[0]
+    m = len(gps)
+    qs = np.empty((m, first.a_cols))  # Csató's K1 per expert
+    rs = np.empty(m)  # and K2
+    for j, (gp, (k, _, mean, latent)) in enumerate(zip(gps, terms, strict=True)):
+        y_ext, mean = gp._targets(y, mean, k)  # with a prior mean, the a1 column too
+        denom = gp.noise + latent
+        rs[j] = -1.0 / denom
+        qs[j] = (y_ext - mean) / denom
+    rule = first._novelty_constants()
+    cw = output_weights(first.a_cols, first.d_y)
+    if _jit.use_threads() > 1:
+        return _learn_batched(gps, terms, x, qs, rs, cw, np.array(rule))
+    out: list[_Result] = []
+    for gp, (k, ck, _, _), q, r in zip(gps, terms, qs, rs.tolist(), strict=True):
+        e_hat, kqk = _jit.projection(gp._Qp, k, gp.n, gp.n)
+        gamma, drifted, novel = _jit.novelty_test(kqk, *rule)
+        if drifted or not novel:
+            out.append(_Result(_jit.DRIFTED if drifted else _jit.KEPT, e_hat, gamma))
+            continue
+        out.append(_Result(_jit.FUSED, e_hat, gamma, *_jit.fused_step(
+            gp._B, gp._A, gp._Cp, gp._Qp, gp._diag_cq(), x, ck, e_hat, cw, q, r, gamma)))
+    return out
+
+
+def _learn_batched(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: FloatArray,
+                   qs: FloatArray, rs: FloatArray, cw: FloatArray, rule: FloatArray
+                   ) -> list[_Result]:
+    """:func:`_learn_full` by :func:`.jit_batch.learn_batch` calls."""
+    m, n = len(gps), gps[0].n
+    ks = np.stack([t[0] for t in terms])
+    cks = np.stack([t[1] for t in terms])
+    dgs = np.stack([gp._diag_cq() for gp in gps])
+    e_hats, diags, dqs = np.empty((m, n)), np.empty((m, n)), np.empty((m, n))
+    gammas, dq_mins = np.empty(m), np.empty(m)
+    outcomes, dq_argmaxes = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    bases = [gp._B for gp in gps]
+    coefs = [gp._A for gp in gps]
+    cbufs = [gp._Cp for gp in gps]
+    qbufs = [gp._Qp for gp in gps]
+    with _jit.BATCH_LOCK:
+        for lo in range(0, m, _jit.WIDTH):
+            hi = min(lo + _jit.WIDTH, m)
+            _jit.learn_batch(_jit.padded(bases, lo), _jit.padded(coefs, lo),
+                             _jit.padded(cbufs, lo), _jit.padded(qbufs, lo), hi - lo, x,
+                             ks[lo:hi], cks[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
+                             e_hats[lo:hi], gammas[lo:hi], outcomes[lo:hi], diags[lo:hi],
+                             dqs[lo:hi], dq_mins[lo:hi], dq_argmaxes[lo:hi])
+    return [_Result(o, e_hats[j], g, diags[j], dqs[j], mn, am) if o == _jit.FUSED
+            else _Result(o, e_hats[j], g)
+            for j, (o, g, mn, am) in enumerate(zip(outcomes.tolist(), gammas.tolist(),
+                                                  dq_mins.tolist(), dq_argmaxes.tolist(),
+                                                  strict=True))]

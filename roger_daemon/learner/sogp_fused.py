@@ -23,7 +23,7 @@ from roger_daemon.learner import jit as _jit
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
 
-__all__ = ["fused_add_delete"]
+__all__ = ["fused_add_delete", "output_weights"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -61,11 +61,11 @@ def fused_add_delete(gp: SparseOnlineGP, x: FloatArray, y: FloatArray, ck: Float
     q = (y - mean) / denom  # Csató's K1
     gp._dg, gp._dq, gp._dq_min, gp._dq_argmax = _jit.fused_step(
         gp._B, gp._A, gp._Cp, gp._Qp, gp._diag_cq(), x, ck, e_hat,
-        _output_weights(gp.a_cols, gp.d_y), q, r, gamma)
+        output_weights(gp.a_cols, gp.d_y), q, r, gamma)
 
 
 @lru_cache(maxsize=8)
-def _output_weights(a_cols: int, d_y: int) -> FloatArray:
+def output_weights(a_cols: int, d_y: int) -> FloatArray:
     """1 for the output columns of ``A``, 0 for a prior mean's ``a1`` column: the deletion
     scores count the outputs only (read-only)."""
     cw = np.ones(a_cols)

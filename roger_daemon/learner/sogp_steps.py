@@ -57,32 +57,41 @@ class SOGPSteps:
     _dq_min: float  # min and first argmax of _dq (valid while _dq is not None)
     _dq_argmax: int
 
-    def novelty(self, k: FloatArray) -> tuple[FloatArray, float]:
-        """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma)`` with the projection residual
-        ``gamma = k* - k^T Q k`` of the kernel vector ``k``, after re-inverting ``Q`` if it
-        has visibly drifted, and 0 below :data:`GAMMA_FLOOR`.  Records
+    def novelty(self, k: FloatArray) -> tuple[FloatArray, float, bool]:
+        """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma, novel)`` with the projection
+        residual ``gamma = k* - k^T Q k`` of the kernel vector ``k``, after re-inverting ``Q``
+        if it has visibly drifted, 0 below :data:`GAMMA_FLOOR`, and whether the point is
+        novel (a full update, step 4b) by :func:`.jit_kernels.novelty_test`.  Records
         :attr:`novelty_margin`."""
-        kstar = self.kernel.k_star
-        e_hat = _jit.sym_matvec(self._Qp, k, self.n, self._alloc)
-        gamma = kstar - float(k @ e_hat)
-        if self.q_inconsistent(gamma):
+        return self.novelty_from(k, *_jit.projection(self._Qp, k, self.n, self._alloc))
+
+    def novelty_from(self, k: FloatArray, e_hat: FloatArray, kqk: float
+                     ) -> tuple[FloatArray, float, bool]:
+        """:meth:`novelty` given ``(Q k, k^T Q k)`` computed for this state
+        (:func:`.jit_kernels.projection`)."""
+        gamma, drifted, novel = _jit.novelty_test(kqk, *self._novelty_constants())
+        if drifted or self.q_drifted():
             self.refresh_inverse_gram()
-            e_hat = _jit.sym_matvec(self._Qp, k, self.n, self._alloc)
-            gamma = kstar - float(k @ e_hat)
-        if gamma < GAMMA_FLOOR:
-            gamma = 0.0
-        self.novelty_margin = abs(gamma - self.novelty_threshold * kstar) / kstar
-        return e_hat, gamma
+            e_hat, kqk = _jit.projection(self._Qp, k, self.n, self._alloc)
+            gamma, _, novel = _jit.novelty_test(kqk, *self._novelty_constants())
+        self.record_novelty_margin(gamma)
+        return e_hat, gamma, novel
 
-    def is_novel(self, gamma: float) -> bool:
-        """Full update iff ``gamma >= novelty_threshold * k*`` and ``gamma > 0`` (step 4)."""
-        return not (gamma < self.novelty_threshold * self.kernel.k_star or gamma <= 0.0)
-
-    def q_inconsistent(self, gamma: float) -> bool:
-        """True when ``Q`` has visibly drifted from ``K_B^-1`` (see ``_Q_DRIFT_TOL``)."""
+    def record_novelty_margin(self, gamma: float) -> None:
+        """:attr:`novelty_margin` of a novelty test that gave ``gamma``."""
         kstar = self.kernel.k_star
-        if gamma < -_Q_DRIFT_TOL * kstar:
-            return True
+        self.novelty_margin = abs(gamma - self.novelty_threshold * kstar) / kstar
+
+    def _novelty_constants(self) -> tuple[float, float, float, float]:
+        """``(k*, threshold, floor, drift_tol)``: :func:`.jit_kernels.novelty_test`'s
+        arguments besides ``k^T Q k``."""
+        return self.kernel.k_star, self.novelty_threshold, GAMMA_FLOOR, _Q_DRIFT_TOL
+
+    def q_drifted(self) -> bool:
+        """True when ``Q``'s diagonal shows drift from ``K_B^-1``: ``Q_ii >= 1/K_ii = 1/k*``
+        in exact arithmetic (see ``_Q_DRIFT_TOL``; the residual's own check is in
+        :func:`.jit_kernels.novelty_test`)."""
+        kstar = self.kernel.k_star
         if self._dq is not None:  # the fused step's copy, with its minimum
             return self._dq_min * kstar < 1.0 - _Q_DRIFT_TOL
         diag = self._diag_q()

@@ -182,13 +182,13 @@ def test_fused_step_keeps_the_basis_and_the_diagonal_cache_consistent() -> None:
     np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
 
 
-def test_the_lazy_loader_binds_exactly_the_kernels_of_the_four_modules() -> None:
+def test_the_lazy_loader_binds_exactly_the_kernels_of_the_five_modules() -> None:
     """``jit.KERNELS`` (what ``roger_daemon.learner.jit`` serves and ``warm_up`` compiles) is
     the union of the kernel modules' exports, and each name resolves to that module's kernel."""
     from roger_daemon.learner import jit as lazy
-    from roger_daemon.learner import jit_fused, jit_particles, jit_resampling
+    from roger_daemon.learner import jit_batch, jit_fused, jit_particles, jit_resampling
 
-    modules = (jit, jit_fused, jit_particles, jit_resampling)
+    modules = (jit, jit_fused, jit_batch, jit_particles, jit_resampling)
     exports = [set(m.__all__) for m in modules]
     assert set(lazy.KERNELS) == set().union(*exports)
     assert sum(map(len, exports)) == len(set().union(*exports))  # no name in two modules
@@ -197,14 +197,17 @@ def test_the_lazy_loader_binds_exactly_the_kernels_of_the_four_modules() -> None
         assert getattr(lazy, name) is getattr(module, name)
 
 
-def test_warm_up_compiles_every_signature_a_learner_step_uses() -> None:
+@pytest.mark.parametrize("threads", [1, 2])
+def test_warm_up_compiles_every_signature_a_learner_step_uses(threads: int) -> None:
     """After ``warm_up`` nothing compiles inside a step (a first fused step on a full expert
     compiled its read-only-weights signature mid-run: seconds without numba's cache, in the
-    daemon's first full learning step or in a timed benchmark)."""
+    daemon's first full learning step or in a timed benchmark), on one thread (the kernels
+    called one expert at a time) and on two (batched)."""
     from roger_daemon.learner import Roger, RogerParams
-    from roger_daemon.learner.jit import compiled_signatures, warm_up
+    from roger_daemon.learner.jit import compiled_signatures, set_threads, warm_up
     from roger_daemon.learner.synthetic import subtask_stream
 
+    set_threads(threads)
     warm_up()
     before = compiled_signatures("roger_daemon.learner")
     s = subtask_stream(150)

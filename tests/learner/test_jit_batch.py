@@ -1,0 +1,144 @@
+"""Several experts per compiled call, over the cores (roger_daemon/learner/jit_batch.py).
+
+The batched kernels run each expert's own kernels, one expert per iteration of a parallel
+loop, so the floats must not depend on the number of threads: these tests compare one thread
+(each expert's kernels called from Python) with two (batched) bit for bit, and the batched
+evaluation with each expert's own ``terms``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from roger_daemon.learner import Roger, RogerParams, jit
+from roger_daemon.learner.kernel import RBFKernel
+from roger_daemon.learner.sogp import SparseOnlineGP
+from roger_daemon.learner.sogp_batch import terms_many, update_many
+from roger_daemon.learner.synthetic import subtask_stream
+
+
+def _expert(n_points: int, seed: int, *, capacity: int = 12, prior_mean: bool = False
+            ) -> SparseOnlineGP:
+    rng = np.random.default_rng(seed)
+    gp = SparseOnlineGP(3, 2, RBFKernel(0.5, 3), 0.1, capacity, 1e-6, prior_mean=prior_mean)
+    for _ in range(n_points):
+        gp.update(rng.uniform(-1, 1, 3), rng.normal(size=2))
+    return gp
+
+
+def _same_state(a: SparseOnlineGP, b: SparseOnlineGP) -> None:
+    assert (a.n, a.n_points, a.q_refreshes) == (b.n, b.n_points, b.q_refreshes)
+    for u, v in ((a._B, b._B), (a._A, b._A), (a._Cp, b._Cp), (a._Qp, b._Qp)):
+        np.testing.assert_array_equal(u, v)
+    assert a.novelty_margin == b.novelty_margin
+
+
+def test_batched_evaluation_is_each_experts_own() -> None:
+    """``terms_many`` on two threads (20 experts: more than one batch of ``WIDTH``, sizes
+    from empty to full, with and without a prior mean) == ``gp.terms``, bit for bit."""
+    jit.set_threads(2)
+    experts = [_expert(n, seed, prior_mean=seed % 3 == 0)
+               for seed, n in enumerate([0, 1, 5, 12, 40] * 4)]
+    x = np.array([0.1, -0.3, 0.7])
+    got = terms_many(experts, x)
+    assert len(got) == len(experts) > jit.WIDTH
+    for gp, (k, ck, mean, latent) in zip(experts, got, strict=True):
+        k0, ck0, mean0, latent0 = gp.terms(x)
+        for u, v in ((k, k0), (ck, ck0), (mean, mean0)):
+            np.testing.assert_array_equal(u, v)
+        assert latent == latent0
+
+
+def _learn_stream(threads: int, points: int = 160) -> Roger:
+    jit.set_threads(threads)
+    s = subtask_stream(points, seed=4)
+    model = Roger(23, 9, RogerParams(beta=20), seed=3)
+    for x, y in zip(s.x, s.y, strict=True):
+        model.learn_one(x, y)
+    return model
+
+
+def test_learning_does_not_depend_on_the_thread_count() -> None:
+    """The same stream on one thread and on two: the same state, bit for bit (the experts
+    fill, so the batched fused step runs)."""
+    one, two = _learn_stream(1), _learn_stream(2)
+    assert max(g.n for g in two.distinct_experts()) == 20
+    a, b = one.state_dict(), two.state_dict()
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_update_many_takes_every_outcome_like_one_expert_at_a_time(threads: int) -> None:
+    """Full experts whose point is novel (fused step), not novel (a basis vector's own input:
+    projection update) or whose ``Q`` drifted (re-inverted first): ``update_many`` leaves each
+    as its own ``update`` does, up to round-off, and counts the re-inversion."""
+    jit.set_threads(threads)
+    experts = [_expert(60, seed) for seed in range(4)]
+    experts[2] = experts[1].copy()
+    assert all(gp._fusable() for gp in experts)
+    x = experts[1].B[3].copy()  # a basis vector of experts 1 and 2: gamma = 0, not novel
+    drifted = experts[2]
+    drifted._Qp *= 1.5  # k^T Q k = 1.5: gamma < -tol k*
+    drifted._forget_diagonals()
+    y = np.array([0.2, -0.4])
+    twins = [gp.copy() for gp in experts]
+    update_many(experts, x, y, [gp.terms(x) for gp in experts])
+    for gp, twin in zip(experts, twins, strict=True):
+        twin.update(x, y)
+        assert (gp.n, gp.n_points, gp.q_refreshes) == (twin.n, twin.n_points, twin.q_refreshes)
+        np.testing.assert_array_equal(gp.B, twin.B)
+        for u, v in ((gp.A, twin.A), (gp.C, twin.C), (gp.Q, twin.Q)):
+            np.testing.assert_allclose(u, v, rtol=1e-12, atol=1e-12)
+    assert drifted.q_refreshes == 1
+    assert experts[1].novelty_margin == pytest.approx(1e-6)  # gamma 0: |0 - 1e-6 k*| / k*
+
+
+def test_update_many_is_the_same_on_one_and_two_threads() -> None:
+    """Every outcome at once, learned on one thread and on two: bit for bit."""
+    states = []
+    for threads in (1, 2):
+        jit.set_threads(threads)
+        experts = [_expert(60, seed) for seed in range(jit.WIDTH + 3)]  # two batches
+        rng = np.random.default_rng(9)
+        for _ in range(5):
+            x, y = rng.uniform(-1, 1, 3), rng.normal(size=2)
+            update_many(experts, x, y, [gp.terms(x) for gp in experts])
+        experts[1] = experts[0].copy()
+        experts[1]._Qp *= 1.5  # drifted at a basis vector of expert 0, which keeps it
+        experts[1]._forget_diagonals()
+        x = experts[0].B[0].copy()
+        update_many(experts, x, y, [gp.terms(x) for gp in experts])
+        assert experts[1].q_refreshes == 1
+        states.append(experts)
+    for a, b in zip(*states, strict=True):
+        _same_state(a, b)
+
+
+@settings(max_examples=300, deadline=None)
+@given(kqk=st.floats(-3.0, 3.0), kstar=st.sampled_from([0.5, 1.0, 2.0]),
+       threshold=st.sampled_from([0.0, 1e-6, 1e-3, 0.5]))
+def test_novelty_test_is_the_documented_rule(kqk: float, kstar: float, threshold: float) -> None:
+    """Oracle: docs/learner-math.md §2.5 step 3 written out."""
+    raw = kstar - kqk
+    gamma = 0.0 if raw < 1e-12 else raw
+    want = (gamma, raw < -1e-6 * kstar, not (gamma < threshold * kstar or gamma <= 0.0))
+    assert jit.novelty_test(kqk, kstar, threshold, 1e-12, 1e-6) == want
+
+
+def test_set_threads_rejects_a_count_below_one() -> None:
+    with pytest.raises(ValueError, match="threads must be an integer >= 1 or None, got 0"):
+        jit.set_threads(0)
+
+
+def test_set_threads_caps_at_numbas_thread_count() -> None:
+    import numba
+
+    jit.set_threads(10_000)
+    assert jit.threads() == numba.config.NUMBA_NUM_THREADS
+    jit.set_threads(None)
+    assert 1 <= jit.threads() <= numba.config.NUMBA_NUM_THREADS
