@@ -76,6 +76,9 @@ def test_user_error_exits_2_with_a_message_and_no_traceback(
     assert main(["bench", "learner", "--param", "partcles=5"]) == 2
     err = capsys.readouterr().err
     assert "unknown parameter(s) 'partcles'" in err and "particles" in err
+    assert main(["bench", "learner", "--threads", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "--threads must be an integer >= 1, got 0" in err
 
 
 def test_closed_stdout_exits_quietly() -> None:

@@ -30,12 +30,18 @@ def test_arrays_round_trip_without_pickle() -> None:
         unpack_arrays({"f": {"t": "<f8", "s": [3], "b": b"\0" * 8}})
 
 
-def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads() -> None:
+@pytest.mark.parametrize("threads", [None, 2])
+def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads(threads: int | None
+                                                                     ) -> None:
     """A fresh worker process compiles (or loads from numba's cache) the learner's kernels at
     ``load``, not inside a robot's first steps (a first use mid-run stalled a step for
     milliseconds to seconds): its load reply counts the compiled signatures, 0 in a process
-    that never warmed them up."""
-    proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker"],
+    that never warmed them up.  It learns on ``--threads`` threads (1 unless given; at most
+    numba's count)."""
+    import numba
+
+    extra = [] if threads is None else ["--threads", str(threads)]
+    proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker", *extra],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE)
     try:
         assert proc.stdin is not None and proc.stdout is not None
@@ -46,6 +52,7 @@ def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads() -> None:
         reply = read_frame(proc.stdout)
         assert reply is not None and reply["n"] == 0
         assert reply["kernels"] > 0
+        assert reply["threads"] == min(threads or 1, numba.config.NUMBA_NUM_THREADS)
         write_frame(proc.stdin, {"op": "stop"})
         assert read_frame(proc.stdout) == {}
         assert proc.wait(timeout=120) == 0
@@ -53,3 +60,16 @@ def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads() -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_robots_share_the_cores_out_among_their_workers() -> None:
+    """``threads_per_worker``: the usable cores divided by the robots, at least one."""
+    import os
+
+    from roger_daemon.daemon.worker_procs import threads_per_worker
+
+    cores = len(os.sched_getaffinity(0))
+    assert threads_per_worker(1) == cores
+    assert threads_per_worker(cores) == 1
+    assert threads_per_worker(8 * cores + 1) == 1
+    assert threads_per_worker(0) == cores

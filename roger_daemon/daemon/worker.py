@@ -13,7 +13,8 @@ Requests (``op``) and replies:
   ``params`` (the learner parameter mapping), ``state`` (a model ``state_dict`` or nil for a
   fresh model), ``codes`` (label codes of the learned pairs) -> ``n``, ``experts``,
   ``kernels`` (the learner's compiled kernel signatures: the worker warms them up on load, so
-  no step compiles or loads one from numba's cache);
+  no step compiles or loads one from numba's cache), ``threads`` (its learner's threads,
+  ``--threads``);
 - ``learn``: ``x``, ``y`` (float64 bytes), ``code``, ``tick``, ``vocab`` (only when it grew)
   -> ``ok``, ``ms``, ``n``, ``experts`` (``ok`` false: the learner rejected the pair, the
   model is unchanged); when no request waits after it, the worker counts the labels of what
@@ -217,7 +218,7 @@ class _Worker:
         from roger_daemon.daemon.main import make_model
         from roger_daemon.daemon.robot import RobotRuntime
         from roger_daemon.learner import RogerParams, load_model
-        from roger_daemon.learner.jit import compiled_signatures, warm_up
+        from roger_daemon.learner.jit import compiled_signatures, threads, warm_up
 
         warm_up()  # the compiled kernels now, not inside this robot's first steps
         robot = RobotConfig(id=str(req["robot"]), x_dim=int(req["x_dim"]),
@@ -232,7 +233,7 @@ class _Worker:
             rt._append_code(int(c))
         self.rt = rt
         return {"n": rt.updates, "experts": int(rt.model.n_experts),
-                "kernels": compiled_signatures("roger_daemon.learner")}
+                "kernels": compiled_signatures("roger_daemon.learner"), "threads": threads()}
 
     def _vocab(self, req: dict[str, Any]) -> None:
         """The daemon's label vocabulary, when the request carries it (the codes index it)."""
