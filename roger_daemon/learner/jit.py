@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["BATCH_LOCK", "DRIFTED", "FUSED", "KEPT", "KERNELS", "SMALL", "WIDTH",
-           "compiled_signatures", "padded", "set_threads", "threads", "use_threads", "warm_up"]
+__all__ = ["BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "FUSED", "KEPT", "KERNELS", "SMALL",
+           "WIDTH", "batch_worth", "compiled_signatures", "padded", "set_threads", "threads",
+           "use_threads", "warm_up"]
 
 #: up to this many basis vectors ``Q`` is re-inverted by the compiled Cholesky
 #: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK.  (Expert evaluation and ``Q k``
@@ -33,6 +34,11 @@ SMALL = 64
 #: exactly this many arrays, so each kernel has one compiled signature; at the paper's
 #: parameters a step makes two calls for its 20 distinct experts and one for its ~10 updates
 WIDTH = 16
+
+#: below this many packed matrix entries per call (~2 full experts at the paper's beta = 300)
+#: the experts go one at a time: a parallel call's start-up then costs more than splitting the
+#: work saves (the AIBO stream's ~15-basis-vector experts: docs/performance.md)
+BATCH_MIN_ENTRIES = 100_000
 
 #: held while a batched kernel runs: numba's ``workqueue`` threading layer (used where neither
 #: TBB nor OpenMP is available) must not be entered by two threads at once
@@ -119,6 +125,13 @@ def use_threads() -> int:
         numba.set_num_threads(count)
         _applied.count = count
     return count
+
+
+def batch_worth(entries: int) -> bool:
+    """Whether experts whose packed matrices hold ``entries`` entries in all should go to a
+    batched kernel (several threads and enough work: :data:`BATCH_MIN_ENTRIES`); else each
+    expert's kernels are called one at a time, the same floats."""
+    return entries >= BATCH_MIN_ENTRIES and use_threads() > 1
 
 
 def warm_up() -> None:

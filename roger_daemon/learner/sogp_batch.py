@@ -34,11 +34,12 @@ Terms = tuple[FloatArray, FloatArray, FloatArray, float]
 
 
 def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
-    """``[gp.terms(x) for gp in gps]``; on several threads (:func:`.jit.threads`) the experts
-    with basis vectors are evaluated by compiled calls of up to :data:`.jit.WIDTH` experts
-    each (:func:`.jit_batch.terms_batch`), the same floats."""
+    """``[gp.terms(x) for gp in gps]``; on several threads (:func:`.jit.threads`), when the
+    experts are large enough (:func:`.jit.batch_worth`), the experts with basis vectors are
+    evaluated by compiled calls of up to :data:`.jit.WIDTH` experts each
+    (:func:`.jit_batch.terms_batch`), the same floats."""
     live = [j for j, gp in enumerate(gps) if gp.n > 0]
-    if _jit.use_threads() == 1 or not live:
+    if not _jit.batch_worth(sum(gps[j].n * (gps[j].n + 1) // 2 for j in live)):
         return [gp.terms(x) for gp in gps]
     out: list[Terms | None] = [None if gp.n > 0 else gp.terms(x) for gp in gps]
     m = len(live)
@@ -125,8 +126,9 @@ def _learn_full(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: FloatA
                 y: FloatArray) -> list[_Result]:
     """Steps 3-5 of the full experts ``gps`` (the same ``n`` and kernel): by
     :func:`.jit_batch.learn_batch`, ``WIDTH`` at a time, on several threads
-    (:func:`.jit.threads`); on one, its body's kernels one expert at a time (faster there:
-    docs/performance.md); the same floats."""
+    (:func:`.jit.threads`) when there is enough work (:func:`.jit.batch_worth`); else its
+    body's kernels one expert at a time (faster there: docs/performance.md); the same
+    floats."""
     first = gps[0]
     m = len(gps)
     qs = np.empty((m, first.a_cols))  # Csató's K1 per expert
@@ -138,7 +140,7 @@ def _learn_full(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: FloatA
         qs[j] = (y_ext - mean) / denom
     rule = first._novelty_constants()
     cw = output_weights(first.a_cols, first.d_y)
-    if _jit.use_threads() > 1:
+    if _jit.batch_worth(m * first.n * (first.n + 1) // 2):
         return _learn_batched(gps, terms, x, qs, rs, cw, np.array(rule))
     out: list[_Result] = []
     for gp, (k, ck, _, _), q, r in zip(gps, terms, qs, rs.tolist(), strict=True):

@@ -198,16 +198,19 @@ def test_the_lazy_loader_binds_exactly_the_kernels_of_the_five_modules() -> None
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_warm_up_compiles_every_signature_a_learner_step_uses(threads: int) -> None:
+def test_warm_up_compiles_every_signature_a_learner_step_uses(
+        threads: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """After ``warm_up`` nothing compiles inside a step (a first fused step on a full expert
     compiled its read-only-weights signature mid-run: seconds without numba's cache, in the
     daemon's first full learning step or in a timed benchmark), on one thread (the kernels
     called one expert at a time) and on two (batched)."""
     from roger_daemon.learner import Roger, RogerParams
+    from roger_daemon.learner import jit as lazy_jit
     from roger_daemon.learner.jit import compiled_signatures, set_threads, warm_up
     from roger_daemon.learner.synthetic import subtask_stream
 
     set_threads(threads)
+    monkeypatch.setattr(lazy_jit, "BATCH_MIN_ENTRIES", 0)  # these experts are small
     warm_up()
     before = compiled_signatures("roger_daemon.learner")
     s = subtask_stream(150)

@@ -20,6 +20,12 @@ from roger_daemon.learner.sogp_batch import terms_many, update_many
 from roger_daemon.learner.synthetic import subtask_stream
 
 
+@pytest.fixture(autouse=True)
+def _batch_every_size(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The experts here are small: batch them whatever their size (on two threads)."""
+    monkeypatch.setattr(jit, "BATCH_MIN_ENTRIES", 0)
+
+
 def _expert(n_points: int, seed: int, *, capacity: int = 12, prior_mean: bool = False
             ) -> SparseOnlineGP:
     rng = np.random.default_rng(seed)
@@ -128,6 +134,19 @@ def test_novelty_test_is_the_documented_rule(kqk: float, kstar: float, threshold
     gamma = 0.0 if raw < 1e-12 else raw
     want = (gamma, raw < -1e-6 * kstar, not (gamma < threshold * kstar or gamma <= 0.0))
     assert jit.novelty_test(kqk, kstar, threshold, 1e-12, 1e-6) == want
+
+
+def test_experts_are_batched_on_several_threads_with_enough_work(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import numba
+
+    monkeypatch.setattr(jit, "BATCH_MIN_ENTRIES", 100)
+    jit.set_threads(2)
+    several = numba.config.NUMBA_NUM_THREADS >= 2
+    assert jit.batch_worth(100) is several
+    assert not jit.batch_worth(99)
+    jit.set_threads(1)
+    assert not jit.batch_worth(10**9)
 
 
 def test_set_threads_rejects_a_count_below_one() -> None:
