@@ -50,9 +50,18 @@ class BufferPool:
         spare = self._free.get(size)
         return spare.pop() if spare else None
 
-    def copy_of(self, src: FloatArray) -> FloatArray:
-        """A copy of the 1-D ``src``, into a kept buffer when there is one of its size."""
+    def copy_of(self, src: FloatArray,
+                pending: list[tuple[FloatArray, FloatArray]] | None = None) -> FloatArray:
+        """A copy of the 1-D ``src``, into a kept buffer when there is one of its size.
+
+        With ``pending``, the buffer is returned unfilled and ``(src, buffer)`` appended: the
+        caller copies every pending pair before the buffer is read (several copies at once:
+        :func:`.sogp_batch.copy_many`)."""
         buf = self.take(src.size)
+        if pending is not None:
+            buf = np.empty_like(src) if buf is None else buf
+            pending.append((src, buf))
+            return buf
         if buf is None:
             return src.copy()
         np.copyto(buf, src)

@@ -53,7 +53,7 @@ _threads_default = True  # set_threads(None) (or never called)
 _workqueue = False  # warm_up found numba's threading layer to be workqueue
 _applied = threading.local()  # .count: what numba.set_num_threads was given in this thread
 
-KERNELS = ("cholesky_inverse", "expert_terms", "fearnhead_split",
+KERNELS = ("cholesky_inverse", "copy_batch", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
            "learn_batch", "novelty_test", "packed_add_lowrank", "projection",
@@ -195,6 +195,7 @@ def _warm_up_batches(basis: npt.NDArray[np.float64], sym: npt.NDArray[np.float64
     use_threads()
     ints = np.full(WIDTH, n, dtype=np.int64)
     coef = np.zeros((n, 1))
+    bk.copy_batch(padded([sym], 0), padded([sym.copy()], 0), 1)
     bk.terms_batch(padded([basis], 0), padded([sym], 0), padded([coef], 0), 1, ints, ints,
                    np.zeros(1), 1.0, np.zeros(2 * n + 2), np.zeros(WIDTH, dtype=np.int64))
     rows = np.ones((1, n))

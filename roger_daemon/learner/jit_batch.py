@@ -23,7 +23,7 @@ from roger_daemon.learner.jit_compile import compiled as _compiled
 from roger_daemon.learner.jit_fused import fused_step
 from roger_daemon.learner.jit_kernels import expert_terms, novelty_test, projection
 
-__all__ = ["learn_batch", "terms_batch"]
+__all__ = ["copy_batch", "learn_batch", "terms_batch"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -79,3 +79,11 @@ def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
             dqs[e] = dq
             dq_mins[e] = dq_min
             dq_argmaxes[e] = dq_argmax
+
+
+@_compiled(parallel=True, nogil=True)
+def copy_batch(srcs: tuple[FloatArray, ...], dsts: tuple[FloatArray, ...], count: int) -> None:
+    """``dsts[e][:] = srcs[e]`` for the first ``count`` pairs: a step's copy-on-write copies
+    (:func:`.sogp_batch.copy_many`)."""
+    for e in prange(count):
+        dsts[e][:] = srcs[e]

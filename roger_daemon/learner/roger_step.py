@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
-from roger_daemon.learner.sogp_batch import terms_many
+from roger_daemon.learner.sogp_batch import copy_many, terms_many
 
 if TYPE_CHECKING:
     from roger_daemon.learner.roger import Roger
@@ -145,6 +145,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
                            minlength=cap)
     chose = np.bincount(surv_slot[surv_slot >= 0], minlength=cap)
     target: dict[int, int] = {}
+    pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
     upd_terms: list[Terms | None] = []
     upd_slots: list[int] = []
@@ -165,7 +166,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
                 t, gp = s, src
             else:
                 t = model._alloc_slot()
-                gp = src.copy(model._pool)
+                gp = src.copy(model._pool, pending)
                 model._gps[t] = gp
                 model._gates.copy_slot(t, s)
                 model._ids[t] = model._ids[s]
@@ -174,6 +175,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
             upd_slots.append(t)
             model._npts[t] = model._npts[s] + 1
         target[s] = t
+    copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
     update_many(upd_gps, xs, ys, upd_terms)
     if upd_slots:

@@ -288,9 +288,12 @@ class SparseOnlineGP(SOGPSteps):
 
     # -- copies and state ----------------------------------------------------------------------
 
-    def copy(self, pool: BufferPool | None = None) -> SparseOnlineGP:
+    def copy(self, pool: BufferPool | None = None,
+             pending: list[tuple[FloatArray, FloatArray]] | None = None) -> SparseOnlineGP:
         """An independent copy (used for copy-on-write in :class:`~.roger.Roger`); its packed
-        matrices go into buffers kept in ``pool`` when it has some of their size."""
+        matrices go into buffers kept in ``pool`` when it has some of their size.  With
+        ``pending`` (and a pool) those two are copied later, by the caller
+        (:meth:`.buffers.BufferPool.copy_of`)."""
         out = SparseOnlineGP(self.d_x, self.d_y, self.kernel, self.noise, self.capacity,
                              self.novelty_threshold, self.normaliser,
                              prior_mean=self.prior_mean, _alloc=0)
@@ -305,7 +308,8 @@ class SparseOnlineGP(SOGPSteps):
         if pool is None:
             out._Cp, out._Qp = self._Cp.copy(), self._Qp.copy()
         else:
-            out._Cp, out._Qp = pool.copy_of(self._Cp), pool.copy_of(self._Qp)
+            out._Cp = pool.copy_of(self._Cp, pending)
+            out._Qp = pool.copy_of(self._Qp, pending)
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
         out._dq_min, out._dq_argmax = self._dq_min, self._dq_argmax

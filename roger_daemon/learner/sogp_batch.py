@@ -25,12 +25,28 @@ from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
 
-__all__ = ["terms_many", "update_many"]
+__all__ = ["copy_many", "terms_many", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 Terms = tuple[FloatArray, FloatArray, FloatArray, float]
+
+
+def copy_many(pending: Sequence[tuple[FloatArray, FloatArray]]) -> None:
+    """``np.copyto(dst, src)`` for each pair (a step's copy-on-write copies,
+    :meth:`.sogp.SparseOnlineGP.copy` with ``pending``): several per compiled call
+    (:func:`.jit_batch.copy_batch`) when :func:`.jit.batch_worth` says so."""
+    if not _jit.batch_worth(sum(src.size for src, _ in pending)):
+        for src, dst in pending:
+            np.copyto(dst, src)
+        return
+    srcs = [src for src, _ in pending]
+    dsts = [dst for _, dst in pending]
+    with _jit.BATCH_LOCK:
+        for lo in range(0, len(pending), _jit.WIDTH):
+            hi = min(lo + _jit.WIDTH, len(pending))
+            _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo)
 
 
 def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:

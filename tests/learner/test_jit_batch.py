@@ -161,3 +161,26 @@ def test_set_threads_caps_at_numbas_thread_count() -> None:
     assert jit.threads() == numba.config.NUMBA_NUM_THREADS
     jit.set_threads(None)
     assert 1 <= jit.threads() <= numba.config.NUMBA_NUM_THREADS
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_copy_many_fills_every_pending_copy(threads: int) -> None:
+    """Copies deferred by ``BufferPool.copy_of(..., pending)`` (a kept buffer and new ones,
+    more than one batch of ``WIDTH``) are filled by ``copy_many``, on one thread or two."""
+    from roger_daemon.learner.buffers import BufferPool
+    from roger_daemon.learner.sogp_batch import copy_many
+
+    jit.set_threads(threads)
+    rng = np.random.default_rng(2)
+    sources = [rng.normal(size=45) for _ in range(jit.WIDTH + 2)]
+    pool = BufferPool(limit=1)
+    kept = np.full(45, 7.0)
+    pool.give(kept)
+    pending: list[tuple[np.ndarray, np.ndarray]] = []
+    copies = [pool.copy_of(src, pending) for src in sources]
+    assert copies[0] is kept and len(pending) == len(sources)
+    assert np.all(kept == 7.0)  # not filled yet
+    copy_many(pending)
+    for src, dst in zip(sources, copies, strict=True):
+        np.testing.assert_array_equal(dst, src)
+        assert dst is not src
