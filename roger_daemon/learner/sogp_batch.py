@@ -55,7 +55,7 @@ def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
     evaluated by compiled calls of up to :data:`.jit.WIDTH` experts each
     (:func:`.jit_batch.terms_batch`), the same floats."""
     live = [j for j, gp in enumerate(gps) if gp.n > 0]
-    if not _jit.batch_worth(sum(gps[j].n * (gps[j].n + 1) // 2 for j in live)):
+    if not live or not _jit.batch_worth(sum(gps[j].n * (gps[j].n + 1) // 2 for j in live)):
         return [gp.terms(x) for gp in gps]
     out: list[Terms | None] = [None if gp.n > 0 else gp.terms(x) for gp in gps]
     m = len(live)

@@ -149,6 +149,29 @@ def test_experts_are_batched_on_several_threads_with_enough_work(
     assert not jit.batch_worth(10**9)
 
 
+def test_only_empty_experts_are_evaluated_one_at_a_time() -> None:
+    jit.set_threads(2)
+    experts = [_expert(0, 1), _expert(0, 2)]
+    assert [t[3] for t in terms_many(experts, np.zeros(3))] == [1.0, 1.0]  # k* each
+
+
+def test_the_default_is_one_thread_on_numbas_workqueue_layer(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """numba's ``workqueue`` layer (no OpenMP, no TBB) wakes its threads slower than the
+    kernels run: after ``warm_up`` finds it, the default (``set_threads(None)``) is one
+    thread; an explicit count is kept."""
+    import numba
+
+    monkeypatch.setattr(numba, "threading_layer", lambda: "workqueue")
+    monkeypatch.setattr(jit, "_workqueue", False)
+    jit.set_threads(None)
+    jit._check_threading_layer()
+    assert jit.threads() == 1
+    jit.set_threads(2)
+    jit._check_threading_layer()
+    assert jit.threads() == min(2, numba.config.NUMBA_NUM_THREADS)
+
+
 def test_set_threads_rejects_a_count_below_one() -> None:
     with pytest.raises(ValueError, match="threads must be an integer >= 1 or None, got 0"):
         jit.set_threads(0)
