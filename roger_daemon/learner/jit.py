@@ -1,9 +1,9 @@
-"""The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`,
+"""The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`, :mod:`.jit_batch`,
 :mod:`.jit_particles`, :mod:`.jit_resampling`), loaded on first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
-kernel here imports the four modules and binds its functions into this module, so later
+kernel here imports the five modules and binds its functions into this module, so later
 accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles every kernel
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
 

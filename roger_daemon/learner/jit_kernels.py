@@ -23,7 +23,8 @@ them streams half the bytes of a full matrix.
 * :func:`gram_matrix`: ``K_B`` recomputed from the basis for a re-inversion of ``Q``;
 * :func:`cholesky_inverse`: ``K^{-1}`` of a small SPD matrix (Cholesky, then the inverse from
   the factor), the re-inversion of ``Q`` without LAPACK's per-call overhead;
-* the gates' and the segmentation history's kernels are in :mod:`.jit_particles`.
+* the gates' and the segmentation history's kernels are in :mod:`.jit_particles`; several
+  experts' kernels per call, over the cores, in :mod:`.jit_batch`.
 
 Reductions may be reassociated (``fastmath={"reassoc", "contract"}``: no NaN/inf assumptions), so
 the floats differ from numpy's in the last bits, like another BLAS kernel's; the compiled code
