@@ -179,7 +179,10 @@ def _check_threading_layer() -> None:
     global _workqueue
     import numba
 
-    _workqueue = numba.threading_layer() == "workqueue"  # type: ignore[attr-defined]
+    try:
+        _workqueue = numba.threading_layer() == "workqueue"  # type: ignore[attr-defined]
+    except ValueError:  # no parallel kernel has run in this process yet
+        return
     if _workqueue and _threads_default:
         set_threads(None)
 

@@ -172,6 +172,22 @@ def test_the_default_is_one_thread_on_numbas_workqueue_layer(
     assert jit.threads() == min(2, numba.config.NUMBA_NUM_THREADS)
 
 
+def test_the_layer_check_waits_for_numbas_first_parallel_call(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before any parallel kernel has run numba cannot name its layer (ValueError): the
+    default is then left as it is."""
+    import numba
+
+    def not_yet() -> str:
+        raise ValueError("Threading layer is not initialized.")
+
+    monkeypatch.setattr(numba, "threading_layer", not_yet)
+    jit.set_threads(None)
+    before = jit.threads()
+    jit._check_threading_layer()
+    assert jit.threads() == before
+
+
 def test_set_threads_rejects_a_count_below_one() -> None:
     with pytest.raises(ValueError, match="threads must be an integer >= 1 or None, got 0"):
         jit.set_threads(0)
