@@ -73,3 +73,11 @@ def test_robots_share_the_cores_out_among_their_workers() -> None:
     assert threads_per_worker(cores) == 1
     assert threads_per_worker(8 * cores + 1) == 1
     assert threads_per_worker(0) == cores
+
+
+def test_a_worker_refuses_fewer_than_one_thread() -> None:
+    out = subprocess.run([sys.executable, "-m", "roger_daemon.daemon.worker", "--threads", "0"],
+                         capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+    assert out.returncode == 2
+    assert "--threads must be an integer >= 1, got 0" in out.stderr
+    assert "Traceback" not in out.stderr

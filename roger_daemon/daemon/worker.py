@@ -288,9 +288,11 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m roger_daemon.daemon.worker")
     parser.add_argument("--nice", type=int, default=0, choices=range(20), metavar="0..19")
-    parser.add_argument("--threads", type=int, default=1, choices=range(1, 1025),
-                        metavar="1..1024", help="the learner's threads (roger_daemon.learner.jit)")
+    parser.add_argument("--threads", type=int, default=1, metavar="N",
+                        help="the learner's threads, >= 1 (roger_daemon.learner.jit)")
     args = parser.parse_args(argv)
+    if args.threads < 1:
+        parser.error(f"--threads must be an integer >= 1, got {args.threads}")
     if args.nice:
         os.nice(args.nice)
     pin_blas_threads(1)

@@ -33,8 +33,8 @@ IntArray = npt.NDArray[np.int64]
 def terms_batch(bases: tuple[FloatArray, ...], covs: tuple[FloatArray, ...],
                 coefs: tuple[FloatArray, ...], count: int, ns: IntArray, allocs: IntArray,
                 x: FloatArray, gamma: float, out: FloatArray, offsets: IntArray) -> None:
-    """:func:`.jit_kernels.expert_terms_into` of the first ``count`` experts, expert ``e``'s
-    ``[k, C k, k^T C k, k^T A]`` written at ``out[offsets[e]:]`` (zero on entry)."""
+    """:func:`.jit_kernels.expert_terms` of the first ``count`` experts, expert ``e``'s
+    ``[k, C k, k^T C k, k^T A]`` written at ``out[offsets[e]:]``."""
     for e in prange(count):
         n = ns[e]
         start = offsets[e]
