@@ -17,6 +17,7 @@ from roger_daemon.config import DaemonConfig, parse_config
 from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
 from roger_daemon.daemon.main import build_robot
 from roger_daemon.daemon.service import Service
+from roger_daemon.daemon.wal import WriteAheadLog
 from roger_daemon.labels import majority_labels_coded as majority_labels
 from roger_daemon.learner.synthetic import subtask_stream
 from roger_daemon.testing import MemoryTransport
@@ -71,10 +72,12 @@ def make_config(tmp_path: Path, checkpoint: dict[str, Any] | None = None,
 
 class Harness:
     def __init__(self, cfg: DaemonConfig, *, fresh: bool = True,
-                 recorder: FakeRecorder | None = None) -> None:
+                 recorder: FakeRecorder | None = None, wal: WriteAheadLog | None = None) -> None:
         self.clock = FakeClock()
         self.transport = MemoryTransport(now_ns=self.clock.monotonic_ns)
         rt, resumed = build_robot(cfg, cfg.robots[0], fresh=fresh)
+        if wal is not None:  # attached before start, as the daemon does
+            rt.wal = wal
         self.rt = rt
         self.service = Service(
             cfg, self.transport, {"aibo": rt}, clock=self.clock, sync_checkpoints=True,

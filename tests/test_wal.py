@@ -270,17 +270,10 @@ def test_an_appends_age_is_judged_on_the_daemons_clock(tmp_path: Path) -> None:
     """The daemon passes its loop's ``now`` to ``commit_early``; the log dates its appends on
     the same clock (the service sets it at start), so an append is due for a synchronous
     commit after ``wal_commit_ms`` of that clock, a test's fake clock included."""
-    from test_daemon_service import FakeClock, make_config
+    from test_daemon_service import Harness, make_config
 
-    from roger_daemon.daemon.main import build_robot
-    from roger_daemon.daemon.service import Service
-    from roger_daemon.testing import MemoryTransport
-
-    cfg, clock = make_config(tmp_path), FakeClock()
-    rt, resumed = build_robot(cfg, cfg.robots[0], fresh=True)
-    wal = rt.wal = WriteAheadLog(tmp_path / "wal", 0)
-    Service(cfg, MemoryTransport(now_ns=clock.monotonic_ns), {"aibo": rt}, clock=clock,
-            sync_checkpoints=True, resumed={"aibo": resumed}).start()
+    wal = WriteAheadLog(tmp_path / "wal", 0)
+    clock = Harness(make_config(tmp_path), wal=wal).clock
     wal.append_pair(0, 0, *_pair(0), "seek")
     assert wal.dirty and not wal.due(clock.monotonic_ns(), 10**6)
     clock.advance(0.002)
