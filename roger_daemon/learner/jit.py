@@ -56,7 +56,7 @@ _applied = threading.local()  # .count: what numba.set_num_threads was given in 
 KERNELS = ("cholesky_inverse", "copy_batch", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step",
            "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
-           "learn_batch", "novelty_test", "packed_add_lowrank", "projection",
+           "learn_batch", "learn_full_expert", "novelty_test", "packed_add_lowrank", "projection",
            "rank_update_cq", "sorted_threshold", "stratified_pass", "sym_matvec", "sym_matvec_into",
            "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
@@ -204,9 +204,14 @@ def _warm_up_batches(basis: npt.NDArray[np.float64], sym: npt.NDArray[np.float64
     rows = np.ones((1, n))
     k.projection(sym, np.zeros(n), n, n)
     k.novelty_test(0.5, 1.0, 1e-6, 1e-12, 1e-6)
+    rule = np.array([1.0, 1e-6, 1e-12, 1e-6])
+    vec = np.ones(n)
+    bk.learn_full_expert(basis.copy(), coef.copy(), -sym, sym.copy(), np.zeros(1), 0.5 * vec,
+                         -0.1 * vec, 2 * vec, np.ones(1), -0.5, weights, rule, np.empty(n),
+                         np.empty(n), np.empty(n))
     bk.learn_batch(padded([basis.copy()], 0), padded([coef.copy()], 0), padded([-sym], 0),
                    padded([sym.copy()], 0), 1, np.zeros(1), 0.5 * rows, -0.1 * rows, 2 * rows,
-                   np.ones((1, 1)), np.array([-0.5]), weights, np.array([1.0, 1e-6, 1e-12, 1e-6]),
+                   np.ones((1, 1)), np.array([-0.5]), weights, rule,
                    np.empty((1, n)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, n)),
                    np.empty((1, n)), np.empty(1), np.empty(1, dtype=np.int64))
 

@@ -14,6 +14,8 @@ so each kernel has one compiled signature whatever the number of experts; only t
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 from numba import prange
@@ -23,7 +25,7 @@ from roger_daemon.learner.jit_compile import compiled as _compiled
 from roger_daemon.learner.jit_fused import fused_step
 from roger_daemon.learner.jit_kernels import expert_terms, novelty_test, projection
 
-__all__ = ["copy_batch", "learn_batch", "terms_batch"]
+__all__ = ["copy_batch", "learn_batch", "learn_full_expert", "terms_batch"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -42,6 +44,39 @@ def terms_batch(bases: tuple[FloatArray, ...], covs: tuple[FloatArray, ...],
         out[start:stop] = expert_terms(bases[e], covs[e], coefs[e], x, gamma, n, allocs[e])
 
 
+@_compiled(nogil=True)
+def learn_full_expert(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
+                      x: FloatArray, k: FloatArray, ck: FloatArray, dg: FloatArray,
+                      q: FloatArray, r: float, cw: FloatArray, rule: FloatArray,
+                      e_hat_out: FloatArray, diag_out: FloatArray, dq_out: FloatArray
+                      ) -> tuple[int, float, float, int]:
+    """Steps 3-5 of learning ``x`` in one full expert (``n`` basis vectors in buffers for
+    ``n``; docs/learner-math.md §2.5): ``Q k`` and the novelty test
+    (:func:`.jit_kernels.projection`, :func:`.jit_kernels.novelty_test` with
+    ``rule = [k*, threshold, floor, drift_tol]``), then, for a novel point, the fused
+    add-then-delete step (:func:`.jit_fused.fused_step`) while ``Q`` is still in the core's
+    cache.  In: its kernel vector ``k``, ``C k``, ``diag(C) + diag(Q)``, Csató's ``K1``
+    (``q``) and ``K2`` (``r``).  Writes ``Q k`` into ``e_hat_out`` and, after a fused step,
+    the diagonals it returns into ``diag_out`` and ``dq_out``; returns ``(outcome, gamma,
+    min(dq), argmax(dq))``, the outcome :data:`.jit.FUSED`, :data:`.jit.KEPT` (not novel:
+    left to the caller's projection update) or :data:`.jit.DRIFTED` (``Q`` must be
+    re-inverted first; nothing done).  One expert at a time (one thread) or several
+    (:func:`learn_batch`)."""
+    n = k.shape[0]
+    e_hat, kqk = projection(qbuf, k, n, n)
+    gamma, drifted, novel = novelty_test(kqk, rule[0], rule[1], rule[2], rule[3])
+    e_hat_out[:] = e_hat
+    if drifted:
+        return DRIFTED, gamma, math.nan, -1
+    if not novel:
+        return KEPT, gamma, math.nan, -1
+    diag, dq, dq_min, dq_argmax = fused_step(basis, coef, cbuf, qbuf, dg, x, ck, e_hat, cw, q,
+                                             r, gamma)
+    diag_out[:] = diag
+    dq_out[:] = dq
+    return FUSED, gamma, dq_min, dq_argmax
+
+
 @_compiled(parallel=True, nogil=True)
 def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
                 cbufs: tuple[FloatArray, ...], qbufs: tuple[FloatArray, ...], count: int,
@@ -49,36 +84,18 @@ def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
                 rs: FloatArray, cw: FloatArray, rule: FloatArray, e_hats: FloatArray,
                 gammas: FloatArray, outcomes: IntArray, diags: FloatArray, dqs: FloatArray,
                 dq_mins: FloatArray, dq_argmaxes: IntArray) -> None:
-    """Steps 3-5 of learning ``x`` in each of the first ``count`` full experts (``n`` basis
-    vectors in buffers for ``n``; docs/learner-math.md §2.5): ``Q k`` and the novelty test
-    (:func:`.jit_kernels.projection`, :func:`.jit_kernels.novelty_test` with
-    ``rule = [k*, threshold, floor, drift_tol]``), then, for a novel point, the fused
-    add-then-delete step (:func:`.jit_fused.fused_step`) while ``Q`` is still in the core's
-    cache.  Per expert (one row or entry each): in ``ks``, ``cks``, ``dgs``, ``qs``, ``rs``
-    its kernel vector, ``C k``, ``diag(C) + diag(Q)``, Csató's ``K1`` and ``K2``; out
-    ``e_hats``, ``gammas``, ``outcomes`` (:data:`.jit.FUSED`; :data:`.jit.KEPT`: not novel,
-    left to the caller's projection update; :data:`.jit.DRIFTED`: ``Q`` must be re-inverted
-    first, nothing done) and for the fused ones ``diags``, ``dqs``, ``dq_mins``, ``dq_argmaxes`` as
-    :func:`.jit_fused.fused_step` returns them."""
+    """:func:`learn_full_expert` of each of the first ``count`` full experts, one row or entry
+    each of the per-expert inputs (``ks``, ``cks``, ``dgs``, ``qs``, ``rs``) and results
+    (``e_hats``, ``diags``, ``dqs``; ``outcomes``, ``gammas``, ``dq_mins``,
+    ``dq_argmaxes``)."""
     for e in prange(count):
-        n = ks.shape[1]
-        e_hat, kqk = projection(qbufs[e], ks[e], n, n)
-        gamma, drifted, novel = novelty_test(kqk, rule[0], rule[1], rule[2], rule[3])
-        e_hats[e] = e_hat
+        outcome, gamma, dq_min, dq_argmax = learn_full_expert(
+            bases[e], coefs[e], cbufs[e], qbufs[e], x, ks[e], cks[e], dgs[e], qs[e], rs[e], cw,
+            rule, e_hats[e], diags[e], dqs[e])
+        outcomes[e] = outcome
         gammas[e] = gamma
-        if drifted:
-            outcomes[e] = DRIFTED
-        elif not novel:
-            outcomes[e] = KEPT
-        else:
-            outcomes[e] = FUSED
-            diag, dq, dq_min, dq_argmax = fused_step(bases[e], coefs[e], cbufs[e], qbufs[e],
-                                                     dgs[e], x, cks[e], e_hat, cw, qs[e],
-                                                     rs[e], gamma)
-            diags[e] = diag
-            dqs[e] = dq
-            dq_mins[e] = dq_min
-            dq_argmaxes[e] = dq_argmax
+        dq_mins[e] = dq_min
+        dq_argmaxes[e] = dq_argmax
 
 
 @_compiled(parallel=True, nogil=True)

@@ -154,19 +154,18 @@ def _learn_full(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: FloatA
         denom = gp.noise + latent
         rs[j] = -1.0 / denom
         qs[j] = (y_ext - mean) / denom
-    rule = first._novelty_constants()
+    rule = np.array(first._novelty_constants())
     cw = output_weights(first.a_cols, first.d_y)
     if _jit.batch_worth(m * first.n * (first.n + 1) // 2):
-        return _learn_batched(gps, terms, x, qs, rs, cw, np.array(rule))
+        return _learn_batched(gps, terms, x, qs, rs, cw, rule)
     out: list[_Result] = []
     for gp, (k, ck, _, _), q, r in zip(gps, terms, qs, rs.tolist(), strict=True):
-        e_hat, kqk = _jit.projection(gp._Qp, k, gp.n, gp.n)
-        gamma, drifted, novel = _jit.novelty_test(kqk, *rule)
-        if drifted or not novel:
-            out.append(_Result(_jit.DRIFTED if drifted else _jit.KEPT, e_hat, gamma))
-            continue
-        out.append(_Result(_jit.FUSED, e_hat, gamma, *_jit.fused_step(
-            gp._B, gp._A, gp._Cp, gp._Qp, gp._diag_cq(), x, ck, e_hat, cw, q, r, gamma)))
+        e_hat, diag, dq = np.empty(gp.n), np.empty(gp.n), np.empty(gp.n)
+        outcome, gamma, dq_min, dq_argmax = _jit.learn_full_expert(
+            gp._B, gp._A, gp._Cp, gp._Qp, x, k, ck, gp._diag_cq(), q, r, cw, rule, e_hat,
+            diag, dq)
+        out.append(_Result(outcome, e_hat, gamma, diag, dq, dq_min, dq_argmax)
+                   if outcome == _jit.FUSED else _Result(outcome, e_hat, gamma))
     return out
 
 
