@@ -34,11 +34,15 @@ def _summary(samples: list[int]) -> dict[str, float]:
 def _warm_up_reference(ref_pkg: ModuleType) -> None:
     """Compile (or load from numba's cache) the reference's kernels before timing: a kernel
     first used mid-run (the fused step, once experts are full) would otherwise put its
-    compilation, seconds for a revision not seen before, into the reference's time."""
+    compilation, seconds for a revision not seen before, into the reference's time.  A
+    reference with batched kernels runs them on this learner's threads (``--threads``)."""
     try:
         ref_jit = importlib.import_module(f"{ref_pkg.__name__}.jit")
     except ImportError:  # a revision from before the compiled kernels
         return
+    same_threads = getattr(ref_jit, "set_threads", None)
+    if callable(same_threads):  # a revision with batched kernels: on this learner's threads
+        same_threads(threads())
     warm = getattr(ref_jit, "warm_up", None)
     if callable(warm):
         warm()
@@ -90,7 +94,7 @@ def compare(stream: BenchStream, rev: str, seed: int) -> dict[str, Any]:
         # kernels compiled inside the timed steps (a signature first met mid-run): then the
         # figures include compilation, and a second run (numba's cache filled) is the one
         "compiled_while_timing": {"ref": compiled[0], "new": compiled[1]},
-        "learner_threads": threads(),  # this learner's batched kernels (the reference's: its own)
+        "learner_threads": threads(),  # both learners' batched kernels (a reference's if it has)
         "seed": seed,
         "params": stream.params.to_mapping(),
         "machine": machine,

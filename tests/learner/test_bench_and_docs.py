@@ -5,6 +5,7 @@ from __future__ import annotations
 import doctest
 import importlib
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -82,6 +83,12 @@ def test_bench_compare_runs_a_git_revision_beside_this_learner(
     assert "speedup (new / REF updates/s)" in capsys.readouterr().out
     assert main(["bench", "learner", "--points", "4", "--compare", "no-such-revision-xyz"]) == 2
     assert "--compare" in capsys.readouterr().err
+    # the reference's batched kernels run on this learner's threads, not on their default
+    assert main(["bench", "learner", "--stream", "aibo", "--points", "4", "--compare", "HEAD",
+                 "--threads", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["learner_threads"] == 1
+    ref_jit = sys.modules[f"{load_reference('HEAD')[0].__name__}.jit"]
+    assert ref_jit.threads() == 1
 
 
 def test_fleet_and_soak_feed_the_aibo_demonstrations_by_default() -> None:
