@@ -160,7 +160,8 @@ def novelty_test(kqk: float, kstar: float, threshold: float, floor: float,
     impossible in exact arithmetic (``Q`` must be re-inverted and the test redone);
     ``gamma`` is 0 below ``floor``; ``novel`` (a full update) iff ``gamma >= threshold k*``
     and ``gamma > 0``.  The one owner of the rule, for one expert at a time
-    (:meth:`.sogp_steps.SOGPSteps.novelty_from`) or several (:func:`.jit_batch.learn_batch`)."""
+    (:meth:`.sogp_steps.SOGPSteps.novelty`) or in a full expert's batched step
+    (:func:`.jit_batch.learn_full_expert`)."""
     gamma = kstar - kqk
     drifted = gamma < -drift_tol * kstar
     if gamma < floor:

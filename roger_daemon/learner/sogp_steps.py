@@ -63,12 +63,7 @@ class SOGPSteps:
         if it has visibly drifted, 0 below :data:`GAMMA_FLOOR`, and whether the point is
         novel (a full update, step 4b) by :func:`.jit_kernels.novelty_test`.  Records
         :attr:`novelty_margin`."""
-        return self.novelty_from(k, *_jit.projection(self._Qp, k, self.n, self._alloc))
-
-    def novelty_from(self, k: FloatArray, e_hat: FloatArray, kqk: float
-                     ) -> tuple[FloatArray, float, bool]:
-        """:meth:`novelty` given ``(Q k, k^T Q k)`` computed for this state
-        (:func:`.jit_kernels.projection`)."""
+        e_hat, kqk = _jit.projection(self._Qp, k, self.n, self._alloc)
         gamma, drifted, novel = _jit.novelty_test(kqk, *self._novelty_constants())
         if drifted or self.q_drifted():
             self.refresh_inverse_gram()
