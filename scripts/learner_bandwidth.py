@@ -28,18 +28,26 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     """Compiled calls per step by kind, measured ms per step, distinct experts, beta.
 
     The learner runs on one thread, where it calls each expert's kernels from Python (on
-    several it batches them, :mod:`roger_daemon.learner.jit_batch`): the same passes."""
+    several it batches them, :mod:`roger_daemon.learner.jit_batch`): the same passes.  A full
+    expert's ``jit.learn_full_expert`` counts as its ``Q k`` pass and, when it made one, its
+    fused step."""
     jit.set_threads(1)
     warm = points // 4
     model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
     jit._load()
-    originals = {name: getattr(jit, name) for name in ("expert_terms", "projection", "fused_step")}
+    kinds = ("expert_terms", "projection", "fused_step", "learn_full_expert")
+    originals = {name: getattr(jit, name) for name in kinds}
 
     def counted(name: str, fn: Any) -> Any:
         def wrapper(*args: Any) -> Any:
-            calls[name] += 1
-            return fn(*args)
+            out = fn(*args)
+            if name != "learn_full_expert":
+                calls[name] += 1
+            else:  # a full expert's Q k and, for a novel point, its fused step
+                calls["projection"] += 1
+                calls["fused_step"] += out[0] == jit.FUSED
+            return out
         return wrapper
 
     for name, fn in originals.items():
