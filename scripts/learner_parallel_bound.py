@@ -26,17 +26,18 @@ import time
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import prange
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import print_report
 from roger_daemon.learner import jit_kernels, packed
+from roger_daemon.learner.jit_compile import compiled
 from roger_daemon.machine import finish, machine_record
 
 FloatArray = np.ndarray
 
 
-@njit(parallel=True, nogil=True)
+@compiled(parallel=True, nogil=True)  # cached: the CLI and its test compile it once
 def exact_step_passes(bases: FloatArray, cs: FloatArray, qs: FloatArray, coefs: FloatArray,
                       x: FloatArray, gamma: float, n: int, updated: np.ndarray,
                       scale: float) -> float:
