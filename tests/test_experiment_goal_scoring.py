@@ -25,6 +25,10 @@ pytestmark = pytest.mark.integration
 
 ROGER = [sys.executable, "-m", "roger_daemon"]
 PNG = b"\x89PNG\r\n\x1a\n"
+# the quick run and its resume take ~70 s of CPU (a sixth of the suite on a 2-core AMD EPYC):
+# `make test-all` runs them; `make test` keeps the stop tests below, which start the same
+# pipeline, and tests/test_experiment_inprocess.py, its in-process path
+_QUICK = pytest.mark.slow
 
 
 def _run(out: Path, *extra: str, timeout: float = 900.0) -> tuple[dict[str, Any], float, str]:
@@ -47,6 +51,7 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any
     return out, results, wall, stdout
 
 
+@_QUICK
 def test_quick_run_writes_the_full_schema(
     quick: tuple[Path, dict[str, Any], float, str],
 ) -> None:
@@ -84,6 +89,7 @@ def test_quick_run_writes_the_full_schema(
     assert "Goal scoring" in stdout and "ratio ROGER / HCC" in stdout
 
 
+@_QUICK
 def test_quick_demonstrations_are_recorded_and_learned(
     quick: tuple[Path, dict[str, Any], float, str],
 ) -> None:
@@ -113,6 +119,7 @@ def test_quick_demonstrations_are_recorded_and_learned(
     assert {row["label"] for row in rows} <= set(LABELS)
 
 
+@_QUICK
 def test_quick_evaluation_ran_each_controller_cleanly(
     quick: tuple[Path, dict[str, Any], float, str],
 ) -> None:
@@ -145,6 +152,7 @@ def test_quick_evaluation_ran_each_controller_cleanly(
     assert (out / "training-data.npz").is_file()
 
 
+@_QUICK
 def test_resume_reuses_finished_jobs_and_reproduces_the_results(
     quick: tuple[Path, dict[str, Any], float, str],
 ) -> None:
