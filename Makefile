@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # test processes (pytest-xdist): the suite is mostly single-threaded Python and subprocesses, so
 # two use both cores of the 2-core machines it must pass on (`make test TEST_WORKERS=1`: one)
 TEST_WORKERS ?= 2
-PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope
+PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 .PHONY: demo test test-all lint typecheck bench clean venv
 

@@ -22,3 +22,14 @@ def _restore_learner_threads() -> Iterator[None]:
     yield
     if jit._threads != before:
         jit.set_threads(before)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _learner_kernels_compiled() -> None:
+    """Compile the learner's kernels into numba's on-disk cache before the first test (each
+    test process does; it took ~45 s on a 2-core AMD EPYC from a clean clone): the daemons,
+    workers and commands the tests start then load them instead of compiling them inside
+    their start-up deadlines."""
+    from roger_daemon.learner import jit
+
+    jit.warm_up()

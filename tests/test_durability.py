@@ -54,7 +54,7 @@ class Daemon:
         self.proc = harness.DaemonProcess(self.config)
         self.client: Any = None
         try:
-            self.proc.wait_ready(60)
+            self.proc.wait_ready()
             self.client = harness.Client(f"tcp/127.0.0.1:{self.port}", robot="sim", dims=DIMS)
             self.client.wait_daemon(30)
         except BaseException:

@@ -82,7 +82,7 @@ class Deployment:
             '[[robots]]\nid = "aibo"\n'
         )
         self.daemon = DaemonProcess(cfg)
-        self.daemon.wait_ready(60)
+        self.daemon.wait_ready()
         return self.daemon
 
     def close(self) -> None:
