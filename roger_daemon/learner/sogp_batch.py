@@ -59,11 +59,11 @@ def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
         return [gp.terms(x) for gp in gps]
     out: list[Terms | None] = [None if gp.n > 0 else gp.terms(x) for gp in gps]
     m = len(live)
-    ints = np.zeros((3, -(-m // _jit.WIDTH) * _jit.WIDTH), dtype=np.int64)  # padded rows
-    ns, allocs, offsets = ints
-    for i, j in enumerate(live):
-        ns[i], allocs[i] = gps[j].n, gps[j].alloc
+    width = -(-m // _jit.WIDTH) * _jit.WIDTH  # rows padded to whole calls
+    ns = np.array([gps[j].n for j in live] + [0] * (width - m), dtype=np.int64)
+    allocs = np.array([gps[j].alloc for j in live] + [0] * (width - m), dtype=np.int64)
     sizes = 2 * ns[:m] + 1 + np.array([gps[j].a_cols for j in live], dtype=np.int64)
+    offsets = np.zeros(width, dtype=np.int64)
     offsets[:m] = np.cumsum(sizes) - sizes
     packed = np.zeros(int(sizes.sum()))
     bases = [gps[j]._B for j in live]
@@ -174,9 +174,9 @@ def _learn_batched(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: Flo
                    ) -> list[_Result]:
     """:func:`_learn_full` by :func:`.jit_batch.learn_batch` calls."""
     m, n = len(gps), gps[0].n
-    ks = np.stack([t[0] for t in terms])
-    cks = np.stack([t[1] for t in terms])
-    dgs = np.stack([gp._diag_cq() for gp in gps])
+    ks = np.array([t[0] for t in terms])  # rows of one length: np.array, cheaper than stack
+    cks = np.array([t[1] for t in terms])
+    dgs = np.array([gp._diag_cq() for gp in gps])
     e_hats, diags, dqs = np.empty((m, n)), np.empty((m, n)), np.empty((m, n))
     gammas, dq_mins = np.empty(m), np.empty(m)
     outcomes, dq_argmaxes = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
