@@ -59,12 +59,10 @@ def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
         return [gp.terms(x) for gp in gps]
     out: list[Terms | None] = [None if gp.n > 0 else gp.terms(x) for gp in gps]
     m = len(live)
-    width = -(-m // _jit.WIDTH) * _jit.WIDTH  # rows padded to whole calls
-    ns = np.array([gps[j].n for j in live] + [0] * (width - m), dtype=np.int64)
-    allocs = np.array([gps[j].alloc for j in live] + [0] * (width - m), dtype=np.int64)
-    sizes = 2 * ns[:m] + 1 + np.array([gps[j].a_cols for j in live], dtype=np.int64)
-    offsets = np.zeros(width, dtype=np.int64)
-    offsets[:m] = np.cumsum(sizes) - sizes
+    ns = np.array([gps[j].n for j in live], dtype=np.int64)
+    allocs = np.array([gps[j].alloc for j in live], dtype=np.int64)
+    sizes = 2 * ns + 1 + np.array([gps[j].a_cols for j in live], dtype=np.int64)
+    offsets = np.cumsum(sizes) - sizes
     packed = np.zeros(int(sizes.sum()))
     bases = [gps[j]._B for j in live]
     covs = [gps[j]._Cp for j in live]
@@ -76,7 +74,7 @@ def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
             _jit.terms_batch(_jit.padded(bases, lo), _jit.padded(covs, lo),
                              _jit.padded(coefs, lo), min(hi, m) - lo, ns[lo:hi],
                              allocs[lo:hi], x, gamma, packed, offsets[lo:hi])
-    for j, start, size in zip(live, offsets[:m].tolist(), sizes.tolist(), strict=True):
+    for j, start, size in zip(live, offsets.tolist(), sizes.tolist(), strict=True):
         out[j] = gps[j]._terms_from(packed[start: start + size])
     return [t for t in out if t is not None]
 
