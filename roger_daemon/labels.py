@@ -60,16 +60,28 @@ def majority_of_counts(ids: npt.ArrayLike, counts: npt.NDArray[np.int64],
     """The rule (module docstring) applied to per-expert label counts (columns: ``vocab``)."""
     names = [str(v) for v in vocab]
     n_lab = len(names)
-    counts = np.array(counts[:, :n_lab], dtype=np.int64)
-    if counts.shape[0] == 0 or n_lab == 0:
+    rows = np.asarray(counts, dtype=np.int64)[:, :n_lab].tolist()
+    if not rows or n_lab == 0:
         return {}
-    if "" in names:
-        counts[:, names.index("")] = 0
-    alpha = sorted(range(n_lab), key=lambda i: names[i])  # ties: first by name
-    best = counts[:, alpha].argmax(axis=1)
-    has = counts.max(axis=1) > 0
-    return {int(e): (names[alpha[int(b)]] if h else "")
-            for e, b, h in zip(np.asarray(ids).tolist(), best, has, strict=True)}
+    order = _tie_order(names)
+    return {int(e): _majority(row, order, names)
+            for e, row in zip(np.asarray(ids).tolist(), rows, strict=True)}
+
+
+def _tie_order(names: Sequence[str]) -> list[int]:
+    """The columns that can win, in the order ties go: alphabetical, ``""`` left out."""
+    return sorted((i for i, s in enumerate(names) if s), key=lambda i: names[i])
+
+
+def _majority(row: Sequence[int], order: Sequence[int], names: Sequence[str]) -> str:
+    """The rule for one expert's counts (``row[c]``: its points with code ``c``): the most
+    frequent non-empty label, the first of ``order`` on a tie, ``""`` when none is counted."""
+    best, most = "", 0
+    width = len(row)
+    for i in order:
+        if i < width and row[i] > most:
+            best, most = names[i], row[i]
+    return best
 
 
 class LabelTally:
@@ -80,12 +92,15 @@ class LabelTally:
     the particles' lineages disagree, and the last few steps: docs/learner-math.md §4.1); every
     other point is counted once, for good. At each call the tally reads the experts of the
     points that were unsettled at its last call, moves the counts of those whose expert changed,
-    and counts the points learned since. So labelling costs O(unsettled + new points), not
-    O(points learned) (a day of demonstrations at 30 Hz is ~10^6 points). Gives exactly
-    :func:`majority_labels_coded` of the whole history.
+    counts the points learned since, and applies the rule again to the experts whose counts
+    moved. So labelling costs O(unsettled + new points), not O(points learned) (a day of
+    demonstrations at 30 Hz is ~10^6 points). Gives exactly :func:`majority_labels_coded` of
+    the whole history.
     """
 
-    forget_after = 64  # experts left with no point are dropped from the table beyond this many
+    #: above this many points at once (a first call on a long history), counted by
+    #: :func:`label_counts` in one vectorised pass instead of one point at a time
+    vectorise_above = 64
 
     def __init__(self) -> None:
         self._clear(None)
@@ -95,8 +110,10 @@ class LabelTally:
         self.counted = 0  # points counted (those in _open counted as _open_ids say)
         self._open = np.zeros(0, dtype=np.int64)  # the unsettled points at the last call
         self._open_ids = np.zeros(0, dtype=np.int64)  # ... and their experts then
-        self._row: dict[int, int] = {}
-        self._counts = np.zeros((0, 0), dtype=np.int64)  # every point, under its expert now
+        self._counts: dict[int, list[int]] = {}  # expert id -> points per code (experts now)
+        self._labels: dict[int, str] = {}  # expert id -> its label under _names
+        self._names: list[str] = []
+        self._order: list[int] = []
 
     def labels(self, model: Any, codes: npt.ArrayLike, vocab: Sequence[str]) -> dict[int, str]:
         """Expert id -> majority label; ``codes`` (one per learned point) index ``vocab``."""
@@ -111,40 +128,47 @@ class LabelTally:
         now = np.asarray(model.assignments_at(np.concatenate([recount, unsettled])), np.int64)
         n_open = self._open.size
         moved = np.flatnonzero(now[:n_open] != self._open_ids)  # expert changed: take back
+        touched: set[int] = set()
         if moved.size:
-            ids, counts = label_counts(self._open_ids[moved], c[self._open[moved]], len(vocab))
-            self._add(ids, -counts)
+            self._add(self._open_ids[moved], c[self._open[moved]], -1, touched)
         fresh = np.concatenate([moved, np.arange(n_open, recount.size)])
         if fresh.size:
-            self._add(*label_counts(now[fresh], c[recount[fresh]], len(vocab)))
+            self._add(now[fresh], c[recount[fresh]], 1, touched)
         self._open = unsettled
         self._open_ids = now[recount.size:]
         self.counted = c.size
-        rows = sorted(self._row.items())
-        table = np.zeros((len(rows), max(len(vocab), self._counts.shape[1])), dtype=np.int64)
-        if rows:
-            table[:, :self._counts.shape[1]] = self._counts[[r for _, r in rows]]
-        present = table.sum(axis=1) > 0  # experts with points (not only ever seen)
-        ids_all = np.array([e for e, _ in rows], dtype=np.int64)
-        if np.count_nonzero(~present) > max(self.forget_after, len(rows) // 2):  # now empty
-            self._row = {int(e): i for i, e in enumerate(ids_all[present].tolist())}
-            self._counts = table[present].copy()
-        return majority_of_counts(ids_all[present], table[present], vocab)
+        names = [str(v) for v in vocab]
+        if names != self._names:  # the vocabulary grew: every expert's label again
+            self._names, self._order = names, _tie_order(names)
+            touched = set(self._counts)
+        for e in touched:
+            row = self._counts.get(e)
+            if row is None:
+                self._labels.pop(e, None)
+            else:
+                self._labels[e] = _majority(row[:len(names)], self._order, names)
+        if not names:
+            return {}
+        return dict(sorted(self._labels.items()))
 
-    def _add(self, ids: npt.NDArray[np.int64], counts: npt.NDArray[np.int64]) -> None:
-        if ids.size == 0:
-            return
-        width = max(counts.shape[1], self._counts.shape[1])
-        fresh = [int(e) for e in ids.tolist() if int(e) not in self._row]
-        for e in fresh:
-            self._row[e] = len(self._row)
-        if width > self._counts.shape[1] or len(self._row) > self._counts.shape[0]:
-            grown = np.zeros((max(len(self._row), 2 * self._counts.shape[0]), width),
-                             dtype=np.int64)
-            grown[:self._counts.shape[0], :self._counts.shape[1]] = self._counts
-            self._counts = grown
-        rows = np.array([self._row[int(e)] for e in ids.tolist()], dtype=np.int64)
-        self._counts[rows, :counts.shape[1]] += counts
+    def _add(self, ids: npt.NDArray[np.int64], codes: npt.NDArray[np.int64], sign: int,
+             touched: set[int]) -> None:
+        """Count (``sign`` 1) or take back (-1) points of experts ``ids`` with ``codes``."""
+        if ids.size > self.vectorise_above:
+            uniq, counts = label_counts(ids, codes, int(codes.max()) + 1)
+            pairs = [(e, code, n) for e, row in zip(uniq.tolist(), counts.tolist(), strict=True)
+                     for code, n in enumerate(row) if n]
+        else:
+            pairs = [(e, code, 1) for e, code in zip(ids.tolist(), codes.tolist(), strict=True)]
+        for e, code, n in pairs:
+            row = self._counts.setdefault(e, [])
+            if code >= len(row):
+                row.extend([0] * (code + 1 - len(row)))
+            row[code] += sign * n
+            touched.add(e)
+        for e in touched:
+            if e in self._counts and not any(self._counts[e]):  # no point left: forgotten
+                del self._counts[e]
 
 
 def _within(points: npt.NDArray[np.int64], open_points: npt.NDArray[np.int64],
@@ -152,11 +176,7 @@ def _within(points: npt.NDArray[np.int64], open_points: npt.NDArray[np.int64],
     """Whether every one of ``points`` was unsettled at the last call or is new since (a point
     counted as settled never becomes unsettled again, unless the model was replaced)."""
     old = points[points < counted]
-    if old.size == 0:
-        return True
-    pos = np.searchsorted(open_points, old)
-    return bool(np.all(pos < open_points.size)
-                and np.array_equal(open_points[np.minimum(pos, open_points.size - 1)], old))
+    return old.size == 0 or set(old.tolist()) <= set(open_points.tolist())
 
 
 def majority_labels(assignments: npt.ArrayLike, labels: Sequence[str]) -> dict[int, str]:

@@ -5,6 +5,7 @@ vocabulary, and after the model is replaced."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from roger_daemon.labels import LabelTally, majority_labels_coded
 from roger_daemon.learner import Roger, RogerParams
@@ -40,14 +41,17 @@ def test_tally_equals_the_whole_history_rule_while_learning() -> None:
     assert tally.labels(fresh, codes[:50], VOCAB) == want
 
 
-def test_tally_equals_the_rule_at_every_step_as_the_map_particle_changes() -> None:
+@pytest.mark.parametrize("vectorise_above", [0, LabelTally.vectorise_above, 10**9])
+def test_tally_equals_the_rule_at_every_step_as_the_map_particle_changes(
+        vectorise_above: int) -> None:
     """Checked after every point: the MAP particle (and with it the experts of the unsettled
-    points) changes between calls, and experts that lose all their points are forgotten."""
+    points) changes between calls, and experts that lose all their points are forgotten; the
+    counts taken point by point or in one vectorised pass alike."""
     s = subtask_stream(400)
     model = Roger(23, 9, RogerParams(beta=15, particles=6), seed=3)
     codes = s.labels % len(VOCAB)
     tally = LabelTally()
-    tally.forget_after = 1  # exercise forgetting experts left without points
+    tally.vectorise_above = vectorise_above
     map_changes = 0
     last = None
     for i in range(400):
@@ -59,3 +63,19 @@ def test_tally_equals_the_rule_at_every_step_as_the_map_particle_changes() -> No
         assert tally.labels(model, codes[: i + 1], VOCAB) == \
             majority_labels_coded(now, codes[: i + 1], VOCAB), i
     assert map_changes >= 3 and tally.counted == 400
+
+
+def test_a_first_call_on_a_long_history_counts_it_in_one_pass() -> None:
+    """The daemon's first prediction after a restart labels a long history at once."""
+    s = subtask_stream(500)
+    model = Roger(23, 9, RogerParams(beta=15), seed=4)
+    codes = s.labels % len(VOCAB)
+    for i in range(450):
+        model.learn_one(s.x[i], s.y[i])
+    tally = LabelTally()
+    assert tally.labels(model, codes[:450], VOCAB) == \
+        majority_labels_coded(model.assignments(), codes[:450], VOCAB)
+    for i in range(450, 500):
+        model.learn_one(s.x[i], s.y[i])
+        assert tally.labels(model, codes[: i + 1], VOCAB) == \
+            majority_labels_coded(model.assignments(), codes[: i + 1], VOCAB), i
