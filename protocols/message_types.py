@@ -354,13 +354,39 @@ def stamp_prediction(payload: bytes, *, robot: str, tick: int, latency_ms: float
     learner worker's reply): the same bytes as decoding, ``dataclasses.replace`` and encoding
     again, without validating every vector a second time. Not for payloads from the network
     (use ``decode``). Raises ``ValueError`` if ``payload`` is not a prediction of ``robot``'s
-    ``tick``."""
-    m = msgpack.unpackb(payload, raw=False)
-    if not isinstance(m, dict) or not _PREDICTION_FIELDS <= m.keys() or m["robot"] != robot \
-            or m["tick"] != tick:
-        raise ValueError(f"not the prediction of {robot} tick {tick}")
+    ``tick``.
+
+    The map is walked, not decoded: the encodings of the three fields are replaced and every
+    other value's bytes are kept as they are (msgpack encodes a value one way, so re-encoding
+    them would give the same bytes), a quarter of the time of decoding and encoding a
+    prediction with 13 experts."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
-    m["latency_ms"], m["mode"], m["stamp_ns"] = float(latency_ms), mode, int(stamp_ns)
-    out: bytes = msgpack.packb(m, use_bin_type=True)
-    return out
+    stamped = {"latency_ms": float(latency_ms), "mode": mode, "stamp_ns": int(stamp_ns)}
+    expected = {"robot": robot, "tick": tick}
+    walk = msgpack.Unpacker(raw=False)
+    walk.feed(payload)
+    parts: list[bytes] = []
+    seen: set[Any] = set()
+    kept_from = 0
+    try:
+        for _ in range(walk.read_map_header()):
+            key = walk.unpack()
+            seen.add(key)
+            if key in stamped:
+                parts.append(payload[kept_from:walk.tell()])
+                walk.skip()
+                kept_from = walk.tell()
+                parts.append(msgpack.packb(stamped[key], use_bin_type=True))
+            elif key in expected:
+                if walk.unpack() != expected[key]:
+                    raise ValueError(key)
+            else:
+                walk.skip()
+        complete = walk.tell() == len(payload)
+    except (ValueError, TypeError, msgpack.UnpackException):  # OutOfData is not a ValueError
+        complete = False
+    if not complete or not _PREDICTION_FIELDS <= seen:
+        raise ValueError(f"not the prediction of {robot} tick {tick}")
+    parts.append(payload[kept_from:])
+    return b"".join(parts)

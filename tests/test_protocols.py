@@ -232,3 +232,7 @@ def test_stamp_prediction_gives_the_bytes_of_decode_replace_encode() -> None:
     with pytest.raises(ValueError, match="not the prediction"):
         stamp_prediction(perception, robot="r3", tick=17, latency_ms=1.0, mode="predict",
                          stamp_ns=1)
+    for bad in (payload[:-3], payload + b"\x00", b"\xc1", msgpack.packb([1, 2])):
+        with pytest.raises(ValueError, match="not the prediction"):
+            stamp_prediction(bad, robot="r3", tick=17, latency_ms=1.0, mode="predict",
+                             stamp_ns=1)
