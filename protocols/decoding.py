@@ -90,6 +90,9 @@ def _str(m: Mapping[str, Any], name: str, kind: str, *, choices: tuple[str, ...]
     return v
 
 
+_PLAIN_NUMBERS = frozenset((int, float))  # what msgpack decodes numbers to (bool is not one)
+
+
 def _vector(
     m: Mapping[str, Any], name: str, kind: str, dim: int | None, *, positive: bool = False
 ) -> FloatArray:
@@ -100,7 +103,8 @@ def _vector(
         )
     if len(v) > MAX_VECTOR:
         raise ProtocolError("oversized", f"{kind}: {name!r} has {len(v)} > {MAX_VECTOR} entries")
-    if any(isinstance(e, bool) or not isinstance(e, int | float) for e in v):
+    if not _PLAIN_NUMBERS.issuperset(map(type, v)) and \
+            any(isinstance(e, bool) or not isinstance(e, int | float) for e in v):
         raise ProtocolError("wrong_type", f"{kind}: {name!r} must contain only numbers")
     if dim is not None and len(v) != dim:
         raise ProtocolError(

@@ -146,6 +146,7 @@ def test_a_multimap_decodes_in_one_pass_to_what_each_entry_decodes_to() -> None:
         ({"var": [0.5] * 8 + [0.0]}, "bad_value", "'var' must be > 0"),
         ({"mean": [math.nan] + [0.0] * 8}, "not_finite", "'mean' contains NaN"),
         ({"mean": [True] + [0.0] * 8}, "wrong_type", "'mean' must contain only numbers"),
+        ({"mean": [0.0] * 8 + ["1.5"]}, "wrong_type", "'mean' must contain only numbers"),
         ({"expert": "x"}, "wrong_type", "expert"),
         ({"mean": None}, "wrong_type", "'mean' must be an array"),
     ],
