@@ -72,6 +72,28 @@ def _expert(model: Roger, slot: int, xs: FloatArray, prob: float) -> ExpertPredi
                             n_points=int(model._npts[slot]))
 
 
+def _experts(model: Roger, slots: list[int], xs: FloatArray, probs: FloatArray
+             ) -> list[ExpertPrediction]:
+    """``[_expert(model, s, xs, p) ...]`` over ``slots``: each GP evaluated on its own (the
+    same compiled call), the scaling back to output units done once for all of them (the same
+    floats: it is elementwise)."""
+    gps = model._gps
+    means = np.empty((len(slots), model.d_y))
+    latent = np.empty(len(slots))
+    for j, s in enumerate(slots):
+        gp = gps[s]
+        assert gp is not None
+        means[j], latent[j] = gp.predict(xs)
+    sc = model._scaling
+    means = sc.mean_out(means)
+    var = sc.var_out(latent[:, None])  # type: ignore[arg-type]  # a column: one row per expert
+    ids = model._ids[slots].tolist()
+    npts = model._npts[slots].tolist()
+    gate = probs.tolist()
+    return [ExpertPrediction(expert_id=ids[j], gate_prob=gate[j], mean=means[j], var=var[j],
+                             n_points=npts[j]) for j in range(len(slots))]
+
+
 def predict(model: Roger, x: npt.ArrayLike, *, one: bool, multimap: bool,
             rng: np.random.Generator | None = None
             ) -> tuple[Prediction | None, list[ExpertPrediction] | None]:
@@ -93,8 +115,7 @@ def predict(model: Roger, x: npt.ArrayLike, *, one: bool, multimap: bool,
     k = _choose(model, probs, rng) if one else -1
     experts: list[ExpertPrediction] = []
     if multimap:
-        experts = [_expert(model, s, xs, float(probs[j]))
-                   for j, s in enumerate(slots.tolist())]
+        experts = _experts(model, slots.tolist(), xs, probs)
         if empty:
             prior = _prior(model, float(probs[-1]))
             experts.append(ExpertPrediction(expert_id=-1, gate_prob=prior.gate_prob,

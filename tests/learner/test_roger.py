@@ -103,6 +103,28 @@ def test_multimap_fields_and_gate_probabilities(stream23: tuple[np.ndarray, np.n
     assert pred.gate_prob == best.gate_prob
 
 
+def test_multimap_branches_are_each_experts_own_prediction(
+        stream23: tuple[np.ndarray, np.ndarray]) -> None:
+    """The multimap scales every branch back to output units in one pass: the same floats as
+    each expert's prediction on its own (with a non-trivial output scaling)."""
+    from roger_daemon.learner import roger_predict
+
+    x, y = stream23
+    model = Roger(23, 9, small_params(y_offset=list(np.linspace(-1.0, 1.0, 9)),
+                                      y_scale=list(np.linspace(0.5, 3.0, 9))), seed=3)
+    learn(model, x, y)
+    for q in (x[5], x[40], x[-1] + 0.3):
+        branches = model.predict_multimap(q)
+        xs = model._scaling.x_in(np.asarray(q, dtype=np.float64))
+        slots = roger_predict.map_slots(model).tolist()
+        assert len(branches) == len(slots) > 1
+        for b, slot in zip(branches, slots, strict=True):
+            own = roger_predict._expert(model, slot, xs, b.gate_prob)
+            assert (b.expert_id, b.n_points) == (own.expert_id, own.n_points)
+            np.testing.assert_array_equal(b.mean, own.mean)
+            np.testing.assert_array_equal(b.var, own.var)
+
+
 def test_assignments_agree_with_expert_sizes(stream23: tuple[np.ndarray, np.ndarray]) -> None:
     x, y = stream23
     model = Roger(23, 9, small_params(), seed=4)
