@@ -81,3 +81,31 @@ def test_a_worker_refuses_fewer_than_one_thread() -> None:
     assert out.returncode == 2
     assert "--threads must be an integer >= 1, got 0" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_a_worker_collects_in_its_idle_moments_by_the_interpreters_own_rule() -> None:
+    """After its load a worker freezes what survives and raises the automatic thresholds
+    (a backstop); it then collects after learning, when nothing waits, the oldest generation
+    whose count passed the interpreter's threshold (docs/fleet.md)."""
+    import gc
+
+    from roger_daemon.daemon.worker import GC_BACKSTOP, collect_when_idle, hold_collections
+
+    before = gc.get_threshold()
+    try:
+        thresholds = hold_collections()
+        assert thresholds == before
+        assert gc.get_threshold() == tuple(t * GC_BACKSTOP for t in before)
+        assert gc.get_freeze_count() > 0
+        gc.collect()
+        assert collect_when_idle(thresholds) is None  # nothing due right after a collection
+        junk = [[i] for i in range(thresholds[0] + 50)]  # young containers past threshold 0
+        assert collect_when_idle(thresholds) == 0
+        assert gc.get_count()[0] < thresholds[0] and gc.get_count()[1] >= 1
+        for _ in range(thresholds[1] + 1):  # past threshold 1: the middle generation is due
+            gc.collect(0)
+        assert collect_when_idle(thresholds) == 1 and gc.get_count()[1] == 0
+        del junk
+    finally:
+        gc.unfreeze()
+        gc.set_threshold(*before)
