@@ -6,7 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from roger_daemon.daemon.service.status import status_deadline, status_due
+from roger_daemon.daemon.service.status import quiet_moment, status_deadline, status_due
 
 SECOND = 1_000_000_000
 PERIOD = SECOND // 30
@@ -51,3 +51,14 @@ def test_realtime_runs_in_the_first_quarter_after_a_tick() -> None:
     assert status_due(svc, last + PERIOD // 4 - 1)
     assert not status_due(svc, last + PERIOD // 4 + 1)  # later: the next tick comes first
     assert not status_due(svc, tick - 1)
+
+
+def test_quiet_moments_are_the_ones_status_waits_for() -> None:
+    """The loop also collects garbage at these moments (roger_daemon/daemon/gc_policy.py)."""
+    now = 10 * SECOND
+    assert quiet_moment(_svc(realtime=False), now)
+    assert not quiet_moment(_svc(realtime=False, answering=True), now)
+    assert not quiet_moment(_svc(realtime=False, inbox=1), now)
+    tick = now + PERIOD // 2
+    assert not quiet_moment(_svc(realtime=True, next_tick=tick), now)  # half a period to go
+    assert quiet_moment(_svc(realtime=True, next_tick=now + PERIOD - 1), now)  # just ticked

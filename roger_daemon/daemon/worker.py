@@ -36,7 +36,6 @@ input (the daemon died) ends the worker too. The daemon's side is
 from __future__ import annotations
 
 import argparse
-import gc
 import logging
 import os
 import select
@@ -279,44 +278,12 @@ class _Worker:
         return {"ok": True, "pred": encode(pred), "ms": (time.perf_counter_ns() - t0) / 1e6}
 
 
-#: the interpreter's automatic collection thresholds, raised this many times while a worker
-#: serves (a backstop: it collects in its idle moments instead, :func:`collect_when_idle`)
-GC_BACKSTOP = 20
-
-
-def hold_collections() -> tuple[int, int, int]:
-    """Collect once, freeze what survives (the imports, the compiled kernels, the loaded
-    model: never scanned again) and raise the automatic thresholds by :data:`GC_BACKSTOP`;
-    return the interpreter's thresholds, which :func:`collect_when_idle` then applies itself.
-
-    A collection of the young generations took 0.15 ms of CPU on average and one of the
-    middle generation 1.3 ms (up to 3 ms) in each 8-robot worker (AMD EPYC, 2026-11-27),
-    whenever an allocation crossed a threshold: often inside a prediction request
-    (docs/fleet.md, *Collections in idle moments*)."""
-    thresholds = gc.get_threshold()
-    gc.collect()
-    gc.freeze()
-    gc.set_threshold(*(t * GC_BACKSTOP for t in thresholds))
-    return thresholds
-
-
-def collect_when_idle(thresholds: tuple[int, int, int]) -> int | None:
-    """The interpreter's own rule, applied after learning when no request waits: the oldest
-    generation whose count passed its threshold is collected (with the younger ones). Returns
-    the generation collected, or ``None``."""
-    counts = gc.get_count()
-    for gen in (2, 1, 0):
-        if counts[gen] > thresholds[gen]:
-            gc.collect(gen)
-            return gen
-    return None
-
-
 def main(argv: list[str] | None = None) -> int:
     """The worker's loop: one reply per request, until ``stop`` or end of input."""
     logging.basicConfig(level="INFO", stream=sys.stderr,
                         format="%(levelname)s %(name)s (worker): %(message)s")
     from roger_daemon.blas import pin_blas_threads
+    from roger_daemon.daemon.gc_policy import Thresholds, collect_when_idle, hold_collections
     from roger_daemon.daemon.memory import limit_heap_growth
     from roger_daemon.learner.jit import set_threads
 
@@ -335,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     # unbuffered input, so that select() tells whether the daemon sent another request
     stdin, stdout = getattr(sys.stdin.buffer, "raw", sys.stdin.buffer), sys.stdout.buffer
     worker = _Worker()
-    thresholds: tuple[int, int, int] | None = None
+    thresholds: Thresholds | None = None
     while True:
         req = read_frame(stdin)
         if req is None:
@@ -351,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
         if op == "stop":
             return 0
         if thresholds is None and op == "load":
-            thresholds = hold_collections()
+            thresholds = hold_collections()  # (roger_daemon.daemon.gc_policy)
         # after learning, when nothing waits: the labels of what was learned, then any
         # collection due (not after a prediction: in lockstep the other robots' answers of
         # the same tick need the cores then)
