@@ -143,21 +143,12 @@ class SegmentationHistory:
     def assignments_at(self, particle: int, points: npt.ArrayLike) -> IntArray:
         """Particle ``particle``'s expert id at each of ``points`` (indices < len(self)):
         O(len(points) + K + WINDOW)."""
-        idx = np.asarray(points, dtype=np.int64).reshape(-1)
+        idx = np.ascontiguousarray(points, dtype=np.int64).reshape(-1)
         if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
             raise IndexError(f"points must be in [0, {len(self)})")
-        out = np.empty(idx.size, dtype=np.int64)
-        settled = idx < self.n_settled
-        out[settled] = self._settled[idx[settled]]
-        if self.n_rows == 0:
-            return out
-        window, origin = self._trace(int(particle))
-        out[~settled] = window[idx[~settled] - self.n_settled]
-        if self._xpt.size:
-            pos = np.searchsorted(self._xpt, idx)
-            hit = pos < self._xpt.size
-            hit[hit] = self._xpt[pos[hit]] == idx[hit]
-            out[hit] = self._xid[pos[hit], origin]
+        out: IntArray = jit.lineage_assignments(idx, self._settled, self.n_settled, self._anc,
+                                                self._eid, self.n_rows, int(particle),
+                                                self._xpt, self._xid)
         return out
 
     # -- state ---------------------------------------------------------------------------------

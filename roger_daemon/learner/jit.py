@@ -54,11 +54,11 @@ _workqueue = False  # warm_up found numba's threading layer to be workqueue
 _applied = threading.local()  # .count: what numba.set_num_threads was given in this thread
 
 KERNELS = ("cholesky_inverse", "copy_batch", "expert_terms", "fearnhead_split",
-           "fused_delete_index", "fused_step",
-           "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
-           "learn_batch", "learn_full_expert", "novelty_test", "packed_add_lowrank", "projection",
-           "rank_update_cq", "sorted_threshold", "stratified_pass", "sym_matvec", "sym_matvec_into",
-           "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
+           "fused_delete_index", "fused_step", "gate_log_predictive", "gate_update", "gram_matrix",
+           "kernel_vector", "min_argmax", "learn_batch", "learn_full_expert",
+           "lineage_assignments", "novelty_test", "packed_add_lowrank", "projection",
+           "rank_update_cq", "sorted_threshold", "stratified_pass", "sym_matvec",
+           "sym_matvec_into", "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:
@@ -167,6 +167,9 @@ def warm_up() -> None:
     gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
     gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                      np.zeros(1, dtype=np.int64))
+    gk.lineage_assignments(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), 1,
+                           np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64),
+                           1, 0, np.zeros(0, dtype=np.int64), np.zeros((0, 1), dtype=np.int64))
     w, order, _, inv_c, n_top = rk.fearnhead_split(np.array([1.0, 0.5, 0.25]), 1.75, 2)
     rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), 0.0, 0.0)
     rk.threshold_taus(np.array([0.5, 0.25]), 2)  # the resampler's decision margin

@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled
 
-__all__ = ["gate_log_predictive", "gate_update", "trace_lineages"]
+__all__ = ["gate_log_predictive", "gate_update", "lineage_assignments", "trace_lineages"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -108,3 +108,34 @@ def trace_lineages(ancestors: npt.NDArray[np.int32], experts: npt.NDArray[np.int
             j = ancestors[t, j]
         origin[s] = j
     return ids, origin
+
+
+@compiled(nogil=True)
+def lineage_assignments(points: npt.NDArray[np.int64], settled: npt.NDArray[np.int64],
+                        n_settled: int, ancestors: npt.NDArray[np.int32],
+                        experts: npt.NDArray[np.int64], n: int, particle: int,
+                        exception_points: npt.NDArray[np.int64],
+                        exception_ids: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Particle ``particle``'s expert id at each of ``points`` (:mod:`.history`): a settled
+    point's id, or at an exception (``exception_points``, ascending) the id of the boundary
+    lineage it descends from; a window point's id along its lineage (:func:`trace_lineages`
+    of the one particle). The caller checks that every point is below ``n_settled + n``."""
+    out = np.empty(points.size, dtype=np.int64)
+    window = np.empty(n, dtype=np.int64)
+    j = particle
+    for t in range(n - 1, -1, -1):
+        window[t] = experts[t, j]
+        j = ancestors[t, j]
+    origin = j
+    n_exc = exception_points.size
+    for i in range(points.size):
+        p = points[i]
+        if p >= n_settled:
+            out[i] = window[p - n_settled]
+            continue
+        out[i] = settled[p]
+        if n > 0 and n_exc > 0:
+            k = np.searchsorted(exception_points, p)
+            if k < n_exc and exception_points[k] == p:
+                out[i] = exception_ids[k, origin]
+    return out
