@@ -146,7 +146,7 @@ class LabelTally:
             if row is None:
                 self._labels.pop(e, None)
             else:
-                self._labels[e] = _majority(row[:len(names)], self._order, names)
+                self._labels[e] = _majority(row, self._order, names)
         if not names:
             return {}
         return dict(sorted(self._labels.items()))

@@ -18,7 +18,9 @@ Requests (``op``) and replies:
 - ``learn``: ``x``, ``y`` (float64 bytes), ``code``, ``tick``, ``vocab`` (only when it grew)
   -> ``ok``, ``ms``, ``n``, ``experts`` (``ok`` false: the learner rejected the pair, the
   model is unchanged); when no request waits after it, the worker counts the labels of what
-  it learned (``_Worker.idle``), so the next prediction need not;
+  it learned (``_Worker.idle``), so the next prediction need not, and collects any garbage
+  due (:mod:`roger_daemon.daemon.gc_policy`; after ``load`` collections wait for these
+  moments);
 - ``predict``: ``x``, ``tick``, ``t``, ``vocab`` (only when it grew) -> ``ok``, ``pred`` (an
   encoded ``Prediction``: mean, variance, multimap with majority labels, ``updates``), ``ms``;
 - ``fresh``: replace the model by a fresh one (``reset``) -> ``n``, ``experts``;

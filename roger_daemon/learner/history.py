@@ -142,7 +142,8 @@ class SegmentationHistory:
 
     def assignments_at(self, particle: int, points: npt.ArrayLike) -> IntArray:
         """Particle ``particle``'s expert id at each of ``points`` (indices < len(self)):
-        O(len(points) + K + WINDOW)."""
+        O(len(points) log K + WINDOW) in one compiled call
+        (:func:`.jit_particles.lineage_assignments`)."""
         idx = np.ascontiguousarray(points, dtype=np.int64).reshape(-1)
         if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
             raise IndexError(f"points must be in [0, {len(self)})")
