@@ -18,7 +18,8 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,8 @@ from protocols import Action, Control, Perception, Prediction, Status, decode, e
 from protocols.aibo import DIMS as AIBO_DIMS
 from protocols.messages import Dims
 
-__all__ = ["Client", "DaemonProcess", "Received", "free_port", "write_config"]
+__all__ = ["Client", "DaemonProcess", "Received", "free_port", "interruptible_child",
+           "write_config"]
 
 
 def free_port() -> int:
@@ -47,6 +49,22 @@ def _toml(value: Any) -> str:
     if isinstance(value, list | tuple):
         return "[" + ", ".join(_toml(v) for v in value) + "]"
     return repr(value)
+
+
+@contextmanager
+def interruptible_child() -> Iterator[None]:
+    """Around starting a child that will be sent SIGINT (Ctrl-C): the child gets SIGINT's
+    default disposition, whatever this process has. A shell's background job (``cmd &``
+    without job control) ignores SIGINT, its descendants inherit that, and a Python child
+    started with SIGINT ignored never installs its ``KeyboardInterrupt`` handler: Ctrl-C
+    would then do nothing to it. A handled signal is reset to the default on ``exec``, so the
+    parent handles SIGINT (the interpreter's own handler) while the child starts. Main
+    thread only (``signal.signal``)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def write_config(

@@ -96,11 +96,12 @@ def test_ctrl_c_exits_130_without_a_traceback() -> None:
     """SIGINT while `roger hz` waits for messages (nothing publishes: it waits forever)."""
     import signal
 
-    from roger_daemon.harness import free_port
+    from roger_daemon.harness import free_port, interruptible_child
 
-    p = subprocess.Popen([sys.executable, "-m", "roger_daemon", "hz", "aibo/status",
-                          "--connect", f"tcp/127.0.0.1:{free_port()}"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with interruptible_child():  # also when the suite runs as a background job
+        p = subprocess.Popen([sys.executable, "-m", "roger_daemon", "hz", "aibo/status",
+                              "--connect", f"tcp/127.0.0.1:{free_port()}"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert p.stdout is not None
         first = p.stdout.readline()  # the first report: it is inside its loop now

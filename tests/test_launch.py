@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from roger_daemon.console import UsageError
-from roger_daemon.harness import Client, free_port
+from roger_daemon.harness import Client, free_port, interruptible_child
 from simulator.launch import plan
 
 pytestmark = pytest.mark.integration
@@ -59,8 +59,9 @@ locations = "all"
 time_limit = 150.0
 args = ["--vision", "fast"]
 """, encoding="utf-8")
-    proc = subprocess.Popen([sys.executable, "-m", "roger_daemon", "up", str(launch)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    with interruptible_child():  # it is sent SIGINT below
+        proc = subprocess.Popen([sys.executable, "-m", "roger_daemon", "up", str(launch)],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     client = None
     try:
         client = Client(f"tcp/127.0.0.1:{port}")

@@ -17,7 +17,13 @@ import pytest
 
 from protocols import Status, encode, keys
 from roger_daemon.cli import main
-from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
+from roger_daemon.harness import (
+    Client,
+    DaemonProcess,
+    free_port,
+    interruptible_child,
+    write_config,
+)
 from roger_daemon.learner.synthetic import subtask_stream
 
 pytestmark = pytest.mark.integration
@@ -201,9 +207,10 @@ def test_status_watch_reports_stale_when_statuses_stop() -> None:
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     session = open_session(ZenohSettings(listen=(ep,)))
-    watch = subprocess.Popen([sys.executable, "-m", "roger_daemon", "status", "ghost", "--watch",
-                              "--json", "--connect", ep], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+    with interruptible_child():  # it is sent SIGINT below
+        watch = subprocess.Popen([sys.executable, "-m", "roger_daemon", "status", "ghost",
+                                  "--watch", "--json", "--connect", ep],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert watch.stdout is not None
         st = Status("ghost", 0, 0.0, daemon="mute", mode="learn", ticks=0, updates=0,
