@@ -79,14 +79,14 @@ def _experts(model: Roger, slots: list[int], xs: FloatArray, probs: FloatArray
     floats: it is elementwise)."""
     gps = model._gps
     means = np.empty((len(slots), model.d_y))
-    latent = np.empty(len(slots))
+    variance = np.empty(len(slots))  # predictive, model units (observation noise included)
     for j, s in enumerate(slots):
         gp = gps[s]
         assert gp is not None
-        means[j], latent[j] = gp.predict(xs)
+        means[j], variance[j] = gp.predict(xs)
     sc = model._scaling
     means = sc.mean_out(means)
-    var = sc.var_out(latent[:, None])  # type: ignore[arg-type]  # a column: one row per expert
+    var = sc.var_out(variance[:, None])  # type: ignore[arg-type]  # a column: one per expert
     ids = model._ids[slots].tolist()
     npts = model._npts[slots].tolist()
     gate = probs.tolist()
