@@ -141,24 +141,6 @@ def test_lockstep_answers_each_perception_and_learns_pairs(tmp_path: Path) -> No
     assert st.updates == 20 and st.ticks == 20 and st.dropped == 0 and st.invalid == {}
 
 
-def test_a_started_daemon_collects_garbage_at_quiet_moments(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Once the daemon holds collections (``gc_thresholds`` set), the loop applies the rule
-    at the end of a cycle that left nothing to answer; never while the harness has none."""
-    from roger_daemon.daemon.service import loop
-
-    calls: list[tuple[int, int, int]] = []
-    monkeypatch.setattr(loop, "collect_when_idle", lambda t: calls.append(t))
-    h = Harness(make_config(tmp_path))
-    h.pair(0)
-    h.settle()
-    assert calls == []
-    h.service.gc_thresholds = (700, 10, 10)
-    h.pair(1)
-    h.settle()
-    assert calls and set(calls) == {(700, 10, 10)}
-
-
 def test_lockstep_learns_complete_pairs_before_answering(tmp_path: Path) -> None:
     """action(t) and perception(t+1) drained together: prediction(t+1) includes pair t."""
     h = Harness(make_config(tmp_path))

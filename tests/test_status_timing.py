@@ -54,7 +54,6 @@ def test_realtime_runs_in_the_first_quarter_after_a_tick() -> None:
 
 
 def test_quiet_moments_are_the_ones_status_waits_for() -> None:
-    """The loop also collects garbage at these moments (roger_daemon/daemon/gc_policy.py)."""
     now = 10 * SECOND
     assert quiet_moment(_svc(realtime=False), now)
     assert not quiet_moment(_svc(realtime=False, answering=True), now)

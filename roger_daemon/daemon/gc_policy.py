@@ -1,14 +1,14 @@
-"""Garbage collection in idle moments, for the learner workers and the service loop.
+"""Garbage collection in idle moments, for the learner workers.
 
 CPython collects a generation whenever its allocation count crosses a threshold: in the
 middle of whatever runs then. In an 8-robot daemon (AMD EPYC, 2026-11-27) a collection of the
 young generation cost 0.15 ms of CPU on average and one of the middle generation 1.3 ms (up
-to 3 ms), in every worker about once a second and in the loop as often: often inside a
-prediction. A long-running process here calls :func:`hold_collections` once its start-up is
-done, then :func:`collect_when_idle` at moments when nothing waits for it (docs/fleet.md,
-*Collections in idle moments*). The same collections happen, by the interpreter's own rule,
-only at other moments; the raised automatic thresholds are a backstop for a process that is
-never idle.
+to 3 ms), in every worker about once a second: often inside a prediction. A worker calls
+:func:`hold_collections` once it has loaded its model, then :func:`collect_when_idle` after
+learning when no request waits (docs/fleet.md, *Collections in idle moments*; the service
+loop keeps the interpreter's own collections: why there). The same collections happen, by
+the interpreter's own rule, only at other moments; the raised automatic thresholds are a
+backstop for a process that is never idle.
 """
 
 from __future__ import annotations

@@ -38,7 +38,6 @@ from protocols.messages import (
     Status,
 )
 from roger_daemon.config import DaemonConfig
-from roger_daemon.daemon.gc_policy import Thresholds, collect_when_idle
 from roger_daemon.daemon.health import Health
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.sdnotify import Notifier
@@ -57,7 +56,6 @@ from roger_daemon.daemon.service.shutdown import abort, shutdown
 from roger_daemon.daemon.service.status import (
     invalid_counts,
     publish_status,
-    quiet_moment,
     robot_status,
     status_deadline,
     status_due,
@@ -139,8 +137,6 @@ class Service:
         self._next_status = 0
         self.started_ns = 0
         self._stop = False
-        #: set once started (gc_policy.hold_collections): collect at quiet moments only
-        self.gc_thresholds: Thresholds | None = None
         self._stopping = False
         self._answer: list[tuple[RobotRuntime, Perception, int]] = []
         # roger_daemon.daemon.learners.ProcessLearners: the models live in worker processes
@@ -259,8 +255,6 @@ class Service:
         self.checkpoints.collect()
         self.recorders.poll(self.clock.monotonic_ns)
         self.notifier.watchdog(now)
-        if self.gc_thresholds is not None and quiet_moment(self, self.clock.monotonic_ns()):
-            collect_when_idle(self.gc_thresholds)  # (roger_daemon.daemon.gc_policy)
 
     def _tick_first(self) -> None:
         """With learner workers the tick publishes predictions already prepared: fire it as
