@@ -84,9 +84,9 @@ def test_a_worker_refuses_fewer_than_one_thread() -> None:
 
 
 def test_collections_held_for_idle_moments_follow_the_interpreters_own_rule() -> None:
-    """After its start-up a worker (or the loop) freezes what survives and raises the
-    automatic thresholds (a backstop); at idle moments it then collects the oldest generation
-    whose count passed the interpreter's threshold (roger_daemon/daemon/gc_policy.py)."""
+    """After loading its model a worker freezes what survives and raises the automatic
+    thresholds (a backstop); at idle moments it then collects the oldest generation whose
+    count passed the interpreter's threshold (roger_daemon/daemon/gc_policy.py)."""
     import gc
 
     from roger_daemon.daemon.gc_policy import GC_BACKSTOP, collect_when_idle, hold_collections

@@ -121,12 +121,9 @@ def lineage_assignments(points: npt.NDArray[np.int64], settled: npt.NDArray[np.i
     lineage it descends from; a window point's id along its lineage (:func:`trace_lineages`
     of the one particle). The caller checks that every point is below ``n_settled + n``."""
     out = np.empty(points.size, dtype=np.int64)
-    window = np.empty(n, dtype=np.int64)
-    j = particle
-    for t in range(n - 1, -1, -1):
-        window[t] = experts[t, j]
-        j = ancestors[t, j]
-    origin = j
+    ids, origins = trace_lineages(ancestors, experts, n, np.full(1, particle, dtype=np.int64))
+    window = ids[:, 0]
+    origin = origins[0]
     n_exc = exception_points.size
     for i in range(points.size):
         p = points[i]
