@@ -288,6 +288,33 @@ def test_reset_drains_the_worker_first(tmp_path: Path) -> None:
         proc.service.shutdown()
 
 
+@pytest.mark.parametrize("process", [False, True], ids=["inline", "process"])
+def test_a_pair_queued_before_a_reset_is_learned_by_the_old_model(tmp_path: Path,
+                                                                  process: bool) -> None:
+    """Lockstep: action(5) completes pair 5 after prediction(5); if the loop drains it and a
+    reset in one cycle (a stall delayed it), pair 5 is still learned, and logged, before the
+    reset: which pairs the old model learned depends on the messages' order, not on timing."""
+    loop = Loop(make_config(tmp_path, "r"), process=process)
+    try:
+        for t in range(5):
+            loop.send("aibo", t)
+        loop.transport.inject(keys.key("aibo", "perception"),
+                              encode(Perception("aibo", 5, 5 / 30, x=STREAM.x[5])))
+        loop.collect(6)
+        loop.transport.inject(keys.key("aibo", "action"), encode(
+            Action("aibo", 5, 5 / 30, y=STREAM.y[5], label=LABELS[STREAM.labels[5]])))
+        loop.transport.inject(keys.key("aibo", "control"),
+                              encode(Control("aibo", 0, 0.0, op="reset")))
+        loop.service.step(0)  # both drained in one cycle
+        loop.send("aibo", 6)
+        assert loop.collect(7)[-1].updates == 1  # the fresh model learned pair 6 only
+        recs = read_records(wal_dir(tmp_path / "r", "aibo"))
+        assert [r.kind for r in recs] == ["fresh"] + ["pair"] * 6 + ["fresh", "pair"]
+        assert [r.tick for r in recs if r.kind == "pair"] == [0, 1, 2, 3, 4, 5, 6]
+    finally:
+        loop.service.shutdown()
+
+
 def test_shutdown_learns_queue_and_checkpoints(tmp_path: Path) -> None:
     cfg = make_config(tmp_path, "s", shutdown_learn_s=3.0)
     proc = Loop(cfg, process=True)

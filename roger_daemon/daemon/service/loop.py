@@ -48,6 +48,7 @@ from roger_daemon.daemon.service.answers import (
 )
 from roger_daemon.daemon.service.checkpoints import Checkpoints, Snapshot, checkpoint_snapshot
 from roger_daemon.daemon.service.clock import Clock, RealClock
+from roger_daemon.daemon.service.controls import apply_control
 from roger_daemon.daemon.service.intake import Admission
 from roger_daemon.daemon.service.outbox import Outbox
 from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
@@ -312,27 +313,7 @@ class Service:
         elif isinstance(msg, Action):
             rt.on_action(msg)
         elif isinstance(msg, Control):
-            self._control(rt, msg)
-
-    def _control(self, rt: RobotRuntime, msg: Control) -> None:
-        if msg.op == "mode":
-            if msg.mode != rt.mode:
-                log.info("%s: mode %s -> %s", rt.robot, rt.mode, msg.mode)
-            rt.mode = msg.mode
-        elif msg.op == "reset":
-            if self.learners is not None:
-                self.learners.drain(rt)  # what it learned before is logged before the reset
-            log.info("%s: reset requested: forgetting %d learned pairs", rt.robot, rt.updates)
-            rt.reset()
-        elif msg.op == "checkpoint":
-            log.info("%s: checkpoint requested", rt.robot)
-            self._checkpoint(rt, "requested")
-        n = self.acks[rt.robot][0] + 1
-        self.acks[rt.robot] = (n, msg.op, msg.stamp_ns)
-        # confirm at once: a status carrying this control's stamp (protocols/README.md, control)
-        now = self.clock.monotonic_ns()
-        st = self.status_of(rt, now)
-        self.outbox.status(rt.robot, st)
+            apply_control(self, rt, msg)
 
     # --- output ----------------------------------------------------------------------------
 
