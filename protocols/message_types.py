@@ -10,7 +10,7 @@ them (``roger_daemon.recording.schemas``).
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -45,7 +45,11 @@ __all__ = [
     "FloatArray",
     "as_vector",
     "encode",
+    "encode_prediction",
+    "expert_output_map",
+    "header_map",
     "now_ns",
+    "prediction_body",
     "stamp_prediction",
 ]
 
@@ -105,13 +109,7 @@ class Message:
 
     def header(self) -> dict[str, Any]:
         """The header fields as a msgpack-ready map."""
-        return {
-            "v": SCHEMA_VERSION,
-            "robot": self.robot,
-            "tick": int(self.tick),
-            "t": float(self.t),
-            "stamp_ns": int(self.stamp_ns),
-        }
+        return header_map(self.robot, self.tick, self.t, self.stamp_ns)
 
     def body(self) -> dict[str, Any]:
         """The kind-specific fields (overridden)."""
@@ -202,14 +200,7 @@ class ExpertOutput:
 
     def to_map(self) -> dict[str, Any]:
         """Plain map for msgpack/JSON."""
-        return {
-            "expert": int(self.expert),
-            "p": float(self.p),
-            "mean": self.mean.tolist(),
-            "var": self.var.tolist(),
-            "n": int(self.n),
-            "label": self.label,
-        }
+        return expert_output_map(self.expert, self.p, self.mean, self.var, self.n, self.label)
 
 
 @dataclass(frozen=True, eq=False)
@@ -244,15 +235,9 @@ class Prediction(Message):
 
     def body(self) -> dict[str, Any]:
         """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
-        return {
-            "mean": self.mean.tolist(),
-            "var": self.var.tolist(),
-            "expert": int(self.expert),
-            "multimap": [e.to_map() for e in self.multimap],
-            "latency_ms": float(self.latency_ms),
-            "mode": self.mode,
-            "updates": int(self.updates),
-        }
+        return prediction_body(self.mean, self.var, self.expert,
+                               [e.to_map() for e in self.multimap], self.latency_ms, self.mode,
+                               self.updates)
 
 
 @dataclass(frozen=True, eq=False)
@@ -340,6 +325,53 @@ TYPES: dict[str, type[Message]] = {
 def encode(msg: Message) -> bytes:
     """Serialise a message to msgpack bytes."""
     out: bytes = msgpack.packb(msg.to_map(), use_bin_type=True)
+    return out
+
+
+# The wire maps of a header, a prediction and one multimap entry: the one place their fields
+# are written (the dataclasses' ``header``/``body``/``to_map`` and encode_prediction).
+
+def header_map(robot: str, tick: int, t: float, stamp_ns: int) -> dict[str, Any]:
+    """The header fields of every message as a msgpack-ready map."""
+    return {"v": SCHEMA_VERSION, "robot": robot, "tick": int(tick), "t": float(t),
+            "stamp_ns": int(stamp_ns)}
+
+
+def _float_list(values: Any) -> list[float]:
+    out: list[float] = np.asarray(values, dtype=np.float64).reshape(-1).tolist()
+    return out
+
+
+def expert_output_map(expert: int, p: float, mean: Any, var: Any, n: int,
+                      label: str) -> dict[str, Any]:
+    """One multimap entry (:class:`ExpertOutput`) as a msgpack-ready map."""
+    return {"expert": int(expert), "p": float(p), "mean": _float_list(mean),
+            "var": _float_list(var), "n": int(n), "label": label}
+
+
+def prediction_body(mean: Any, var: Any, expert: int, multimap: list[dict[str, Any]],
+                    latency_ms: float, mode: str, updates: int) -> dict[str, Any]:
+    """A prediction's own fields (:class:`Prediction`), ``multimap`` already as maps."""
+    return {"mean": _float_list(mean), "var": _float_list(var), "expert": int(expert),
+            "multimap": multimap, "latency_ms": float(latency_ms), "mode": mode,
+            "updates": int(updates)}
+
+
+ExpertRow = tuple[int, float, Any, Any, int, str]
+
+
+def encode_prediction(robot: str, tick: int, t: float, *, mean: Any, var: Any, expert: int,
+                      multimap: Iterable[ExpertRow], updates: int,
+                      mode: str = "learn+predict", latency_ms: float = 0.0,
+                      stamp_ns: int | None = None) -> bytes:
+    """``encode(Prediction(...))`` without building the dataclasses, the same bytes
+    (tested): each ``multimap`` row is an :class:`ExpertOutput`'s fields in order. For a
+    publisher's own model outputs (a learner worker's reply, ~0.15 ms less per prediction with
+    13 experts); like the dataclass it checks nothing (``decode`` validates)."""
+    body = prediction_body(mean, var, expert, [expert_output_map(*row) for row in multimap],
+                           latency_ms, mode, updates)
+    head = header_map(robot, tick, t, now_ns() if stamp_ns is None else stamp_ns)
+    out: bytes = msgpack.packb({**head, **body}, use_bin_type=True)
     return out
 
 

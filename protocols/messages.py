@@ -32,6 +32,7 @@ from protocols.message_types import (
     Prediction,
     Status,
     encode,
+    encode_prediction,
     now_ns,
     stamp_prediction,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "Status",
     "decode",
     "encode",
+    "encode_prediction",
     "now_ns",
     "stamp_prediction",
 ]

@@ -30,6 +30,7 @@ from protocols import (
 from protocols.aibo import DIMS
 from protocols.field_specs import FieldSpec, field_spec
 from protocols.keys import KINDS
+from protocols.message_types import MODES
 
 D = Dims(23, 9)
 
@@ -237,3 +238,28 @@ def test_stamp_prediction_gives_the_bytes_of_decode_replace_encode() -> None:
         with pytest.raises(ValueError, match="not the prediction"):
             stamp_prediction(bad, robot="r3", tick=17, latency_ms=1.0, mode="predict",
                              stamp_ns=1)
+
+
+_finite = st.floats(-1e6, 1e6, allow_nan=False)
+
+
+@given(st.integers(0, 4), st.integers(1, 4), _finite, st.integers(-1, 10**6),
+       st.sampled_from(MODES), st.integers(0, 2**40))
+def test_encode_prediction_gives_the_bytes_of_encoding_the_dataclass(
+        n_experts: int, d_y: int, value: float, tick: int, mode: str, stamp: int) -> None:
+    """The workers' prediction encoder (no dataclasses) writes what ``encode(Prediction)``
+    writes, byte for byte: both go through the same field maps."""
+    from protocols.messages import encode_prediction
+
+    rng = np.random.default_rng(n_experts * 7 + d_y)
+    rows = [(e - 1, float(rng.random()), rng.normal(size=d_y) * value, rng.random(d_y) + 0.1,
+             int(rng.integers(0, 50)), ["", "seek", "kick"][e % 3]) for e in range(n_experts)]
+    mean, var = np.full(d_y, value), np.full(d_y, 0.5)
+    fast = encode_prediction("r1", tick, tick / 30, mean=mean, var=var, expert=n_experts - 2,
+                             multimap=rows, updates=tick + 1, mode=mode, latency_ms=1.5,
+                             stamp_ns=stamp)
+    slow = encode(Prediction("r1", tick, tick / 30, stamp_ns=stamp, mean=mean, var=var,
+                             expert=n_experts - 2,
+                             multimap=tuple(ExpertOutput(*row) for row in rows),
+                             latency_ms=1.5, mode=mode, updates=tick + 1))
+    assert fast == slow

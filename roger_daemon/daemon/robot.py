@@ -26,7 +26,15 @@ from typing import Any, Protocol
 import numpy as np
 
 from protocols.errors import REASONS
-from protocols.messages import Action, Dims, ExpertOutput, Perception, Prediction
+from protocols.message_types import ExpertRow
+from protocols.messages import (
+    Action,
+    Dims,
+    ExpertOutput,
+    Perception,
+    Prediction,
+    encode_prediction,
+)
 from roger_daemon.daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
 from roger_daemon.daemon.robot_state import NewestPair, Pair, RobotState
 from roger_daemon.daemon.window import Window
@@ -301,15 +309,8 @@ class RobotRuntime:
     def predict(self, perc: Perception, recv_ns: int, now_ns: Callable[[], int]) -> Prediction:
         """The prediction for ``perc`` with the model as it is now."""
         t0 = time.perf_counter_ns()
-        p, mm = self.model.predict_with_multimap(perc.x)  # gates and GPs evaluated once
-        labels = self.expert_labels() if mm else {}
-        multimap = tuple(
-            ExpertOutput(
-                expert=int(e.expert_id), p=float(e.gate_prob), mean=e.mean, var=e.var,
-                n=int(e.n_points), label=labels.get(int(e.expert_id), ""),
-            )
-            for e in mm
-        )
+        p, rows = self._predict_rows(perc.x)
+        multimap = tuple(ExpertOutput(*row) for row in rows)
         self.predict_ms.add((time.perf_counter_ns() - t0) / 1e6)
         latency_ms = (now_ns() - recv_ns) / 1e6
         self.latency.add(latency_ms)
@@ -317,6 +318,22 @@ class RobotRuntime:
             self.robot, perc.tick, perc.t, mean=p.mean, var=p.var, expert=int(p.expert_id),
             multimap=multimap, latency_ms=latency_ms, mode=self.mode, updates=self.updates,
         )
+
+    def predict_payload(self, perc: Perception) -> bytes:
+        """``encode(self.predict(perc, ...))`` built without the message objects (a learner
+        worker's reply; the loop stamps the publish-time fields): the same bytes."""
+        p, rows = self._predict_rows(perc.x)
+        return encode_prediction(self.robot, perc.tick, perc.t, mean=p.mean, var=p.var,
+                                 expert=int(p.expert_id), multimap=rows, mode=self.mode,
+                                 updates=self.updates)
+
+    def _predict_rows(self, x: np.ndarray) -> tuple[Any, list[ExpertRow]]:
+        """The model's answer for ``x`` and its multimap as :class:`ExpertOutput` rows."""
+        p, mm = self.model.predict_with_multimap(x)  # gates and GPs evaluated once
+        labels = self.expert_labels() if mm else {}
+        rows = [(int(e.expert_id), float(e.gate_prob), e.mean, e.var, int(e.n_points),
+                 labels.get(int(e.expert_id), "")) for e in mm]
+        return p, rows
 
     # --- control ---------------------------------------------------------------------------
 
