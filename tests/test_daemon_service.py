@@ -141,6 +141,59 @@ def test_lockstep_answers_each_perception_and_learns_pairs(tmp_path: Path) -> No
     assert st.updates == 20 and st.ticks == 20 and st.dropped == 0 and st.invalid == {}
 
 
+def test_a_started_daemon_collects_garbage_at_quiet_moments(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Once the daemon holds collections (``gc_thresholds`` set), the loop applies the rule
+    at the end of a cycle that left nothing to answer; never while the harness has none."""
+    from roger_daemon.daemon.service import loop
+
+    calls: list[tuple[int, int, int]] = []
+    monkeypatch.setattr(loop, "collect_when_idle", lambda t: calls.append(t))
+    h = Harness(make_config(tmp_path))
+    h.pair(0)
+    h.settle()
+    assert calls == []
+    h.service.gc_thresholds = (700, 10, 10)
+    h.pair(1)
+    h.settle()
+    assert calls and set(calls) == {(700, 10, 10)}
+
+
+def test_recordings_wait_for_a_quiet_moment_at_most_so_long() -> None:
+    """``Recorders`` holds messages (in order) until a quiet poll, ``HOLD_NS`` or
+    ``HOLD_MAX``; closing writes what is held; robots without a recorder record nothing."""
+    from roger_daemon.config import RecordingConfig
+    from roger_daemon.daemon.service import recording
+
+    a, b = FakeRecorder(), FakeRecorder()
+    recs = recording.Recorders({"a": a, "b": b}, RecordingConfig())
+    clock = [0]
+    recs._next_retention = 2**62  # no retention pass here
+    for i in range(3):
+        recs.write("a" if i != 1 else "b", f"k{i}", b"p", i, 10 + i, i)
+    recs.write("ghost", "k", b"p", 0, 0, 0)
+    recs.poll(lambda: clock[0], quiet=False)
+    assert a.writes == [] and b.writes == [] and a.polls == 1
+    clock[0] = recording.HOLD_NS - 1
+    recs.poll(lambda: clock[0], quiet=False)
+    assert a.writes == []
+    recs.poll(lambda: clock[0], quiet=True)
+    assert a.writes == [("k0", b"p", 0, 10, 0), ("k2", b"p", 2, 12, 2)]
+    assert b.writes == [("k1", b"p", 1, 11, 1)]
+    recs.write("a", "late", b"p", 5, 5, 5)
+    recs.poll(lambda: clock[0], quiet=False)  # held from here ...
+    clock[0] += recording.HOLD_NS
+    recs.poll(lambda: clock[0], quiet=False)  # ... at most HOLD_NS
+    assert a.writes[-1][0] == "late"
+    for i in range(recording.HOLD_MAX):
+        recs.write("b", "many", b"p", i, i, i)
+    recs.poll(lambda: clock[0], quiet=False)
+    assert len(b.writes) == 1 + recording.HOLD_MAX
+    recs.write("a", "last", b"p", 6, 6, 6)
+    recs.close()
+    assert a.writes[-1][0] == "last" and a.closed and b.closed
+
+
 def test_lockstep_learns_complete_pairs_before_answering(tmp_path: Path) -> None:
     """action(t) and perception(t+1) drained together: prediction(t+1) includes pair t."""
     h = Harness(make_config(tmp_path))

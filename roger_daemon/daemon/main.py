@@ -26,6 +26,7 @@ from typing import Any
 from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION
 from roger_daemon.config import ConfigError, DaemonConfig, load_config
 from roger_daemon.daemon.checkpoint import array_digest
+from roger_daemon.daemon.gc_policy import hold_collections
 from roger_daemon.daemon.resume import (
     Resumed,
     build_robot,
@@ -212,6 +213,8 @@ def run(args: argparse.Namespace) -> int:
         raise
     if requested["early"]:
         service.request_stop()
+    # started: collections at the loop's quiet moments from now on (daemon/gc_policy.py)
+    service.gc_thresholds = hold_collections()
     try:
         service.run()
     except Exception:

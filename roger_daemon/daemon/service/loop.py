@@ -38,6 +38,7 @@ from protocols.messages import (
     Status,
 )
 from roger_daemon.config import DaemonConfig
+from roger_daemon.daemon.gc_policy import Thresholds, collect_when_idle
 from roger_daemon.daemon.health import Health
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.sdnotify import Notifier
@@ -57,6 +58,7 @@ from roger_daemon.daemon.service.shutdown import abort, shutdown
 from roger_daemon.daemon.service.status import (
     invalid_counts,
     publish_status,
+    quiet_moment,
     robot_status,
     status_deadline,
     status_due,
@@ -138,6 +140,8 @@ class Service:
         self._next_status = 0
         self.started_ns = 0
         self._stop = False
+        #: set once started (gc_policy.hold_collections): collect at quiet moments only
+        self.gc_thresholds: Thresholds | None = None
         self._stopping = False
         self._answer: list[tuple[RobotRuntime, Perception, int]] = []
         # roger_daemon.daemon.learners.ProcessLearners: the models live in worker processes
@@ -254,8 +258,12 @@ class Service:
         for rt in self.checkpoints.due(now):
             self._checkpoint(rt, "periodic")
         self.checkpoints.collect()
-        self.recorders.poll(self.clock.monotonic_ns)
+        # work that can wait for a quiet moment (docs/fleet.md, *Work at quiet moments*)
+        quiet = quiet_moment(self, self.clock.monotonic_ns())
+        self.recorders.poll(self.clock.monotonic_ns, quiet=quiet)
         self.notifier.watchdog(now)
+        if quiet and self.gc_thresholds is not None:
+            collect_when_idle(self.gc_thresholds)
 
     def _tick_first(self) -> None:
         """With learner workers the tick publishes predictions already prepared: fire it as

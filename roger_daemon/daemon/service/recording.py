@@ -19,6 +19,10 @@ __all__ = ["DecisionLog", "Recorder", "Recorders"]
 log = logging.getLogger(__name__)
 
 _RETENTION_PERIOD_NS = 60 * 1_000_000_000  # recording retention: once a minute
+#: messages wait for a quiet moment at most this long, and at most this many (docs/fleet.md,
+#: *Work at quiet moments*)
+HOLD_NS = 100_000_000
+HOLD_MAX = 2048
 
 
 class Recorder(Protocol):
@@ -37,7 +41,12 @@ class Recorder(Protocol):
 
 
 class Recorders:
-    """The recorders of the served robots; an error is logged once per robot, then counted."""
+    """The recorders of the served robots; an error is logged once per robot, then counted.
+
+    :meth:`write` holds each message (in order) until the loop's next :meth:`poll` at a quiet
+    moment, or until :data:`HOLD_NS` or :data:`HOLD_MAX` is reached: recording then delays no
+    answer (docs/fleet.md, *Work at quiet moments*). A message's times are those it was given.
+    """
 
     def __init__(self, recorders: Mapping[str, Recorder], config: RecordingConfig) -> None:
         self.by_robot = dict(recorders)
@@ -45,6 +54,8 @@ class Recorders:
         self.errors = 0
         self._failed: set[str] = set()
         self._next_retention = 0  # at the first poll, then every minute
+        self._held: list[tuple[str, str, bytes, int, int, int]] = []
+        self._held_since: int | None = None  # the poll that first saw messages held
 
     def __contains__(self, robot: str) -> bool:
         return robot in self.by_robot
@@ -55,20 +66,32 @@ class Recorders:
 
     def write(self, robot: str, key: str, payload: bytes, log_ns: int, pub_ns: int,
               seq: int) -> None:
-        """Record one message of ``robot`` (nothing without a recorder)."""
-        rec = self.by_robot.get(robot)
-        if rec is None:
-            return
-        try:
-            rec.write(key, payload, log_time_ns=log_ns, publish_time_ns=pub_ns, sequence=seq)
-        except Exception as exc:
-            self._error(robot, "write", exc)
+        """Record one message of ``robot`` (nothing without a recorder): held for
+        :meth:`poll`."""
+        if robot in self.by_robot:
+            self._held.append((robot, key, payload, log_ns, pub_ns, seq))
 
-    def poll(self, monotonic_ns: Callable[[], int]) -> None:
-        """Every loop cycle: retention when due, then each recorder's ``poll``."""
+    def write_held(self) -> None:
+        """Write every held message into its robot's recorder, in order."""
+        held, self._held, self._held_since = self._held, [], None
+        for robot, key, payload, log_ns, pub_ns, seq in held:
+            try:
+                self.by_robot[robot].write(key, payload, log_time_ns=log_ns,
+                                           publish_time_ns=pub_ns, sequence=seq)
+            except Exception as exc:
+                self._error(robot, "write", exc)
+
+    def poll(self, monotonic_ns: Callable[[], int], *, quiet: bool = True) -> None:
+        """Every loop cycle: the held messages if ``quiet`` (or held too long or too many),
+        retention when due, then each recorder's ``poll``."""
         if not self.by_robot:
             return
         now = monotonic_ns()
+        if self._held:
+            if self._held_since is None:
+                self._held_since = now
+            if quiet or len(self._held) >= HOLD_MAX or now - self._held_since >= HOLD_NS:
+                self.write_held()
         if now >= self._next_retention:
             self._next_retention = now + _RETENTION_PERIOD_NS
             self.prune()
@@ -92,7 +115,9 @@ class Recorders:
                              keep=[Path(p) for p in [getattr(rec, "path", None)] if p])
 
     def close(self) -> None:
-        """Close every recorder (errors counted, never raised)."""
+        """Write the held messages, then close every recorder (errors counted, never
+        raised)."""
+        self.write_held()
         for robot, rec in self.by_robot.items():
             try:
                 rec.close()
