@@ -63,7 +63,8 @@ def test_a_worker_process_warms_the_learner_kernels_up_when_it_loads(threads: in
 
 
 def test_robots_share_the_cores_out_among_their_workers() -> None:
-    """``threads_per_worker``: the usable cores divided by the robots, at least one."""
+    """``threads_per_worker``: the usable cores divided by the worker processes, at least
+    one."""
     import os
 
     from roger_daemon.daemon.worker_procs import threads_per_worker
@@ -89,7 +90,12 @@ def test_collections_held_for_idle_moments_follow_the_interpreters_own_rule() ->
     count passed the interpreter's threshold (roger_daemon/daemon/gc_policy.py)."""
     import gc
 
-    from roger_daemon.daemon.gc_policy import GC_BACKSTOP, collect_when_idle, hold_collections
+    from roger_daemon.daemon.gc_policy import (
+        GC_BACKSTOP,
+        collect_when_idle,
+        freeze_survivors,
+        hold_collections,
+    )
 
     before = gc.get_threshold()
     try:
@@ -97,6 +103,11 @@ def test_collections_held_for_idle_moments_follow_the_interpreters_own_rule() ->
         assert thresholds == before
         assert gc.get_threshold() == tuple(t * GC_BACKSTOP for t in before)
         assert gc.get_freeze_count() > 0
+        frozen = gc.get_freeze_count()
+        loaded = [[i] for i in range(100)]  # another robot's model, loaded later
+        assert freeze_survivors() == before  # thresholds not raised a second time
+        assert gc.get_threshold() == tuple(t * GC_BACKSTOP for t in before)
+        assert gc.get_freeze_count() >= frozen + len(loaded)
         gc.collect()
         assert collect_when_idle(thresholds) is None  # nothing due right after a collection
         junk = [[i] for i in range(thresholds[0] + 50)]  # young containers past threshold 0

@@ -46,7 +46,8 @@ def make_config(tmp_path: Path, name: str, clock: str = "lockstep",
 class Loop:
     """A service over the memory transport, inline or with worker processes."""
 
-    def __init__(self, cfg: DaemonConfig, *, process: bool, nice: int = 0) -> None:
+    def __init__(self, cfg: DaemonConfig, *, process: bool, nice: int = 0,
+                 processes: int = 0) -> None:
         from roger_daemon.daemon import wal
 
         self.transport = MemoryTransport()
@@ -57,7 +58,8 @@ class Loop:
                       fresh=True)
             self.robots[r.id] = rt
         self.learners = ProcessLearners(self.robots, {r.id: r for r in cfg.robots},
-                                        timeout_s=DEADLINE_S, nice=nice) if process else None
+                                        processes=processes, timeout_s=DEADLINE_S,
+                                        nice=nice) if process else None
         self.service = Service(cfg, self.transport, self.robots, sync_checkpoints=True,
                                learners=self.learners)
         self.service.start()
@@ -125,6 +127,24 @@ def test_workers_config_is_validated(tmp_path: Path) -> None:
         with pytest.raises(ConfigError) as err:
             parse_config({"daemon": {"worker_nice": bad}})
         assert err.value.key == "daemon.worker_nice"
+    assert cfg.worker_processes == 0  # one per usable core
+    assert parse_config({"daemon": {"worker_processes": 3}}).worker_processes == 3
+    for bad in (-1, 1.5, "auto", True):
+        with pytest.raises(ConfigError) as err:
+            parse_config({"daemon": {"worker_processes": bad}})
+        assert err.value.key == "daemon.worker_processes"
+
+
+def test_the_pool_has_one_process_per_core_and_never_more_than_robots(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``worker_processes = 0``: one per usable core; never more processes than robots; the
+    cores shared out among the processes for their learners' threads."""
+    from roger_daemon.daemon import worker_procs
+
+    monkeypatch.setattr(worker_procs, "_usable_cores", lambda: 4)
+    assert [worker_procs.pool_size(r) for r in (1, 2, 4, 8)] == [1, 2, 4, 4]
+    assert [worker_procs.pool_size(8, p) for p in (1, 3, 16)] == [1, 3, 8]
+    assert [worker_procs.threads_per_worker(p) for p in (1, 2, 4, 8)] == [4, 2, 1, 1]
 
 
 def test_workers_run_nicer_than_the_loop(tmp_path: Path) -> None:
@@ -208,11 +228,15 @@ def test_lockstep_starts_no_learning_while_a_prediction_is_answered(tmp_path: Pa
         proc.service.shutdown()
 
 
-def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path) -> None:
+@pytest.mark.parametrize("processes", [2, 1], ids=["a-process-each", "one-process-for-both"])
+def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path, processes: int) -> None:
     """Lockstep predictions, label majorities, checkpoints and write-ahead log records of
-    two robots learned by worker processes equal those of the in-process loop."""
+    two robots learned by worker processes (one each, or one serving both models) equal
+    those of the in-process loop."""
     inline = Loop(make_config(tmp_path, "inline"), process=False)
-    proc = Loop(make_config(tmp_path, "process"), process=True)
+    proc = Loop(make_config(tmp_path, "process"), process=True, processes=processes)
+    assert proc.learners is not None and len(proc.learners.processes) == processes
+    assert len({s.proc.pid for s in proc.learners.slots.values()}) == processes
     try:
         for t in range(30):
             for loop in (inline, proc):
@@ -332,16 +356,18 @@ def test_shutdown_learns_queue_and_checkpoints(tmp_path: Path) -> None:
     assert all(s.proc.poll() is not None for s in proc.learners.slots.values())
 
 
-def test_worker_crash_is_detected_and_reported(tmp_path: Path) -> None:
-    proc = Loop(make_config(tmp_path, "k"), process=True)
+@pytest.mark.parametrize("processes", [2, 1], ids=["a-process-each", "one-process-for-both"])
+def test_worker_crash_is_detected_and_reported(tmp_path: Path, processes: int) -> None:
+    proc = Loop(make_config(tmp_path, "k"), process=True, processes=processes)
     assert proc.learners is not None
     pid = proc.learners.slots["b2"].proc.pid
+    serving = r" \(serving aibo, b2\)" if processes == 1 else ""
     try:
         proc.send("aibo", 0)
         proc.collect(1)
         os.kill(pid, signal.SIGKILL)
         proc.send("b2", 1)
-        with pytest.raises(WorkerError, match=r"b2: learner worker pid \d+ failed"):
+        with pytest.raises(WorkerError, match=rf"b2: learner worker pid \d+{serving} failed"):
             end = time.monotonic() + DEADLINE_S
             while time.monotonic() < end:
                 proc.service.step(0.01)

@@ -159,6 +159,7 @@ def _daemon_section(d: Table) -> dict[str, Any]:
         count_unserved=d.boolean("count_unserved", True),
         workers=d.choice("workers", "auto", WORKERS),
         worker_nice=d.integer("worker_nice", 5, lo=0),
+        worker_processes=d.integer("worker_processes", 0, lo=0),
         log_dir=d.path("log_dir", None),
     )
     if out["worker_nice"] > 19:

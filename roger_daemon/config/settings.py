@@ -121,6 +121,10 @@ class DaemonConfig:
     #: does: realtime ticks publish on time, lockstep answers reach the robot sooner
     #: (docs/fleet.md, *Scheduling and fairness*)
     worker_nice: int = 5
+    #: worker processes serving the robots' models (with ``workers = "process"``): 0 is one
+    #: per usable core, at most one per robot; each serves several robots' models in turn
+    #: (docs/fleet.md, *A pool of workers*)
+    worker_processes: int = 0
     log_dir: Path | None = None
     robots: tuple[RobotConfig, ...] = ()
     learner: Mapping[str, Any] = field(default_factory=dict)

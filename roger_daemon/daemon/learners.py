@@ -100,6 +100,9 @@ class ProcessLearners(WorkerProcesses):
         its worker and replaced by a :class:`RemoteModel`.
     configs
         Robot id -> :class:`~roger_daemon.config.RobotConfig` (model kind, seed, params).
+    processes
+        Worker processes (``[daemon] worker_processes``; 0: one per usable core, at most one
+        per robot); each serves the models of the robots assigned to it.
     timeout_s
         Deadline of every blocking wait for a worker (start, snapshot, drain).
     nice
@@ -110,11 +113,11 @@ class ProcessLearners(WorkerProcesses):
     depth = 1
 
     def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
-                 timeout_s: float = 120.0, nice: int = 0) -> None:
+                 processes: int = 0, timeout_s: float = 120.0, nice: int = 0) -> None:
         self._service: Any = None
         self.deadline_ns: int | None = None  # the next realtime tick (pump)
         self.period_ns = 0  # the realtime clock's period (attach)
-        super().__init__(robots, timeout_s=timeout_s, nice=nice)
+        super().__init__(robots, processes=processes, timeout_s=timeout_s, nice=nice)
         try:
             for robot, rt in robots.items():
                 self._load(robot, rt, configs[robot])
@@ -354,4 +357,4 @@ class ProcessLearners(WorkerProcesses):
         """The worker's part of the robot's status ``info``."""
         s = self.slots[rt.robot]
         return {"workers": "process", "worker_pid": s.proc.pid, "worker_nice": self.nice,
-                "worker_busy_ticks": s.busy_ticks}
+                "worker_processes": len(self.processes), "worker_busy_ticks": s.busy_ticks}

@@ -121,14 +121,14 @@ def open_recorders(
 
 
 def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Any:
-    """``[daemon] workers`` = ``"process"`` (or ``"auto"`` with several robots): hand every
-    model to its own worker process, at ``worker_nice``."""
+    """``[daemon] workers`` = ``"process"`` (or ``"auto"`` with several robots): hand the
+    models to ``worker_processes`` worker processes, at ``worker_nice``."""
     if cfg.learner_workers != "process":
         return None
     from roger_daemon.daemon.learners import ProcessLearners
 
     return ProcessLearners(robots, {r.id: r for r in cfg.robots},
-                           nice=cfg.worker_nice)
+                           processes=cfg.worker_processes, nice=cfg.worker_nice)
 
 
 def _describe(cfg: DaemonConfig) -> dict[str, Any]:
@@ -137,7 +137,7 @@ def _describe(cfg: DaemonConfig) -> dict[str, Any]:
         "mode": cfg.mode, "queue_size": cfg.queue_size, "pair_window": cfg.pair_window,
         "seed": cfg.seed, "count_unserved": cfg.count_unserved,
         "workers": cfg.workers, "learner_workers": cfg.learner_workers,
-        "worker_nice": cfg.worker_nice,
+        "worker_nice": cfg.worker_nice, "worker_processes": cfg.worker_processes,
         "robots": [{"id": r.id, "x_dim": r.x_dim, "y_dim": r.y_dim, "model": r.model,
                     "seed": r.seed, "profile": r.profile,
                     "learner": r.params.to_mapping()} for r in cfg.robots],

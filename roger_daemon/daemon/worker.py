@@ -1,11 +1,13 @@
-"""A learner worker process: one robot's model, driven over a pipe (``[daemon] workers``).
+"""A learner worker process: the models of one or more robots, driven over a pipe
+(``[daemon] workers``, ``worker_processes``).
 
-``python -m roger_daemon.daemon.worker`` reads requests on stdin and answers each with exactly one
-reply on stdout, in order. Frames are ``u32 length (little endian) | msgpack map``; arrays
-travel as ``{"t": dtype, "s": shape, "b": bytes}`` (numeric and fixed-width unicode dtypes
-only; never pickle). Log lines go to stderr (the daemon's log). The worker pins BLAS to one
-thread (:func:`roger_daemon.blas.pin_blas_threads`), so its floats are the in-process
-model's, bit for bit.
+``python -m roger_daemon.daemon.worker`` reads requests on stdin and answers each with exactly
+one reply on stdout, in order. Every request but ``stop`` names the ``robot`` whose model it
+is for (the ``load`` of that robot gives it one). Frames are ``u32 length (little endian) |
+msgpack map``; arrays travel as ``{"t": dtype, "s": shape, "b": bytes}`` (numeric and
+fixed-width unicode dtypes only; never pickle). Log lines go to stderr (the daemon's log).
+The worker pins BLAS to one thread (:func:`roger_daemon.blas.pin_blas_threads`), so its
+floats are the in-process model's, bit for bit.
 
 Requests (``op``) and replies:
 
@@ -287,7 +289,12 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level="INFO", stream=sys.stderr,
                         format="%(levelname)s %(name)s (worker): %(message)s")
     from roger_daemon.blas import pin_blas_threads
-    from roger_daemon.daemon.gc_policy import Thresholds, collect_when_idle, hold_collections
+    from roger_daemon.daemon.gc_policy import (
+        Thresholds,
+        collect_when_idle,
+        freeze_survivors,
+        hold_collections,
+    )
     from roger_daemon.daemon.memory import limit_heap_growth
     from roger_daemon.learner.jit import set_threads
 
@@ -305,12 +312,17 @@ def main(argv: list[str] | None = None) -> int:
     limit_heap_growth()
     # unbuffered input, so that select() tells whether the daemon sent another request
     stdin, stdout = getattr(sys.stdin.buffer, "raw", sys.stdin.buffer), sys.stdout.buffer
-    worker = _Worker()
+    workers: dict[str, _Worker] = {}  # robot id -> its model and bookkeeping
     thresholds: Thresholds | None = None
     while True:
         req = read_frame(stdin)
         if req is None:
             return 0
+        op = req.get("op")
+        if op == "stop":
+            write_frame(stdout, {})
+            return 0
+        worker = workers.setdefault(str(req.get("robot", "")), _Worker())
         try:
             reply = worker.handle(req)
         except Exception as exc:
@@ -318,11 +330,8 @@ def main(argv: list[str] | None = None) -> int:
                                           f"{traceback.format_exc()}"})
             return 1
         write_frame(stdout, reply)
-        op = req.get("op")
-        if op == "stop":
-            return 0
-        if thresholds is None and op == "load":
-            thresholds = hold_collections()  # (roger_daemon.daemon.gc_policy)
+        if op == "load":  # (roger_daemon.daemon.gc_policy)
+            thresholds = hold_collections() if thresholds is None else freeze_survivors()
         # after learning, when nothing waits: the labels of what was learned, then any
         # collection due (not after a prediction: in lockstep the other robots' answers of
         # the same tick need the cores then)

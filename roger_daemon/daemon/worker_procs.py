@@ -1,15 +1,19 @@
 """Learner worker processes and their pipes: start, send, read, fail, stop.
 
 The process side of :class:`~roger_daemon.daemon.learners.ProcessLearners` (which schedules
-the requests and books the replies): one ``python -m roger_daemon.daemon.worker`` per robot,
+the requests and books the replies): ``python -m roger_daemon.daemon.worker`` processes,
 started with ``subprocess`` (a fresh interpreter, nothing forked after Zenoh opened),
-``--nice`` lower than the loop. The loop reads the replies itself: the workers' output pipes
-are non-blocking and the loop waits for them and for its inbox in one ``select``
-(:meth:`WorkerProcesses.fds`, :class:`~roger_daemon.transport.Inbox`), then reads whatever
-arrived (:meth:`WorkerProcesses.read_replies`), in order per worker: no reader thread takes
-the GIL between a reply and the loop (docs/fleet.md, *One wait*). A request's context waits
-in ``WorkerSlot.pending`` until its reply is dispatched; every blocking wait has a deadline
-(docs/fleet.md, *Failure*).
+``--nice`` lower than the loop; by default one per usable core, each serving the models of
+every robot assigned to it, robot ``i`` to process ``i mod n`` (:func:`pool_size`;
+docs/fleet.md, *A pool of workers*). A process answers its requests in order, so its replies
+are matched to their robots by the order they were sent (``WorkerProcess.owners``). The loop
+reads the replies itself: the workers' output pipes are non-blocking and the loop waits for
+them and for its inbox in one ``select`` (:meth:`WorkerProcesses.fds`,
+:class:`~roger_daemon.transport.Inbox`), then reads whatever arrived
+(:meth:`WorkerProcesses.read_replies`), in order per worker: no reader thread takes the GIL
+between a reply and the loop (docs/fleet.md, *One wait*). A request's context waits in its
+robot's ``WorkerSlot.pending`` until its reply is dispatched; every blocking wait has a
+deadline (docs/fleet.md, *Failure*).
 """
 
 from __future__ import annotations
@@ -31,7 +35,8 @@ from roger_daemon.daemon.worker import FrameReader, write_frame
 if TYPE_CHECKING:
     from roger_daemon.daemon.learners import RemoteModel
 
-__all__ = ["WorkerError", "WorkerProcesses", "WorkerSlot", "threads_per_worker"]
+__all__ = ["WorkerError", "WorkerProcess", "WorkerProcesses", "WorkerSlot", "pool_size",
+           "threads_per_worker"]
 
 log = logging.getLogger(__name__)
 
@@ -41,13 +46,22 @@ class WorkerError(RuntimeError):
 
 
 @dataclass
-class WorkerSlot:
-    """One robot's worker: its process, the requests in flight (op and context, in order)
-    and the scheduler's state for it."""
+class WorkerProcess:
+    """One worker process: its pipes and the robot of each request in flight, in order."""
 
-    rt: RobotRuntime
     proc: subprocess.Popen[bytes]
     reader: FrameReader  # its replies, read as they arrive (non-blocking)
+    robots: list[str] = field(default_factory=list)  # the robots it serves
+    owners: deque[str] = field(default_factory=deque)  # whose request each next reply answers
+
+
+@dataclass
+class WorkerSlot:
+    """One robot's place in its worker process: the requests in flight (op and context, in
+    order) and the scheduler's state for it."""
+
+    rt: RobotRuntime
+    process: WorkerProcess
     model: RemoteModel | None = None
     pending: deque[tuple[str, Any]] = field(default_factory=deque)
     learns: int = 0
@@ -64,20 +78,39 @@ class WorkerSlot:
     vocab_sent: int = -1  # the label vocabulary's length the worker was sent last
     waiting: tuple[Any, int] | None = None
 
+    @property
+    def proc(self) -> subprocess.Popen[bytes]:
+        """The worker process that owns this robot's model."""
+        return self.process.proc
 
-def threads_per_worker(robots: int) -> int:
-    """Learner threads of each of ``robots`` worker processes: this process's usable cores
-    shared out, at least one (docs/fleet.md)."""
-    return max(1, len(os.sched_getaffinity(0)) // max(1, robots))
+
+def _usable_cores() -> int:
+    return len(os.sched_getaffinity(0))
+
+
+def threads_per_worker(processes: int) -> int:
+    """Learner threads of each of ``processes`` worker processes: this process's usable
+    cores shared out, at least one (docs/fleet.md)."""
+    return max(1, _usable_cores() // max(1, processes))
+
+
+def pool_size(robots: int, processes: int = 0) -> int:
+    """How many worker processes serve ``robots`` robots: ``processes`` (``[daemon]
+    worker_processes``), or with 0 one per usable core; never more than one per robot."""
+    want = processes if processes > 0 else _usable_cores()
+    return max(1, min(robots, want))
 
 
 class WorkerProcesses:
-    """One worker process per robot and its pipes.
+    """The worker processes of the robots and their pipes.
 
     Parameters
     ----------
     robots
-        The runtimes to start a worker for (robot id -> runtime).
+        The runtimes to serve (robot id -> runtime).
+    processes
+        How many processes serve them (``[daemon] worker_processes``; 0: one per usable
+        core, :func:`pool_size`); robot ``i`` goes to process ``i mod n``.
     timeout_s
         Deadline of every blocking wait for a worker (start, snapshot, drain).
     nice
@@ -85,27 +118,35 @@ class WorkerProcesses:
         worker_nice``): the loop and Zenoh's threads publish before learning runs.
 
     Each worker's learner runs its batched kernels on :func:`threads_per_worker` threads:
-    the robots share the cores, so with as many robots as cores or more each learns on one.
+    the processes share the cores, so with as many processes as cores or more each learns
+    on one.
     """
 
-    def __init__(self, robots: Mapping[str, RobotRuntime], *, timeout_s: float = 120.0,
-                 nice: int = 0) -> None:
+    def __init__(self, robots: Mapping[str, RobotRuntime], *, processes: int = 0,
+                 timeout_s: float = 120.0, nice: int = 0) -> None:
         self.timeout_s = timeout_s
         self.nice = nice
-        threads = threads_per_worker(len(robots))
+        n = pool_size(len(robots), processes)
+        threads = threads_per_worker(n)
         self._replies: deque[tuple[str, dict[str, Any] | None]] = deque()
         self.slots: dict[str, WorkerSlot] = {}
-        self._by_fd: dict[int, str] = {}
+        self.processes: list[WorkerProcess] = []
+        self._by_fd: dict[int, WorkerProcess] = {}
         try:
-            for robot, rt in robots.items():  # start them all first: they import in parallel
+            for _ in range(n):  # start them all first: they import in parallel
                 proc = subprocess.Popen([sys.executable, "-m", "roger_daemon.daemon.worker",
                                          "--nice", str(nice), "--threads", str(threads)],
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE)
                 assert proc.stdout is not None
                 raw = getattr(proc.stdout, "raw", proc.stdout)
                 os.set_blocking(raw.fileno(), False)
-                self.slots[robot] = WorkerSlot(rt, proc, FrameReader(raw))
-                self._by_fd[raw.fileno()] = robot
+                wp = WorkerProcess(proc, FrameReader(raw))
+                self.processes.append(wp)
+                self._by_fd[raw.fileno()] = wp
+            for i, (robot, rt) in enumerate(robots.items()):
+                wp = self.processes[i % n]
+                wp.robots.append(robot)
+                self.slots[robot] = WorkerSlot(rt, wp)
         except BaseException:
             self.close(kill=True)
             raise
@@ -117,29 +158,32 @@ class WorkerProcesses:
 
     def fds(self) -> list[int]:
         """The output pipes of the workers still answering: the loop's wait includes them."""
-        return [fd for fd, robot in self._by_fd.items() if not self.slots[robot].reader.eof]
+        return [fd for fd, wp in self._by_fd.items() if not wp.reader.eof]
 
     def read_replies(self, timeout: float = 0.0) -> None:
         """Queue the replies that arrived (waiting up to ``timeout`` s for one), in order per
-        worker; end of a worker's output, or a frame that cannot be read, queues ``None``
-        (the worker failed)."""
+        worker, each with the robot whose request it answers; end of a worker's output, or
+        a frame that cannot be read, queues ``None`` (the worker failed)."""
         fds = self.fds()
         if not fds:
             return
         ready, _, _ = select.select(fds, [], [], max(timeout, 0.0))
         for fd in ready:
-            robot = self._by_fd[fd]
-            reader = self.slots[robot].reader
+            wp = self._by_fd[fd]
+            reader = wp.reader
             try:
                 frames: list[dict[str, Any] | None] = list(reader.read())
             except (OSError, ValueError) as exc:
-                log.error("%s: unreadable reply from the learner worker: %s", robot, exc)
+                log.error("%s: unreadable reply from the learner worker: %s",
+                          ", ".join(wp.robots), exc)
                 reader.eof = True
                 frames = [None]
             else:
                 if reader.eof:
                     frames.append(None)
-            self._replies.extend((robot, f) for f in frames)
+            for f in frames:
+                robot = wp.owners.popleft() if wp.owners else wp.robots[0]
+                self._replies.append((robot, f))
 
     def has_replies(self) -> bool:
         """Whether replies were read and not dispatched yet (the loop must not wait)."""
@@ -152,22 +196,26 @@ class WorkerProcesses:
     def send(self, robot: str, req: dict[str, Any], ctx: Any) -> None:
         """Send one request; its reply is handled with ``ctx`` (in order)."""
         s = self.slots[robot]
-        assert s.proc.stdin is not None
+        wp = s.process
+        assert wp.proc.stdin is not None
+        req["robot"] = robot  # the model it is for, in a process serving several
         try:
-            write_frame(s.proc.stdin, req)
+            write_frame(wp.proc.stdin, req)
         except (OSError, ValueError) as exc:
             raise WorkerError(self._died(robot, f"cannot send to it ({exc})")) from None
+        wp.owners.append(robot)
         s.pending.append((str(req["op"]), ctx))
 
     def _died(self, robot: str, why: str) -> str:
-        s = self.slots[robot]
+        wp = self.slots[robot].process
         try:
-            code: int | None = s.proc.wait(1.0)
+            code: int | None = wp.proc.wait(1.0)
         except subprocess.TimeoutExpired:
             code = None
-        return (f"{robot}: learner worker pid {s.proc.pid} failed: {why} (exit status "
-                f"{code}); stopping the daemon (the write-ahead log holds every acknowledged "
-                "pair)")
+        serves = "" if wp.robots == [robot] else f" (serving {', '.join(wp.robots)})"
+        return (f"{robot}: learner worker pid {wp.proc.pid}{serves} failed: {why} (exit "
+                f"status {code}); stopping the daemon (the write-ahead log holds every "
+                "acknowledged pair)")
 
     def _wait(self, done: Callable[[], bool], what: str) -> None:
         end = time.monotonic() + self.timeout_s
@@ -186,27 +234,27 @@ class WorkerProcesses:
 
     def close(self, *, kill: bool = False, timeout: float = 10.0) -> None:
         """Stop every worker (``stop`` request, then SIGKILL after ``timeout``)."""
-        for s in self.slots.values():
-            if not kill and s.proc.poll() is None and s.proc.stdin is not None:
+        for wp in self.processes:
+            if not kill and wp.proc.poll() is None and wp.proc.stdin is not None:
                 try:
-                    write_frame(s.proc.stdin, {"op": "stop"})
+                    write_frame(wp.proc.stdin, {"op": "stop"})
                 except (OSError, ValueError):
                     pass
-            if s.proc.stdin is not None:
+            if wp.proc.stdin is not None:
                 try:
-                    s.proc.stdin.close()
+                    wp.proc.stdin.close()
                 except OSError:
                     pass
         end = time.monotonic() + timeout
-        for robot, s in self.slots.items():
+        for wp in self.processes:
             if not kill:
                 try:
-                    s.proc.wait(max(0.1, end - time.monotonic()))
+                    wp.proc.wait(max(0.1, end - time.monotonic()))
                 except subprocess.TimeoutExpired:
-                    log.warning("%s: learner worker pid %d did not stop; killed", robot,
-                                s.proc.pid)
-            if s.proc.poll() is None:
-                s.proc.kill()
-                s.proc.wait(5.0)
-            if s.proc.stdout is not None:
-                s.proc.stdout.close()
+                    log.warning("%s: learner worker pid %d did not stop; killed",
+                                ", ".join(wp.robots), wp.proc.pid)
+            if wp.proc.poll() is None:
+                wp.proc.kill()
+                wp.proc.wait(5.0)
+            if wp.proc.stdout is not None:
+                wp.proc.stdout.close()
