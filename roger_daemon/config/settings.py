@@ -112,7 +112,7 @@ class DaemonConfig:
     pair_window: int = 64
     seed: int = 0
     count_unserved: bool = True
-    #: "process": each robot's model in its own worker process (roger_daemon.daemon.learners);
+    #: "process": the robots' models in worker processes (roger_daemon.daemon.learners);
     #: "inline": every model in the service loop's thread; "auto": inline for one robot (lower
     #: latency), processes for several (learning on every core); docs/fleet.md
     workers: str = "auto"

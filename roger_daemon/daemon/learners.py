@@ -1,16 +1,16 @@
-"""The daemon's side of the learner workers: one process per robot owns that robot's model.
+"""The daemon's side of the learner workers: worker processes own the robots' models.
 
 With ``[daemon] workers = "process"`` (what ``"auto"`` picks for several robots) the loop
 keeps Zenoh, pairing, the training queues, the write-ahead log, recording, status and
-publishing; each robot's
-model lives in its own worker process (:mod:`roger_daemon.daemon.worker`), started with
-``subprocess`` (a fresh interpreter: nothing forked after Zenoh opened, nothing pickled) and
-driven over its stdin/stdout with msgpack frames (the processes and pipes:
-:mod:`roger_daemon.daemon.worker_procs`; this module schedules requests and books
-replies). Robots learn in parallel on every core, and no robot waits for another's learning.
+publishing; each robot's model lives in a worker process (:mod:`roger_daemon.daemon.worker`;
+by default one process per core, each serving several robots' models, ``[daemon]
+worker_processes``), started with ``subprocess`` (a fresh interpreter: nothing forked after
+Zenoh opened, nothing pickled) and driven over its stdin/stdout with msgpack frames (the
+processes and pipes: :mod:`roger_daemon.daemon.worker_procs`; this module schedules requests
+and books replies). Robots learn in parallel on every core.
 
 Ordering is what keeps the daemon's guarantees: a worker answers its requests one by one, in
-order, and the loop reads each worker's replies in that order (its wait includes the workers'
+order, and the loop reads each robot's replies in that order (its wait includes the workers'
 pipes: :meth:`WorkerProcesses.read_replies`). So
 
 - a learn reply is bookkept (label code, write-ahead log record, ``updates``) exactly as an
@@ -21,18 +21,19 @@ pipes: :meth:`WorkerProcesses.read_replies`). So
   includes what it includes in-process (replay stays exact);
 - a snapshot (checkpoint) is consistent with the loop's bookkeeping when it arrives; pairs
   sent after the snapshot request go to the front of the checkpoint's queue;
-- ``reset`` first drains the worker (pending replies bookkept), then replaces its model.
+- ``reset`` first sends the robot's queued pairs and drains its requests (replies
+  bookkept), then replaces its model.
 
-At most ``depth`` learn requests are in flight per worker (1), so a prediction waits for at
-most one learning step. In realtime the prediction is prepared when the perception arrives
-(:meth:`ProcessLearners.prepare`, one in flight per robot, the newest perception next) and the
-timer's tick publishes the newest prepared one of every robot at once
+At most ``depth`` learn requests are in flight per robot (1), so a prediction waits for at most
+one learning step of each robot its process serves. In realtime the prediction is prepared when
+the perception arrives (:meth:`ProcessLearners.prepare`, one in flight per robot, the newest
+perception next) and the timer's tick publishes the newest prepared one of every robot at once
 (:meth:`ProcessLearners.prepared`): no tick waits for eight workers to be scheduled
-(docs/fleet.md, *Prepared predictions*). A tick with nothing prepared yet for a robot that
-has a perception is counted as ``info.worker_busy_ticks``. A worker that dies or answers
-``fatal`` raises :class:`WorkerError` in the loop, which aborts the daemon (exit 1; the
-write-ahead log holds every acknowledged pair for the restart); a wait for a worker has a
-deadline and never hangs.
+(docs/fleet.md, *Prepared predictions*). A tick with nothing prepared yet for a robot that has
+a perception is counted as ``info.worker_busy_ticks``. A worker that dies or answers ``fatal``
+raises :class:`WorkerError` in the loop, which aborts the daemon (exit 1; the write-ahead log
+holds every acknowledged pair for the restart); a wait for a worker has a deadline and never
+hangs.
 """
 
 from __future__ import annotations
@@ -91,7 +92,7 @@ def _vec(a: np.ndarray) -> bytes:
 
 
 class ProcessLearners(WorkerProcesses):
-    """One worker process per robot; see the module docstring.
+    """The robots' models in worker processes; see the module docstring.
 
     Parameters
     ----------
