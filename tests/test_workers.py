@@ -378,17 +378,20 @@ def test_worker_crash_is_detected_and_reported(tmp_path: Path, processes: int) -
 
 @pytest.mark.slow
 @pytest.mark.integration
+@pytest.mark.parametrize("processes", [0, 1], ids=["default-pool", "one-process-for-both"])
 def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
-    tmp_path: Path,
+    tmp_path: Path, processes: int,
 ) -> None:
-    """A real daemon (worker processes, real Zenoh on loopback): SIGKILL one robot's worker;
-    the daemon reports it and exits 1 (not hung); a restart re-learns every acknowledged pair
-    from the write-ahead log."""
+    """A real daemon (worker processes, real Zenoh on loopback): SIGKILL one robot's worker
+    (with ``worker_processes = 1`` the one serving both robots); the daemon reports it and
+    exits 1 (not hung); a restart re-learns every acknowledged pair from the write-ahead
+    log."""
     from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
 
     port = free_port()
     cfg = write_config(tmp_path / "d.toml", port=port, workdir=tmp_path,
-                       robots=({"id": "aibo"}, {"id": "b2"}))
+                       robots=({"id": "aibo"}, {"id": "b2"}),
+                       daemon={"worker_processes": processes})
     daemon = DaemonProcess(cfg)
     client = None
     try:
