@@ -81,6 +81,8 @@ BENCHES = CommandTable({
     "daemon": ("roger_daemon.bench.daemon", "daemon end to end: latency, 30 Hz jitter, updates/s"),
     "fleet": ("roger_daemon.bench.fleet", "N robots x 30 Hz against one daemon, per robot"),
     "soak": ("roger_daemon.bench.soak", "daemon RSS over a 30 Hz run, checkpoint bytes/expert"),
+    "worker": ("roger_daemon.bench.worker",
+               "one learner worker's CPU per robot and tick (learn, labels, predict)"),
 }, "BENCHES")
 
 
