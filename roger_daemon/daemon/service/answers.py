@@ -18,7 +18,8 @@ from roger_daemon.daemon.robot import RobotRuntime
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["answer_lockstep", "on_timer", "publish_prediction", "worker_predictions"]
+__all__ = ["answer_lockstep", "learn_queued", "on_timer", "publish_prediction",
+           "worker_predictions"]
 
 log = logging.getLogger(__name__)
 
@@ -32,14 +33,20 @@ def answer_lockstep(svc: Service) -> None:
     answer, svc._answer = svc._answer, []
     robots = {id(a[0]): a[0] for a in answer}.values()
     for rt in robots:
-        if svc.learners is not None:
-            svc.learners.learn_all(rt)
-        while rt.learning and rt.queue:
-            rt.learn_one()
+        learn_queued(svc, rt)
     if svc.learners is None:  # inline: every answered robot's log at once, not one by one
         svc._commit_all(robots)
     for rt, msg, recv_ns in answer:
         publish_prediction(svc, rt, msg, recv_ns)
+
+
+def learn_queued(svc: Service, rt: RobotRuntime) -> None:
+    """Learn every pair queued for ``rt`` (while its mode learns): inline now, or sent to its
+    learner worker, ahead of anything sent after (before an answer, before a reset)."""
+    if svc.learners is not None:
+        svc.learners.learn_all(rt)
+    while rt.learning and rt.queue:
+        rt.learn_one()
 
 
 def publish_prediction(svc: Service, rt: RobotRuntime, perc: Perception, recv_ns: int) -> None:
