@@ -194,6 +194,46 @@ def test_recordings_wait_for_a_quiet_moment_at_most_so_long() -> None:
     assert a.writes[-1][0] == "last" and a.closed and b.closed
 
 
+class FlushingRecorder(FakeRecorder):
+    """A recorder whose poll flushes once ``due`` is set (as a chunk does once a second)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.due = False
+        self.flushes = 0
+
+    def poll(self, now_ns: int) -> bool:  # type: ignore[override]
+        self.polls += 1
+        flushed, self.due = self.due, False
+        self.flushes += flushed
+        return flushed
+
+
+def test_recorders_flush_at_quiet_moments_one_per_cycle_or_once_overdue() -> None:
+    """A flush compresses and writes a chunk: it waits for a quiet cycle, one per cycle, or
+    ``HOLD_NS`` since the recorders were last polled (then all that are due)."""
+    from roger_daemon.config import RecordingConfig
+    from roger_daemon.daemon.service import recording
+
+    a, b = FlushingRecorder(), FlushingRecorder()
+    recs = recording.Recorders({"a": a, "b": b}, RecordingConfig())
+    recs._next_retention = 2**62
+    clock = [0]
+    recs.poll(lambda: clock[0], quiet=True)  # the first poll: every recorder starts its clock
+    a.due = b.due = True
+    clock[0] = 1
+    recs.poll(lambda: clock[0], quiet=False)  # not quiet, not overdue: nothing flushes
+    assert (a.flushes, b.flushes) == (0, 0)
+    recs.poll(lambda: clock[0], quiet=True)  # a flushes; b waits for the next quiet cycle
+    assert (a.flushes, b.flushes, b.polls) == (1, 0, 1)
+    recs.poll(lambda: clock[0], quiet=True)
+    assert (a.flushes, b.flushes) == (1, 1)
+    a.due = b.due = True
+    clock[0] += recording.HOLD_NS  # overdue: both, in one cycle
+    recs.poll(lambda: clock[0], quiet=False)
+    assert (a.flushes, b.flushes) == (2, 2)
+
+
 def test_lockstep_learns_complete_pairs_before_answering(tmp_path: Path) -> None:
     """action(t) and perception(t+1) drained together: prediction(t+1) includes pair t."""
     h = Harness(make_config(tmp_path))

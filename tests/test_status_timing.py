@@ -1,12 +1,24 @@
-"""When the status round runs: once due, after the answers (docs/fleet.md, *Status after the
-answers*). The rule is tested on its own, with the loop's fields it reads."""
+"""When the status round runs: once due, after the answers, one robot at a time (docs/fleet.md,
+*Status after the answers*, *Status one robot at a time*). The rule is tested on its own, with
+the loop's fields it reads, and the round through a real service loop."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from roger_daemon.daemon.service.status import quiet_moment, status_deadline, status_due
+from protocols import decode, keys
+from roger_daemon.config import parse_config
+from roger_daemon.daemon.main import build_robot
+from roger_daemon.daemon.service import Service
+from roger_daemon.daemon.service.status import (
+    StatusRound,
+    quiet_moment,
+    status_deadline,
+    status_due,
+)
+from roger_daemon.testing import MemoryTransport
 
 SECOND = 1_000_000_000
 PERIOD = SECOND // 30
@@ -17,6 +29,7 @@ def _svc(*, realtime: bool, answering: bool = False, inbox: int = 0,
     learners = SimpleNamespace(answering=lambda: answering)
     return SimpleNamespace(
         _next_status=10 * SECOND, _status_period_ns=SECOND, _realtime=realtime,
+        status_round=StatusRound(),
         _timer_active=lambda: realtime, learners=learners, inbox=[None] * inbox,
         schedule=SimpleNamespace(next_tick=next_tick, period_ns=PERIOD))
 
@@ -61,3 +74,64 @@ def test_quiet_moments_are_the_ones_status_waits_for() -> None:
     tick = now + PERIOD // 2
     assert not quiet_moment(_svc(realtime=True, next_tick=tick), now)  # half a period to go
     assert quiet_moment(_svc(realtime=True, next_tick=now + PERIOD - 1), now)  # just ticked
+
+
+def test_a_round_under_way_goes_on_at_quiet_moments_until_overdue() -> None:
+    svc = _svc(realtime=False, answering=True)
+    svc.status_round.start(10 * SECOND, ["a robot"], {})
+    svc._next_status = 11 * SECOND  # the round started: the next one is due in a second
+    now = 10 * SECOND + 1
+    assert not status_due(svc, now)  # an answer is in flight
+    assert status_deadline(svc, now) == 10 * SECOND + SECOND // 4
+    assert status_due(svc, 10 * SECOND + SECOND // 4)  # overdue
+    quiet = _svc(realtime=False)
+    quiet.status_round.start(10 * SECOND, ["a robot"], {})
+    quiet._next_status = 11 * SECOND
+    assert status_due(quiet, now) and status_deadline(quiet, now) == now  # the next one now
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.mono = SECOND
+
+    def monotonic_ns(self) -> int:
+        return self.mono
+
+    def time_ns(self) -> int:
+        return 1_700_000_000 * SECOND + self.mono
+
+
+def test_a_status_round_publishes_one_robot_per_cycle_until_overdue(tmp_path: Path) -> None:
+    robots = ["r0", "r1", "r2"]
+    cfg = parse_config({
+        "daemon": {"clock": "lockstep"}, "robots": [{"id": r} for r in robots],
+        "checkpoint": {"dir": str(tmp_path / "ckpt"), "every_updates": 0, "every_s": 0},
+        "recording": {"enabled": False}})
+    clock = _Clock()
+    transport = MemoryTransport(now_ns=clock.monotonic_ns)
+    built = {r.id: build_robot(cfg, r, fresh=True)[0] for r in cfg.robots}
+    svc = Service(cfg, transport, built, clock=clock, sync_checkpoints=True)
+    svc.start()
+
+    def published() -> list[str]:
+        out = []
+        for key, data in transport.take("status"):
+            robot, _ = keys.parse(key)
+            out.append(decode("status", data, dims=built[robot].dims, robot=robot).robot)
+        return out
+
+    clock.mono += SECOND  # the first round is due; every cycle is a quiet moment here
+    got = []
+    for _ in range(3):
+        svc.step(0)
+        got.append(published())
+    assert got == [["r0"], ["r1"], ["r2"]]
+    svc.step(0)
+    assert published() == []  # the round is over; the next is due a second after this one
+    clock.mono += SECOND
+    svc.step(0)
+    assert published() == ["r0"]
+    clock.mono += SECOND // 4  # overdue: the rest of the round at once
+    svc.step(0)
+    assert published() == ["r1", "r2"]
+    svc.shutdown()

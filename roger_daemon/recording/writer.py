@@ -218,24 +218,27 @@ class SessionRecorder:
         self._dirty = True
         self._stats.messages += 1
 
-    def poll(self, now_ns: int) -> None:
+    def poll(self, now_ns: int) -> bool:
         """Flush and rotate when due; call every loop cycle with one steady clock (ns).
+        True when it flushed (the call's cost was a chunk's compression and write).
 
         The clock is the caller's (``time.monotonic_ns()`` is fine); only differences matter.
         Cheap when nothing is due (two comparisons).
         """
         if self._closed:
-            return
+            return False
         if self._last_flush is None or self._part_started is None:
             self._part_started = now_ns
             self._last_flush = now_ns - self._flush_ns + self._first_flush_ns
-            return
-        if now_ns - self._last_flush >= self._flush_ns:
-            self.flush()
-            self._last_flush = now_ns
-            if self._rotation_due(now_ns):
-                self._rotate()
-                self._part_started = now_ns
+            return False
+        if now_ns - self._last_flush < self._flush_ns:
+            return False
+        self.flush()
+        self._last_flush = now_ns
+        if self._rotation_due(now_ns):
+            self._rotate()
+            self._part_started = now_ns
+        return True
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS now (fsync if configured)."""

@@ -56,6 +56,7 @@ from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorde
 from roger_daemon.daemon.service.schedule import LoopStats, TickSchedule
 from roger_daemon.daemon.service.shutdown import abort, shutdown
 from roger_daemon.daemon.service.status import (
+    StatusRound,
     invalid_counts,
     publish_status,
     quiet_moment,
@@ -138,6 +139,7 @@ class Service:
         self._learn_est_ns = 0
         self._rr = 0
         self._next_status = 0
+        self.status_round = StatusRound()
         self.started_ns = 0
         self._stop = False
         #: set once started (gc_policy.hold_collections): collect at quiet moments only
@@ -247,11 +249,8 @@ class Service:
         if self._can_learn(now):
             self._learn_once()
             now = self.clock.monotonic_ns()
-        if status_due(self, now):
+        if status_due(self, now):  # one robot's at a time (status.StatusRound)
             publish_status(self, now)
-            self._next_status += self._status_period_ns
-            if self._next_status <= now:
-                self._next_status = now + self._status_period_ns
         for rt in self.robots.values():
             if rt.wal is not None:  # due: now; else started in the background (docs/durability)
                 rt.wal.commit_early(now, self._commit_ns, self._committer)

@@ -33,8 +33,8 @@ class Recorder(Protocol):
     ) -> None:
         """Record one message."""
 
-    def poll(self, now_ns: int) -> None:
-        """Flush or rotate when due (called every loop cycle)."""
+    def poll(self, now_ns: int) -> bool | None:
+        """Flush or rotate when due (called at the loop's quiet moments); true if it did."""
 
     def close(self) -> None:
         """Finish the session's file."""
@@ -46,6 +46,8 @@ class Recorders:
     :meth:`write` holds each message (in order) until the loop's next :meth:`poll` at a quiet
     moment, or until :data:`HOLD_NS` or :data:`HOLD_MAX` is reached: recording then delays no
     answer (docs/fleet.md, *Work at quiet moments*). A message's times are those it was given.
+    The recorders' own flushes (a chunk compressed and written) wait for quiet moments too, at
+    most one per cycle, or :data:`HOLD_NS`.
     """
 
     def __init__(self, recorders: Mapping[str, Recorder], config: RecordingConfig) -> None:
@@ -56,6 +58,7 @@ class Recorders:
         self._next_retention = 0  # at the first poll, then every minute
         self._held: list[tuple[str, str, bytes, int, int, int]] = []
         self._held_since: int | None = None  # the poll that first saw messages held
+        self._polled_ns: int | None = None  # when the recorders were last polled
 
     def __contains__(self, robot: str) -> bool:
         return robot in self.by_robot
@@ -83,7 +86,8 @@ class Recorders:
 
     def poll(self, monotonic_ns: Callable[[], int], *, quiet: bool = True) -> None:
         """Every loop cycle: the held messages if ``quiet`` (or held too long or too many),
-        retention when due, then each recorder's ``poll``."""
+        retention when due, then, if ``quiet``, the recorders' ``poll`` until one flushes (all
+        of them once they waited :data:`HOLD_NS`)."""
         if not self.by_robot:
             return
         now = monotonic_ns()
@@ -95,11 +99,18 @@ class Recorders:
         if now >= self._next_retention:
             self._next_retention = now + _RETENTION_PERIOD_NS
             self.prune()
+        overdue = self._polled_ns is None or now - self._polled_ns >= HOLD_NS
+        if not (quiet or overdue):
+            return
+        self._polled_ns = now
         for robot, rec in self.by_robot.items():
             try:
-                rec.poll(now)
+                flushed = rec.poll(now)
             except Exception as exc:
                 self._error(robot, "poll", exc)
+                continue
+            if flushed and not overdue:  # the next one's at the next quiet moment
+                return
 
     def prune(self) -> None:
         """Recording retention (``[recording] max_bytes``/``max_age_days``).

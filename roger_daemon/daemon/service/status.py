@@ -7,9 +7,9 @@ log, recording, control confirmation and health (``protocols/README.md``, status
 from __future__ import annotations
 
 import logging
-from collections import Counter
-from collections.abc import Mapping
-from dataclasses import replace
+from collections import Counter, deque
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 from protocols.messages import Status
@@ -20,8 +20,8 @@ from roger_daemon.daemon.window import percentiles
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["invalid_counts", "publish_status", "robot_status", "status_deadline", "status_due",
-           "timer_info"]
+__all__ = ["StatusRound", "invalid_counts", "publish_status", "robot_status", "status_deadline",
+           "status_due", "timer_info"]
 
 log = logging.getLogger(__name__)
 
@@ -102,17 +102,40 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int,
     )
 
 
+@dataclass
+class StatusRound:
+    """One round of status (every robot's, once per status period), published one robot at a
+    time: each loop cycle at a quiet moment publishes the next robot's, so that an answer
+    that comes meanwhile waits for one robot's status, not for eight (docs/fleet.md,
+    *Status one robot at a time*)."""
+
+    due_ns: int = 0  # when the round was due (it is overdue a quarter of a period later)
+    pending: deque[RobotRuntime] = field(default_factory=deque)
+    timer: dict[str, float] = field(default_factory=dict)  # timer_info, once per round
+    lines: list[str] = field(default_factory=list)  # the systemd status line's parts
+
+    def start(self, due_ns: int, robots: Iterable[RobotRuntime], timer: dict[str, float]
+              ) -> None:
+        """Begin a round: every robot of ``robots`` is to publish its status."""
+        self.due_ns, self.timer, self.lines = due_ns, timer, []
+        self.pending = deque(robots)
+
+
+def _overdue_ns(svc: Service) -> int:
+    """When the status due (or the round under way) may wait no longer: a quarter of its
+    period after it was due."""
+    due = svc.status_round.due_ns if svc.status_round.pending else svc._next_status
+    return due + svc._status_period_ns // 4
+
+
 def status_due(svc: Service, now: int) -> bool:
-    """Whether the status round runs now. It holds the loop for 1-4 ms with eight robots
-    (the logs committed first, then every robot's status built and published), so once due it
-    waits for a moment when it delays no answer: in realtime the first quarter of a period
-    after a tick, in lockstep while no prediction is being answered; at most a quarter of
-    its own period (docs/fleet.md, *Status after the answers*)."""
-    if now < svc._next_status:
+    """Whether status goes out now: once due, and while a round is under way, at a moment
+    when it delays no answer (in realtime the first quarter of a period after a tick, in
+    lockstep while no prediction is being answered); in any case a quarter of its own period
+    after it was due (docs/fleet.md, *Status after the answers*)."""
+    if not svc.status_round.pending and now < svc._next_status:
         return False
-    if now >= svc._next_status + svc._status_period_ns // 4:
-        return True
-    return quiet_moment(svc, now)
+    return now >= _overdue_ns(svc) or quiet_moment(svc, now)
 
 
 def quiet_moment(svc: Service, now: int) -> bool:
@@ -126,32 +149,47 @@ def quiet_moment(svc: Service, now: int) -> bool:
 
 
 def status_deadline(svc: Service, now: int) -> int:
-    """When the loop must wake for status: when it is due, or, due and held back, when it
-    can be held no longer (the answers it waits for wake the loop anyway)."""
+    """When the loop must wake for status: when it is due; due and held back, when it can be
+    held no longer (the answers it waits for wake the loop anyway); with a round under way,
+    now if this is a quiet moment (the next robot's status), else when it is overdue."""
+    if svc.status_round.pending:
+        return now if quiet_moment(svc, now) else _overdue_ns(svc)
     if svc._next_status > now:
         return svc._next_status
-    return svc._next_status + svc._status_period_ns // 4
+    return _overdue_ns(svc)
 
 
 def publish_status(svc: Service, now: int) -> None:
-    """Every robot's status (after committing the logs it reports), its health level (a change
-    is logged), and the systemd status line."""
-    lines = []
-    svc._commit_all(svc.robots.values())
-    timer = timer_info(svc)
-    for rt in svc.robots.values():
-        svc._commit(rt)
-        st = robot_status(svc, rt, now, timer)
-        before = svc.health[rt.robot].last[0]
-        level, reasons = svc.health[rt.robot].assess(st.to_map(), now)
-        if level != before:  # into the journal too: journalctl -p warning shows it
-            log.log(LOG_LEVEL_OF[level], "%s: status %s%s", rt.robot, level,
-                    f" ({reasons})" if reasons else "")
-        st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
-        svc.outbox.status(rt.robot, st)
-        lines.append(
-            f"{rt.robot}: {st.mode}, {st.updates} updates ({st.updates_per_s:.1f}/s), "
+    """The next robot's status of the round, starting a round when none is under way
+    (:class:`StatusRound`); every robot's left once the round is overdue. A robot's log is
+    committed before its status reports it; its health level is assessed (a change is logged);
+    the systemd status line follows the round's last robot."""
+    rnd = svc.status_round
+    if not rnd.pending:
+        rnd.start(svc._next_status, svc.robots.values(), timer_info(svc))
+        svc._next_status += svc._status_period_ns
+        if svc._next_status <= now:
+            svc._next_status = now + svc._status_period_ns
+    overdue = now >= rnd.due_ns + svc._status_period_ns // 4
+    while rnd.pending:
+        rnd.lines.append(_publish_one(svc, rnd.pending.popleft(), now, rnd.timer))
+        if not overdue:
+            break
+    if not rnd.pending:
+        svc.notifier.status("; ".join(rnd.lines))
+
+
+def _publish_one(svc: Service, rt: RobotRuntime, now: int, timer: Mapping[str, float]) -> str:
+    """Publish ``rt``'s status (its log committed first); its part of the systemd line."""
+    svc._commit(rt)
+    st = robot_status(svc, rt, now, timer)
+    before = svc.health[rt.robot].last[0]
+    level, reasons = svc.health[rt.robot].assess(st.to_map(), now)
+    if level != before:  # into the journal too: journalctl -p warning shows it
+        log.log(LOG_LEVEL_OF[level], "%s: status %s%s", rt.robot, level,
+                f" ({reasons})" if reasons else "")
+    st = replace(st, info={**st.info, "level": level, "level_reasons": reasons})
+    svc.outbox.status(rt.robot, st)
+    return (f"{rt.robot}: {st.mode}, {st.updates} updates ({st.updates_per_s:.1f}/s), "
             f"{st.experts} experts, queue {st.queue_depth}, dropped {st.dropped}, "
-            f"p99 {st.latency_ms_p99:.1f} ms, {level}"
-        )
-    svc.notifier.status("; ".join(lines))
+            f"p99 {st.latency_ms_p99:.1f} ms, {level}")
