@@ -30,19 +30,22 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     The learner runs on one thread, where it calls each expert's kernels from Python (on
     several it batches them, :mod:`roger_daemon.learner.jit_batch`): the same passes.  A full
     expert's ``jit.learn_full_expert`` counts as its ``Q k`` pass and, when it made one, its
-    fused step."""
+    fused step; ``jit.novelty_step`` (a small expert's ``Q k`` and novelty test) as its
+    ``Q k`` pass."""
     jit.set_threads(1)
     warm = points // 4
     model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
     jit._load()
-    kinds = ("expert_terms", "projection", "fused_step", "learn_full_expert")
+    kinds = ("expert_terms", "projection", "novelty_step", "fused_step", "learn_full_expert")
     originals = {name: getattr(jit, name) for name in kinds}
 
     def counted(name: str, fn: Any) -> Any:
         def wrapper(*args: Any) -> Any:
             out = fn(*args)
-            if name != "learn_full_expert":
+            if name == "novelty_step":  # an expert's Q k, with its novelty test
+                calls["projection"] += 1
+            elif name != "learn_full_expert":
                 calls[name] += 1
             else:  # a full expert's Q k and, for a novel point, its fused step
                 calls["projection"] += 1

@@ -1,5 +1,5 @@
 """The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`, :mod:`.jit_batch`,
-:mod:`.jit_particles`, :mod:`.jit_resampling`), loaded on first use.
+:mod:`.jit_particles`, :mod:`.jit_resampling`, :mod:`.jit_small`), loaded on first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
@@ -56,8 +56,9 @@ _applied = threading.local()  # .count: what numba.set_num_threads was given in 
 KERNELS = ("cholesky_inverse", "copy_batch", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step", "gate_log_predictive", "gate_update", "gram_matrix",
            "kernel_vector", "min_argmax", "learn_batch", "learn_full_expert",
-           "lineage_assignments", "novelty_test", "packed_add_lowrank", "projection",
-           "rank_update_cq", "sorted_threshold", "stratified_pass", "sym_matvec",
+           "lineage_assignments", "novelty_step", "novelty_test", "packed_add_lowrank",
+           "projection", "rank_update_cq", "refresh_small", "shift_mean", "sorted_threshold",
+           "sparse_update", "stratified_pass", "sym_matvec",
            "sym_matvec_into", "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
 
@@ -68,9 +69,10 @@ def _load() -> None:
         jit_kernels,
         jit_particles,
         jit_resampling,
+        jit_small,
     )
 
-    for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_resampling):
+    for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 
@@ -160,6 +162,12 @@ def warm_up() -> None:
     fk.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), 2 * vn,
                   np.zeros(1), -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
     k.gram_matrix(basis, 1.0, n)
+    from roger_daemon.learner import jit_small as sk
+
+    sk.sparse_update(np.zeros((n, 2)), sym.copy(), n, n, vn, vn, np.zeros(2), -0.5, 0.5)
+    sk.shift_mean(np.zeros((n, 2)), np.zeros(1), np.zeros(1), n, 1, np.empty(1))
+    sk.novelty_step(sym, np.zeros(n), n, n, 1.0, 1e-3, 1e-12, 1e-6)
+    sk.refresh_small(basis, 1.0, n, 0.0, sym.copy(), n)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
     gk.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),

@@ -227,10 +227,10 @@ class SparseOnlineGP(SOGPSteps):
         """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
         if not self.prior_mean:
             return
-        dm = (y - self._m) / self.n_points
-        self._m = self._m + dm
-        n = self.n
-        self._A[:n, : self.d_y] -= self._A[:n, self.d_y: self.d_y + 1] * dm  # a1 dm^T
+        mean = np.empty(self.d_y)  # a new array: copies made before this share no state
+        # dm = (y - m) / n_points; m + dm; A[:, :d] -= a1 dm^T: numpy's floats, one call
+        _jit.shift_mean(self._A, self._m, y, self.n, self.n_points, mean)
+        self._m = mean
 
     def predict(self, x: FloatArray) -> tuple[FloatArray, float]:
         """Predictive mean (d_y,) and variance of y (scalar, shared by the outputs)."""

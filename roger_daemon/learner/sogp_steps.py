@@ -63,9 +63,10 @@ class SOGPSteps:
         if it has visibly drifted, 0 below :data:`GAMMA_FLOOR`, and whether the point is
         novel (a full update, step 4b) by :func:`.jit_kernels.novelty_test`.  Records
         :attr:`novelty_margin`."""
-        e_hat, kqk = _jit.projection(self._Qp, k, self.n, self._alloc)
-        gamma, drifted, novel = _jit.novelty_test(kqk, *self._novelty_constants())
-        if drifted or self.q_drifted():
+        # projection, the test and Q's diagonal checked for drift in one call
+        e_hat, gamma, drifted, novel = _jit.novelty_step(
+            self._Qp, k, self.n, self._alloc, *self._novelty_constants())
+        if drifted:
             self.refresh_inverse_gram()
             e_hat, kqk = _jit.projection(self._Qp, k, self.n, self._alloc)
             gamma, _, novel = _jit.novelty_test(kqk, *self._novelty_constants())
@@ -103,12 +104,10 @@ class SOGPSteps:
         """
         n = self.n
         jitter = 0.0
-        if n <= _jit.SMALL:  # compiled: no LAPACK call overhead at this size
-            inverse = np.empty((n, n))
-            gram = self._gram_matrix()
-            while not _jit.cholesky_inverse(gram, n, jitter, inverse):
+        if n <= _jit.SMALL:  # compiled, in one call: no LAPACK call overhead at this size
+            while not _jit.refresh_small(self._B, self.kernel.gamma, n, jitter, self._Qp,
+                                         self._alloc):
                 jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
-            _packed.pack_into(self._Qp, self._alloc, inverse, n)
             self._forget_diagonals()
             self.q_refreshes += 1
             return
@@ -159,12 +158,10 @@ class SOGPSteps:
     def _sparse_update(self, ck: FloatArray, e_hat: FloatArray, gamma: float, r: float,
                        q: FloatArray) -> None:
         """Step 4a: projection update, BV set unchanged; ``eta = 1/(1 + gamma r)``."""
-        n = self.n
         self._forget_diagonals()
         eta = 1.0 / (1.0 + gamma * r)
-        s_hat = ck + e_hat
-        self._A[:n] += np.outer(s_hat, q) * eta
-        _jit.packed_add_lowrank(self._Cp, self._alloc, n, s_hat[None], np.array([r * eta]))
+        # s = C k + e; A += (s q^T) eta; C += (r eta) s s^T: numpy's floats, one call
+        _jit.sparse_update(self._A, self._Cp, self._alloc, self.n, ck, e_hat, q, r, eta)
 
     def _clean_up(self) -> None:
         """Steps 5 and 6: ``while n > beta`` delete; geometric clean-up (Csató)."""

@@ -182,13 +182,19 @@ def test_fused_step_keeps_the_basis_and_the_diagonal_cache_consistent() -> None:
     np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
 
 
-def test_the_lazy_loader_binds_exactly_the_kernels_of_the_five_modules() -> None:
+def test_the_lazy_loader_binds_exactly_the_kernels_of_the_six_modules() -> None:
     """``jit.KERNELS`` (what ``roger_daemon.learner.jit`` serves and ``warm_up`` compiles) is
     the union of the kernel modules' exports, and each name resolves to that module's kernel."""
     from roger_daemon.learner import jit as lazy
-    from roger_daemon.learner import jit_batch, jit_fused, jit_particles, jit_resampling
+    from roger_daemon.learner import (
+        jit_batch,
+        jit_fused,
+        jit_particles,
+        jit_resampling,
+        jit_small,
+    )
 
-    modules = (jit, jit_fused, jit_batch, jit_particles, jit_resampling)
+    modules = (jit, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small)
     exports = [set(m.__all__) for m in modules]
     assert set(lazy.KERNELS) == set().union(*exports)
     assert sum(map(len, exports)) == len(set().union(*exports))  # no name in two modules
@@ -234,3 +240,85 @@ def test_min_argmax_is_numpys_min_and_first_argmax(values: list[float]) -> None:
     assert got_arg == int(np.argmax(v))
     want = float(np.min(v))
     assert (np.isnan(got_min) and np.isnan(want)) or got_min == want
+
+
+@pytest.mark.parametrize("n", [1, 7, 15])
+def test_the_projection_update_is_numpys_bit_for_bit(n: int) -> None:
+    """Oracle: the numpy projection update it replaced (``s = ck + e``, ``A += outer(s, q) *
+    eta``, ``C += (r eta) s s^T`` by the packed low-rank kernel): the same floats exactly."""
+    from roger_daemon.learner import jit_kernels, jit_small
+    from roger_daemon.learner.packed import packed_size
+
+    rng = np.random.default_rng(n)
+    alloc = n + 3
+    coef, cbuf = rng.normal(size=(alloc, 4)), rng.normal(size=packed_size(alloc))
+    ck, e_hat, q = rng.normal(size=n), rng.normal(size=n), rng.normal(size=4)
+    r, eta = -0.37, 1.0 / (1.0 - 0.2 * 0.37)
+    want_a, want_c = coef.copy(), cbuf.copy()
+    s_hat = ck + e_hat
+    want_a[:n] += np.outer(s_hat, q) * eta
+    jit_kernels.packed_add_lowrank(want_c, alloc, n, s_hat[None], np.array([r * eta]))
+    jit_small.sparse_update(coef, cbuf, alloc, n, ck, e_hat, q, r, eta)
+    assert np.array_equal(coef, want_a) and np.array_equal(cbuf, want_c)
+
+
+@pytest.mark.parametrize("n", [1, 7, 15])
+def test_the_prior_mean_shift_is_numpys_bit_for_bit(n: int) -> None:
+    """Oracle: ``dm = (y - m) / n_points``, ``m + dm``, ``A[:n, :d] -= A[:n, d:d+1] * dm``
+    in numpy: the same floats exactly, rows past ``n`` and the ``a1`` column untouched."""
+    from roger_daemon.learner import jit_small
+
+    rng = np.random.default_rng(10 + n)
+    d = 3
+    coef, mean, y = rng.normal(size=(n + 2, d + 1)), rng.normal(size=d), rng.normal(size=d)
+    want_a = coef.copy()
+    dm = (y - mean) / 29
+    want_m = mean + dm
+    want_a[:n, :d] -= want_a[:n, d: d + 1] * dm
+    out = np.empty(d)
+    jit_small.shift_mean(coef, mean, y, n, 29, out)
+    assert np.array_equal(out, want_m) and np.array_equal(coef, want_a)
+
+
+@pytest.mark.parametrize("drift", [False, True])
+def test_the_novelty_step_is_the_projection_test_and_drift_check(drift: bool) -> None:
+    """Oracle: ``projection`` then ``novelty_test``, ``drifted`` or'ed with ``min diag(Q) k* <
+    1 - tol`` (``SOGPSteps.q_drifted``): the same floats and decisions."""
+    from roger_daemon.learner import jit_kernels, jit_small
+    from roger_daemon.learner.packed import diagonal, pack
+
+    rng = np.random.default_rng(4)
+    n, alloc, kstar = 9, 12, 1.0
+    m = rng.normal(size=(n, n))
+    q = 0.01 * m @ m.T / n + np.eye(n) * (0.5 if drift else 1.5)  # diag(Q) < 1/k*: drifted
+    qbuf, k = pack(q, alloc), rng.uniform(0, 0.2, n)  # k^T Q k < k*: gamma > 0
+    e_want, kqk = jit_kernels.projection(qbuf, k, n, alloc)
+    g_want, d_want, n_want = jit_kernels.novelty_test(kqk, kstar, 1e-3, 1e-12, 1e-6)
+    d_want = d_want or bool(diagonal(qbuf, alloc, n).min() * kstar < 1.0 - 1e-6)
+    e_hat, gamma, drifted, novel = jit_small.novelty_step(qbuf, k, n, alloc, kstar, 1e-3,
+                                                          1e-12, 1e-6)
+    assert np.array_equal(e_hat, e_want) and gamma == g_want
+    assert (drifted, novel) == (d_want, n_want) and drifted == drift
+
+
+def test_the_small_reinversion_is_the_gram_cholesky_and_packing_it_replaced() -> None:
+    """Oracle: ``gram_matrix``, ``cholesky_inverse`` and ``packed.pack_into``, as the separate
+    calls made them: the same floats; a failed factorisation leaves ``Q`` untouched."""
+    from roger_daemon.learner import jit_kernels, jit_small
+    from roger_daemon.learner.packed import pack_into, packed_size
+
+    rng = np.random.default_rng(6)
+    n, alloc, gamma = 11, 14, 0.7
+    basis = rng.normal(size=(alloc, 4))
+    want, got = np.zeros(packed_size(alloc)), np.zeros(packed_size(alloc))
+    inverse = np.empty((n, n))
+    assert jit_kernels.cholesky_inverse(jit_kernels.gram_matrix(basis, gamma, n), n, 0.0,
+                                        inverse)
+    pack_into(want, alloc, inverse, n)
+    assert jit_small.refresh_small(basis, gamma, n, 0.0, got, alloc)
+    assert np.array_equal(got, want)
+    twin = basis.copy()
+    twin[1] = twin[0]  # two equal basis vectors: K_B is singular
+    before = got.copy()
+    assert not jit_small.refresh_small(twin, gamma, 2, -1.0, got, alloc)
+    assert np.array_equal(got, before)
