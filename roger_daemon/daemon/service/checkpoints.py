@@ -26,6 +26,9 @@ __all__ = ["CheckpointState", "Checkpoints", "Snapshot", "checkpoint_snapshot"]
 
 log = logging.getLogger(__name__)
 
+#: periodic checkpoints wait for a quiet moment at most this long (Checkpoints.poll)
+_OVERDUE_NS = 1_000_000_000
+
 #: (model arrays, daemon arrays, metadata) of one robot
 Snapshot = tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]
 
@@ -80,6 +83,9 @@ class CheckpointState:
     in_flight: Future[tuple[Path, dict[str, Any]]] | None = None
     in_flight_gen: int = 0
     wal_seq: int | None = None  # of the newest checkpoint written in this life
+    #: the first periodic checkpoint comes this share of its interval early (robot i of n:
+    #: i/n), so that the robots' checkpoints do not all fall due together
+    phase: float = 0.0
 
 
 class Checkpoints:
@@ -104,15 +110,19 @@ class Checkpoints:
         self._written = written
         self.state = {r: CheckpointState() for r in robots}
         self._writer: ThreadPoolExecutor | None = None
+        self._polled_ns = 0  # the last poll that did its work (poll)
         #: set at shutdown: a failure from then on means the final checkpoints failed
         self.stopping = False
         self.final_ok = True
 
     def start(self, now: int) -> None:
-        """The models as loaded count as checkpointed; start the writer thread."""
-        for rt in self.robots.values():
+        """The models as loaded count as checkpointed; start the writer thread. Robot ``i``
+        of ``n`` takes its first periodic checkpoint ``i/n`` of an interval early (docs/fleet.md,
+        *Checkpoints one at a time*)."""
+        for i, rt in enumerate(self.robots.values()):
             st = self.state[rt.robot]
             st.generation, st.time_ns, st.updates = rt.generation, now, rt.updates
+            st.phase = i / len(self.robots)
         if not self._sync:
             self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roger-ckpt")
 
@@ -123,10 +133,27 @@ class Checkpoints:
             st = self.state[rt.robot]
             if st.in_flight is not None or rt.generation == st.generation:
                 continue
-            by_updates = c.every_updates > 0 and rt.generation - st.generation >= c.every_updates
-            by_time = c.every_s > 0 and now - st.time_ns >= c.every_s * 1e9
+            early = 1.0 - st.phase
+            by_updates = c.every_updates > 0 and \
+                rt.generation - st.generation >= c.every_updates * early
+            by_time = c.every_s > 0 and now - st.time_ns >= c.every_s * 1e9 * early
             if by_updates or by_time:
                 yield rt
+
+    def poll(self, now: int, quiet: bool, take: Callable[[RobotRuntime], None]) -> None:
+        """Once per loop cycle: at a quiet moment, ``take`` the periodic checkpoint of at most
+        one robot that is due, then book at most one finished write (which starts a new
+        write-ahead log segment: several file syncs); at any moment once a second has passed
+        since the last quiet one, all of them (docs/fleet.md, *Checkpoints one at a time*)."""
+        overdue = now - self._polled_ns >= _OVERDUE_NS
+        if not (quiet or overdue):
+            return
+        self._polled_ns = now
+        for rt in self.due(now):
+            take(rt)
+            if not overdue:
+                break
+        self.collect(most=None if overdue else 1)
 
     def up_to_date(self, rt: RobotRuntime) -> bool:
         """Whether the newest checkpoint holds everything ``rt`` learned and queued."""
@@ -158,12 +185,17 @@ class Checkpoints:
         )
         st.in_flight_gen = gen
 
-    def collect(self, wait: bool = False) -> None:
-        """Book the background writes that finished (``wait``: all of them)."""
+    def collect(self, wait: bool = False, most: int | None = None) -> None:
+        """Book the background writes that finished (``wait``: all of them; at most ``most``
+        of them)."""
         for robot, st in self.state.items():
             fut = st.in_flight
             if fut is None or not (wait or fut.done()):
                 continue
+            if most is not None:
+                if most <= 0:
+                    return
+                most -= 1
             st.in_flight = None
             try:
                 path, meta = fut.result()

@@ -254,11 +254,9 @@ class Service:
         for rt in self.robots.values():
             if rt.wal is not None:  # due: now; else started in the background (docs/durability)
                 rt.wal.commit_early(now, self._commit_ns, self._committer)
-        for rt in self.checkpoints.due(now):
-            self._checkpoint(rt, "periodic")
-        self.checkpoints.collect()
         # work that can wait for a quiet moment (docs/fleet.md, *Work at quiet moments*)
         quiet = quiet_moment(self, self.clock.monotonic_ns())
+        self.checkpoints.poll(now, quiet, lambda rt: self._checkpoint(rt, "periodic"))
         self.recorders.poll(self.clock.monotonic_ns, quiet=quiet)
         self.notifier.watchdog(now)
         if quiet and self.gc_thresholds is not None:
