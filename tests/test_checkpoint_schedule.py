@@ -39,6 +39,13 @@ def test_the_robots_first_checkpoints_are_staggered_over_an_interval() -> None:
         for rt in ck.due(0):
             first.setdefault(rt.robot, generation)
     assert first == {"r0": 100, "r1": 75, "r2": 50, "r3": 25}  # robot i: i/4 early
+    _finished(ck, "r3")  # r3's first checkpoint, at generation 100, is written ...
+    ck.collect()
+    for rt in robots.values():
+        rt.generation = 199
+    assert "r3" not in [rt.robot for rt in ck.due(0)]  # ... its next one a whole interval on
+    robots["r3"].generation = 200
+    assert "r3" in [rt.robot for rt in ck.due(0)]
     by_time = _checkpoints(_robots(2), every_updates=0, every_s=10.0)
     for rt in by_time.robots.values():
         rt.generation = 1  # something learned

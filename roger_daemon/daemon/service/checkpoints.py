@@ -225,6 +225,7 @@ class Checkpoints:
         st = self.state[robot]
         self._rotate_wal(robot, meta)
         st.generation, st.path, st.updates = gen, str(path), int(meta["updates"])
+        st.phase = 0.0  # only the first periodic checkpoint comes early
         st.digest = str(meta["model_digest"])
         st.written += 1
         if self._written is not None:
