@@ -227,7 +227,7 @@ class SparseOnlineGP(SOGPSteps):
         """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
         if not self.prior_mean:
             return
-        mean = np.empty(self.d_y)  # a new array: copies made before this share no state
+        mean = np.empty(self.d_y)  # the new running mean in a new array, as numpy made it
         # dm = (y - m) / n_points; m + dm; A[:, :d] -= a1 dm^T: numpy's floats, one call
         _jit.shift_mean(self._A, self._m, y, self.n, self.n_points, mean)
         self._m = mean

@@ -171,6 +171,8 @@ def publish_status(svc: Service, now: int) -> None:
         if svc._next_status <= now:
             svc._next_status = now + svc._status_period_ns
     overdue = now >= rnd.due_ns + svc._status_period_ns // 4
+    if overdue:  # the rest at once: their logs committed side by side first, as one round was
+        svc._commit_all(rnd.pending)
     while rnd.pending:
         rnd.lines.append(_publish_one(svc, rnd.pending.popleft(), now, rnd.timer))
         if not overdue:
