@@ -338,6 +338,12 @@ def header_map(robot: str, tick: int, t: float, stamp_ns: int) -> dict[str, Any]
 
 
 def _float_list(values: Any) -> list[float]:
+    """``values`` as a flat list of floats: ``np.asarray(values, float64).reshape(-1)
+    .tolist()``, straight from ``tolist`` for what a model gives, a 1-D float64 array (a
+    micro-second less per vector, 26 of them in a prediction with 13 experts)."""
+    if type(values) is np.ndarray and values.dtype == np.float64 and values.ndim == 1:
+        fast: list[float] = values.tolist()
+        return fast
     out: list[float] = np.asarray(values, dtype=np.float64).reshape(-1).tolist()
     return out
 

@@ -263,3 +263,24 @@ def test_encode_prediction_gives_the_bytes_of_encoding_the_dataclass(
                              multimap=tuple(ExpertOutput(*row) for row in rows),
                              latency_ms=1.5, mode=mode, updates=tick + 1))
     assert fast == slow
+
+
+@given(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), max_size=12),
+       st.sampled_from(["1d", "2d", "list", "float32", "int", "view"]))
+def test_float_lists_are_what_numpy_gives_on_every_path(values: list[float], form: str) -> None:
+    """``message_types._float_list`` (the encoder's vectors; a fast path for 1-D float64
+    arrays) packs to the bytes of ``np.asarray(v, float64).reshape(-1).tolist()`` whatever
+    form the vector comes in (NaN and signed zeros included)."""
+    from protocols.message_types import _float_list
+
+    a = np.array(values, dtype=np.float64)
+    given_as: object = {
+        "1d": lambda: a, "2d": lambda: a.reshape(-1, 1), "list": lambda: values,
+        "float32": lambda: a.clip(-1e30, 1e30).astype(np.float32),
+        "int": lambda: np.nan_to_num(a).clip(-1e9, 1e9).astype(int),
+        "view": lambda: np.concatenate([a, a])[::2],
+    }[form]()
+    want = np.asarray(given_as, dtype=np.float64).reshape(-1).tolist()
+    got = _float_list(given_as)
+    assert all(type(v) is float for v in got)
+    assert msgpack.packb(got) == msgpack.packb(want)
