@@ -21,6 +21,7 @@ from roger_daemon.config import CheckpointConfig
 from roger_daemon.daemon.checkpoint import write_checkpoint
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.service.clock import Clock
+from roger_daemon.daemon.service.schedule import QuietWork
 
 __all__ = ["CheckpointState", "Checkpoints", "Snapshot", "checkpoint_snapshot"]
 
@@ -110,7 +111,7 @@ class Checkpoints:
         self._written = written
         self.state = {r: CheckpointState() for r in robots}
         self._writer: ThreadPoolExecutor | None = None
-        self._polled_ns = 0  # the last poll that did its work (poll)
+        self._periodic = QuietWork(_OVERDUE_NS)  # when poll takes and books them
         #: set at shutdown: a failure from then on means the final checkpoints failed
         self.stopping = False
         self.final_ok = True
@@ -145,10 +146,9 @@ class Checkpoints:
         one robot that is due, then book at most one finished write (which starts a new
         write-ahead log segment: several file syncs); at any moment once a second has passed
         since the last quiet one, all of them (docs/fleet.md, *Checkpoints one at a time*)."""
-        overdue = now - self._polled_ns >= _OVERDUE_NS
-        if not (quiet or overdue):
+        if not self._periodic.runs(now, quiet):
             return
-        self._polled_ns = now
+        overdue = self._periodic.overdue
         for rt in self.due(now):
             take(rt)
             if not overdue:

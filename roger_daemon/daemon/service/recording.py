@@ -13,6 +13,7 @@ from protocols.decisions import Dropped, Learned, ModelDigest, Reset, chain_dige
 from protocols.message_types import Message, encode
 from roger_daemon.config import RecordingConfig
 from roger_daemon.daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.service.schedule import QuietWork
 
 __all__ = ["DecisionLog", "Recorder", "Recorders"]
 
@@ -58,7 +59,7 @@ class Recorders:
         self._next_retention = 0  # at the first poll, then every minute
         self._held: list[tuple[str, str, bytes, int, int, int]] = []
         self._held_since: int | None = None  # the poll that first saw messages held
-        self._polled_ns: int | None = None  # when the recorders were last polled
+        self._flushes = QuietWork(HOLD_NS)  # the recorders' own polls (their flushes)
 
     def __contains__(self, robot: str) -> bool:
         return robot in self.by_robot
@@ -99,17 +100,15 @@ class Recorders:
         if now >= self._next_retention:
             self._next_retention = now + _RETENTION_PERIOD_NS
             self.prune()
-        overdue = self._polled_ns is None or now - self._polled_ns >= HOLD_NS
-        if not (quiet or overdue):
+        if not self._flushes.runs(now, quiet):
             return
-        self._polled_ns = now
         for robot, rec in self.by_robot.items():
             try:
                 flushed = rec.poll(now)
             except Exception as exc:
                 self._error(robot, "poll", exc)
                 continue
-            if flushed and not overdue:  # the next one's at the next quiet moment
+            if flushed and not self._flushes.overdue:  # the next one's at the next quiet moment
                 return
 
     def prune(self) -> None:

@@ -1,4 +1,5 @@
-"""The realtime clock's tick schedule: the next deadline, jitter, lateness, missed ticks."""
+"""The realtime clock's tick schedule: the next deadline, jitter, lateness, missed ticks; and
+:class:`QuietWork`, when work that can wait for a quiet moment runs."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from dataclasses import dataclass, field
 
 from roger_daemon.daemon.window import Window
 
-__all__ = ["LoopStats", "TickSchedule"]
+__all__ = ["LoopStats", "QuietWork", "TickSchedule"]
 
 _MS = 1_000_000
 
@@ -57,3 +58,24 @@ class TickSchedule:
             missed = (now - self.next_tick) // self.period_ns + 1
             self.stats.missed_ticks += int(missed)
             self.next_tick += int(missed) * self.period_ns
+
+
+class QuietWork:
+    """Work the loop does at its quiet moments, one piece per cycle, or all of it once it has
+    waited ``max_wait_ns`` since it last ran (docs/fleet.md, *Work at quiet moments*): the
+    recorders' flushes and the periodic checkpoints. The first call runs (nothing ran yet)."""
+
+    def __init__(self, max_wait_ns: int) -> None:
+        self.max_wait_ns = max_wait_ns
+        #: set by :meth:`runs`: the work waited ``max_wait_ns``, so all of it goes now
+        self.overdue = False
+        self._ran_ns: int | None = None
+
+    def runs(self, now: int, quiet: bool) -> bool:
+        """Whether the work runs in the cycle at ``now`` (``quiet``: a quiet moment); if it
+        does, from ``now`` on it waits again."""
+        self.overdue = self._ran_ns is None or now - self._ran_ns >= self.max_wait_ns
+        if not (quiet or self.overdue):
+            return False
+        self._ran_ns = now
+        return True
