@@ -170,7 +170,7 @@ def publish_status(svc: Service, now: int) -> None:
         svc._next_status += svc._status_period_ns
         if svc._next_status <= now:
             svc._next_status = now + svc._status_period_ns
-    overdue = now >= rnd.due_ns + svc._status_period_ns // 4
+    overdue = now >= _overdue_ns(svc)
     if overdue:  # the rest at once: their logs committed side by side first, as one round was
         svc._commit_all(rnd.pending)
     while rnd.pending:
