@@ -1,9 +1,10 @@
 """The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`, :mod:`.jit_batch`,
-:mod:`.jit_particles`, :mod:`.jit_resampling`, :mod:`.jit_small`), loaded on first use.
+:mod:`.jit_particles`, :mod:`.jit_resampling`, :mod:`.jit_small`, :mod:`.jit_predict`), loaded on
+first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
-kernel here imports the five modules and binds its functions into this module, so later
+kernel here imports the modules and binds its functions into this module, so later
 accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles every kernel
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
 
@@ -57,7 +58,7 @@ KERNELS = ("cholesky_inverse", "copy_batch", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step", "gate_log_predictive", "gate_update", "gram_matrix",
            "kernel_vector", "min_argmax", "learn_batch", "learn_full_expert",
            "lineage_assignments", "novelty_step", "novelty_test", "packed_add_lowrank",
-           "projection", "rank_update_cq", "refresh_small", "shift_mean", "sorted_threshold",
+           "predict_experts", "projection", "rank_update_cq", "refresh_small", "shift_mean", "sorted_threshold",
            "sparse_update", "stratified_pass", "sym_matvec",
            "sym_matvec_into", "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
@@ -68,11 +69,13 @@ def _load() -> None:
         jit_fused,
         jit_kernels,
         jit_particles,
+        jit_predict,
         jit_resampling,
         jit_small,
     )
 
-    for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small):
+    for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small,
+                   jit_predict):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 
@@ -212,6 +215,11 @@ def _warm_up_batches(basis: npt.NDArray[np.float64], sym: npt.NDArray[np.float64
     bk.copy_batch(padded([sym], 0), padded([sym.copy()], 0), 1)
     bk.terms_batch(padded([basis], 0), padded([sym], 0), padded([coef], 0), 1, ints, ints,
                    np.zeros(1), 1.0, np.zeros(2 * n + 2), np.zeros(WIDTH, dtype=np.int64))
+    from roger_daemon.learner import jit_predict as pk
+
+    pk.predict_experts(padded([basis], 0), padded([sym], 0), padded([coef], 0),
+                       padded([np.zeros(1)], 0), 1, ints, ints, np.zeros(1), 1.0, 1.0, 0.1,
+                       1e-12, True, np.empty((1, 1)), np.empty(1))
     rows = np.ones((1, n))
     k.projection(sym, np.zeros(n), n, n)
     k.novelty_test(0.5, 1.0, 1e-6, 1e-12, 1e-6)

@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.scaling import as_vector
+from roger_daemon.learner.sogp_batch import predict_many
 
 if TYPE_CHECKING:
     from roger_daemon.learner.roger import Roger
@@ -74,16 +75,13 @@ def _expert(model: Roger, slot: int, xs: FloatArray, prob: float) -> ExpertPredi
 
 def _experts(model: Roger, slots: list[int], xs: FloatArray, probs: FloatArray
              ) -> list[ExpertPrediction]:
-    """``[_expert(model, s, xs, p) ...]`` over ``slots``: each GP evaluated on its own (the
-    same compiled call), the scaling back to output units done once for all of them (the same
-    floats: it is elementwise)."""
-    gps = model._gps
+    """``[_expert(model, s, xs, p) ...]`` over ``slots``: the GPs evaluated several per compiled
+    call (:func:`.sogp_batch.predict_many`), the scaling back to output units done once for
+    all of them (the same floats: it is elementwise)."""
+    gps = [model._gps[s] for s in slots]
     means = np.empty((len(slots), model.d_y))
     variance = np.empty(len(slots))  # predictive, model units (observation noise included)
-    for j, s in enumerate(slots):
-        gp = gps[s]
-        assert gp is not None
-        means[j], variance[j] = gp.predict(xs)
+    predict_many(gps, xs, means, variance)  # type: ignore[arg-type]  # live slots: no None
     sc = model._scaling
     means = sc.mean_out(means)
     var = sc.var_out(variance[:, None])  # type: ignore[arg-type]  # a column: one per expert

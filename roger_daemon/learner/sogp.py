@@ -47,6 +47,7 @@ from roger_daemon.learner.buffers import BufferPool
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
+from roger_daemon.learner.sogp_steps import LATENT_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 from roger_daemon.learner.sogp_steps import SOGPSteps
 
@@ -54,7 +55,6 @@ __all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "update_
 
 FloatArray = npt.NDArray[np.float64]
 
-LATENT_FLOOR = 1e-12  # clamp of k* + k^T C k (Grollman, OTL, Csató)
 _LOG_2PI = math.log(2.0 * math.pi)
 
 

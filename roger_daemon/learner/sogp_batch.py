@@ -20,12 +20,13 @@ import numpy.typing as npt
 
 from roger_daemon.learner import jit as _jit
 from roger_daemon.learner.sogp_fused import output_weights
+from roger_daemon.learner.sogp_steps import LATENT_FLOOR as _LATENT_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
 
-__all__ = ["copy_many", "terms_many", "update_many"]
+__all__ = ["copy_many", "predict_many", "terms_many", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -77,6 +78,36 @@ def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
     for j, start, size in zip(live, offsets.tolist(), sizes.tolist(), strict=True):
         out[j] = gps[j]._terms_from(packed[start: start + size])
     return [t for t in out if t is not None]
+
+
+def predict_many(gps: Sequence[SparseOnlineGP], x: FloatArray, means: FloatArray,
+                 variance: FloatArray) -> None:
+    """``means[j], variance[j] = gps[j].predict(x)`` for every expert (a prediction's multimap,
+    docs/learner-math.md §6): the experts with basis vectors by compiled calls of up to
+    :data:`.jit.WIDTH` experts each (:func:`.jit_predict.predict_experts`), the same floats;
+    all of one model (one kernel, noise and prior-mean setting)."""
+    live = [j for j, gp in enumerate(gps) if gp.n > 0]
+    if len(live) < len(gps):  # an expert without basis vectors answers with its prior
+        for j, gp in enumerate(gps):
+            means[j], variance[j] = gp.predict(x)
+        return
+    if not gps:
+        return
+    first = gps[0]
+    ns = np.array([gp.n for gp in gps], dtype=np.int64)
+    allocs = np.array([gp.alloc for gp in gps], dtype=np.int64)
+    bases = [gp._B for gp in gps]
+    covs = [gp._Cp for gp in gps]
+    coefs = [gp._A for gp in gps]
+    priors = [gp._m for gp in gps]
+    kernel = first.kernel
+    for lo in range(0, len(gps), _jit.WIDTH):
+        hi = min(lo + _jit.WIDTH, len(gps))
+        _jit.predict_experts(_jit.padded(bases, lo), _jit.padded(covs, lo),
+                             _jit.padded(coefs, lo), _jit.padded(priors, lo), hi - lo,
+                             ns[lo:hi], allocs[lo:hi], x, kernel.gamma, kernel.k_star,
+                             first.noise, _LATENT_FLOOR, first.prior_mean, means[lo:hi],
+                             variance[lo:hi])
 
 
 def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,

@@ -18,10 +18,11 @@ from roger_daemon.learner import jit as _jit
 from roger_daemon.learner import packed as _packed
 from roger_daemon.learner.kernel import RBFKernel
 
-__all__ = ["GAMMA_FLOOR", "NEAR_DEPENDENT", "SOGPSteps"]
+__all__ = ["GAMMA_FLOOR", "LATENT_FLOOR", "NEAR_DEPENDENT", "SOGPSteps"]
 
 FloatArray = npt.NDArray[np.float64]
 
+LATENT_FLOOR = 1e-12  # clamp of k* + k^T C k (Grollman, OTL, Csató)
 GAMMA_FLOOR = 1e-12  # projection residuals below this count as 0 (learner-math.md §2.5 step 3)
 # Q = K_B^-1 is kept by rank-1 updates and drifts when K_B is ill-conditioned (pitfall 6: a
 # broad kernel and a small novelty threshold admit near-duplicate basis vectors). Two O(n)

@@ -182,7 +182,7 @@ def test_fused_step_keeps_the_basis_and_the_diagonal_cache_consistent() -> None:
     np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
 
 
-def test_the_lazy_loader_binds_exactly_the_kernels_of_the_six_modules() -> None:
+def test_the_lazy_loader_binds_exactly_the_kernels_of_the_seven_modules() -> None:
     """``jit.KERNELS`` (what ``roger_daemon.learner.jit`` serves and ``warm_up`` compiles) is
     the union of the kernel modules' exports, and each name resolves to that module's kernel."""
     from roger_daemon.learner import jit as lazy
@@ -190,11 +190,12 @@ def test_the_lazy_loader_binds_exactly_the_kernels_of_the_six_modules() -> None:
         jit_batch,
         jit_fused,
         jit_particles,
+        jit_predict,
         jit_resampling,
         jit_small,
     )
 
-    modules = (jit, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small)
+    modules = (jit, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small, jit_predict)
     exports = [set(m.__all__) for m in modules]
     assert set(lazy.KERNELS) == set().union(*exports)
     assert sum(map(len, exports)) == len(set().union(*exports))  # no name in two modules
@@ -322,3 +323,40 @@ def test_the_small_reinversion_is_the_gram_cholesky_and_packing_it_replaced() ->
     before = got.copy()
     assert not jit_small.refresh_small(twin, gamma, 2, -1.0, got, alloc)
     assert np.array_equal(got, before)
+
+
+@pytest.mark.parametrize("prior_mean", [True, False])
+def test_the_batched_prediction_is_each_experts_own_bit_for_bit(prior_mean: bool) -> None:
+    """Oracle: ``SparseOnlineGP.predict`` of each expert on its own. ``predict_many`` (one
+    compiled call per 16 experts) gives the same means and variances, to the bit, for more
+    experts than one call takes, of different sizes, an input far from every basis vector, and
+    an expert with no basis vector (its prior)."""
+    from roger_daemon.learner.jit import WIDTH
+    from roger_daemon.learner.sogp import SparseOnlineGP
+    from roger_daemon.learner.sogp_batch import predict_many
+
+    rng = np.random.default_rng(11)
+    d_x, d_y = 4, 3
+    gps = []
+    for j in range(WIDTH + 5):
+        gp = SparseOnlineGP(d_x, d_y, RBFKernel(0.5, d_x), noise=0.05, capacity=12,
+                            prior_mean=prior_mean)
+        for _ in range(1 + j % 17):  # 1 to 17 points: some experts full, some deleting
+            gp.update(rng.normal(size=d_x), rng.normal(size=d_y))
+        gps.append(gp)
+    queries = [rng.normal(size=d_x) for _ in range(20)] + [np.full(d_x, 50.0)]
+    for group in (gps, gps[:3]):
+        for x in queries:
+            means, variance = np.empty((len(group), d_y)), np.empty(len(group))
+            predict_many(group, x, means, variance)
+            for j, gp in enumerate(group):
+                mean, var = gp.predict(x)
+                assert np.array_equal(means[j], mean) and variance[j] == var
+    empty = SparseOnlineGP(d_x, d_y, RBFKernel(0.5, d_x), noise=0.05, capacity=12,
+                           prior_mean=prior_mean)
+    group = [gps[0], empty]
+    means, variance = np.empty((2, d_y)), np.empty(2)
+    predict_many(group, queries[0], means, variance)
+    for j, gp in enumerate(group):
+        mean, var = gp.predict(queries[0])
+        assert np.array_equal(means[j], mean) and variance[j] == var
