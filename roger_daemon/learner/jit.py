@@ -58,9 +58,9 @@ KERNELS = ("cholesky_inverse", "copy_batch", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step", "gate_log_predictive", "gate_update", "gram_matrix",
            "kernel_vector", "min_argmax", "learn_batch", "learn_full_expert",
            "lineage_assignments", "novelty_step", "novelty_test", "packed_add_lowrank",
-           "predict_experts", "projection", "rank_update_cq", "refresh_small", "shift_mean", "sorted_threshold",
-           "sparse_update", "stratified_pass", "sym_matvec",
-           "sym_matvec_into", "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
+           "predict_experts", "projection", "rank_update_cq", "refresh_small", "shift_mean",
+           "sorted_threshold", "sparse_update", "stratified_pass", "sym_matvec", "sym_matvec_into",
+           "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:

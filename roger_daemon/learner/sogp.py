@@ -47,9 +47,8 @@ from roger_daemon.learner.buffers import BufferPool
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
-from roger_daemon.learner.sogp_steps import LATENT_FLOOR
+from roger_daemon.learner.sogp_steps import LATENT_FLOOR, SOGPSteps
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
-from roger_daemon.learner.sogp_steps import SOGPSteps
 
 __all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "update_many"]
 
