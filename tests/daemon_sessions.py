@@ -224,7 +224,8 @@ def _settle(service: Service, rt: RobotRuntime) -> None:
         if service.learners is not None:  # every reply of the worker handled
             service.learners.drain()
             service.step(0)
-        if not rt.queue and not len(service.inbox):
+        busy = service.learners is not None and service.learners.learning()
+        if not rt.queue and not len(service.inbox) and not busy:  # every pair learned
             return
     raise AssertionError("the loop did not settle")
 

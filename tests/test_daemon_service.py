@@ -235,12 +235,14 @@ def test_recorders_flush_at_quiet_moments_one_per_cycle_or_once_overdue() -> Non
 
 
 def test_lockstep_learns_complete_pairs_before_answering(tmp_path: Path) -> None:
-    """action(t) and perception(t+1) drained together: prediction(t+1) includes pair t."""
+    """A perception is answered in arrival order: after every pair whose action arrived
+    before it, and without a pair whose action arrived after it, even when both reach the
+    loop in one drain (a perception's own action never leaks into its prediction)."""
     h = Harness(make_config(tmp_path))
     for t in range(6):
         h.pair(t, action_first=(t % 2 == 1))  # both halves arrive before the loop runs
         h.settle()
-    assert [p.updates for p in h.predictions()] == [1, 2, 3, 4, 5, 6]
+    assert [p.updates for p in h.predictions()] == [0, 2, 2, 4, 4, 6]
 
 
 def test_prediction_updates_field_matches_model_state(tmp_path: Path) -> None:
@@ -319,7 +321,7 @@ def test_modes_and_reset_and_checkpoint_controls(tmp_path: Path) -> None:
 
 
 def test_full_queue_drops_counts_and_logs(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    h = Harness(make_config(tmp_path, queue_size=3))
+    h = Harness(make_config(tmp_path, queue_size=3, mode="learn"))  # no answer learns them
     caplog.set_level(logging.WARNING)
     for t in range(8):  # all arrive before the loop runs: 3 fit, 5 are dropped
         h.pair(t)

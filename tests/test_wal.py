@@ -210,7 +210,8 @@ def test_pairs_queued_in_the_checkpoint_are_not_learned_twice(tmp_path: Path) ->
 
     from protocols import Control
 
-    a = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))
+    # mode "learn": no perception is answered, so nothing learns the queue during the drain
+    a = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True, mode="learn"))
     a.pairs(range(10), settle=False)
     a.send("control", Control("sim", 0, 0.0, op="checkpoint"))
     a.settle()  # one drain: pairs queued, checkpoint (with the queue), then learning

@@ -18,26 +18,23 @@ from roger_daemon.daemon.robot import RobotRuntime
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["answer_lockstep", "learn_queued", "on_timer", "publish_prediction",
+__all__ = ["answer_now", "learn_queued", "on_timer", "publish_prediction",
            "worker_predictions"]
 
 log = logging.getLogger(__name__)
 
 
-def answer_lockstep(svc: Service) -> None:
-    """Lockstep: learn every complete pair first, then answer the perceptions just drained.
+def answer_now(svc: Service, rt: RobotRuntime, perc: Perception, recv_ns: int) -> None:
+    """Lockstep: learn every complete pair of ``rt`` first, then answer ``perc``, as soon as
+    it is admitted (in arrival order, before the loop takes in the next message).
 
     So prediction(t+1) includes pair t whenever action(t) arrived before perception(t+1),
-    which is the causal order of a lock-stepped simulator (deterministic runs).
-    """
-    answer, svc._answer = svc._answer, []
-    robots = {id(a[0]): a[0] for a in answer}.values()
-    for rt in robots:
-        learn_queued(svc, rt)
-    if svc.learners is None:  # inline: every answered robot's log at once, not one by one
-        svc._commit_all(robots)
-    for rt, msg, recv_ns in answer:
-        publish_prediction(svc, rt, msg, recv_ns)
+    which is the causal order of a lock-stepped simulator (deterministic runs), and never a
+    pair that arrived after it. With learner workers the robot's worker starts on the request
+    while the loop takes in the other robots' messages (docs/fleet.md, *Requests as
+    perceptions arrive*)."""
+    learn_queued(svc, rt)
+    publish_prediction(svc, rt, perc, recv_ns)
 
 
 def learn_queued(svc: Service, rt: RobotRuntime) -> None:

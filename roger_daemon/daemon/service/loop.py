@@ -5,8 +5,9 @@ Each cycle of :meth:`Service.step`:
 1. wait on the :class:`~roger_daemon.transport.Inbox` until the next deadline (at most
    ``max_wait_s``; zero when there is learning to do), then drain what is there: decode,
    validate, count rejects by reason, record, route (perception, action, control);
-   in lockstep mode every perception drained is answered at once, after learning the pairs
-   already complete (so prediction(t+1) includes pair t when action(t) came first);
+   in lockstep mode each perception is answered as it is admitted, after learning its
+   robot's pairs already complete (so prediction(t+1) includes pair t when action(t) came
+   first, and no pair that came after it);
 2. realtime mode: if the 30 Hz deadline has passed, publish a prediction for the newest
    perception of every predicting robot and measure the period;
 3. learn one queued pair (round robin over robots) if the estimated learning time fits before
@@ -43,7 +44,7 @@ from roger_daemon.daemon.health import Health
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.sdnotify import Notifier
 from roger_daemon.daemon.service.answers import (
-    answer_lockstep,
+    answer_now,
     on_timer,
     worker_predictions,
 )
@@ -145,7 +146,6 @@ class Service:
         #: set once started (gc_policy.hold_collections): collect at quiet moments only
         self.gc_thresholds: Thresholds | None = None
         self._stopping = False
-        self._answer: list[tuple[RobotRuntime, Perception, int]] = []
         # roger_daemon.daemon.learners.ProcessLearners: the models live in worker processes
         self.learners = learners
         self._committer: ThreadPoolExecutor | None = None
@@ -237,8 +237,6 @@ class Service:
             budget -= 1
             item = self.inbox.get(0) if budget > 0 else None
         self._tick_first()
-        if self._answer:
-            answer_lockstep(self)
         if self.learners is not None:
             self.learners.pump(self.schedule.next_tick if self._realtime and self._timer_active()
                                else None)
@@ -312,7 +310,7 @@ class Service:
             rt.on_perception(msg, item.recv_ns)
             if rt.predicting and not self._stopping:
                 if not self._realtime:
-                    self._answer.append((rt, msg, item.recv_ns))
+                    answer_now(self, rt, msg, item.recv_ns)
                 elif self.learners is not None:  # published on the next tick
                     self.learners.prepare(rt, msg, item.recv_ns)
         elif isinstance(msg, Action):
