@@ -1,7 +1,9 @@
 """``roger bench fleet``: N simulated robots x 30 Hz against one real daemon, learning.
 
 The daemon runs as a subprocess on a free loopback port and serves robots ``r0`` .. ``r<N-1>``
-(each with its own model and seed); this process plays every robot with one Zenoh session.
+(each with its own model and seed), recording and write-ahead log on, periodic checkpoints off
+(the harness's default; ``--set checkpoint.every_updates=1000 --set checkpoint.every_s=60``
+gives the production ones); this process plays every robot with one Zenoh session.
 Each robot feeds its own slice (offset by ``len / N``) of a shipped stream, cycled:
 ``--stream aibo`` (default) the 1,500 recorded AIBO demonstration pairs of
 ``roger bench learner --stream aibo`` (23-D perception, 9-D actions, subtask labels), the
