@@ -15,8 +15,8 @@ multicast scouting off); with a file only the flags given on the command line ov
 Endpoint flags are repeatable and take comma lists; the word ``none`` stands for no endpoint.
 
 Zenoh is imported only when a config is built, so importing this module costs nothing.
-:func:`open_session` also gives Zenoh's runtimes one thread per process unless the environment
-sets ``ZENOH_RUNTIME`` (:data:`ONE_THREAD_RUNTIME`, docs/zenoh-notes.md §1.3).
+:func:`open_session` also hands Zenoh's runtimes over to its application runtime unless the
+environment sets ``ZENOH_RUNTIME`` (:data:`ONE_THREAD_RUNTIME`, docs/zenoh-notes.md §1.3).
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ class ZenohOverrideError(ValueError):
 REALTIME_QUEUE = 16  # Zenoh's maximum
 
 #: Zenoh's receive, transmit, accept and network runtimes handed over to its application
-#: runtime (the RON syntax of the ``ZENOH_RUNTIME`` variable): one worker thread per process
-#: instead of five to ten, which on a busy 2-core machine lowered the daemon's CPU and the
+#: runtime (the RON syntax of the ``ZENOH_RUNTIME`` variable): a daemon's Zenoh threads two
+#: instead of seven (one worker thread), which on a busy 2-core machine lowered its CPU and the
 #: predictions' delivery tail (docs/zenoh-notes.md §1.3). Set ``ZENOH_RUNTIME`` to override.
 ONE_THREAD_RUNTIME = ("(rx: (handover: app), acc: (handover: app), tx: (handover: app), "
                       "net: (handover: app))")
