@@ -86,12 +86,11 @@ def predict_many(gps: Sequence[SparseOnlineGP], x: FloatArray, means: FloatArray
     docs/learner-math.md §6): the experts with basis vectors by compiled calls of up to
     :data:`.jit.WIDTH` experts each (:func:`.jit_predict.predict_experts`), the same floats;
     all of one model (one kernel, noise and prior-mean setting)."""
-    live = [j for j, gp in enumerate(gps) if gp.n > 0]
-    if len(live) < len(gps):  # an expert without basis vectors answers with its prior
+    if not gps:
+        return
+    if any(gp.n == 0 for gp in gps):  # an expert without basis vectors answers with its prior
         for j, gp in enumerate(gps):
             means[j], variance[j] = gp.predict(x)
-        return
-    if not gps:
         return
     first = gps[0]
     ns = np.array([gp.n for gp in gps], dtype=np.int64)
