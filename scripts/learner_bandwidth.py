@@ -27,8 +27,10 @@ from roger_daemon.learner import jit, packed
 def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     """Compiled calls per step by kind, measured ms per step, distinct experts, beta.
 
-    The learner runs on one thread, where it calls each expert's kernels from Python (on
-    several it batches them, :mod:`roger_daemon.learner.jit_batch`): the same passes.  A full
+    The learner runs on one thread, where it evaluates the experts several per call
+    (``jit.evaluate_experts``, each counted as one ``expert_terms`` pass) and updates each
+    one from Python (on several threads it batches both, :mod:`roger_daemon.learner.jit_batch`):
+    the same passes.  A full
     expert's ``jit.learn_full_expert`` counts as its ``Q k`` pass and, when it made one, its
     fused step; ``jit.novelty_step`` (a small expert's ``Q k`` and novelty test) as its
     ``Q k`` pass."""
@@ -37,13 +39,16 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
     jit._load()
-    kinds = ("expert_terms", "projection", "novelty_step", "fused_step", "learn_full_expert")
+    kinds = ("evaluate_experts", "expert_terms", "projection", "novelty_step", "fused_step",
+             "learn_full_expert")
     originals = {name: getattr(jit, name) for name in kinds}
 
     def counted(name: str, fn: Any) -> Any:
         def wrapper(*args: Any) -> Any:
             out = fn(*args)
-            if name == "novelty_step":  # an expert's Q k, with its novelty test
+            if name == "evaluate_experts":  # several experts' C k passes in one call
+                calls["expert_terms"] += args[4]  # its count
+            elif name == "novelty_step":  # an expert's Q k, with its novelty test
                 calls["projection"] += 1
             elif name != "learn_full_expert":
                 calls[name] += 1

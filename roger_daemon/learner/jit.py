@@ -54,28 +54,28 @@ _threads_default = True  # set_threads(None) (or never called)
 _workqueue = False  # warm_up found numba's threading layer to be workqueue
 _applied = threading.local()  # .count: what numba.set_num_threads was given in this thread
 
-KERNELS = ("cholesky_inverse", "copy_batch", "expert_terms", "fearnhead_split",
+KERNELS = ("cholesky_inverse", "copy_batch", "evaluate_experts", "expert_terms", "fearnhead_split",
            "fused_delete_index", "fused_step", "gate_log_predictive", "gate_update", "gram_matrix",
            "kernel_vector", "min_argmax", "learn_batch", "learn_full_expert",
            "lineage_assignments", "novelty_step", "novelty_test", "packed_add_lowrank",
-           "predict_experts", "projection", "rank_update_cq", "refresh_small", "shift_mean",
-           "sorted_threshold", "sparse_update", "stratified_pass", "sym_matvec", "sym_matvec_into",
+           "projection", "rank_update_cq", "refresh_small", "shift_mean", "sorted_threshold",
+           "sparse_update", "stratified_pass", "summarise", "sym_matvec", "sym_matvec_into",
            "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:
     from roger_daemon.learner import (
         jit_batch,
+        jit_evaluate,
         jit_fused,
         jit_kernels,
         jit_particles,
-        jit_predict,
         jit_resampling,
         jit_small,
     )
 
     for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small,
-                   jit_predict):
+                   jit_evaluate):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 
@@ -213,13 +213,13 @@ def _warm_up_batches(basis: npt.NDArray[np.float64], sym: npt.NDArray[np.float64
     ints = np.full(WIDTH, n, dtype=np.int64)
     coef = np.zeros((n, 1))
     bk.copy_batch(padded([sym], 0), padded([sym.copy()], 0), 1)
-    bk.terms_batch(padded([basis], 0), padded([sym], 0), padded([coef], 0), 1, ints, ints,
-                   np.zeros(1), 1.0, np.zeros(2 * n + 2), np.zeros(WIDTH, dtype=np.int64))
-    from roger_daemon.learner import jit_predict as pk
+    from roger_daemon.learner import jit_evaluate as ek
 
-    pk.predict_experts(padded([basis], 0), padded([sym], 0), padded([coef], 0),
-                       padded([np.zeros(1)], 0), 1, ints, ints, np.zeros(1), 1.0, 1.0, 0.1,
-                       1e-12, True, np.empty((1, 1)), np.empty(1))
+    for kernel in (bk.terms_batch, ek.evaluate_experts):
+        kernel(padded([basis], 0), padded([sym], 0), padded([coef], 0),
+               padded([np.zeros(1)], 0), 1, ints, ints, np.zeros(1), 1.0, 1.0, 1e-12, True,
+               np.zeros(2 * n + 2), np.zeros(WIDTH, dtype=np.int64), np.empty((1, 1)),
+               np.empty(1))
     rows = np.ones((1, n))
     k.projection(sym, np.zeros(n), n, n)
     k.novelty_test(0.5, 1.0, 1e-6, 1e-12, 1e-6)

@@ -22,6 +22,7 @@ from numba import prange
 
 from roger_daemon.learner.jit import DRIFTED, FUSED, KEPT
 from roger_daemon.learner.jit_compile import compiled as _compiled
+from roger_daemon.learner.jit_evaluate import summarise
 from roger_daemon.learner.jit_fused import fused_step
 from roger_daemon.learner.jit_kernels import expert_terms, novelty_test, projection
 
@@ -33,15 +34,19 @@ IntArray = npt.NDArray[np.int64]
 
 @_compiled(parallel=True, nogil=True)
 def terms_batch(bases: tuple[FloatArray, ...], covs: tuple[FloatArray, ...],
-                coefs: tuple[FloatArray, ...], count: int, ns: IntArray, allocs: IntArray,
-                x: FloatArray, gamma: float, out: FloatArray, offsets: IntArray) -> None:
-    """:func:`.jit_kernels.expert_terms` of the first ``count`` experts, expert ``e``'s
-    ``[k, C k, k^T C k, k^T A]`` written at ``out[offsets[e]:]``."""
+                coefs: tuple[FloatArray, ...], priors: tuple[FloatArray, ...], count: int,
+                ns: IntArray, allocs: IntArray, x: FloatArray, gamma: float, k_star: float,
+                floor: float, prior_mean: bool, out: FloatArray, offsets: IntArray,
+                means: FloatArray, latent: FloatArray) -> None:
+    """:func:`.jit_evaluate.evaluate_experts` with the experts spread over the threads: expert
+    ``e``'s ``[k, C k, k^T C k, k^T A]`` written at ``out[offsets[e]:]``, its predictive mean
+    into ``means[e]``, its latent variance into ``latent[e]``."""
     for e in prange(count):
         n = ns[e]
+        packed = expert_terms(bases[e], covs[e], coefs[e], x, gamma, n, allocs[e])
         start = offsets[e]
-        stop = start + 2 * n + 1 + coefs[e].shape[1]
-        out[start:stop] = expert_terms(bases[e], covs[e], coefs[e], x, gamma, n, allocs[e])
+        out[start: start + packed.shape[0]] = packed
+        latent[e] = summarise(packed, n, priors[e], k_star, floor, prior_mean, means[e])
 
 
 @_compiled(nogil=True)

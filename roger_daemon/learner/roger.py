@@ -46,7 +46,7 @@ from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
 from roger_daemon.learner.roger_predict import map_slots, predict
 from roger_daemon.learner.roger_state import load_roger_state, roger_state_dict
-from roger_daemon.learner.roger_step import instantiate, putatives
+from roger_daemon.learner.roger_step import SlotTerms, instantiate, putatives
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import LATENT_FLOOR, SparseOnlineGP
 from roger_daemon.learner.state import (
@@ -59,7 +59,6 @@ __all__ = ["Roger"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-Terms = tuple[FloatArray, FloatArray, FloatArray, float]
 
 
 
@@ -208,7 +207,7 @@ class Roger:
         return self._margins_read
 
     def _putatives(self, xs: FloatArray, ys: FloatArray
-                   ) -> tuple[FloatArray, IntArray, IntArray, IntArray, dict[int, Terms]]:
+                   ) -> tuple[FloatArray, IntArray, IntArray, IntArray, SlotTerms]:
         """Log weights of all putatives, touching no expert (:func:`.roger_step.putatives`)."""
         return putatives(self, xs, ys)
 

@@ -16,23 +16,25 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
-from roger_daemon.learner.sogp_batch import copy_many, terms_many
+from roger_daemon.learner.sogp_batch import Evaluation, copy_many, evaluate_many
 
 if TYPE_CHECKING:
     from roger_daemon.learner.roger import Roger
 
-__all__ = ["instantiate", "putatives"]
+__all__ = ["SlotTerms", "instantiate", "putatives"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-Terms = tuple[FloatArray, FloatArray, FloatArray, float]
+#: the step's evaluated experts by slot: where each one's terms are (an update reuses its
+#: expert's, built only then: :meth:`.sogp_batch.Evaluation.terms`)
+SlotTerms = dict[int, tuple[Evaluation, int]]
 
 _NEW = np.array([-1], dtype=np.int64)  # the "+1" empty expert in a putative list
 _STAGE1 = 4  # experts evaluated first to sharpen the pruning bound
 
 
 def putatives(model: Roger, xs: FloatArray, ys: FloatArray
-               ) -> tuple[FloatArray, IntArray, IntArray, IntArray, dict[int, Terms]]:
+               ) -> tuple[FloatArray, IntArray, IntArray, IntArray, SlotTerms]:
     """Log weights of all putatives (Algorithm 1, inner loops), touching no expert.
 
     Putative ``j`` assigns the point to expert slot ``flat_slots[j]`` (``-1``: a new one)
@@ -85,10 +87,10 @@ def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slo
 
 def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
                 is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
-                ) -> tuple[FloatArray, dict[int, Terms]]:
+                ) -> tuple[FloatArray, SlotTerms]:
     """``log N(y; mu_s(x), s_s^2 I)`` per slot, ``-inf`` where provably negligible."""
     slot_ll = np.full(cap, -np.inf)
-    terms: dict[int, Terms] = {}
+    terms: SlotTerms = {}
     if live.size == 0:
         return slot_ll, terms
     margin = model.params.prune_log_margin
@@ -111,10 +113,10 @@ def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, bas
         if slots.size == 0:
             return
         chosen = slots.tolist()
-        batch = terms_many([gps[s] for s in chosen], xs)
-        terms.update(zip(chosen, batch, strict=True))
-        diff = ys - np.array([t[2] for t in batch])  # np.array: half np.stack's cost here
-        var = p.theta_n + np.array([t[3] for t in batch])
+        got = evaluate_many([gps[s] for s in chosen], xs)
+        terms.update((s, (got, j)) for j, s in enumerate(chosen))
+        diff = ys - got.means
+        var = p.theta_n + got.latent
         slot_ll[slots] = gaussian_log_likelihood(np.einsum("ij,ij->i", diff, diff), var,
                                                  model.d_y, p.likelihood_normaliser)
 
@@ -130,7 +132,7 @@ def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, bas
 
 def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: IntArray,
                  flat_slots: IntArray, offsets: IntArray, xs: FloatArray, ys: FloatArray,
-                 terms: dict[int, Terms]) -> float:
+                 terms: SlotTerms) -> float:
     """Build the surviving particles; update each chosen expert once (copy-on-write).
 
     Returns the smallest novelty-test margin of the updated experts (``inf``: none).
@@ -147,7 +149,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     target: dict[int, int] = {}
     pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
-    upd_terms: list[Terms | None] = []
+    upd_terms: list[tuple[FloatArray, FloatArray, FloatArray, float] | None] = []
     upd_slots: list[int] = []
     for s in np.unique(surv_slot).tolist():
         if s < 0:  # a new expert, shared by every survivor that opened one this step
@@ -171,7 +173,8 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
                 model._gates.copy_slot(t, s)
                 model._ids[t] = model._ids[s]
             upd_gps.append(gp)
-            upd_terms.append(terms.get(s))
+            at = terms.get(s)
+            upd_terms.append(None if at is None else at[0].terms(at[1]))
             upd_slots.append(t)
             model._npts[t] = model._npts[s] + 1
         target[s] = t

@@ -1,16 +1,20 @@
 """Several experts at once: one ROGER step's evaluation and its chosen experts' updates.
 
-:func:`terms_many` is :meth:`.sogp.SparseOnlineGP.terms` of every expert a step evaluates;
+:func:`evaluate_many` is :meth:`.sogp.SparseOnlineGP.terms` of every expert a step evaluates
+(and, with the noise added, :func:`predict_many` a prediction's);
 :func:`update_many` is :meth:`.sogp.SparseOnlineGP.update` for each expert it updates, where
 the experts on the hot path (full: ``n = beta`` basis vectors in buffers for ``beta``) take
 the fused add-then-delete step (:mod:`.sogp_fused`).  Both run the experts' compiled kernels
-several per call, spread over the cores (:mod:`.jit_batch`; docs/performance.md, *Both cores
-in one step*); each expert's floats are those of a call of its own.  Split from :mod:`.sogp`
+several per call, on one thread (:mod:`.jit_evaluate`) or spread over the cores
+(:mod:`.jit_batch`; docs/performance.md, *Both cores in one step*); each expert's floats are
+those of a call of its own.  Split from :mod:`.sogp`
 (which re-exports :func:`update_many`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, NamedTuple
@@ -26,7 +30,7 @@ from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
 
-__all__ = ["copy_many", "predict_many", "terms_many", "update_many"]
+__all__ = ["Evaluation", "copy_many", "evaluate_many", "predict_many", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -50,63 +54,82 @@ def copy_many(pending: Sequence[tuple[FloatArray, FloatArray]]) -> None:
             _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo)
 
 
-def terms_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> list[Terms]:
-    """``[gp.terms(x) for gp in gps]``; on several threads (:func:`.jit.threads`), when the
-    experts are large enough (:func:`.jit.batch_worth`), the experts with basis vectors are
-    evaluated by compiled calls of up to :data:`.jit.WIDTH` experts each
-    (:func:`.jit_batch.terms_batch`), the same floats."""
-    live = [j for j, gp in enumerate(gps) if gp.n > 0]
-    if not live or not _jit.batch_worth(sum(gps[j].n * (gps[j].n + 1) // 2 for j in live)):
-        return [gp.terms(x) for gp in gps]
-    out: list[Terms | None] = [None if gp.n > 0 else gp.terms(x) for gp in gps]
-    m = len(live)
-    ns = np.array([gps[j].n for j in live], dtype=np.int64)
-    allocs = np.array([gps[j].alloc for j in live], dtype=np.int64)
-    sizes = 2 * ns + 1 + np.array([gps[j].a_cols for j in live], dtype=np.int64)
-    offsets = np.cumsum(sizes) - sizes
-    packed = np.zeros(int(sizes.sum()))
-    bases = [gps[j]._B for j in live]
-    covs = [gps[j]._Cp for j in live]
-    coefs = [gps[j]._A for j in live]
-    gamma = gps[live[0]].kernel.gamma
-    with _jit.BATCH_LOCK:
+class Evaluation:
+    """Experts evaluated at one input (:func:`evaluate_many`): ``means[j]`` (``d_y``) and
+    ``latent[j]`` are expert ``j``'s predictive mean and latent variance (the floats of
+    :meth:`.sogp.SparseOnlineGP.terms`); :meth:`terms` gives its full terms, built when
+    first asked for (a step updates ~3 of the ~25 experts it evaluates)."""
+
+    __slots__ = ("_gps", "_offsets", "_packed", "_terms", "latent", "means")
+
+    def __init__(self, gps: Sequence[SparseOnlineGP], means: FloatArray, latent: FloatArray,
+                 packed: FloatArray, offsets: list[int], terms: list[Terms | None]) -> None:
+        self._gps = gps
+        self.means = means
+        self.latent = latent
+        self._packed = packed
+        self._offsets = offsets
+        self._terms = terms
+
+    def terms(self, j: int) -> Terms:
+        """``gps[j].terms(x)``, from the compiled ``[k, C k, k^T C k, k^T A]`` of the call."""
+        got = self._terms[j]
+        if got is None:
+            gp = self._gps[j]
+            start = self._offsets[j]
+            got = gp._terms_from(self._packed[start: start + 2 * gp.n + 1 + gp.a_cols])
+            self._terms[j] = got
+        return got
+
+
+def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
+    """Every expert of ``gps`` (all of one model: one kernel and prior-mean setting) at
+    ``x``: by compiled calls of up to :data:`.jit.WIDTH` experts each, on one thread
+    (:func:`.jit_evaluate.evaluate_experts`) or, when :func:`.jit.batch_worth` says the
+    experts are large enough for the threads, spread over them
+    (:func:`.jit_batch.terms_batch`); the same floats as each expert's own ``terms``."""
+    m = len(gps)
+    columns = list(zip(*[(gp.n, gp._alloc, gp._B, gp._Cp, gp._A, gp._m) for gp in gps],
+                       strict=True))
+    if m == 0 or 0 in columns[0]:  # an expert without basis vectors answers with its prior
+        each = [gp.terms(x) for gp in gps]
+        return Evaluation(gps, np.array([t[2] for t in each]),
+                          np.array([t[3] for t in each], dtype=np.float64), np.empty(0), [],
+                          list(each))
+    ns, allocs, bases, covs, coefs, priors = columns
+    first = gps[0]
+    cols = 1 + first.a_cols  # every expert of one model has as many output columns
+    offsets = [0, *itertools.accumulate(2 * n + cols for n in ns)]
+    packed = np.empty(offsets.pop())
+    means = np.empty((m, first.d_y))
+    latent = np.empty(m)
+    counts = np.array(ns, dtype=np.int64)
+    sizes = np.array(allocs, dtype=np.int64)
+    starts = np.array(offsets, dtype=np.int64)
+    kernel = first.kernel
+    batched = _jit.batch_worth(sum(n * (n + 1) // 2 for n in ns))
+    call = _jit.terms_batch if batched else _jit.evaluate_experts
+    with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
         for lo in range(0, m, _jit.WIDTH):
-            hi = lo + _jit.WIDTH
-            _jit.terms_batch(_jit.padded(bases, lo), _jit.padded(covs, lo),
-                             _jit.padded(coefs, lo), min(hi, m) - lo, ns[lo:hi],
-                             allocs[lo:hi], x, gamma, packed, offsets[lo:hi])
-    for j, start, size in zip(live, offsets.tolist(), sizes.tolist(), strict=True):
-        out[j] = gps[j]._terms_from(packed[start: start + size])
-    return [t for t in out if t is not None]
+            hi = min(lo + _jit.WIDTH, m)
+            call(_jit.padded(bases, lo), _jit.padded(covs, lo), _jit.padded(coefs, lo),
+                 _jit.padded(priors, lo), hi - lo, counts[lo:hi], sizes[lo:hi], x,
+                 kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed,
+                 starts[lo:hi], means[lo:hi], latent[lo:hi])
+    return Evaluation(gps, means, latent, packed, offsets, [None] * m)
 
 
 def predict_many(gps: Sequence[SparseOnlineGP], x: FloatArray, means: FloatArray,
                  variance: FloatArray) -> None:
     """``means[j], variance[j] = gps[j].predict(x)`` for every expert (a prediction's multimap,
-    docs/learner-math.md §6): the experts with basis vectors by compiled calls of up to
-    :data:`.jit.WIDTH` experts each (:func:`.jit_predict.predict_experts`), the same floats;
-    all of one model (one kernel, noise and prior-mean setting)."""
+    docs/learner-math.md §6): :func:`evaluate_many`, then the observation noise added to each
+    latent variance, the same floats; all of one model (one kernel, noise and prior-mean
+    setting)."""
     if not gps:
         return
-    if any(gp.n == 0 for gp in gps):  # an expert without basis vectors answers with its prior
-        for j, gp in enumerate(gps):
-            means[j], variance[j] = gp.predict(x)
-        return
-    first = gps[0]
-    ns = np.array([gp.n for gp in gps], dtype=np.int64)
-    allocs = np.array([gp.alloc for gp in gps], dtype=np.int64)
-    bases = [gp._B for gp in gps]
-    covs = [gp._Cp for gp in gps]
-    coefs = [gp._A for gp in gps]
-    priors = [gp._m for gp in gps]
-    kernel = first.kernel
-    for lo in range(0, len(gps), _jit.WIDTH):
-        hi = min(lo + _jit.WIDTH, len(gps))
-        _jit.predict_experts(_jit.padded(bases, lo), _jit.padded(covs, lo),
-                             _jit.padded(coefs, lo), _jit.padded(priors, lo), hi - lo,
-                             ns[lo:hi], allocs[lo:hi], x, kernel.gamma, kernel.k_star,
-                             first.noise, _LATENT_FLOOR, first.prior_mean, means[lo:hi],
-                             variance[lo:hi])
+    got = evaluate_many(gps, x)
+    means[:] = got.means
+    np.add(gps[0].noise, got.latent, out=variance)
 
 
 def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,

@@ -188,14 +188,14 @@ def test_the_lazy_loader_binds_exactly_the_kernels_of_the_seven_modules() -> Non
     from roger_daemon.learner import jit as lazy
     from roger_daemon.learner import (
         jit_batch,
+        jit_evaluate,
         jit_fused,
         jit_particles,
-        jit_predict,
         jit_resampling,
         jit_small,
     )
 
-    modules = (jit, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small, jit_predict)
+    modules = (jit, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small, jit_evaluate)
     exports = [set(m.__all__) for m in modules]
     assert set(lazy.KERNELS) == set().union(*exports)
     assert sum(map(len, exports)) == len(set().union(*exports))  # no name in two modules

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from roger_daemon.learner import Roger, RogerParams, jit
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
-from roger_daemon.learner.sogp_batch import terms_many, update_many
+from roger_daemon.learner.sogp_batch import evaluate_many, update_many
 from roger_daemon.learner.synthetic import subtask_stream
 
 
@@ -42,20 +42,26 @@ def _same_state(a: SparseOnlineGP, b: SparseOnlineGP) -> None:
     assert a.novelty_margin == b.novelty_margin
 
 
-def test_batched_evaluation_is_each_experts_own() -> None:
-    """``terms_many`` on two threads (20 experts: more than one batch of ``WIDTH``, sizes
-    from empty to full, with and without a prior mean) == ``gp.terms``, bit for bit."""
-    jit.set_threads(2)
-    experts = [_expert(n, seed, prior_mean=seed % 3 == 0)
-               for seed, n in enumerate([0, 1, 5, 12, 40] * 4)]
+@pytest.mark.parametrize("threads", [1, 2])
+def test_batched_evaluation_is_each_experts_own(threads: int) -> None:
+    """``evaluate_many`` on one thread (:func:`.jit_evaluate.evaluate_experts`) and on two
+    (:func:`.jit_batch.terms_batch`), 20 experts (more than one call of ``WIDTH``; sizes from
+    one basis vector to full at 12, with and without a prior mean) == ``gp.terms``, bit for
+    bit: the means, the latent variances and every expert's full terms; with an empty expert
+    among them, each is evaluated on its own, the same floats."""
+    jit.set_threads(threads)
+    live = [_expert(n, seed, prior_mean=seed % 3 == 0)
+            for seed, n in enumerate([1, 5, 12, 40, 60] * 4)]
     x = np.array([0.1, -0.3, 0.7])
-    got = terms_many(experts, x)
-    assert len(got) == len(experts) > jit.WIDTH
-    for gp, (k, ck, mean, latent) in zip(experts, got, strict=True):
-        k0, ck0, mean0, latent0 = gp.terms(x)
-        for u, v in ((k, k0), (ck, ck0), (mean, mean0)):
-            np.testing.assert_array_equal(u, v)
-        assert latent == latent0
+    for experts in (live, [*live[:3], _expert(0, 7), *live[3:]]):
+        got = evaluate_many(experts, x)
+        assert len(experts) > jit.WIDTH
+        for j, gp in enumerate(experts):
+            k0, ck0, mean0, latent0 = gp.terms(x)
+            k, ck, mean, latent = got.terms(j)
+            for u, v in ((k, k0), (ck, ck0), (mean, mean0), (got.means[j], mean0)):
+                np.testing.assert_array_equal(u, v)
+            assert latent == latent0 == got.latent[j]
 
 
 def _learn_stream(threads: int, points: int = 160) -> Roger:
@@ -152,7 +158,7 @@ def test_experts_are_batched_on_several_threads_with_enough_work(
 def test_only_empty_experts_are_evaluated_one_at_a_time() -> None:
     jit.set_threads(2)
     experts = [_expert(0, 1), _expert(0, 2)]
-    assert [t[3] for t in terms_many(experts, np.zeros(3))] == [1.0, 1.0]  # k* each
+    assert evaluate_many(experts, np.zeros(3)).latent.tolist() == [1.0, 1.0]  # k* each
 
 
 def test_the_default_is_one_thread_on_numbas_workqueue_layer(
