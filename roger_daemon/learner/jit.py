@@ -1,5 +1,5 @@
 """The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`, :mod:`.jit_batch`,
-:mod:`.jit_particles`, :mod:`.jit_resampling`, :mod:`.jit_small`, :mod:`.jit_predict`), loaded on
+:mod:`.jit_particles`, :mod:`.jit_resampling`, :mod:`.jit_small`, :mod:`.jit_evaluate`), loaded on
 first use.
 
 Importing numba takes about a second, so commands that import the learner without learning

@@ -196,7 +196,8 @@ class SparseOnlineGP(SOGPSteps):
     def _terms_from(self, packed: FloatArray
                     ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
         """:meth:`terms` from the compiled ``[k, C k, k^T C k, k^T A]`` of this expert (one
-        call, :func:`.jit_kernels.expert_terms`, or several, :func:`.sogp_batch.terms_many`)."""
+        call, :func:`.jit_kernels.expert_terms`, or several experts' at once:
+        :meth:`.sogp_batch.Evaluation.terms`)."""
         n = self.n
         k, ck, mean = packed[:n], packed[n: 2 * n], packed[2 * n + 1:]
         kck = float(packed[2 * n])
