@@ -15,12 +15,15 @@ multicast scouting off); with a file only the flags given on the command line ov
 Endpoint flags are repeatable and take comma lists; the word ``none`` stands for no endpoint.
 
 Zenoh is imported only when a config is built, so importing this module costs nothing.
+:func:`open_session` also hands Zenoh's runtimes over to its application runtime unless the
+environment sets ``ZENOH_RUNTIME`` (:data:`ONE_THREAD_RUNTIME`, docs/zenoh-notes.md §1.3).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
@@ -31,6 +34,7 @@ if TYPE_CHECKING:
     import zenoh
 
 __all__ = [
+    "ONE_THREAD_RUNTIME",
     "ZenohOverrideError",
     "ZenohSettings",
     "add_zenoh_args",
@@ -47,6 +51,13 @@ class ZenohOverrideError(ValueError):
 
 
 REALTIME_QUEUE = 16  # Zenoh's maximum
+
+#: Zenoh's receive, transmit, accept and network runtimes handed over to its application
+#: runtime (the RON syntax of the ``ZENOH_RUNTIME`` variable): a daemon's Zenoh threads two
+#: instead of seven (one worker thread), which on a busy 2-core machine lowered its CPU and the
+#: predictions' delivery tail (docs/zenoh-notes.md §1.3). Set ``ZENOH_RUNTIME`` to override.
+ONE_THREAD_RUNTIME = ("(rx: (handover: app), acc: (handover: app), tx: (handover: app), "
+                      "net: (handover: app))")
 
 
 @dataclass(frozen=True)
@@ -95,7 +106,11 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
 
 def open_session(conf: ZenohSettings | zenoh.Config) -> zenoh.Session:
     """Open a ``zenoh.Session`` (call after any fork); use it as ``with open_session(s) as z:``
-    or close it yourself."""
+    or close it yourself.
+
+    Zenoh reads ``ZENOH_RUNTIME`` when its runtimes start, at a process's first session: this
+    sets it to :data:`ONE_THREAD_RUNTIME` first unless the environment already has it."""
+    os.environ.setdefault("ZENOH_RUNTIME", ONE_THREAD_RUNTIME)
     import zenoh
 
     return zenoh.open(zenoh_config(conf) if isinstance(conf, ZenohSettings) else conf)

@@ -105,3 +105,55 @@ def test_realtime_send_queue_is_16_batches_unless_a_file_decides(tmp_path: Path)
     assert _get(zenoh_config(daemon.zenoh), key) == 16
     filed = parse_config({"robots": [{"id": "a"}], "zenoh": {"config_file": str(f)}})
     assert _get(zenoh_config(filed.zenoh), key) == 4
+
+
+_THREADS_SCRIPT = """
+import json, os, sys, time
+from roger_daemon.harness import free_port
+from roger_daemon.zenoh_session import ZenohSettings, open_session
+ep = f"tcp/127.0.0.1:{free_port()}"
+got = []
+with open_session(ZenohSettings(listen=(ep,))) as a, \\
+        open_session(ZenohSettings(listen=(), connect=(ep,))) as b:
+    a.declare_subscriber("roger/test/**", lambda s: got.append(s.payload.to_bytes()))
+    pub = b.declare_publisher("roger/test/x")
+    end = time.monotonic() + 20
+    while len(got) < 3 and time.monotonic() < end:
+        pub.put(b"hello")
+        time.sleep(0.05)
+    names = sorted(open(f"/proc/self/task/{t}/comm").read().strip()
+                   for t in os.listdir("/proc/self/task"))
+print(json.dumps({"got": len(got), "threads": names,
+                  "runtime": os.environ.get("ZENOH_RUNTIME")}))
+"""
+
+
+@pytest.mark.integration
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux's /proc")
+@pytest.mark.parametrize("preset", [None, "(rx: (worker_threads: 1))"])
+def test_zenoh_runs_on_one_thread_per_process_unless_the_environment_decides(
+        preset: str | None) -> None:
+    """``open_session`` hands Zenoh's receive, transmit, accept and network runtimes over to
+    its application runtime (docs/zenoh-notes.md §1.3): two sessions of one process exchange
+    samples with no ``rx``/``tx``/``acc``/``net`` thread. A ``ZENOH_RUNTIME`` already in the
+    environment is left as it is, and Zenoh then starts its receive thread."""
+    import os
+    import subprocess
+    import sys
+
+    from roger_daemon.zenoh_session import ONE_THREAD_RUNTIME
+
+    env = {k: v for k, v in os.environ.items() if k != "ZENOH_RUNTIME"}
+    if preset is not None:
+        env["ZENOH_RUNTIME"] = preset
+    out = subprocess.run([sys.executable, "-c", _THREADS_SCRIPT], env=env, check=True,
+                         capture_output=True, text=True, timeout=120)
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert report["got"] >= 3
+    runtime_threads = {n.split("-")[0] for n in report["threads"] if "-" in n}
+    if preset is None:
+        assert report["runtime"] == ONE_THREAD_RUNTIME
+        assert runtime_threads == {"app"}
+    else:
+        assert report["runtime"] == preset
+        assert "rx" in runtime_threads
