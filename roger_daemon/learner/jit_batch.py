@@ -22,9 +22,9 @@ from numba import prange
 
 from roger_daemon.learner.jit import DRIFTED, FUSED, KEPT
 from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_evaluate import summarise
+from roger_daemon.learner.jit_evaluate import evaluate_expert
 from roger_daemon.learner.jit_fused import fused_step
-from roger_daemon.learner.jit_kernels import expert_terms, novelty_test, projection
+from roger_daemon.learner.jit_kernels import novelty_test, projection
 
 __all__ = ["copy_batch", "learn_batch", "learn_full_expert", "terms_batch"]
 
@@ -42,11 +42,9 @@ def terms_batch(bases: tuple[FloatArray, ...], covs: tuple[FloatArray, ...],
     ``e``'s ``[k, C k, k^T C k, k^T A]`` written at ``out[offsets[e]:]``, its predictive mean
     into ``means[e]``, its latent variance into ``latent[e]``."""
     for e in prange(count):
-        n = ns[e]
-        packed = expert_terms(bases[e], covs[e], coefs[e], x, gamma, n, allocs[e])
-        start = offsets[e]
-        out[start: start + packed.shape[0]] = packed
-        latent[e] = summarise(packed, n, priors[e], k_star, floor, prior_mean, means[e])
+        latent[e] = evaluate_expert(bases[e], covs[e], coefs[e], priors[e], ns[e], allocs[e],
+                                    x, gamma, k_star, floor, prior_mean, out, offsets[e],
+                                    means[e])
 
 
 @_compiled(nogil=True)

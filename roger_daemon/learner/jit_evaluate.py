@@ -6,9 +6,9 @@ vectors cost ~1.5 µs of compiled work each but ~7–10 µs each through
 :meth:`.sogp.SparseOnlineGP.terms` (a call, slicing, a tuple).  :func:`evaluate_experts` runs
 the same kernel, :func:`.jit_kernels.expert_terms`, for up to :data:`.jit.WIDTH` experts per
 call and finishes each expert's mean and latent variance as :meth:`.sogp.SparseOnlineGP.terms`
-does, operation for operation (:func:`summarise`), so the floats are its, bit for bit
+does, operation for operation (:func:`evaluate_expert`), so the floats are its, bit for bit
 (tests/learner/test_jit.py).  One thread: the experts are small; large experts on several
-threads go to :func:`.jit_batch.terms_batch`, which finishes them with :func:`summarise` too.
+threads go to :func:`.jit_batch.terms_batch`, which runs :func:`evaluate_expert` too.
 """
 
 from __future__ import annotations
@@ -19,19 +19,24 @@ import numpy.typing as npt
 from roger_daemon.learner.jit_compile import compiled as _compiled
 from roger_daemon.learner.jit_kernels import expert_terms
 
-__all__ = ["evaluate_experts", "summarise"]
+__all__ = ["evaluate_expert", "evaluate_experts"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 
 @_compiled(nogil=True)
-def summarise(packed: FloatArray, n: int, prior: FloatArray, k_star: float, floor: float,
-              prior_mean: bool, mean_out: FloatArray) -> float:
-    """From one expert's ``[k, C k, k^T C k, k^T A]`` (:func:`.jit_kernels.expert_terms`):
-    its predictive mean into ``mean_out`` (``k^T A``, plus the prior mean ``prior`` when
-    ``prior_mean``), and its latent variance ``max(k* + k^T C k, floor)`` returned (the sign of
-    ``k^T C k``: docs/learner-math.md §2.4), as :meth:`.sogp.SparseOnlineGP.terms` makes them."""
+def evaluate_expert(basis: FloatArray, cov: FloatArray, coef: FloatArray, prior: FloatArray,
+                    n: int, alloc: int, x: FloatArray, gamma: float, k_star: float,
+                    floor: float, prior_mean: bool, out: FloatArray, start: int,
+                    mean_out: FloatArray) -> float:
+    """One expert (``n >= 1`` basis vectors) at ``x``: its ``[k, C k, k^T C k, k^T A]``
+    (:func:`.jit_kernels.expert_terms`) written at ``out[start:]``, its predictive mean into
+    ``mean_out`` (``k^T A``, plus the prior mean ``prior`` when ``prior_mean``), and its latent
+    variance ``max(k* + k^T C k, floor)`` returned (the sign of ``k^T C k``:
+    docs/learner-math.md §2.4), as :meth:`.sogp.SparseOnlineGP.terms` makes them."""
+    packed = expert_terms(basis, cov, coef, x, gamma, n, alloc)
+    out[start: start + packed.shape[0]] = packed
     base = 2 * n + 1
     if prior_mean:
         for c in range(mean_out.shape[0]):
@@ -51,12 +56,9 @@ def evaluate_experts(bases: tuple[FloatArray, ...], covs: tuple[FloatArray, ...]
                      ns: IntArray, allocs: IntArray, x: FloatArray, gamma: float,
                      k_star: float, floor: float, prior_mean: bool, out: FloatArray,
                      offsets: IntArray, means: FloatArray, latent: FloatArray) -> None:
-    """The first ``count`` experts (each with ``ns[e] >= 1`` basis vectors) at ``x``: expert
-    ``e``'s ``[k, C k, k^T C k, k^T A]`` written at ``out[offsets[e]:]``, its predictive mean
-    into ``means[e]`` and its latent variance into ``latent[e]`` (:func:`summarise`)."""
+    """:func:`evaluate_expert` of the first ``count`` experts: expert ``e``'s terms at
+    ``out[offsets[e]:]``, its mean into ``means[e]``, its latent variance into ``latent[e]``."""
     for e in range(count):
-        n = ns[e]
-        packed = expert_terms(bases[e], covs[e], coefs[e], x, gamma, n, allocs[e])
-        start = offsets[e]
-        out[start: start + packed.shape[0]] = packed
-        latent[e] = summarise(packed, n, priors[e], k_star, floor, prior_mean, means[e])
+        latent[e] = evaluate_expert(bases[e], covs[e], coefs[e], priors[e], ns[e], allocs[e],
+                                    x, gamma, k_star, floor, prior_mean, out, offsets[e],
+                                    means[e])
