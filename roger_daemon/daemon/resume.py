@@ -66,9 +66,15 @@ def load_robot(
 ) -> tuple[RobotRuntime, Checkpoint | None]:
     """The runtime of one robot and the checkpoint it resumed from (None: fresh model)."""
     from roger_daemon.learner import load_model
-    from roger_daemon.learner.jit import warm_up
 
-    warm_up()  # the learner's compiled kernels now, not in the robot's first update
+    if cfg.learner_workers == "inline":  # the loop learns: its compiled kernels now, not in
+        from roger_daemon.learner.jit import warm_up  # the robot's first live update
+
+        warm_up()
+    # With learner workers each worker warms up its own (worker.py); the loop's process then
+    # loads numba only if it re-learns pairs at start-up (recovery), on first use. Loaded
+    # here for nothing it would hold ~130 MB (numba and the kernels), ~320 MB on a cold cache
+    # (docs/fleet.md, *Benchmarks*).
     dims = Dims(robot.x_dim, robot.y_dim)
     loaded: dict[str, Any] = {}
 
