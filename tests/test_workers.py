@@ -377,6 +377,42 @@ def test_worker_crash_is_detected_and_reported(tmp_path: Path, processes: int) -
 
 
 @pytest.mark.slow
+def _maps_numba(pid: int) -> bool:
+    """Whether process ``pid`` has numba's compiler (llvmlite's library) mapped."""
+    return "llvmlite" in Path(f"/proc/{pid}/maps").read_text()
+
+
+@pytest.mark.integration
+@pytest.mark.skipif(not Path("/proc/self/maps").is_file(), reason="needs Linux's /proc")
+def test_with_workers_only_the_workers_load_the_compiled_kernels(tmp_path: Path) -> None:
+    """A real daemon with two robots (worker processes): the workers warm up the learner's
+    kernels and the loop's process does not load numba at all while it serves (docs/fleet.md,
+    *The design*: ~124 MB of its memory, ~320 MB on a cold cache)."""
+    from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
+
+    port = free_port()
+    cfg = write_config(tmp_path / "d.toml", port=port, workdir=tmp_path,
+                       robots=({"id": "aibo"}, {"id": "b2"}))
+    daemon = DaemonProcess(cfg)
+    client = None
+    try:
+        daemon.wait_ready(DEADLINE_S)
+        client = Client(f"tcp/127.0.0.1:{port}")
+        client.wait_daemon(DEADLINE_S)
+        for t in range(4):  # learning and predicting happen, in the workers
+            client.perception(t, STREAM.x[t])
+            client.wait_prediction(t, timeout=DEADLINE_S)
+            client.action(t, STREAM.y[t], LABELS[STREAM.labels[t]])
+        st = client.wait_status(lambda s: s.info.get("workers") == "process" and s.updates >= 3,
+                                timeout=DEADLINE_S)
+        assert _maps_numba(int(st.info["worker_pid"]))
+        assert not _maps_numba(daemon.proc.pid)
+    finally:
+        if client is not None:
+            client.close()
+        daemon.kill()
+
+
 @pytest.mark.integration
 @pytest.mark.parametrize("processes", [0, 1], ids=["default-pool", "one-process-for-both"])
 def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
