@@ -387,7 +387,7 @@ def _maps_numba(pid: int) -> bool:
 def test_with_workers_only_the_workers_load_the_compiled_kernels(tmp_path: Path) -> None:
     """A real daemon with two robots (worker processes): the workers warm up the learner's
     kernels and the loop's process does not load numba at all while it serves (docs/fleet.md,
-    *The design*: ~124 MB of its memory, ~320 MB on a cold cache)."""
+    *The design*: ~124 MB of its memory, ~312 MB on a cold cache)."""
     from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
 
     port = free_port()

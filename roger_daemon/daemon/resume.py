@@ -73,8 +73,8 @@ def load_robot(
         warm_up()
     # With learner workers each worker warms up its own (worker.py); the loop's process then
     # loads numba only if it re-learns pairs at start-up (recovery), on first use. Loaded
-    # here for nothing it would hold ~130 MB (numba and the kernels), ~320 MB on a cold cache
-    # (docs/fleet.md, *Benchmarks*).
+    # here for nothing it held ~124 MB (numba and the kernels), ~312 MB when it compiled them
+    # on a cold cache (docs/fleet.md, *Benchmarks*).
     dims = Dims(robot.x_dim, robot.y_dim)
     loaded: dict[str, Any] = {}
 

@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
-from roger_daemon.learner.sogp_batch import Evaluation, copy_many, evaluate_many
+from roger_daemon.learner.sogp_batch import Evaluation, Terms, copy_many, evaluate_many
 
 if TYPE_CHECKING:
     from roger_daemon.learner.roger import Roger
@@ -149,7 +149,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     target: dict[int, int] = {}
     pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
-    upd_terms: list[tuple[FloatArray, FloatArray, FloatArray, float] | None] = []
+    upd_terms: list[Terms | None] = []
     upd_slots: list[int] = []
     for s in np.unique(surv_slot).tolist():
         if s < 0:  # a new expert, shared by every survivor that opened one this step
