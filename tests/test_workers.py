@@ -6,9 +6,11 @@ Bounded loops with generous deadlines; no timing assertions.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -382,35 +384,45 @@ def _maps_numba(pid: int) -> bool:
     return "llvmlite" in Path(f"/proc/{pid}/maps").read_text()
 
 
-@pytest.mark.integration
-@pytest.mark.skipif(not Path("/proc/self/maps").is_file(), reason="needs Linux's /proc")
-def test_with_workers_only_the_workers_load_the_compiled_kernels(tmp_path: Path) -> None:
-    """A real daemon with two robots (worker processes): the workers warm up the learner's
-    kernels and the loop's process does not load numba at all while it serves (docs/fleet.md,
-    *The design*: ~124 MB of its memory, ~312 MB on a cold cache)."""
+@contextlib.contextmanager
+def _fed_daemon(tmp_path: Path, ticks: int, **daemon_cfg: Any
+                ) -> Iterator[tuple[Path, Any, Any]]:
+    """A real daemon serving robots ``aibo`` and ``b2`` (worker processes, real Zenoh on
+    loopback) whose first ``ticks`` perceptions were answered and actions sent: yields its
+    config file, the ``DaemonProcess`` and the ``Client``; closes and kills them after."""
     from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
 
     port = free_port()
     cfg = write_config(tmp_path / "d.toml", port=port, workdir=tmp_path,
-                       robots=({"id": "aibo"}, {"id": "b2"}))
+                       robots=({"id": "aibo"}, {"id": "b2"}), daemon=daemon_cfg)
     daemon = DaemonProcess(cfg)
     client = None
     try:
         daemon.wait_ready(DEADLINE_S)
         client = Client(f"tcp/127.0.0.1:{port}")
         client.wait_daemon(DEADLINE_S)
-        for t in range(4):  # learning and predicting happen, in the workers
+        for t in range(ticks):
             client.perception(t, STREAM.x[t])
             client.wait_prediction(t, timeout=DEADLINE_S)
             client.action(t, STREAM.y[t], LABELS[STREAM.labels[t]])
-        st = client.wait_status(lambda s: s.info.get("workers") == "process" and s.updates >= 3,
-                                timeout=DEADLINE_S)
-        assert _maps_numba(int(st.info["worker_pid"]))
-        assert not _maps_numba(daemon.proc.pid)
+        yield cfg, daemon, client
     finally:
         if client is not None:
             client.close()
         daemon.kill()
+
+
+@pytest.mark.integration
+@pytest.mark.skipif(not Path("/proc/self/maps").is_file(), reason="needs Linux's /proc")
+def test_with_workers_only_the_workers_load_the_compiled_kernels(tmp_path: Path) -> None:
+    """A real daemon with two robots (worker processes): the workers warm up the learner's
+    kernels and the loop's process does not load numba at all while it serves (docs/fleet.md,
+    *The design*: ~124 MB of its memory, ~312 MB on a cold cache)."""
+    with _fed_daemon(tmp_path, 4) as (_, daemon, client):  # learning and predicting happen
+        st = client.wait_status(lambda s: s.info.get("workers") == "process" and s.updates >= 3,
+                                timeout=DEADLINE_S)
+        assert _maps_numba(int(st.info["worker_pid"]))
+        assert not _maps_numba(daemon.proc.pid)
 
 
 @pytest.mark.integration
@@ -422,22 +434,9 @@ def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
     (with ``worker_processes = 1`` the one serving both robots); the daemon reports it and
     exits 1 (not hung); a restart re-learns every acknowledged pair from the write-ahead
     log."""
-    from roger_daemon.harness import Client, DaemonProcess, free_port, write_config
+    from roger_daemon.harness import DaemonProcess
 
-    port = free_port()
-    cfg = write_config(tmp_path / "d.toml", port=port, workdir=tmp_path,
-                       robots=({"id": "aibo"}, {"id": "b2"}),
-                       daemon={"worker_processes": processes})
-    daemon = DaemonProcess(cfg)
-    client = None
-    try:
-        daemon.wait_ready(DEADLINE_S)
-        client = Client(f"tcp/127.0.0.1:{port}")
-        client.wait_daemon(DEADLINE_S)
-        for t in range(12):
-            client.perception(t, STREAM.x[t])
-            client.wait_prediction(t, timeout=DEADLINE_S)
-            client.action(t, STREAM.y[t], LABELS[STREAM.labels[t]])
+    with _fed_daemon(tmp_path, 12, worker_processes=processes) as (cfg, daemon, client):
         client.perception(12, STREAM.x[12])
         acked = client.wait_prediction(12, timeout=DEADLINE_S).msg.updates
         assert acked == 12
@@ -446,10 +445,6 @@ def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
         os.kill(int(st.info["worker_pid"]), signal.SIGKILL)
         assert daemon.proc.wait(DEADLINE_S) == 1
         assert "learner worker pid" in daemon.log() and "failed" in daemon.log()
-    finally:
-        if client is not None:
-            client.close()
-        daemon.kill()
     again = DaemonProcess(cfg, log=tmp_path / "again.log")
     try:
         again.wait_ready(DEADLINE_S)

@@ -17,6 +17,7 @@ import contextlib
 import itertools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -54,31 +55,29 @@ def copy_many(pending: Sequence[tuple[FloatArray, FloatArray]]) -> None:
             _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo)
 
 
+@dataclass(slots=True)
 class Evaluation:
     """Experts evaluated at one input (:func:`evaluate_many`): ``means[j]`` (``d_y``) and
-    ``latent[j]`` are expert ``j``'s predictive mean and latent variance (the floats of
-    :meth:`.sogp.SparseOnlineGP.terms`); :meth:`terms` gives its full terms, built when
-    first asked for (a step updates ~3 of the ~25 experts it evaluates)."""
+    ``latent[j]`` are expert ``gps[j]``'s predictive mean and latent variance (the floats of
+    :meth:`.sogp.SparseOnlineGP.terms`); :meth:`terms` gives its full terms, built from the
+    compiled ``packed[offsets[j]:]`` when first asked for (a step updates ~3 of the ~25 experts
+    it evaluates) and kept in ``built``."""
 
-    __slots__ = ("_gps", "_offsets", "_packed", "_terms", "latent", "means")
-
-    def __init__(self, gps: Sequence[SparseOnlineGP], means: FloatArray, latent: FloatArray,
-                 packed: FloatArray, offsets: list[int], terms: list[Terms | None]) -> None:
-        self._gps = gps
-        self.means = means
-        self.latent = latent
-        self._packed = packed
-        self._offsets = offsets
-        self._terms = terms
+    gps: Sequence[SparseOnlineGP]
+    means: FloatArray
+    latent: FloatArray
+    packed: FloatArray
+    offsets: list[int]
+    built: list[Terms | None]
 
     def terms(self, j: int) -> Terms:
         """``gps[j].terms(x)``, from the compiled ``[k, C k, k^T C k, k^T A]`` of the call."""
-        got = self._terms[j]
+        got = self.built[j]
         if got is None:
-            gp = self._gps[j]
-            start = self._offsets[j]
-            got = gp._terms_from(self._packed[start: start + 2 * gp.n + 1 + gp.a_cols])
-            self._terms[j] = got
+            gp = self.gps[j]
+            start = self.offsets[j]
+            got = gp._terms_from(self.packed[start: start + 2 * gp.n + 1 + gp.a_cols])
+            self.built[j] = got
         return got
 
 
