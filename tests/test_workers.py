@@ -378,7 +378,6 @@ def test_worker_crash_is_detected_and_reported(tmp_path: Path, processes: int) -
     assert all(s.proc.poll() is not None for s in proc.learners.slots.values())
 
 
-@pytest.mark.slow
 def _maps_numba(pid: int) -> bool:
     """Whether process ``pid`` has numba's compiler (llvmlite's library) mapped."""
     return "llvmlite" in Path(f"/proc/{pid}/maps").read_text()
@@ -425,6 +424,7 @@ def test_with_workers_only_the_workers_load_the_compiled_kernels(tmp_path: Path)
         assert not _maps_numba(daemon.proc.pid)
 
 
+@pytest.mark.slow
 @pytest.mark.integration
 @pytest.mark.parametrize("processes", [0, 1], ids=["default-pool", "one-process-for-both"])
 def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
