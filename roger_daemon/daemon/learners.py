@@ -55,6 +55,10 @@ log = logging.getLogger(__name__)
 
 WORKER_MODES = ("process", "inline")
 
+#: the deadline of the first worker's start: on a cold numba cache it compiles every kernel
+#: (~40 s on an idle 2-core machine, several times that on a busy one)
+COMPILE_TIMEOUT_S = 900.0
+
 
 class RemoteModel:
     """``RobotRuntime.model`` when a worker owns the model: the counts the loop reports.
@@ -119,10 +123,18 @@ class ProcessLearners(WorkerProcesses):
         self.deadline_ns: int | None = None  # the next realtime tick (pump)
         self.period_ns = 0  # the realtime clock's period (attach)
         super().__init__(robots, processes=processes, timeout_s=timeout_s, nice=nice)
+        def loaded() -> bool:
+            return all(not s.pending for s in self.slots.values())
+
         try:
-            for robot, rt in robots.items():
+            for k, (robot, rt) in enumerate(robots.items()):
                 self._load(robot, rt, configs[robot])
-            self._wait(lambda: all(not s.pending for s in self.slots.values()), "start")
+                if k == 0:  # its worker warms up alone first: on a cold numba cache it
+                    # compiles the kernels and writes the cache the other workers then load,
+                    # instead of every worker compiling them (docs/fleet.md, *The design*)
+                    self._wait(loaded, "start, warming up the learner's kernels",
+                               timeout_s=max(timeout_s, COMPILE_TIMEOUT_S))
+            self._wait(loaded, "start")
         except BaseException:
             self.close(kill=True)
             raise

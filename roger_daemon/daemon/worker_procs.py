@@ -217,8 +217,10 @@ class WorkerProcesses:
                 f"status {code}); stopping the daemon (the write-ahead log holds every "
                 "acknowledged pair)")
 
-    def _wait(self, done: Callable[[], bool], what: str) -> None:
-        end = time.monotonic() + self.timeout_s
+    def _wait(self, done: Callable[[], bool], what: str, *, timeout_s: float | None = None
+              ) -> None:
+        limit = self.timeout_s if timeout_s is None else timeout_s
+        end = time.monotonic() + limit
         while not done():
             item = self.next_reply()
             if item is None:
@@ -227,7 +229,7 @@ class WorkerProcesses:
                     raise WorkerError(f"no learner worker left to answer ({what})")
                 if left <= 0:
                     raise WorkerError(f"no reply from a learner worker within "
-                                      f"{self.timeout_s:g} s ({what})")
+                                      f"{limit:g} s ({what})")
                 self.read_replies(left)
                 continue
             self._dispatch(*item)
