@@ -7,7 +7,8 @@ vectors cost ~1.5 µs of compiled work each but ~7–10 µs each through
 the same kernel, :func:`.jit_kernels.expert_terms`, for up to :data:`.jit.WIDTH` experts per
 call and finishes each expert's mean and latent variance as :meth:`.sogp.SparseOnlineGP.terms`
 does, operation for operation (:func:`evaluate_expert`), so the floats are its, bit for bit
-(tests/learner/test_jit.py).  One thread: the experts are small; large experts on several
+(tests/learner/test_jit_batch.py for a step's evaluation, tests/learner/test_jit.py for a
+prediction's).  One thread: the experts are small; large experts on several
 threads go to :func:`.jit_batch.terms_batch`, which runs :func:`evaluate_expert` too.
 """
 

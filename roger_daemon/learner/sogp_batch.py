@@ -102,9 +102,9 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     packed = np.empty(offsets.pop())
     means = np.empty((m, first.d_y))
     latent = np.empty(m)
-    counts = np.array(ns, dtype=np.int64)
-    sizes = np.array(allocs, dtype=np.int64)
-    starts = np.array(offsets, dtype=np.int64)
+    ns_arr = np.array(ns, dtype=np.int64)
+    allocs_arr = np.array(allocs, dtype=np.int64)
+    offsets_arr = np.array(offsets, dtype=np.int64)  # the kernels' copy of ``offsets``
     kernel = first.kernel
     batched = _jit.batch_worth(sum(n * (n + 1) // 2 for n in ns))
     call = _jit.terms_batch if batched else _jit.evaluate_experts
@@ -112,9 +112,9 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
         for lo in range(0, m, _jit.WIDTH):
             hi = min(lo + _jit.WIDTH, m)
             call(_jit.padded(bases, lo), _jit.padded(covs, lo), _jit.padded(coefs, lo),
-                 _jit.padded(priors, lo), hi - lo, counts[lo:hi], sizes[lo:hi], x,
+                 _jit.padded(priors, lo), hi - lo, ns_arr[lo:hi], allocs_arr[lo:hi], x,
                  kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed,
-                 starts[lo:hi], means[lo:hi], latent[lo:hi])
+                 offsets_arr[lo:hi], means[lo:hi], latent[lo:hi])
     return Evaluation(gps, means, latent, packed, offsets, [None] * m)
 
 
