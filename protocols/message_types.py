@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from protocols.field_specs import spec
 from protocols.keys import ROBOT_ID_PATTERN
+from protocols.packing import packb, walker
 
 __all__ = [
     "CONTROL_OPS",
@@ -324,8 +325,7 @@ TYPES: dict[str, type[Message]] = {
 
 def encode(msg: Message) -> bytes:
     """Serialise a message to msgpack bytes."""
-    out: bytes = msgpack.packb(msg.to_map(), use_bin_type=True)
-    return out
+    return packb(msg.to_map())
 
 
 # The wire maps of a header, a prediction and one multimap entry: the one place their fields
@@ -377,8 +377,7 @@ def encode_prediction(robot: str, tick: int, t: float, *, mean: Any, var: Any, e
     body = prediction_body(mean, var, expert, [expert_output_map(*row) for row in multimap],
                            latency_ms, mode, updates)
     head = header_map(robot, tick, t, now_ns() if stamp_ns is None else stamp_ns)
-    out: bytes = msgpack.packb({**head, **body}, use_bin_type=True)
-    return out
+    return packb({**head, **body})
 
 
 _PREDICTION_FIELDS = frozenset({"v", "robot", "tick", "stamp_ns", "mean", "var", "expert",
@@ -402,8 +401,7 @@ def stamp_prediction(payload: bytes, *, robot: str, tick: int, latency_ms: float
         raise ValueError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
     stamped = {"latency_ms": float(latency_ms), "mode": mode, "stamp_ns": int(stamp_ns)}
     expected = {"robot": robot, "tick": tick}
-    walk = msgpack.Unpacker(raw=False)
-    walk.feed(payload)
+    walk = walker(payload)
     parts: list[bytes] = []
     seen: set[Any] = set()
     kept_from = 0
@@ -415,7 +413,7 @@ def stamp_prediction(payload: bytes, *, robot: str, tick: int, latency_ms: float
                 parts.append(payload[kept_from:walk.tell()])
                 walk.skip()
                 kept_from = walk.tell()
-                parts.append(msgpack.packb(stamped[key], use_bin_type=True))
+                parts.append(packb(stamped[key]))
             elif key in expected:
                 if walk.unpack() != expected[key]:
                     raise ValueError(key)

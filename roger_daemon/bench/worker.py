@@ -14,7 +14,8 @@ Every robot first learns ``--warmup`` pairs, then ``--seconds`` are measured.
 
 Reported: the process's CPU time per robot-tick (everything above, for one robot), and the
 wall-time p50/p99 of the learn, labels and predict parts; the machine record. BLAS and the
-learner's kernels run on one thread, as in a worker of a daemon with more robots than cores.
+learner's kernels run on one thread, as in a worker of a daemon with more robots than cores,
+and large allocations are mapped as in a worker (``roger_daemon.daemon.memory``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from protocols.packing import packb
 from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
 from roger_daemon.console import require
 from roger_daemon.machine import describe, finish, machine_record
@@ -53,7 +55,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _through_pipe(msg: dict[str, Any]) -> dict[str, Any]:
     """``msg`` as the worker receives it: packed and unpacked as on the pipe."""
-    out: dict[str, Any] = msgpack.unpackb(msgpack.packb(msg, use_bin_type=True), raw=False)
+    out: dict[str, Any] = msgpack.unpackb(packb(msg), raw=False)
     return out
 
 
@@ -108,10 +110,12 @@ def serve_ticks(workers: list[Any], stream: FeedStream, ticks: range,
 
 def _measure(args: argparse.Namespace) -> dict[str, Any]:
     from roger_daemon.blas import pin_blas_threads
+    from roger_daemon.daemon.memory import limit_heap_growth
     from roger_daemon.learner.jit import set_threads
 
     pin_blas_threads(1)
     set_threads(1)
+    limit_heap_growth()  # a worker process's allocator rule (roger_daemon.daemon.worker.main)
     stream = feed_stream(args.stream)
     workers = _workers(args.robots, stream)
     serve_ticks(workers, stream, range(args.warmup))

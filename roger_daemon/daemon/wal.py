@@ -46,6 +46,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from protocols.packing import packb
 from roger_daemon.atomic import fsync_dir
 
 __all__ = ["WalRecord", "WriteAheadLog", "read_records", "segments", "wal_dir"]
@@ -193,7 +194,7 @@ class WriteAheadLog:
 
     def _append(self, rec: dict[str, Any]) -> int:
         seq = self.next_seq
-        payload = msgpack.packb({**rec, "s": seq}, use_bin_type=True)
+        payload = packb({**rec, "s": seq})
         frame = _FRAME.pack(len(payload), zlib.crc32(payload)) + payload
         if self._pos + len(frame) + _FRAME.size > self._end:
             self._extend(len(frame) + _FRAME.size)

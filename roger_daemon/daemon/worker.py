@@ -53,6 +53,8 @@ from typing import IO, Any
 import msgpack
 import numpy as np
 
+from protocols.packing import packb
+
 __all__ = ["FrameReader", "pack_arrays", "read_frame", "unpack_arrays", "write_frame"]
 
 log = logging.getLogger(__name__)
@@ -99,7 +101,7 @@ def unpack_arrays(packed: Any, *, copy: bool = True) -> dict[str, np.ndarray]:
 
 def write_frame(f: IO[bytes], msg: Mapping[str, Any]) -> None:
     """One length-prefixed msgpack frame, flushed."""
-    payload = msgpack.packb(msg, use_bin_type=True)
+    payload = packb(msg)
     f.write(_LEN.pack(len(payload)) + payload)
     f.flush()
 
