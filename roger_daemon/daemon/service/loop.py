@@ -235,7 +235,6 @@ class Service:
             self._tick_first()
             self._handle(item)
             budget -= 1
-            self._answers_first()
             item = self.inbox.get(0) if budget > 0 else None
         self._tick_first()
         if self.learners is not None:
@@ -269,13 +268,6 @@ class Service:
             now = self.clock.monotonic_ns()
             if now >= self.schedule.next_tick:
                 on_timer(self, now)
-
-    def _answers_first(self) -> None:
-        """Lockstep with learner workers: publish the answers that are back before taking the
-        next message (the robots' actions that arrive during a burst of answers wait; their
-        pairs are learned after it; docs/fleet.md, *Answers before the next message*)."""
-        if self.learners is not None and not self._realtime and self.learners.answering():
-            self.learners.pump(None)
 
     def _next_deadline(self, now: int) -> int:
         deadline = status_deadline(self, now)
