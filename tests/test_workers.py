@@ -230,6 +230,42 @@ def test_lockstep_starts_no_learning_while_a_prediction_is_answered(tmp_path: Pa
         proc.service.shutdown()
 
 
+def test_a_worker_process_has_one_learning_step_in_flight_its_robots_in_turn(
+        tmp_path: Path) -> None:
+    """With one process serving both robots, feeding sends one learn request at a time (a
+    prediction then waits for one other robot's step at most), and the robots take turns;
+    a robot's own pairs still go before its prediction request, however many."""
+    proc = Loop(make_config(tmp_path, "turns"), process=True, processes=1)
+    learners = proc.learners
+    assert learners is not None and len(learners.processes) == 1
+    wp = learners.processes[0]
+    try:
+        aibo, b2 = proc.robots["aibo"], proc.robots["b2"]
+        for t in range(2):
+            for rt in (aibo, b2):
+                rt.on_perception(Perception(rt.robot, t, t / 30, x=STREAM.x[t]), 0)
+                rt.on_action(Action(rt.robot, t, t / 30, y=STREAM.y[t], label="seek"))
+        assert len(aibo.queue) == len(b2.queue) == 2
+        sent = []
+        for _ in range(4):
+            learners.feed()
+            assert wp.learns == 1  # one step in flight in the process
+            sent.append("aibo" if learners.slots["aibo"].learns else "b2")
+            learners._wait(lambda: wp.learns == 0, "test")
+        assert sent == ["aibo", "b2", "aibo", "b2"]
+        assert aibo.updates == b2.updates == 2
+        aibo.on_perception(Perception("aibo", 2, 2 / 30, x=STREAM.x[2]), 0)
+        aibo.on_action(Action("aibo", 2, 2 / 30, y=STREAM.y[2], label="seek"))
+        b2.on_perception(Perception("b2", 2, 2 / 30, x=STREAM.x[2]), 0)
+        b2.on_action(Action("b2", 2, 2 / 30, y=STREAM.y[2], label="seek"))
+        learners.feed()  # one of them in flight, the other's pair held
+        learners.learn_all(b2)  # before b2's prediction: its own pair, whatever is in flight
+        assert len(b2.queue) == 0 and learners.slots["b2"].learns == 1
+        learners.drain()
+    finally:
+        proc.service.shutdown()
+
+
 @pytest.mark.parametrize("processes", [2, 1], ids=["a-process-each", "one-process-for-both"])
 def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path, processes: int) -> None:
     """Lockstep predictions, label majorities, checkpoints and write-ahead log records of

@@ -24,8 +24,10 @@ pipes: :meth:`WorkerProcesses.read_replies`). So
 - ``reset`` first sends the robot's queued pairs and drains its requests (replies
   bookkept), then replaces its model.
 
-At most ``depth`` learn requests are in flight per robot (1), so a prediction waits for at most
-one learning step of each robot its process serves. In realtime the prediction is prepared when
+At most one learn request is in flight per worker process (``process_depth``), so a
+prediction waits for at most one learning step of another robot its process serves (besides
+its own robot's pairs, which it must include; docs/fleet.md, *One learning step ahead of an
+answer*). In realtime the prediction is prepared when
 the perception arrives (:meth:`ProcessLearners.prepare`, one in flight per robot, the newest
 perception next) and the timer's tick publishes the newest prepared one of every robot at once
 (:meth:`ProcessLearners.prepared`): no tick waits for eight workers to be scheduled
@@ -47,7 +49,12 @@ import numpy as np
 
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.worker import pack_arrays, unpack_arrays
-from roger_daemon.daemon.worker_procs import WorkerError, WorkerProcesses, WorkerSlot
+from roger_daemon.daemon.worker_procs import (
+    WorkerError,
+    WorkerProcess,
+    WorkerProcesses,
+    WorkerSlot,
+)
 
 __all__ = ["ProcessLearners", "RemoteModel", "WorkerError"]
 
@@ -115,7 +122,8 @@ class ProcessLearners(WorkerProcesses):
         worker_nice``): the loop and Zenoh's threads publish before learning runs.
     """
 
-    depth = 1
+    depth = 1  # learn requests in flight per robot
+    process_depth = 1  # ... and per worker process, whichever robots they are for
 
     def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
                  processes: int = 0, timeout_s: float = 120.0, nice: int = 0) -> None:
@@ -196,6 +204,7 @@ class ProcessLearners(WorkerProcesses):
         op, ctx = s.pending.popleft()
         if op == "learn":
             s.learns -= 1
+            s.process.learns -= 1
             pair, sent_ns = ctx
             s.learn_est_ns = max(time.monotonic_ns() - sent_ns, int(s.learn_est_ns * 0.95))
             self._learned(s, pair, frame)
@@ -254,22 +263,35 @@ class ProcessLearners(WorkerProcesses):
                "tick": pair.tick}
         self.send(s.rt.robot, self._with_vocab(s, req), (pair, time.monotonic_ns()))
         s.learns += 1
+        s.process.learns += 1
         s.since_tick = True
 
     def feed(self) -> None:
-        """Keep ``depth`` learn requests in flight per learning robot; in the quiet window
-        before a tick only a robot that has not learned since the last tick starts one (so
-        learning always progresses). Without a timer (lockstep) no learning starts while a
-        prediction is being answered: the answers go first on the two cores, and a pair
-        still queued when its robot's next perception comes is sent before that perception's
-        request (:meth:`learn_all`), as before (docs/fleet.md, *Status after the answers*)."""
+        """Keep one learn request in flight per worker process (``process_depth``), its
+        robots taking turns; in the quiet window before a tick only a robot that has not
+        learned since the last tick starts one (so learning always progresses). Without a
+        timer (lockstep) no learning starts while a prediction is being answered: the answers
+        go first on the two cores, and a pair still queued when its robot's next perception
+        comes is sent before that perception's request (:meth:`learn_all`), as before
+        (docs/fleet.md, *Status after the answers*). So a prediction request waits behind at
+        most one other robot's learning step in its worker (*One learning step ahead of an
+        answer*)."""
         if self.deadline_ns is None and self.answering():
             return
-        for s in self.slots.values():
-            while s.rt.learning and s.rt.queue and s.learns < self.depth:
-                if s.since_tick and self._quiet(s.learn_est_ns):
-                    break
+        for wp in self.processes:
+            self._feed_process(wp)
+
+    def _feed_process(self, wp: WorkerProcess) -> None:
+        n = len(wp.robots)
+        for k in range(n):
+            if wp.learns >= self.process_depth:
+                return
+            i = (wp.next_learn + k) % n
+            s = self.slots[wp.robots[i]]
+            if s.rt.learning and s.rt.queue and s.learns < self.depth and \
+                    not (s.since_tick and self._quiet(s.learn_est_ns)):
                 self._send_learn(s)
+                wp.next_learn = (i + 1) % n
 
     def new_tick(self, deadline_ns: int) -> None:
         """The realtime timer fired (the next one is at ``deadline_ns``): send the
