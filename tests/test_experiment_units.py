@@ -212,3 +212,29 @@ def test_evaluation_jobs_cover_every_controller_and_location_once() -> None:
     assert {j.controller for j in merged} == {"roger"}
     assert {j.learner["particles"] for j in merged} == {1}
     assert {j.checkpoint_dir for j in merged} == {Path("models") / f"groups-{k}" for k in range(3)}
+
+
+def test_a_stop_signalled_while_a_child_starts_stops_that_child_too() -> None:
+    """SIGTERM handled between ``Popen`` and tracking the child (the main thread inside
+    ``Children.spawning``) is carried out once the child is tracked: it is terminated and
+    the command exits 143, instead of leaving it running (a ``roger demo`` stopped as its
+    first controller started did)."""
+    import signal
+
+    from simulator.experiment.procs import Children
+
+    children = Children()
+    child: subprocess.Popen[bytes] | None = None
+    try:
+        with pytest.raises(SystemExit) as stop, children.spawning():
+            child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+            children.on_signal(signal.SIGTERM)  # the handler, as if it ran right after fork
+            assert child.poll() is None and not children.stopping  # deferred: not yet
+            children.add(child)
+        assert stop.value.code == 143 and children.stopping and child is not None
+        assert child.wait(30) == -signal.SIGTERM
+        with pytest.raises(KeyboardInterrupt):
+            children.on_signal(signal.SIGINT)  # outside a start: at once
+    finally:
+        if child is not None and child.poll() is None:
+            child.kill()

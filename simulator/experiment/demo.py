@@ -102,8 +102,10 @@ class _Demo:
         console.print(f"daemon on {daemon_ep}, demonstrations from locations {locations}, "
                       f"then the learned experts from location {args.test_location}; "
                       f"output in {out}")
-        daemon = DaemonProcess(cfg, args=["--fresh"], log=out / "daemon.log", env=child_env())
-        CHILDREN.add(daemon.proc)  # a stop reaches it (procs.stop_children_on_signals)
+        with CHILDREN.spawning():  # a stop reaches it (procs.stop_children_on_signals)
+            daemon = DaemonProcess(cfg, args=["--fresh"], log=out / "daemon.log",
+                                   env=child_env())
+            CHILDREN.add(daemon.proc)
         summary: dict[str, Any] = {}
         try:
             daemon.wait_ready(120)

@@ -23,10 +23,11 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NoReturn
 
 from roger_daemon.harness import free_port as _free_port
 
@@ -99,6 +100,43 @@ class Children:
         self._lock = threading.Lock()
         self._live: set[subprocess.Popen[bytes]] = set()
         self.stopping = False
+        self._main_spawning = 0  # the main thread is starting a child and tracking it
+        self._deferred: int | None = None  # a stop signalled meanwhile
+
+    @contextmanager
+    def spawning(self) -> Iterator[None]:
+        """Around starting a child and tracking it. Python runs signal handlers in the main
+        thread, between any two of its bytecodes: a SIGTERM that arrived after ``Popen``
+        forked but before the child was tracked used to leave that child running after the
+        command had exited. A stop signalled while the main thread is in here is carried out
+        on the way out, once the child is tracked (:meth:`on_signal`)."""
+        main = threading.current_thread() is threading.main_thread()
+        if main:
+            self._main_spawning += 1
+        try:
+            yield
+        finally:
+            if main:
+                self._main_spawning -= 1
+                if not self._main_spawning and self._deferred is not None:
+                    signum, self._deferred = self._deferred, None
+                    self.stop_for(signum)
+
+    def on_signal(self, signum: int, _frame: Any = None) -> None:
+        """The SIGTERM / SIGINT handler (:func:`stop_children_on_signals`): stop every child
+        and exit, or, while the main thread starts one (:meth:`spawning`), once it has."""
+        if self._main_spawning:
+            self._deferred = signum
+            return
+        self.stop_for(signum)
+
+    def stop_for(self, signum: int) -> NoReturn:
+        """Stop every tracked child, then leave as the signal asks: ``KeyboardInterrupt``
+        for SIGINT, else ``SystemExit(128 + signum)`` (143 for SIGTERM)."""
+        self.stop_all()
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise SystemExit(128 + signum)
 
     def add(self, popen: subprocess.Popen[bytes]) -> None:
         """Track ``popen`` (terminated at once if a stop has begun)."""
@@ -138,14 +176,8 @@ def stop_children_on_signals() -> None:
     """SIGTERM and Ctrl-C stop every tracked child before the command exits (143, 130);
     without this the simulators, controllers and daemons of running jobs outlive it."""
 
-    def stop(signum: int, _frame: Any) -> None:
-        CHILDREN.stop_all()
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        raise SystemExit(128 + signum)
-
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, CHILDREN.on_signal)
+    signal.signal(signal.SIGINT, CHILDREN.on_signal)
 
 
 @dataclass
@@ -170,13 +202,14 @@ class ProcessGroup:
             raise JobError(f"not starting {name}: the experiment is stopping")
         log = self.workdir / f"{name}.log"
         handle = open(log, "wb")
-        popen = subprocess.Popen(
-            list(argv), stdout=handle, stderr=subprocess.STDOUT, env=self.env,
-            stdin=subprocess.DEVNULL,
-        )
-        CHILDREN.add(popen)
-        proc = _Proc(name, popen, log, handle)
-        self.procs[name] = proc
+        with CHILDREN.spawning():  # a stop signalled meanwhile finds it tracked
+            popen = subprocess.Popen(
+                list(argv), stdout=handle, stderr=subprocess.STDOUT, env=self.env,
+                stdin=subprocess.DEVNULL,
+            )
+            CHILDREN.add(popen)
+            proc = _Proc(name, popen, log, handle)
+            self.procs[name] = proc
         return proc
 
     def log_text(self, name: str) -> str:

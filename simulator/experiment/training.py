@@ -222,8 +222,10 @@ def daemon_check(
         # the learner table is fully resolved (scaling included): no robot profile on top
         robots=({"id": "aibo", "model": "roger", "profile": "none"},),
     )
-    daemon = DaemonProcess(cfg, args=["--fresh"], log=workdir / "daemon.log", env=child_env())
-    CHILDREN.add(daemon.proc)  # a stop of the experiment reaches it (procs.Children)
+    with CHILDREN.spawning():  # a stop of the experiment reaches it (procs.Children)
+        daemon = DaemonProcess(cfg, args=["--fresh"], log=workdir / "daemon.log",
+                               env=child_env())
+        CHILDREN.add(daemon.proc)
     client = None
     try:
         daemon.wait_ready(120)
