@@ -5,9 +5,10 @@ one whose buffer starts at 1 MiB. The daemon and its learner workers serve every
 128 KiB or more from a mapping of its own (``roger_daemon.daemon.memory``, which keeps their
 memory flat), so each of those calls mapped, touched and unmapped its buffer: ~10 µs for a
 learn request on an idle machine instead of ~0.7 µs, more on a busy one, and an unmapping in
-a process with several threads interrupts the other cores. A daemon with eight robots packed
-~60 messages per tick that way (docs/performance.md, *msgpack's buffers*). Here the buffer
-starts small and grows with the message; the bytes are the same as ``msgpack.packb``'s.
+a process with several threads interrupts the other cores. With eight robots the loop made
+~56 such calls per tick and its workers ~24 (docs/performance.md, *msgpack's buffers*).
+Here the buffer starts small and grows with the message; the bytes are the same as
+``msgpack.packb``'s.
 """
 
 from __future__ import annotations
