@@ -249,9 +249,9 @@ def test_a_worker_process_has_one_learning_step_in_flight_its_robots_in_turn(
         sent = []
         for _ in range(4):
             learners.feed()
-            assert wp.learns == 1  # one step in flight in the process
+            assert learners.learns_in(wp) == 1  # one step in flight in the process
             sent.append("aibo" if learners.slots["aibo"].learns else "b2")
-            learners._wait(lambda: wp.learns == 0, "test")
+            learners._wait(lambda: learners.learns_in(wp) == 0, "test")
         assert sent == ["aibo", "b2", "aibo", "b2"]
         assert aibo.updates == b2.updates == 2
         aibo.on_perception(Perception("aibo", 2, 2 / 30, x=STREAM.x[2]), 0)

@@ -204,7 +204,6 @@ class ProcessLearners(WorkerProcesses):
         op, ctx = s.pending.popleft()
         if op == "learn":
             s.learns -= 1
-            s.process.learns -= 1
             pair, sent_ns = ctx
             s.learn_est_ns = max(time.monotonic_ns() - sent_ns, int(s.learn_est_ns * 0.95))
             self._learned(s, pair, frame)
@@ -263,7 +262,6 @@ class ProcessLearners(WorkerProcesses):
                "tick": pair.tick}
         self.send(s.rt.robot, self._with_vocab(s, req), (pair, time.monotonic_ns()))
         s.learns += 1
-        s.process.learns += 1
         s.since_tick = True
 
     def feed(self) -> None:
@@ -282,16 +280,22 @@ class ProcessLearners(WorkerProcesses):
             self._feed_process(wp)
 
     def _feed_process(self, wp: WorkerProcess) -> None:
+        in_flight = self.learns_in(wp)
         n = len(wp.robots)
         for k in range(n):
-            if wp.learns >= self.process_depth:
+            if in_flight >= self.process_depth:
                 return
             i = (wp.next_learn + k) % n
             s = self.slots[wp.robots[i]]
             if s.rt.learning and s.rt.queue and s.learns < self.depth and \
                     not (s.since_tick and self._quiet(s.learn_est_ns)):
                 self._send_learn(s)
+                in_flight += 1
                 wp.next_learn = (i + 1) % n
+
+    def learns_in(self, wp: WorkerProcess) -> int:
+        """Learn requests in flight in worker process ``wp``, of all its robots."""
+        return sum(self.slots[r].learns for r in wp.robots)
 
     def new_tick(self, deadline_ns: int) -> None:
         """The realtime timer fired (the next one is at ``deadline_ns``): send the

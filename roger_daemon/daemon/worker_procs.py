@@ -53,7 +53,6 @@ class WorkerProcess:
     reader: FrameReader  # its replies, read as they arrive (non-blocking)
     robots: list[str] = field(default_factory=list)  # the robots it serves
     owners: deque[str] = field(default_factory=deque)  # whose request each next reply answers
-    learns: int = 0  # learn requests in flight, of all its robots
     next_learn: int = 0  # where its robots' turn to learn starts (round robin)
 
 
