@@ -340,10 +340,13 @@ def header_map(robot: str, tick: int, t: float, stamp_ns: int) -> dict[str, Any]
 def _float_list(values: Any) -> list[float]:
     """``values`` as a flat list of floats: ``np.asarray(values, float64).reshape(-1)
     .tolist()``, straight from ``tolist`` for what a model gives, a 1-D float64 array (a
-    micro-second less per vector, 26 of them in a prediction with 13 experts)."""
+    micro-second less per vector, 26 of them in a prediction with 13 experts), and as it is
+    for a list of floats (a row of ``tolist`` of a matrix: a daemon's multimap rows)."""
     if type(values) is np.ndarray and values.dtype == np.float64 and values.ndim == 1:
         fast: list[float] = values.tolist()
         return fast
+    if type(values) is list and all(type(v) is float for v in values):
+        return values
     out: list[float] = np.asarray(values, dtype=np.float64).reshape(-1).tolist()
     return out
 

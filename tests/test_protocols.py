@@ -244,19 +244,23 @@ _finite = st.floats(-1e6, 1e6, allow_nan=False)
 
 
 @given(st.integers(0, 4), st.integers(1, 4), _finite, st.integers(-1, 10**6),
-       st.sampled_from(MODES), st.integers(0, 2**40))
+       st.sampled_from(MODES), st.integers(0, 2**40), st.booleans())
 def test_encode_prediction_gives_the_bytes_of_encoding_the_dataclass(
-        n_experts: int, d_y: int, value: float, tick: int, mode: str, stamp: int) -> None:
+        n_experts: int, d_y: int, value: float, tick: int, mode: str, stamp: int,
+        rows_as_lists: bool) -> None:
     """The workers' prediction encoder (no dataclasses) writes what ``encode(Prediction)``
-    writes, byte for byte: both go through the same field maps."""
+    writes, byte for byte: both go through the same field maps. A row's vectors may be
+    arrays or, as a daemon's worker gives them, lists of floats."""
     from protocols.messages import encode_prediction
 
     rng = np.random.default_rng(n_experts * 7 + d_y)
     rows = [(e - 1, float(rng.random()), rng.normal(size=d_y) * value, rng.random(d_y) + 0.1,
              int(rng.integers(0, 50)), ["", "seek", "kick"][e % 3]) for e in range(n_experts)]
     mean, var = np.full(d_y, value), np.full(d_y, 0.5)
+    given = [(e, p, m.tolist(), v.tolist(), n, label) for e, p, m, v, n, label in rows] \
+        if rows_as_lists else rows
     fast = encode_prediction("r1", tick, tick / 30, mean=mean, var=var, expert=n_experts - 2,
-                             multimap=rows, updates=tick + 1, mode=mode, latency_ms=1.5,
+                             multimap=given, updates=tick + 1, mode=mode, latency_ms=1.5,
                              stamp_ns=stamp)
     slow = encode(Prediction("r1", tick, tick / 30, stamp_ns=stamp, mean=mean, var=var,
                              expert=n_experts - 2,
@@ -266,11 +270,12 @@ def test_encode_prediction_gives_the_bytes_of_encoding_the_dataclass(
 
 
 @given(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), max_size=12),
-       st.sampled_from(["1d", "2d", "list", "float32", "int", "view"]))
+       st.sampled_from(["1d", "2d", "list", "float32", "int", "view", "int list",
+                        "numpy floats"]))
 def test_float_lists_are_what_numpy_gives_on_every_path(values: list[float], form: str) -> None:
-    """``message_types._float_list`` (the encoder's vectors; a fast path for 1-D float64
-    arrays) packs to the bytes of ``np.asarray(v, float64).reshape(-1).tolist()`` whatever
-    form the vector comes in (NaN and signed zeros included)."""
+    """``message_types._float_list`` (the encoder's vectors; fast paths for 1-D float64
+    arrays and lists of floats) packs to the bytes of ``np.asarray(v, float64).reshape(-1)
+    .tolist()`` whatever form the vector comes in (NaN and signed zeros included)."""
     from protocols.message_types import _float_list
 
     a = np.array(values, dtype=np.float64)
@@ -279,6 +284,8 @@ def test_float_lists_are_what_numpy_gives_on_every_path(values: list[float], for
         "float32": lambda: a.clip(-1e30, 1e30).astype(np.float32),
         "int": lambda: np.nan_to_num(a).clip(-1e9, 1e9).astype(int),
         "view": lambda: np.concatenate([a, a])[::2],
+        "int list": lambda: np.nan_to_num(a).clip(-1e9, 1e9).astype(int).tolist(),
+        "numpy floats": lambda: list(a),
     }[form]()
     want = np.asarray(given_as, dtype=np.float64).reshape(-1).tolist()
     got = _float_list(given_as)

@@ -69,8 +69,8 @@ class RobotRuntime:
         Perception / action sizes.
     model
         An object following ``docs/learner-api.md`` (``learn_one``, ``predict_one``,
-        ``predict_multimap``, ``predict_with_multimap``, ``assignments``, ``n_experts``,
-        ``n_learned``, ``state_dict``).
+        ``predict_multimap``, ``predict_with_multimap``, ``predict_table``, ``assignments``,
+        ``n_experts``, ``n_learned``, ``state_dict``).
     make_model
         Builds a fresh model (used by the ``reset`` control).
     mode
@@ -329,10 +329,12 @@ class RobotRuntime:
 
     def _predict_rows(self, x: np.ndarray) -> tuple[Any, list[ExpertRow]]:
         """The model's answer for ``x`` and its multimap as :class:`ExpertOutput` rows."""
-        p, mm = self.model.predict_with_multimap(x)  # gates and GPs evaluated once
-        labels = self.expert_labels() if mm else {}
-        rows = [(int(e.expert_id), float(e.gate_prob), e.mean, e.var, int(e.n_points),
-                 labels.get(int(e.expert_id), "")) for e in mm]
+        p, table = self.model.predict_table(x)  # gates and GPs evaluated once
+        labels = self.expert_labels() if table.expert_ids else {}
+        means, var = table.means.tolist(), table.variances.tolist()  # rows of floats
+        rows = [(e, g, means[j], var[j], n, labels.get(e, ""))
+                for j, (e, g, n) in enumerate(zip(table.expert_ids, table.gate_probs,
+                                                  table.n_points, strict=True))]
         return p, rows
 
     # --- control ---------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
 from roger_daemon.learner.roger import Roger
 from roger_daemon.learner.unimap import UnimapGP
 
@@ -31,7 +31,8 @@ class Learner(Protocol):
     * ``predict_multimap(x)``: every expert of the MAP particle, gate probabilities summing
       to at most 1 (the rest is the empty expert's share).
     * ``predict_with_multimap(x)``: both answers from one pass (one call per control tick),
-      equal to ``predict_one(x)`` then ``predict_multimap(x)``.
+      equal to ``predict_one(x)`` then ``predict_multimap(x)``; ``predict_table(x)`` the same
+      with the multimap as arrays, one row per expert (a daemon's reply is built from it).
     * ``state_dict()`` / ``from_state_dict()``: named arrays without object dtype; the restored
       model continues exactly as the original would.
     """
@@ -65,6 +66,10 @@ class Learner(Protocol):
     def predict_with_multimap(self, x: npt.ArrayLike
                               ) -> tuple[Prediction, list[ExpertPrediction]]:
         """``(predict_one(x), predict_multimap(x))`` from one pass."""
+        ...
+
+    def predict_table(self, x: npt.ArrayLike) -> tuple[Prediction, MultimapTable]:
+        """``predict_with_multimap(x)`` with the multimap as a :class:`.MultimapTable`."""
         ...
 
     def assignments(self) -> npt.NDArray[np.int64]:

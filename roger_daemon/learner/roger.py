@@ -42,9 +42,9 @@ from roger_daemon.learner.gate import GatePool
 from roger_daemon.learner.history import SegmentationHistory
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
-from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
-from roger_daemon.learner.roger_predict import map_slots, predict
+from roger_daemon.learner.roger_predict import map_slots, predict, predict_table
 from roger_daemon.learner.roger_state import load_roger_state, roger_state_dict
 from roger_daemon.learner.roger_step import SlotTerms, instantiate, putatives
 from roger_daemon.learner.scaling import AffineScaling, as_vector
@@ -242,6 +242,15 @@ class Roger:
         pred, mm = predict(self, x, one=True, multimap=True, rng=rng)
         assert pred is not None and mm is not None
         return pred, mm
+
+    def predict_table(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
+                      ) -> tuple[Prediction, MultimapTable]:
+        """``predict_with_multimap(x)`` with the multimap as a table of arrays (one row per
+        expert, the same floats and draws), without an object per expert: what a daemon
+        builds its reply from."""
+        pred, table = predict_table(self, x, rng=rng)
+        assert pred is not None
+        return pred, table
 
 
     # -- segmentation and introspection --------------------------------------------------------

@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
-from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
 from roger_daemon.learner.roger import resolve_model_args
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
@@ -116,6 +116,15 @@ class UnimapGP:
             return pred, []
         return pred, [ExpertPrediction(expert_id=0, gate_prob=1.0, mean=pred.mean, var=pred.var,
                                        n_points=self._gp.n_points)]
+
+    def predict_table(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
+                      ) -> tuple[Prediction, MultimapTable]:
+        """``predict_with_multimap(x)`` with the multimap as a table (one row, or none)."""
+        pred = self.predict_one(x, rng=rng)
+        if not self._gp.n_points:
+            return pred, MultimapTable.empty(self.d_y)
+        return pred, MultimapTable([0], [1.0], pred.mean[None, :], pred.var[None, :],
+                                   [self._gp.n_points])
 
     def assignments(self) -> IntArray:
         """All zeros: every point belongs to the one expert."""

@@ -165,6 +165,33 @@ def test_predict_with_multimap_is_both_calls_in_one(cls: Any) -> None:
     assert pred.expert_id == -1 and mm == []
 
 
+@models
+def test_predict_table_is_predict_one_and_predict_multimap_as_arrays(cls: Any) -> None:
+    # float for float and draw for draw, with and without the empty expert, before learning too
+    for params in (PARAMS, PARAMS.replace(expert_choice="sample", predict_empty_expert=True)):
+        a = cls(D_X, D_Y, params=params, seed=3)
+        b = cls(D_X, D_Y, params=params, seed=3)
+        queries = _stream(8, seed=6)[0]
+        for q in queries[:2]:  # before learning: the prior, and its row if it takes part
+            _same_table(a.predict_table(q), (b.predict_one(q), b.predict_multimap(q)))
+        for model in (a, b):
+            for x, y in zip(*_stream(50), strict=True):
+                model.learn_one(x, y)
+        for q in queries:
+            _same_table(a.predict_table(q), (b.predict_one(q), b.predict_multimap(q)))
+    with pytest.raises(ValueError):
+        _fresh(cls).predict_table(np.zeros(D_X + 1))
+
+
+def _same_table(got: Any, want: Any) -> None:
+    (pred, table), (want_pred, want_mm) = got, want
+    assert _same_prediction(pred, want_pred)
+    assert table.means.shape == table.variances.shape == (len(want_mm), D_Y)
+    assert [_fields(e) for e in table.experts()] == [_fields(e) for e in want_mm]
+    assert [type(v) for v in table.expert_ids + table.n_points] == [int] * 2 * len(want_mm)
+    assert all(type(v) is float for v in table.gate_probs)
+
+
 def _fields(e: Any) -> tuple[Any, ...]:
     return (e.expert_id, e.gate_prob, e.mean.tolist(), e.var.tolist(), e.n_points)
 
