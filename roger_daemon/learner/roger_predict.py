@@ -83,7 +83,7 @@ def _branches(model: Roger, slots: IntArray, xs: FloatArray, probs: FloatArray
     gps = [model._gps[s] for s in sl]
     means = np.empty((len(sl), model.d_y))
     variance = np.empty(len(sl))  # predictive, model units (observation noise included)
-    predict_many(gps, xs, means, variance)  # type: ignore[arg-type]  # live slots: no None
+    predict_many(gps, xs, means, variance)
     sc = model._scaling
     means = sc.mean_out(means)
     var = sc.var_out(variance[:, None])  # type: ignore[arg-type]  # a column: one per expert
