@@ -196,13 +196,46 @@ def test_no_prediction_is_started_in_the_quiet_window_before_a_tick(tmp_path: Pa
     assert learners is not None
     try:
         slot = learners.slots["aibo"]
-        learners.deadline_ns = time.monotonic_ns() + 500_000  # the tick in 0.5 ms
+        learners.windows.deadline_ns = time.monotonic_ns() + 500_000  # the tick in 0.5 ms
         learners.prepare(proc.robots["aibo"], Perception("aibo", 0, 0.0, x=STREAM.x[0]), 0)
         assert slot.waiting is not None and slot.predicts == 0
-        learners.new_tick(time.monotonic_ns() + 10**9)
+        learners.new_tick(time.monotonic_ns() + 10**9, published=False)  # no delivery window
         assert slot.waiting is None and slot.predicts == 1
         assert learners.prepared([proc.robots["b2"]]) == [] and slot.busy_ticks == 0
         assert learners.slots["b2"].busy_ticks == 1  # b2: nothing prepared yet
+    finally:
+        proc.service.shutdown()
+
+
+def test_nothing_goes_to_a_worker_in_the_delivery_window_after_a_tick(
+        tmp_path: Path) -> None:
+    """After a tick that published, its predictions are delivered before the workers wake:
+    a perception to prepare and a queued pair wait until the window closes (the loop's wait
+    ends then), and then the perception's request goes first."""
+    proc = Loop(make_config(tmp_path, "dw", clock="realtime"), process=True)
+    learners = proc.learners
+    assert learners is not None
+    try:
+        aibo, slot = proc.robots["aibo"], learners.slots["aibo"]
+        learners.new_tick(time.monotonic_ns() + 10**9)  # it published
+        wake = learners.windows.wake_ns()
+        assert learners.windows.delivering() and wake is not None
+        aibo.on_perception(Perception("aibo", 0, 0.0, x=STREAM.x[0]), 0)
+        aibo.on_action(Action("aibo", 0, 0.0, y=STREAM.y[0], label="seek"))
+        learners.prepare(aibo, Perception("aibo", 1, 1 / 30, x=STREAM.x[1]), 0)
+        learners.feed()
+        assert (slot.predicts, slot.learns, len(aibo.queue)) == (0, 0, 1)  # all held
+        assert slot.waiting is not None
+        assert proc.service._next_deadline(time.monotonic_ns()) <= wake
+        while learners.windows.delivering():
+            time.sleep(0.001)
+        assert learners.windows.wake_ns() is None
+        learners.feed()
+        assert [op for op, _ in slot.pending] == ["predict", "learn"]
+        assert slot.waiting is None and len(aibo.queue) == 0
+        learners.drain()
+        learners.new_tick(time.monotonic_ns() + 10**9, published=False)  # nothing published:
+        assert not learners.windows.delivering()  # no window
     finally:
         proc.service.shutdown()
 

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from roger_daemon.daemon.robot import Pair, RobotRuntime
+from roger_daemon.daemon.tick_windows import TickWindows
 from roger_daemon.daemon.worker import pack_arrays, unpack_arrays
 from roger_daemon.daemon.worker_procs import (
     WorkerError,
@@ -128,8 +129,7 @@ class ProcessLearners(WorkerProcesses):
     def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
                  processes: int = 0, timeout_s: float = 120.0, nice: int = 0) -> None:
         self._service: Any = None
-        self.deadline_ns: int | None = None  # the next realtime tick (pump)
-        self.period_ns = 0  # the realtime clock's period (attach)
+        self.windows = TickWindows()  # the realtime tick's windows (pump, new_tick)
         super().__init__(robots, processes=processes, timeout_s=timeout_s, nice=nice)
         def loaded() -> bool:
             return all(not s.pending for s in self.slots.values())
@@ -165,7 +165,7 @@ class ProcessLearners(WorkerProcesses):
     def attach(self, service: Any) -> None:
         """Route replies to ``service`` (its loop waits for them: :meth:`fds`)."""
         self._service = service
-        self.period_ns = int(service.schedule.period_ns)
+        self.windows.period_ns = int(service.schedule.period_ns)
 
     # --- replies ---------------------------------------------------------------------------
 
@@ -177,7 +177,7 @@ class ProcessLearners(WorkerProcesses):
         ``deadline_ns`` (realtime: the next timer tick) starts the quiet window before it: no
         worker starts a step then that is not expected back before the tick, so the cores
         are free when the loop wakes to publish (``None``: no timer)."""
-        self.deadline_ns = deadline_ns
+        self.windows.deadline_ns = deadline_ns
         batch: list[tuple[Any, ...]] = []
         self.read_replies()
         while (item := self.next_reply()) is not None:
@@ -186,13 +186,6 @@ class ProcessLearners(WorkerProcesses):
             self._service.worker_predictions(batch)
         self.feed()
 
-    def _quiet(self, est_ns: int) -> bool:
-        """Whether a step taking ``est_ns`` (+ 1 ms) would still run at the next tick; the
-        window is at most a quarter of the period, so a slow step (the first ones compile)
-        never holds work back for good."""
-        window = min(est_ns + 1_000_000, self.period_ns // 4)
-        return self.deadline_ns is not None and \
-            time.monotonic_ns() + window >= self.deadline_ns
 
     def _dispatch(self, robot: str, frame: dict[str, Any] | None,
                   batch: list[tuple[Any, ...]] | None = None) -> None:
@@ -273,9 +266,13 @@ class ProcessLearners(WorkerProcesses):
         comes is sent before that perception's request (:meth:`learn_all`), as before
         (docs/fleet.md, *Status after the answers*). So a prediction request waits behind at
         most one other robot's learning step in its worker (*One learning step ahead of an
-        answer*)."""
-        if self.deadline_ns is None and self.answering():
+        answer*). In the delivery window after a realtime tick nothing is sent; after it,
+        the perceptions held back go first (:mod:`.tick_windows`)."""
+        if (self.windows.deadline_ns is None and self.answering()) or \
+                self.windows.delivering():
             return
+        for s in self.slots.values():  # perceptions a window held back
+            self._prepare_waiting(s)
         for wp in self.processes:
             self._feed_process(wp)
 
@@ -288,7 +285,7 @@ class ProcessLearners(WorkerProcesses):
             i = (wp.next_learn + k) % n
             s = self.slots[wp.robots[i]]
             if s.rt.learning and s.rt.queue and s.learns < self.depth and \
-                    not (s.since_tick and self._quiet(s.learn_est_ns)):
+                    not (s.since_tick and self.windows.quiet(s.learn_est_ns)):
                 self._send_learn(s)
                 in_flight += 1
                 wp.next_learn = (i + 1) % n
@@ -297,20 +294,21 @@ class ProcessLearners(WorkerProcesses):
         """Learn requests in flight in worker process ``wp``, of all its robots."""
         return sum(self.slots[r].learns for r in wp.robots)
 
-    def new_tick(self, deadline_ns: int) -> None:
-        """The realtime timer fired (the next one is at ``deadline_ns``): send the
-        perceptions held back in the quiet window; every robot may learn once more.
+    def new_tick(self, deadline_ns: int, *, published: bool = True) -> None:
+        """The realtime timer fired (the next one is at ``deadline_ns``): if it ``published``,
+        the delivery window opens, and :meth:`feed` sends nothing until it closes; then the
+        perceptions held back are sent, and every robot may learn once more.
 
         A robot whose newest perception is more than a period old (it stopped or sends
         slower than the clock) has it predicted again once its model learned more, as the
         tick did when it computed the predictions itself."""
-        self.deadline_ns = deadline_ns
         now = time.monotonic_ns()
+        self.windows.ticked(now, deadline_ns, published=published)
         for s in self.slots.values():
             s.since_tick = False
             newest = s.rt.newest
             if s.waiting is None and s.ready is not None and newest is not None and \
-                    s.ready[1] is newest[0] and now - newest[1] > self.period_ns and \
+                    s.ready[1] is newest[0] and now - newest[1] > self.windows.period_ns and \
                     s.model is not None and s.model.n_learned > s.ready_updates:
                 s.waiting = newest
             self._prepare_waiting(s)
@@ -335,9 +333,11 @@ class ProcessLearners(WorkerProcesses):
         self._prepare_waiting(s)
 
     def _prepare_waiting(self, s: WorkerSlot) -> None:
-        """Send the waiting perception unless one is in flight or the tick is too close
-        (it would not be ready for it: it goes after the tick, :meth:`new_tick`)."""
-        if s.waiting is not None and not s.predicts and not self._quiet(s.predict_est_ns):
+        """Send the waiting perception unless one is in flight, the tick is too close (it
+        would not be ready for it: it goes after the tick, :meth:`new_tick`) or the tick's
+        predictions are being delivered (it goes when :meth:`feed` runs after that)."""
+        if s.waiting is not None and not s.predicts and not self.windows.delivering() and \
+                not self.windows.quiet(s.predict_est_ns):
             self._send_predict(s, *s.waiting, prepared=True)
             s.waiting = None
 

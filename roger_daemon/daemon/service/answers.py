@@ -101,6 +101,7 @@ def on_timer(svc: Service, now: int) -> None:
     prepared ones at once (docs/fleet.md, *Prepared predictions*)."""
     due = [rt for rt in svc.robots.values()
            if rt.predicting and rt.newest is not None and not svc._stopping]
+    batch = []
     if svc.learners is not None:
         batch = svc.learners.prepared(due)
         if batch:
@@ -112,5 +113,5 @@ def on_timer(svc: Service, now: int) -> None:
             publish_prediction(svc, rt, perc, recv_ns)
     svc._learned_since_tick = False
     svc.schedule.fired(now, bool(due))
-    if svc.learners is not None:
-        svc.learners.new_tick(svc.schedule.next_tick)
+    if svc.learners is not None:  # the delivery window if it published
+        svc.learners.new_tick(svc.schedule.next_tick, published=bool(batch))

@@ -273,7 +273,8 @@ class Service:
         deadline = status_deadline(self, now)
         if self._realtime and self._timer_active():
             deadline = min(deadline, self.schedule.next_tick)
-        return deadline
+        wake = self.learners.windows.wake_ns() if self.learners is not None else None
+        return deadline if wake is None else min(deadline, wake)  # the delivery window
 
     def _timer_active(self) -> bool:
         return any(rt.predicting and rt.newest is not None for rt in self.robots.values())
