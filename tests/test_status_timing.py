@@ -25,8 +25,9 @@ PERIOD = SECOND // 30
 
 
 def _svc(*, realtime: bool, answering: bool = False, inbox: int = 0,
-         next_tick: int = 0) -> Any:
-    learners = SimpleNamespace(answering=lambda: answering)
+         next_tick: int = 0, delivering: bool = False) -> Any:
+    learners = SimpleNamespace(answering=lambda: answering,
+                               windows=SimpleNamespace(delivering=lambda: delivering))
     return SimpleNamespace(
         _next_status=10 * SECOND, _status_period_ns=SECOND, _realtime=realtime,
         status_round=StatusRound(),
@@ -74,6 +75,9 @@ def test_quiet_moments_are_the_ones_status_waits_for() -> None:
     tick = now + PERIOD // 2
     assert not quiet_moment(_svc(realtime=True, next_tick=tick), now)  # half a period to go
     assert quiet_moment(_svc(realtime=True, next_tick=now + PERIOD - 1), now)  # just ticked
+    # ... unless its predictions are still being delivered (the workers' delivery window)
+    assert not quiet_moment(_svc(realtime=True, next_tick=now + PERIOD - 1, delivering=True),
+                            now)
 
 
 def test_a_round_under_way_goes_on_at_quiet_moments_until_overdue() -> None:

@@ -140,9 +140,13 @@ def status_due(svc: Service, now: int) -> bool:
 
 def quiet_moment(svc: Service, now: int) -> bool:
     """Whether work done now delays no answer: in realtime the first quarter of a period
-    after a tick, in lockstep while no prediction is being answered and nothing waits in the
-    inbox (the status round; the loop's held recordings and collections, docs/fleet.md)."""
+    after a tick, once the tick's predictions are delivered (with learner workers: the
+    delivery window, :mod:`..tick_windows`); in lockstep while no prediction is being
+    answered and nothing waits in the inbox (the status round; the loop's held recordings
+    and collections, docs/fleet.md)."""
     if svc._realtime and svc._timer_active():
+        if svc.learners is not None and svc.learners.windows.delivering():
+            return False
         return now < svc.schedule.next_tick - 3 * svc.schedule.period_ns // 4
     answering = svc.learners is not None and svc.learners.answering()
     return not answering and len(svc.inbox) == 0
