@@ -186,7 +186,6 @@ class ProcessLearners(WorkerProcesses):
             self._service.worker_predictions(batch)
         self.feed()
 
-
     def _dispatch(self, robot: str, frame: dict[str, Any] | None,
                   batch: list[tuple[Any, ...]] | None = None) -> None:
         if frame is None:
