@@ -146,17 +146,28 @@ def test_state_dict_round_trips_without_pickle_and_continues_exactly(cls: Any) -
     assert np.array_equal(model.predict_one(q).mean, restored.predict_one(q).mean)
 
 
+#: the settings the one-pass answers are checked with: argmax, and draws with the empty expert
+ANSWER_PARAMS = (PARAMS, PARAMS.replace(expert_choice="sample", predict_empty_expert=True))
+
+
+def _twins(cls: Any, params: RogerParams) -> tuple[Any, Any]:
+    """Two identically seeded models: one asked in one pass, the other call by call."""
+    return cls(D_X, D_Y, params=params, seed=3), cls(D_X, D_Y, params=params, seed=3)
+
+
+def _learn_both(*models: Any) -> None:
+    for model in models:
+        for x, y in zip(*_stream(50), strict=True):
+            model.learn_one(x, y)
+
+
 @models
 def test_predict_with_multimap_is_both_calls_in_one(cls: Any) -> None:
     # float for float and draw for draw: two identically seeded models, one asked twice
-    for params in (PARAMS, PARAMS.replace(expert_choice="sample", predict_empty_expert=True)):
-        a = cls(D_X, D_Y, params=params, seed=3)
-        b = cls(D_X, D_Y, params=params, seed=3)
-        queries = _stream(8, seed=6)[0]
-        for model in (a, b):
-            for x, y in zip(*_stream(50), strict=True):
-                model.learn_one(x, y)
-        for q in queries:
+    for params in ANSWER_PARAMS:
+        a, b = _twins(cls, params)
+        _learn_both(a, b)
+        for q in _stream(8, seed=6)[0]:
             pred, mm = a.predict_with_multimap(q)
             assert _same_prediction(pred, b.predict_one(q))
             assert [_fields(e) for e in mm] == [_fields(e) for e in b.predict_multimap(q)]
@@ -168,15 +179,12 @@ def test_predict_with_multimap_is_both_calls_in_one(cls: Any) -> None:
 @models
 def test_predict_table_is_predict_one_and_predict_multimap_as_arrays(cls: Any) -> None:
     # float for float and draw for draw, with and without the empty expert, before learning too
-    for params in (PARAMS, PARAMS.replace(expert_choice="sample", predict_empty_expert=True)):
-        a = cls(D_X, D_Y, params=params, seed=3)
-        b = cls(D_X, D_Y, params=params, seed=3)
+    for params in ANSWER_PARAMS:
+        a, b = _twins(cls, params)
         queries = _stream(8, seed=6)[0]
         for q in queries[:2]:  # before learning: the prior, and its row if it takes part
             _same_table(a.predict_table(q), (b.predict_one(q), b.predict_multimap(q)))
-        for model in (a, b):
-            for x, y in zip(*_stream(50), strict=True):
-                model.learn_one(x, y)
+        _learn_both(a, b)
         for q in queries:
             _same_table(a.predict_table(q), (b.predict_one(q), b.predict_multimap(q)))
     with pytest.raises(ValueError):
