@@ -579,3 +579,21 @@ def test_idle_worker_counts_labels_ahead_and_predicts_the_same() -> None:
                           dims=ahead.rt.dims, robot="aibo") for w in (ahead, plain)]
             _same_prediction(got[0], got[1])  # type: ignore[arg-type]
             assert any(e.label for e in got[0].multimap)  # type: ignore[union-attr]
+
+
+def test_the_daemon_with_workers_shortens_its_switch_interval() -> None:
+    """The loop waits for the GIL at most ``LOOP_SWITCH_INTERVAL_S`` (switch_interval.py)."""
+    import sys
+
+    from roger_daemon.daemon.switch_interval import (
+        LOOP_SWITCH_INTERVAL_S,
+        shorten_switch_interval,
+    )
+
+    before = sys.getswitchinterval()
+    try:
+        assert shorten_switch_interval() == before
+        assert sys.getswitchinterval() == pytest.approx(LOOP_SWITCH_INTERVAL_S)
+        assert LOOP_SWITCH_INTERVAL_S < before  # shorter than the interpreter's default
+    finally:
+        sys.setswitchinterval(before)
