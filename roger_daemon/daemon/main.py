@@ -190,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     from roger_daemon.transport import ZenohTransport
 
     learners = _start_learners(cfg, robots)  # before Zenoh opens: never fork after that
-    if learners is not None:  # the loop's waits for the GIL bounded (switch_interval.py)
+    if learners is not None and cfg.clock == "realtime":  # the tick on time (switch_interval.py)
         shorten_switch_interval()
     try:
         transport = ZenohTransport(cfg.zenoh, max_payload_bytes=MAX_PAYLOAD_BYTES)

@@ -6,8 +6,9 @@ Zenoh's callback threads, which take it once per message received, and with the 
 log's committer threads. When a robot's messages arrive in a burst, the callback thread can
 take the GIL back after each message before the waiting loop wakes, so the loop waits out the
 whole interval: a realtime tick then publishes up to 5 ms late. With learner workers the loop
-runs only short pieces of Python, so a shorter interval costs it little (docs/fleet.md, *The
-switch interval*).
+runs only short pieces of Python, so a shorter interval costs it little. Set for the realtime
+clock only: in lockstep, with no tick to keep, it did not help (docs/fleet.md, *The switch
+interval*).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import sys
 
 __all__ = ["LOOP_SWITCH_INTERVAL_S", "shorten_switch_interval"]
 
-#: the daemon's switch interval when learner workers own the models
+#: the daemon's switch interval in the realtime clock when learner workers own the models
 LOOP_SWITCH_INTERVAL_S = 0.0005
 
 
