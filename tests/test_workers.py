@@ -581,15 +581,20 @@ def test_idle_worker_counts_labels_ahead_and_predicts_the_same() -> None:
             assert any(e.label for e in got[0].multimap)  # type: ignore[union-attr]
 
 
-def test_the_daemon_with_workers_shortens_its_switch_interval() -> None:
-    """The loop waits for the GIL at most ``LOOP_SWITCH_INTERVAL_S`` (switch_interval.py)."""
+def test_a_realtime_daemon_with_workers_and_only_it_shortens_its_switch_interval() -> None:
+    """``roger daemon`` sets ``switch_interval_for(clock, workers)`` (switch_interval.py):
+    0.5 ms for a realtime daemon with learner workers, the interpreter's own otherwise."""
     import sys
 
     from roger_daemon.daemon.switch_interval import (
         LOOP_SWITCH_INTERVAL_S,
         shorten_switch_interval,
+        switch_interval_for,
     )
 
+    assert switch_interval_for("realtime", True) == LOOP_SWITCH_INTERVAL_S
+    assert switch_interval_for("lockstep", True) is None
+    assert switch_interval_for("realtime", False) is None
     before = sys.getswitchinterval()
     try:
         assert shorten_switch_interval() == before
