@@ -579,26 +579,3 @@ def test_idle_worker_counts_labels_ahead_and_predicts_the_same() -> None:
                           dims=ahead.rt.dims, robot="aibo") for w in (ahead, plain)]
             _same_prediction(got[0], got[1])  # type: ignore[arg-type]
             assert any(e.label for e in got[0].multimap)  # type: ignore[union-attr]
-
-
-def test_a_realtime_daemon_with_workers_and_only_it_shortens_its_switch_interval() -> None:
-    """``roger daemon`` sets ``switch_interval_for(clock, workers)`` (switch_interval.py):
-    0.5 ms for a realtime daemon with learner workers, the interpreter's own otherwise."""
-    import sys
-
-    from roger_daemon.daemon.switch_interval import (
-        LOOP_SWITCH_INTERVAL_S,
-        shorten_switch_interval,
-        switch_interval_for,
-    )
-
-    assert switch_interval_for("realtime", True) == LOOP_SWITCH_INTERVAL_S
-    assert switch_interval_for("lockstep", True) is None
-    assert switch_interval_for("realtime", False) is None
-    before = sys.getswitchinterval()
-    try:
-        assert shorten_switch_interval() == before
-        assert sys.getswitchinterval() == pytest.approx(LOOP_SWITCH_INTERVAL_S)
-        assert LOOP_SWITCH_INTERVAL_S < before  # shorter than the interpreter's default
-    finally:
-        sys.setswitchinterval(before)

@@ -39,7 +39,6 @@ from roger_daemon.daemon.resume import (
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.sdnotify import Notifier
 from roger_daemon.daemon.service import Recorder, Service
-from roger_daemon.daemon.switch_interval import shorten_switch_interval, switch_interval_for
 
 __all__ = [
     "Resumed",
@@ -190,9 +189,6 @@ def run(args: argparse.Namespace) -> int:
     from roger_daemon.transport import ZenohTransport
 
     learners = _start_learners(cfg, robots)  # before Zenoh opens: never fork after that
-    interval = switch_interval_for(cfg.clock, learners is not None)  # the tick on time
-    if interval is not None:
-        shorten_switch_interval(interval)
     try:
         transport = ZenohTransport(cfg.zenoh, max_payload_bytes=MAX_PAYLOAD_BYTES)
     except Exception as exc:
