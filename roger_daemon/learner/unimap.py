@@ -110,12 +110,10 @@ class UnimapGP:
 
     def predict_with_multimap(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
                               ) -> tuple[Prediction, list[ExpertPrediction]]:
-        """``(predict_one(x), predict_multimap(x))`` from one GP evaluation."""
-        pred = self.predict_one(x, rng=rng)
-        if not self._gp.n_points:
-            return pred, []
-        return pred, [ExpertPrediction(expert_id=0, gate_prob=1.0, mean=pred.mean, var=pred.var,
-                                       n_points=self._gp.n_points)]
+        """``(predict_one(x), predict_multimap(x))`` from one GP evaluation (the rows of
+        :meth:`predict_table`)."""
+        pred, table = self.predict_table(x, rng=rng)
+        return pred, table.experts()
 
     def predict_table(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
                       ) -> tuple[Prediction, MultimapTable]:
