@@ -2,11 +2,15 @@
 
 Every ``roger bench`` command and ``roger experiment goal-scoring`` put this record in their
 JSON (``"machine"``): the CPU model and count, Python, numpy, the platform, the BLAS and its
-threads, the 1-minute load average at the start and at the end, and a *speed probe*: two fixed
-reference workloads timed when the run starts. The probe is there because this project's
-machines are shared virtual machines whose speed drifts (the same fleet run took 59 % of a
-core one evening and 83 % the next, on an idle machine): two runs' figures are comparable
-only when their probes are (docs/performance.md, *Comparing runs*).
+threads, the 1-minute load average at the start and at the end, how the machine's CPU time
+was spent over the run (``cpu_time``: busy, idle, and *stolen* by the hypervisor, from
+``/proc/stat``), and a *speed probe*: two fixed reference workloads timed when the run
+starts. The probe is there because this project's machines are shared virtual machines whose
+speed drifts (the same fleet run took 59 % of a core one evening and 83 % the next, on an
+idle machine): two runs' figures are comparable only when their probes are
+(docs/performance.md, *Comparing runs*). Stolen time is CPU time the virtual machine's
+processes were ready to use and did not get; a few percent of it shows in the fleet's
+latency tails (docs/fleet.md).
 """
 
 from __future__ import annotations
@@ -20,10 +24,11 @@ import numpy as np
 
 from roger_daemon.blas import blas_info
 
-__all__ = ["describe", "finish", "machine_record", "speed_probe"]
+__all__ = ["cpu_time_split", "cpu_times", "describe", "finish", "machine_record", "speed_probe"]
 
 _PROBE_ELEMENTS = 1 << 23  # 64 MB of float64: larger than the caches of the machines we use
 _PROBE_LOOP = 200_000
+_CPU_TIMES_START = "_cpu_times_start"  # kept in the record between machine_record and finish
 
 
 def _cpu_model() -> str:
@@ -65,6 +70,42 @@ def speed_probe(repeats: int = 5) -> dict[str, float]:
     return {"python_ms": round(python * 1e3, 2), "memory_ms": round(memory * 1e3, 2)}
 
 
+def cpu_times(path: str = "/proc/stat") -> list[int] | None:
+    """The machine's CPU time so far, in clock ticks summed over its CPUs: user, nice,
+    system, idle, iowait, irq, softirq, steal (the first line of ``/proc/stat``, whose
+    ``guest`` times are already counted in ``user`` and ``nice``); ``None`` where it cannot be
+    read (not Linux)."""
+    try:
+        with open(path, encoding="ascii") as fh:
+            fields = fh.readline().split()
+    except OSError:
+        return None
+    if len(fields) < 9 or fields[0] != "cpu":
+        return None
+    try:
+        return [int(v) for v in fields[1:9]]
+    except ValueError:
+        return None
+
+
+def cpu_time_split(start: list[int], end: list[int]) -> dict[str, float] | None:
+    """How the machine's CPU time between two :func:`cpu_times` readings was spent, in %:
+    busy (user, nice, system, irq, softirq), idle (idle, iowait) and stolen by the hypervisor
+    (steal); ``None`` when no time passed.
+
+    >>> cpu_time_split([0] * 8, [50, 0, 10, 30, 5, 0, 0, 5])
+    {'busy_percent': 60.0, 'idle_percent': 35.0, 'steal_percent': 5.0}
+    """
+    d = [b - a for a, b in zip(start, end, strict=True)]
+    total = sum(d)
+    if total <= 0:
+        return None
+    user, nice, system, idle, iowait, irq, softirq, steal = d
+    return {"busy_percent": round(100 * (user + nice + system + irq + softirq) / total, 2),
+            "idle_percent": round(100 * (idle + iowait) / total, 2),
+            "steal_percent": round(100 * steal / total, 2)}
+
+
 def machine_record(*, probe: bool = True) -> dict[str, Any]:
     """The record at the start of a run (call :func:`finish` at its end)."""
     record: dict[str, Any] = {
@@ -78,12 +119,19 @@ def machine_record(*, probe: bool = True) -> dict[str, Any]:
     }
     if probe:
         record["speed_probe"] = speed_probe()
+    record[_CPU_TIMES_START] = cpu_times()  # after the probe: the run's time only
     return record
 
 
 def finish(record: dict[str, Any]) -> dict[str, Any]:
-    """``record`` with the 1-minute load average at the end of the run."""
+    """``record`` with the 1-minute load average at the end of the run and how the machine's
+    CPU time was spent since :func:`machine_record` (``cpu_time``, where ``/proc/stat`` can
+    be read)."""
     record["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
+    start, end = record.pop(_CPU_TIMES_START, None), cpu_times()
+    split = cpu_time_split(start, end) if start is not None and end is not None else None
+    if split is not None:
+        record["cpu_time"] = split
     return record
 
 
@@ -95,4 +143,6 @@ def describe(record: dict[str, Any]) -> str:
     if "speed_probe" in record:
         probe = record["speed_probe"]
         text += f", speed probe: Python {probe['python_ms']} ms, memory {probe['memory_ms']} ms"
+    if "cpu_time" in record:
+        text += f", CPU stolen {record['cpu_time']['steal_percent']} %"
     return text
