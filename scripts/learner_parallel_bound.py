@@ -10,13 +10,15 @@ over each).  This script runs exactly those passes, with the learner's own compi
 :func:`~roger_daemon.learner.jit_kernels.rank_update_cq`), inside one compiled call per step,
 first on one thread and then split over ``--threads`` threads (numba ``prange``: the
 evaluations in parallel, then the updates in parallel), over as many ``beta x beta`` versions
-as the benchmark stream has.  Nothing else of a step (gates, resampling, bookkeeping) is
-counted, so the rate it prints is an upper bound for any exact step that makes these passes
-over packed float64 matrices (each version's ``C`` read, each updated ``C`` and ``Q`` read and
-written), as the learner's does.
+as the benchmark stream has, whose basis vectors have its perception's dimension (23; until
+2026-11-28 the default was 3, which left out most of the kernel vectors' cost).  Nothing else
+of a step (gates, resampling, bookkeeping, a full expert's basis vector deleted) is counted, so
+the rate it prints is an upper bound for any exact step that makes these passes over packed
+float64 matrices (each version's ``C`` read, each updated ``C`` and ``Q`` read and written),
+as the learner's does.
 
     .venv/bin/python scripts/learner_parallel_bound.py [--versions 20] [--updated 10]
-        [--beta 300] [--dim 3] [--steps 2000] [--threads 2] [--json]
+        [--beta 300] [--dim 23] [--steps 2000] [--threads 2] [--json]
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from threadpoolctl import threadpool_limits
 from roger_daemon.bench.learner import print_report
 from roger_daemon.learner import jit_kernels, packed
 from roger_daemon.learner.jit_compile import compiled
+from roger_daemon.learner.synthetic import BENCH_D_X
 from roger_daemon.machine import finish, machine_record
 
 FloatArray = np.ndarray
@@ -110,7 +113,9 @@ def main() -> int:
     parser.add_argument("--versions", type=int, default=20)
     parser.add_argument("--updated", type=int, default=10)
     parser.add_argument("--beta", type=int, default=300)
-    parser.add_argument("--dim", type=int, default=3)
+    parser.add_argument("--dim", type=int, default=BENCH_D_X,
+                        help=f"the basis vectors' dimension (default {BENCH_D_X}: the "
+                             "benchmark stream's perception)")
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--float32", action="store_true",
@@ -132,6 +137,7 @@ def main() -> int:
         many = per_step_ms(args.threads, data, args.steps, args.updated, 1.0, rng)
     out = {
         "versions": args.versions, "updated_per_step": args.updated, "beta": args.beta,
+        "dim": args.dim,
         "storage": "float32" if args.float32 else "float64",
         "threads": args.threads, "threading_layer": numba.threading_layer(),  # type: ignore[attr-defined]
         "one_thread_ms_per_step": round(one, 3),

@@ -17,6 +17,8 @@ import numba
 import numpy as np
 import pytest
 
+from roger_daemon.learner.synthetic import BENCH_D_X
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_parallel_bound.py"
 
 
@@ -62,6 +64,7 @@ def test_cli_reports_both_thread_counts() -> None:
     report = json.loads(out.stdout)
     assert report["one_thread_ms_per_step"] > 0 and report["2_threads_ms_per_step"] > 0
     assert report["storage"] == "float64" and report["updated_per_step"] == 2
+    assert report["dim"] == BENCH_D_X  # the benchmark stream's perception, by default
     bad = subprocess.run([sys.executable, str(SCRIPT), "--updated", "30"],
                          capture_output=True, text=True, timeout=600)
     assert bad.returncode == 2

@@ -26,6 +26,7 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 BENCH_SEED = 20100618  # fixed: the benchmark stream is part of the package
+BENCH_D_X = 23  # the benchmark stream's perception dimension (the AIBO's)
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,7 @@ class Stream:
         return int(self.labels.size)
 
 
-def subtask_stream(n_points: int = 4000, d_x: int = 23, d_y: int = 9, n_subtasks: int = 4,
+def subtask_stream(n_points: int = 4000, d_x: int = BENCH_D_X, d_y: int = 9, n_subtasks: int = 4,
                    seed: int = BENCH_SEED, latent_dim: int = 3) -> Stream:
     """The benchmark stream: ``n_points`` pairs, equal shares per subtask, segments in cycle.
 
