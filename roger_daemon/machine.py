@@ -24,7 +24,8 @@ import numpy as np
 
 from roger_daemon.blas import blas_info
 
-__all__ = ["cpu_time_split", "cpu_times", "describe", "finish", "machine_record", "speed_probe"]
+__all__ = ["busy_cpu_s", "cpu_time_split", "cpu_times", "describe", "finish", "machine_record",
+           "speed_probe"]
 
 _PROBE_ELEMENTS = 1 << 23  # 64 MB of float64: larger than the caches of the machines we use
 _PROBE_LOOP = 200_000
@@ -104,6 +105,14 @@ def cpu_time_split(start: list[int], end: list[int]) -> dict[str, float] | None:
     return {"busy_percent": round(100 * (user + nice + system + irq + softirq) / total, 2),
             "idle_percent": round(100 * (idle + iowait) / total, 2),
             "steal_percent": round(100 * steal / total, 2)}
+
+
+def busy_cpu_s(start: list[int], end: list[int]) -> float:
+    """CPU seconds the machine's CPUs spent busy (user, nice, system, irq, softirq) between two
+    :func:`cpu_times` readings, summed over the CPUs (every process, the kernel's included)."""
+    user, nice, system, _idle, _iowait, irq, softirq, _steal = (
+        b - a for a, b in zip(start, end, strict=True))
+    return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")
 
 
 def machine_record(*, probe: bool = True) -> dict[str, Any]:

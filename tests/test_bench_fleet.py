@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from roger_daemon.bench.fleet import period_jitter_ms
+from roger_daemon.bench.fleet_client import machine_window
 
 
 def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
@@ -30,6 +31,10 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
         assert phase["predictions_received_by"] == (
             "feeding process" if clock == "lockstep" else "receiver process")
         assert set(phase["robots"]) == {"r0", "r1"}
+        if phase["machine"]:  # /proc/stat readable: what else ran over the window
+            assert set(phase["machine"]) == {"other_cpu_percent", "steal_percent"}
+            assert math.isfinite(phase["machine"]["other_cpu_percent"])
+            assert 0 <= phase["machine"]["steal_percent"] <= 100
         for robot in phase["robots"].values():
             assert robot["predictions_per_s"] > 0 and robot["updates"] > 0
             assert robot["busy_ticks"] >= 0 and robot["fed_per_s"] > 0
@@ -158,3 +163,13 @@ def test_a_receiver_that_cannot_start_is_an_error_not_a_hang(tmp_path: Path) -> 
     with pytest.raises(RuntimeError, match="fleet receiver was not ready within 60 s"):
         fleet_receiver.start("not-an-endpoint", tmp_path / "receipts.msgpack", timeout=60.0)
     assert not (tmp_path / "receipts.msgpack").exists()
+
+
+def test_the_machine_window_is_empty_without_proc_stat_or_time() -> None:
+    ticks = [100, 0, 50, 400, 0, 0, 0, 0]
+    assert machine_window(None, ticks, ours_s=0.5, seconds=5.0) == {}
+    assert machine_window(ticks, None, ours_s=0.5, seconds=5.0) == {}
+    assert machine_window([0] * 8, ticks, ours_s=0.5, seconds=0.0) == {}
+    # 1.5 CPU seconds busy, 0.5 of them ours, over 5 s: others used 20 % of one core
+    assert machine_window([0] * 8, ticks, ours_s=0.5, seconds=5.0) == {
+        "other_cpu_percent": 20.0, "steal_percent": 0.0}

@@ -33,15 +33,19 @@ without it, in that worst case.
 
 CPU: utime + stime of the daemon and its child processes (its learner workers), from
 ``/proc``, over the measured window, in % of one core. The first ``--warmup`` seconds of each
-phase are not measured. The machine record (:mod:`roger_daemon.machine`: load average at start
-and end, speed probe) is reported: the figures depend on what else runs on the machine and on
-how fast it runs.
+phase are not measured. Each phase's ``machine`` says what else ran over that window: the CPU
+of every other process (``other_cpu_percent``, % of one core) and the share stolen by the
+hypervisor (``steal_percent``); the targets assume an idle machine. The machine record
+(:mod:`roger_daemon.machine`: load average at start and end, speed probe, CPU time over the
+run) is reported: the figures depend on what else runs on the machine and on how fast it
+runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import threading
 import time
@@ -57,12 +61,13 @@ from roger_daemon.bench.fleet_client import (
     Received,
     feed,
     index_predictions,
+    machine_window,
     proc_cpu_s,
 )
 from roger_daemon.bench.streams import FLEET_STREAMS, FeedStream, feed_stream
 from roger_daemon.console import require
 from roger_daemon.harness import DaemonProcess, free_port, write_config
-from roger_daemon.machine import describe, finish, machine_record
+from roger_daemon.machine import cpu_times, describe, finish, machine_record
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -199,10 +204,13 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStre
         feeder.start()
         time.sleep(args.warmup)
         pid = daemon.proc.pid
+        ours = [os.getpid(), *([receiver.pid] if receiver is not None else [])]
+        m0, own0 = cpu_times(), sum(proc_cpu_s(p, children=False) for p in ours)
         cpu0, main0, c0 = proc_cpu_s(pid), proc_cpu_s(pid, children=False), time.monotonic()
         s0 = fleet.wait_status(w0)
         feeder.join()
         cpu1, main1, c1 = proc_cpu_s(pid), proc_cpu_s(pid, children=False), time.monotonic()
+        m1, own1 = cpu_times(), sum(proc_cpu_s(p, children=False) for p in ours)
         end = fleet.wait_status(w1 + 500_000_000)
         s1 = fleet.last_status(w1)
         fleet.decode_predictions()
@@ -225,6 +233,8 @@ def _phase(workdir: Path, args: argparse.Namespace, clock: str, stream: FeedStre
             # which process's receipts the per-robot prediction figures are
             "predictions_received_by": "feeding process" if lockstep else "receiver process",
             "decode_errors": fleet.errors + receiver_errors,
+            # the rest of the machine over the window: is it idle, is CPU stolen
+            "machine": machine_window(m0, m1, (cpu1 - cpu0) + (own1 - own0), c1 - c0),
         }
     finally:
         if fleet is not None:
@@ -275,6 +285,13 @@ def _summary(phases: dict[str, Any]) -> dict[str, Any]:
     return s
 
 
+def _elsewhere(machine: dict[str, float]) -> str:
+    if not machine:
+        return ""
+    return (f"; other processes {machine['other_cpu_percent']:.0f} % of one core, CPU stolen "
+            f"{machine['steal_percent']:.2f} %")
+
+
 def _print_table(result: dict[str, Any]) -> None:
     m = result["machine"]
     print(f"roger bench fleet: {result['settings']['robots']} robots x "
@@ -284,7 +301,7 @@ def _print_table(result: dict[str, Any]) -> None:
         print(f"\n{name}: workers {ph['workers']}, daemon CPU {ph['daemon_cpu_percent']:.0f} % "
               f"of one core (loop process {ph['daemon_main_cpu_percent']:.0f} %), timer "
               f"jitter p99 {ph['daemon_period_jitter_p99_ms']:.2f} ms, "
-              f"missed ticks {ph['missed_ticks']}")
+              f"missed ticks {ph['missed_ticks']}{_elsewhere(ph.get('machine', {}))}")
         print(f"  {'robot':<6} {'upd/s':>7} {'dropped':>8} {'pred/s':>7} {'jit p99':>8} "
               f"{'pub jit':>8} {'dlv p99':>8} {'lat p50':>8} {'lat p99':>8} {'queue':>6}")
         for r, v in ph["robots"].items():

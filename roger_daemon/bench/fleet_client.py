@@ -16,8 +16,10 @@ import numpy as np
 from protocols import Action, Perception, decode, encode, keys
 from protocols.aibo import DIMS
 from roger_daemon.bench.streams import FeedStream
+from roger_daemon.machine import busy_cpu_s, cpu_time_split
 
-__all__ = ["FleetClient", "child_pids", "feed", "index_predictions", "proc_cpu_s"]
+__all__ = ["FleetClient", "child_pids", "feed", "index_predictions", "machine_window",
+           "proc_cpu_s"]
 
 #: a robot's predictions as received: (received, tick, published), monotonic ns of the
 #: machine (the daemon's wall-clock ``stamp_ns`` moved onto the monotonic clock)
@@ -48,6 +50,28 @@ def proc_cpu_s(pid: int, *, children: bool = True) -> float:
         except (OSError, IndexError, ValueError):
             continue
     return total
+
+
+def machine_window(start: list[int] | None, end: list[int] | None, ours_s: float,
+                   seconds: float) -> dict[str, float]:
+    """What else ran on the machine over a measured window: ``other_cpu_percent``, the CPU
+    its processes other than ours (``ours_s`` CPU seconds: the daemon, its workers and the
+    bench's own processes) used, in % of one core, and ``steal_percent``, the share of the
+    machine's CPU time the hypervisor stole. Both from :func:`roger_daemon.machine.cpu_times`
+    readings at the window's ends (empty without them). ``/proc`` counts in clock ticks
+    (10 ms), so over a short window ``other_cpu_percent`` is only good to a few per cent, and
+    can be slightly negative.
+
+    >>> machine_window([0] * 8, [300, 0, 100, 500, 0, 0, 0, 2], ours_s=3.5, seconds=5.0)
+    {'other_cpu_percent': 10.0, 'steal_percent': 0.22}
+    """
+    split = cpu_time_split(start, end) if start is not None and end is not None else None
+    if split is None or seconds <= 0:
+        return {}
+    assert start is not None and end is not None
+    other_s = busy_cpu_s(start, end) - ours_s
+    return {"other_cpu_percent": round(100.0 * other_s / seconds, 2),
+            "steal_percent": split["steal_percent"]}
 
 
 def index_predictions(raw: list[tuple[int, str, bytes]], robots: list[str], wall_to_mono: int
