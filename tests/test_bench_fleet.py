@@ -46,6 +46,11 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
             assert math.isfinite(robot["delivery_p99_ms"])
     for robot in report["phases"]["lockstep"]["robots"].values():
         assert 0 < robot["latency_p50_ms"] <= robot["latency_p99_ms"]
+    machines = [ph["machine"] for ph in report["phases"].values() if ph["machine"]]
+    if machines:  # the summary carries the worst phase's, beside the verdict
+        summary = report["summary"]
+        assert summary["other_cpu_percent_max"] == max(m["other_cpu_percent"] for m in machines)
+        assert summary["steal_percent_max"] == max(m["steal_percent"] for m in machines)
 
 
 def test_index_predictions_counts_what_does_not_decode() -> None:
