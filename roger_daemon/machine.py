@@ -101,18 +101,23 @@ def cpu_time_split(start: list[int], end: list[int]) -> dict[str, float] | None:
     total = sum(d)
     if total <= 0:
         return None
-    user, nice, system, idle, iowait, irq, softirq, steal = d
-    return {"busy_percent": round(100 * (user + nice + system + irq + softirq) / total, 2),
+    _user, _nice, _system, idle, iowait, _irq, _softirq, steal = d
+    return {"busy_percent": round(100 * _busy_ticks(d) / total, 2),
             "idle_percent": round(100 * (idle + iowait) / total, 2),
             "steal_percent": round(100 * steal / total, 2)}
 
 
 def busy_cpu_s(start: list[int], end: list[int]) -> float:
-    """CPU seconds the machine's CPUs spent busy (user, nice, system, irq, softirq) between two
-    :func:`cpu_times` readings, summed over the CPUs (every process, the kernel's included)."""
-    user, nice, system, _idle, _iowait, irq, softirq, _steal = (
-        b - a for a, b in zip(start, end, strict=True))
-    return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")
+    """CPU seconds the machine's CPUs spent busy between two :func:`cpu_times` readings,
+    summed over the CPUs (every process, the kernel's included)."""
+    return _busy_ticks([b - a for a, b in zip(start, end, strict=True)]) / os.sysconf(
+        "SC_CLK_TCK")
+
+
+def _busy_ticks(d: list[int]) -> int:
+    """Busy time of a :func:`cpu_times` difference: user, nice, system, irq and softirq."""
+    user, nice, system, _idle, _iowait, irq, softirq, _steal = d
+    return user + nice + system + irq + softirq
 
 
 def machine_record(*, probe: bool = True) -> dict[str, Any]:

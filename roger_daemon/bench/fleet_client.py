@@ -65,10 +65,11 @@ def machine_window(start: list[int] | None, end: list[int] | None, ours_s: float
     >>> machine_window([0] * 8, [300, 0, 100, 500, 0, 0, 0, 2], ours_s=3.5, seconds=5.0)
     {'other_cpu_percent': 10.0, 'steal_percent': 0.22}
     """
-    split = cpu_time_split(start, end) if start is not None and end is not None else None
-    if split is None or seconds <= 0:
+    if start is None or end is None or seconds <= 0:
         return {}
-    assert start is not None and end is not None
+    split = cpu_time_split(start, end)
+    if split is None:
+        return {}
     other_s = busy_cpu_s(start, end) - ours_s
     return {"other_cpu_percent": round(100.0 * other_s / seconds, 2),
             "steal_percent": split["steal_percent"]}
