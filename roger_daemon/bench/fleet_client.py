@@ -59,8 +59,9 @@ def machine_window(start: list[int] | None, end: list[int] | None, ours_s: float
     bench's own processes) used, in % of one core, and ``steal_percent``, the share of the
     machine's CPU time the hypervisor stole. Both from :func:`roger_daemon.machine.cpu_times`
     readings at the window's ends (empty without them). ``/proc`` counts in clock ticks
-    (10 ms), so over a short window ``other_cpu_percent`` is only good to a few per cent, and
-    can be slightly negative.
+    (10 ms), and with CPU stolen the processes' CPU times and ``/proc/stat``'s busy time do not
+    count the stolen time alike (-2.5 to -3.0 % with 4-6 % stolen, docs/fleet.md): read
+    ``other_cpu_percent`` within a few per cent of zero as zero.
 
     >>> machine_window([0] * 8, [300, 0, 100, 500, 0, 0, 0, 2], ours_s=3.5, seconds=5.0)
     {'other_cpu_percent': 10.0, 'steal_percent': 0.22}
