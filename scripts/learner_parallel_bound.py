@@ -17,6 +17,12 @@ the rate it prints is an upper bound for any exact step that makes these passes 
 float64 matrices (each version's ``C`` read, each updated ``C`` and ``Q`` read and written),
 as the learner's does.
 
+Two figures say how far those kernels are from the machine (docs/performance.md, *How close the
+kernels are to the machine*): ``bytes_only_ms_per_step``, the same bytes read and written by
+the simplest loops that touch them (a sum, a scaling: the floor for any kernel that moves them,
+whatever its arithmetic), and the evaluations' ``C k`` by the learner's kernel against
+OpenBLAS's packed symmetric product (``dspmv``), both on one thread.
+
     .venv/bin/python scripts/learner_parallel_bound.py [--versions 20] [--updated 10]
         [--beta 300] [--dim 23] [--steps 2000] [--threads 2] [--json]
 """
@@ -25,10 +31,12 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 
 import numba
 import numpy as np
 from numba import prange
+from scipy.linalg import blas
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import print_report
@@ -71,6 +79,45 @@ def exact_step_passes(bases: FloatArray, cs: FloatArray, qs: FloatArray, coefs: 
     return float(kck.sum())
 
 
+@compiled(parallel=True, nogil=True, fastmath=True)  # a floor, not a result: any order will do
+def bytes_only_passes(cs: FloatArray, qs: FloatArray, updated: np.ndarray) -> float:
+    """The bytes of :func:`exact_step_passes` with the least work per byte: every version's
+    ``C`` summed, then each updated version's ``Q`` summed and its ``C`` and ``Q`` scaled in
+    place by 1 (read and written)."""
+    versions = cs.shape[0]
+    sums = np.zeros(versions + updated.shape[0])
+    for v in prange(versions):
+        c = cs[v]
+        t = 0.0
+        for j in range(c.shape[0]):
+            t += c[j]
+        sums[v] = t
+    for u in prange(updated.shape[0]):
+        c = cs[updated[u]]
+        q = qs[updated[u]]
+        t = 0.0
+        for j in range(q.shape[0]):
+            t += q[j]
+        for j in range(q.shape[0]):
+            q[j] *= 1.0
+            c[j] *= 1.0
+        sums[versions + u] = t
+    return float(sums.sum())
+
+
+@compiled(nogil=True)
+def learner_products(cs: FloatArray, ks: FloatArray, n: int, out: FloatArray) -> None:
+    """``out[v] = C_v k_v`` for every version by the learner's kernel, one thread."""
+    for v in range(cs.shape[0]):
+        jit_kernels.sym_matvec_into(cs[v], ks[v], n, n, out[v])
+
+
+def openblas_products(cs: FloatArray, ks: FloatArray, n: int) -> FloatArray:
+    """The same products by OpenBLAS's ``dspmv``: the learner's packed rows (``S[i, i:]``,
+    row-major) are BLAS's lower packed columns."""
+    return np.array([blas.dspmv(n, 1.0, c, k, lower=1) for c, k in zip(cs, ks, strict=True)])
+
+
 def versions_like_the_learner(count: int, beta: int, dim: int, rng: np.random.Generator,
                               dtype: type = np.float64) -> tuple[FloatArray, ...]:
     """``count`` full versions: a basis, a packed SPD ``C``-like and ``Q``-like matrix
@@ -108,6 +155,42 @@ def per_step_ms(threads: int, data: tuple[FloatArray, ...], steps: int, updated:
     return float(np.median(blocks))
 
 
+def median_ms(call: Callable[[], object], repeats: int) -> float:
+    """Milliseconds per ``call()``: the median of five blocks of ``repeats // 5`` calls, after
+    one untimed call."""
+    call()
+    block = max(1, repeats // 5)
+    times = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        for _ in range(block):
+            call()
+        times.append((time.perf_counter() - t0) / block * 1e3)
+    return float(np.median(times))
+
+
+def kernel_distance(threads: int, data: tuple[FloatArray, ...], steps: int, updated: int,
+                    rng: np.random.Generator) -> dict[str, float]:
+    """How far the passes are from the machine: the bytes-only floor on ``threads`` threads,
+    and the evaluations' ``C k`` by the learner's kernel and by OpenBLAS (one thread)."""
+    bases, cs, qs, _ = data
+    versions, n = bases.shape[:2]
+    chosen = np.sort(rng.choice(versions, updated, replace=False))
+    numba.set_num_threads(threads)
+    floor = median_ms(lambda: bytes_only_passes(cs, qs, chosen), steps)
+    ks = rng.uniform(0.0, 1.0, (versions, n))
+    ours = np.empty((versions, n))
+    cs64 = cs.astype(np.float64, copy=False)
+    mine = median_ms(lambda: learner_products(cs64, ks, n, ours), steps)
+    theirs = median_ms(lambda: openblas_products(cs64, ks, n), steps)
+    gap = float(np.max(np.abs(ours - openblas_products(cs64, ks, n)))
+                / max(float(np.max(np.abs(ours))), 1e-300))
+    return {f"bytes_only_ms_per_step_{threads}_threads": round(floor, 3),
+            "evaluations_ck_ms_learner_kernel": round(mine, 3),
+            "evaluations_ck_ms_openblas_dspmv": round(theirs, 3),
+            "learner_vs_openblas_max_rel_diff": float(f"{gap:.2e}")}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--versions", type=int, default=20)
@@ -135,6 +218,7 @@ def main() -> int:
     with threadpool_limits(1):
         one = per_step_ms(1, data, args.steps, args.updated, 1.0, rng)
         many = per_step_ms(args.threads, data, args.steps, args.updated, 1.0, rng)
+        distance = kernel_distance(args.threads, data, args.steps, args.updated, rng)
     out = {
         "versions": args.versions, "updated_per_step": args.updated, "beta": args.beta,
         "dim": args.dim,
@@ -145,6 +229,7 @@ def main() -> int:
         f"{args.threads}_threads_ms_per_step": round(many, 3),
         f"{args.threads}_threads_updates_per_s_bound": round(1e3 / many, 1),
         "speed_up": round(one / many, 2),
+        **distance,
         "machine": finish(machine),
     }
     print_report(out, as_json=args.json)

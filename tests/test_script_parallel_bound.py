@@ -57,6 +57,29 @@ def test_step_reads_every_version_and_writes_the_updated_ones(threads: int) -> N
     assert changed == [1, 3]
 
 
+def test_floor_and_openblas_comparison_touch_what_they_claim() -> None:
+    """The bytes-only floor reads every version's ``C`` and the updated ``Q`` (their sums) and
+    leaves the matrices as they were; OpenBLAS's ``dspmv`` on the learner's packed buffer is
+    the learner's ``C k``, up to rounding."""
+    from roger_daemon.learner import packed
+
+    script = _script()
+    beta, versions = 12, 5
+    _, cs, qs, _ = script.versions_like_the_learner(versions, beta, 3, np.random.default_rng(2))
+    before_c, before_q = cs.copy(), qs.copy()
+    updated = np.array([0, 4])
+    total = script.bytes_only_passes(cs, qs, updated)
+    assert total == pytest.approx(float(cs.sum() + qs[updated].sum()), rel=1e-12)
+    assert np.array_equal(cs, before_c) and np.array_equal(qs, before_q)
+    ks = np.random.default_rng(3).uniform(0.0, 1.0, (versions, beta))
+    ours = np.empty((versions, beta))
+    script.learner_products(cs, ks, beta, ours)
+    full = np.array([packed.unpack(cs[v], beta, beta) @ ks[v] for v in range(versions)])
+    np.testing.assert_allclose(ours, full, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(script.openblas_products(cs, ks, beta), full, rtol=1e-12,
+                               atol=1e-14)
+
+
 def test_cli_reports_both_thread_counts() -> None:
     out = subprocess.run([sys.executable, str(SCRIPT), "--versions", "4", "--updated", "2",
                           "--beta", "40", "--steps", "20", "--json"],
@@ -65,6 +88,10 @@ def test_cli_reports_both_thread_counts() -> None:
     assert report["one_thread_ms_per_step"] > 0 and report["2_threads_ms_per_step"] > 0
     assert report["storage"] == "float64" and report["updated_per_step"] == 2
     assert report["dim"] == BENCH_D_X  # the benchmark stream's perception, by default
+    assert report["bytes_only_ms_per_step_2_threads"] > 0
+    assert report["evaluations_ck_ms_learner_kernel"] > 0
+    assert report["evaluations_ck_ms_openblas_dspmv"] > 0
+    assert report["learner_vs_openblas_max_rel_diff"] < 1e-12
     bad = subprocess.run([sys.executable, str(SCRIPT), "--updated", "30"],
                          capture_output=True, text=True, timeout=600)
     assert bad.returncode == 2
