@@ -45,6 +45,18 @@ def _check(summary: dict[str, Any], stdout: str, locations: list[int]) -> None:
     for f in summary["figures"].values():
         assert Path(f).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "roger demo: summary" in stdout and "experts found" in stdout
+    # the experts merged per group: a checkpoint written by `roger replay --merge-groups`,
+    # served by a second daemon (it resumed it, in predict mode), one episode per location
+    merged = summary["merged"]
+    assert merged["experts"] == len(set(summary["expert_labels"].values()))
+    assert Path(merged["checkpoint_dir"], "aibo").is_dir()
+    assert merged["command"].startswith("roger replay ") and "--merge-groups" in merged["command"]
+    assert [e["location"] for e in merged["episodes"]] == locations
+    assert merged["transitioner"]["no_prediction"] == 0
+    assert merged["transitioner"]["commands"] == sum(e["ticks"] for e in merged["episodes"])
+    served = Path(summary["checkpoint"]).parents[2] / "daemon-merged.log"
+    assert "resumed from" in served.read_text() and "(predict," in served.read_text()
+    assert f"merged:     {merged['command']}" in stdout
 
 
 def test_short_demo(tmp_path: Path) -> None:

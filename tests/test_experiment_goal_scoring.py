@@ -170,11 +170,15 @@ def test_resume_reuses_finished_jobs_and_reproduces_the_results(
     (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 15, 143),
     (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 2, 130),
     (("demo",), "demonstration/*.log", 15, 143),
+    # stopped while the second daemon serves the merged groups
+    (("demo", "--locations", "0", "--vision", "fast", "--time-limit", "10"),
+     "merged-transitioner/*.log", 15, 143),
 ])
 def test_a_stopped_run_leaves_no_process_behind(tmp_path: Path, command: tuple[str, ...],
                                                 started: str, signum: int, code: int) -> None:
-    """SIGTERM or Ctrl-C while the demonstrations run: ``roger experiment goal-scoring`` and
-    ``roger demo`` exit 143 or 130, and none of their processes (whose command lines name the
+    """SIGTERM or Ctrl-C while the demonstrations run (or, for ``roger demo``, while its
+    merged groups are served): ``roger experiment goal-scoring`` and ``roger demo`` exit 143
+    or 130, and none of their processes (whose command lines name the
     output directory) survive."""
     out = tmp_path / "run"
     proc = subprocess.Popen([*ROGER, *command, "--out", str(out)],
