@@ -187,6 +187,9 @@ class _Demo:
                 CHILDREN.add(merge)
             try:
                 code = merge.wait(timeout=600)
+            except subprocess.TimeoutExpired:
+                raise RuntimeError(f"roger replay --merge-groups took over 600 s; see "
+                                   f"{out / 'merge.log'}") from None
             finally:
                 merge.kill()  # a no-op once it has exited
                 merge.wait()
