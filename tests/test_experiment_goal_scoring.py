@@ -170,9 +170,9 @@ def test_resume_reuses_finished_jobs_and_reproduces_the_results(
     (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 15, 143),
     (("experiment", "goal-scoring"), "work/demo/loc-*/sim.log", 2, 130),
     (("demo",), "demonstration/*.log", 15, 143),
-    # stopped while the second daemon serves the merged groups
-    (("demo", "--locations", "0", "--vision", "fast", "--time-limit", "10"),
-     "merged-transitioner/*.log", 15, 143),
+    # stopped while the second daemon serves the merged groups (slow: a whole short demo)
+    pytest.param(("demo", "--locations", "0", "--vision", "fast", "--time-limit", "10"),
+                 "merged-transitioner/*.log", 15, 143, marks=pytest.mark.slow),
 ])
 def test_a_stopped_run_leaves_no_process_behind(tmp_path: Path, command: tuple[str, ...],
                                                 started: str, signum: int, code: int) -> None:
