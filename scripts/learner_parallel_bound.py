@@ -30,6 +30,7 @@ OpenBLAS's packed symmetric product (``dspmv``), both on one thread.
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
 from collections.abc import Callable
 
@@ -144,15 +145,13 @@ def per_step_ms(threads: int, data: tuple[FloatArray, ...], steps: int, updated:
     versions, beta, dim = bases.shape
     xs = rng.uniform(-1.0, 1.0, (steps, dim))
     chosen = [np.sort(rng.choice(versions, updated, replace=False)) for _ in range(steps)]
-    exact_step_passes(bases, cs, qs, coefs, xs[0], gamma, beta, chosen[0], 1e-12)
-    blocks = []
-    block = max(1, steps // 5)
-    for start in range(0, steps - block + 1, block):
-        t0 = time.perf_counter()
-        for s in range(start, start + block):
-            exact_step_passes(bases, cs, qs, coefs, xs[s], gamma, beta, chosen[s], 1e-12)
-        blocks.append((time.perf_counter() - t0) / block * 1e3)
-    return float(np.median(blocks))
+    step = itertools.cycle(range(steps))  # each call the next step's point and versions
+
+    def one_step() -> float:
+        s = next(step)
+        return exact_step_passes(bases, cs, qs, coefs, xs[s], gamma, beta, chosen[s], 1e-12)
+
+    return median_ms(one_step, steps)
 
 
 def median_ms(call: Callable[[], object], repeats: int) -> float:
