@@ -168,10 +168,8 @@ class _Demo:
         their own (README, the paper's experiment): ``roger replay LOG --merge-groups
         --save-checkpoint OUT/merged``, then ``roger daemon`` in predict mode resumed from that
         checkpoint, and the same transitioner, one episode from each of ``locations``."""
-        import subprocess
-
         from roger_daemon.recording import list_session_files
-        from simulator.experiment.procs import CHILDREN, child_env, roger_argv
+        from simulator.experiment.procs import ProcessGroup, roger_argv
 
         args, out = self.args, self.out
         logs = [sf.path for sf in list_session_files(out / "recordings", robot="aibo")]
@@ -180,20 +178,12 @@ class _Demo:
                                f"found {len(logs)}")
         command = ["replay", str(logs[0]), "--merge-groups", "--save-checkpoint",
                    str(out / "merged")]
-        with (out / "merge.log").open("wb") as log:
-            with CHILDREN.spawning():  # a stop reaches it (procs.stop_children_on_signals)
-                merge = subprocess.Popen(roger_argv(*command), stdout=log,
-                                         stderr=subprocess.STDOUT, env=child_env())
-                CHILDREN.add(merge)
-            try:
-                code = merge.wait(timeout=600)
-            except subprocess.TimeoutExpired:
-                raise RuntimeError(f"roger replay --merge-groups took over 600 s; see "
-                                   f"{out / 'merge.log'}") from None
-            finally:
-                merge.kill()  # a no-op once it has exited
-                merge.wait()
-                CHILDREN.discard(merge)
+        group = ProcessGroup(out)  # tracked: a stop reaches it; output in OUT/merge.log
+        try:
+            group.start("merge", roger_argv(*command))
+            code = group.wait("merge", 600)
+        finally:
+            group.close()
         if code != 0:
             raise RuntimeError(f"roger replay --merge-groups exited with {code}; "
                                f"see {out / 'merge.log'}")
