@@ -245,6 +245,11 @@ def test_systemd_notify_protocol(tmp_path: Path, procs: list[DaemonProcess]) -> 
         receive_until("READY=1")
         ready = next(m for m in got if "READY=1" in m)
         assert "STATUS=serving aibo" in ready
+        # while the models load (on a cold numba cache: compiling the kernels) it asks
+        # systemd for more start-up time, and no longer once it is ready
+        extended = [i for i, m in enumerate(got) if m.startswith("EXTEND_TIMEOUT_USEC=")]
+        assert extended and extended[-1] < got.index(ready)
+        assert got[0].startswith("STATUS=starting: loading the models")
         receive_until("WATCHDOG=1")
         n_before = sum("WATCHDOG=1" in m for m in got)
         receive_until("STATUS=aibo: learn+predict")  # the 1 Hz status line

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -75,3 +76,49 @@ def test_without_systemd_everything_is_a_no_op() -> None:
 def test_a_vanished_socket_does_not_raise(tmp_path: Path) -> None:
     n = Notifier.from_env({"NOTIFY_SOCKET": str(tmp_path / "gone.sock")})
     assert n.send("READY=1") is False
+
+
+def test_extend_start_asks_for_more_start_up_time(listener: tuple[socket.socket, str]) -> None:
+    sock, path = listener
+    n = Notifier.from_env({"NOTIFY_SOCKET": path})
+    assert n.extend_start(30)
+    assert sock.recv(64) == b"EXTEND_TIMEOUT_USEC=30000000"
+    assert n.extend_start(0.0000001)  # never 0, which systemd reads as "no time at all"
+    assert sock.recv(64) == b"EXTEND_TIMEOUT_USEC=1"
+
+
+def test_starting_keeps_extending_until_the_block_ends(
+        listener: tuple[socket.socket, str]) -> None:
+    sock, path = listener
+    sock.settimeout(30.0)  # generous: the helper thread may be scheduled late on a busy machine
+    n = Notifier.from_env({"NOTIFY_SOCKET": path})
+    with n.starting("compiling", every_s=0.01, extend_s=2.5):
+        got = [sock.recv(256) for _ in range(4)]  # the status, then repeated extensions
+    assert got == [b"STATUS=compiling"] + [b"EXTEND_TIMEOUT_USEC=2500000"] * 3
+    while True:  # whatever the helper sent before it stopped
+        sock.settimeout(0.2)
+        try:
+            sock.recv(256)
+        except TimeoutError:
+            break
+    assert not [t for t in threading.enumerate() if t.name == "sd-notify-extend"]
+    assert n.extend_start(1)  # the notifier is still usable
+    assert sock.recv(64) == b"EXTEND_TIMEOUT_USEC=1000000"
+
+
+def test_starting_without_systemd_runs_the_block_and_sends_nothing() -> None:
+    n = Notifier.from_env({})
+    ran = []
+    with n.starting("compiling", every_s=0.01):
+        ran.append(True)
+    assert ran == [True]
+    assert not [t for t in threading.enumerate() if t.name == "sd-notify-extend"]
+
+
+def test_starting_stops_its_helper_when_the_block_raises(
+        listener: tuple[socket.socket, str]) -> None:
+    _, path = listener
+    n = Notifier.from_env({"NOTIFY_SOCKET": path})
+    with pytest.raises(RuntimeError, match="boom"), n.starting("x", every_s=0.01):
+        raise RuntimeError("boom")
+    assert not [t for t in threading.enumerate() if t.name == "sd-notify-extend"]

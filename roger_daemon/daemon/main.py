@@ -55,6 +55,10 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: ``systemctl status`` while the models load (``Notifier.starting``)
+STARTING = ("starting: loading the models (the first start after an install compiles the "
+            "learner's kernels, about a minute)")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger daemon``."""
@@ -182,13 +186,16 @@ def run(args: argparse.Namespace) -> int:
 
     limit_heap_growth()
     notifier = Notifier.from_env()
-    robots, where = start_robots(cfg, fresh=args.fresh, notifier=notifier)
-    resumed = {r: w.checkpoint for r, w in where.items()}
-    recorders = open_recorders(cfg, robots, where)
+    # Finite but possibly long under systemd's start timeout: the first start after an install
+    # or upgrade compiles the learner's kernels (~1 min), recovery re-learns logged pairs.
+    with notifier.starting(STARTING):
+        robots, where = start_robots(cfg, fresh=args.fresh, notifier=notifier)
+        resumed = {r: w.checkpoint for r, w in where.items()}
+        recorders = open_recorders(cfg, robots, where)
+        learners = _start_learners(cfg, robots)  # before Zenoh opens: never fork after that
 
     from roger_daemon.transport import ZenohTransport
 
-    learners = _start_learners(cfg, robots)  # before Zenoh opens: never fork after that
     try:
         transport = ZenohTransport(cfg.zenoh, max_payload_bytes=MAX_PAYLOAD_BYTES)
     except Exception as exc:

@@ -5,6 +5,9 @@ Messages are newline-separated ``KEY=VALUE`` datagrams sent to the AF_UNIX socke
 ``NOTIFY_SOCKET``) every call is a no-op. The watchdog is enabled by ``$WATCHDOG_USEC`` (and,
 if set, ``$WATCHDOG_PID`` must be this process); :meth:`Notifier.watchdog` pings at half the
 interval and is meant to be called from the main loop only, after a cycle that made progress.
+Start-up work that can outlast the unit's ``TimeoutStartSec`` (compiling the learner's kernels
+on a cold cache, re-learning logged pairs) runs inside :meth:`Notifier.starting`, which asks
+for more time (``EXTEND_TIMEOUT_USEC``) while it runs (docs/zenoh-notes.md §7).
 """
 
 from __future__ import annotations
@@ -12,7 +15,9 @@ from __future__ import annotations
 import logging
 import os
 import socket
-from collections.abc import Mapping
+import threading
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 
 __all__ = ["Notifier"]
 
@@ -76,6 +81,40 @@ class Notifier:
     def stopping(self, status: str = "") -> bool:
         """Shutdown has begun."""
         return self.send("STOPPING=1", *([f"STATUS={status}"] if status else []))
+
+    def extend_start(self, seconds: float) -> bool:
+        """Ask for ``seconds`` more of start-up time (``EXTEND_TIMEOUT_USEC``, systemd 236 or
+        later): past ``TimeoutStartSec`` the start fails only if no further such message comes
+        within ``seconds``."""
+        return self.send(f"EXTEND_TIMEOUT_USEC={max(1, round(seconds * 1e6))}")
+
+    @contextmanager
+    def starting(self, status: str, *, every_s: float = 5.0,
+                 extend_s: float = 30.0) -> Iterator[None]:
+        """Around a long but finite start-up phase: send ``STATUS=status``, then from a
+        helper thread ask for ``extend_s`` more seconds at once and every ``every_s`` seconds
+        until the block ends (:meth:`extend_start`). Only the time limit moves: a start that
+        hangs elsewhere (opening the Zenoh session) still fails at ``TimeoutStartSec``. Outside
+        systemd it does nothing."""
+        if not self.enabled:
+            yield
+            return
+        self.status(status)
+        done = threading.Event()
+
+        def keep_extending() -> None:
+            while True:
+                self.extend_start(extend_s)
+                if done.wait(every_s):
+                    return
+
+        helper = threading.Thread(target=keep_extending, name="sd-notify-extend", daemon=True)
+        helper.start()
+        try:
+            yield
+        finally:
+            done.set()
+            helper.join()
 
     def watchdog(self, now_ns: int) -> bool:
         """Ping ``WATCHDOG=1`` if at least half the watchdog interval passed since the last."""
