@@ -19,7 +19,6 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
 import numpy.typing as npt
 
 __all__ = ["BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "FUSED", "KEPT", "KERNELS", "SMALL",
@@ -140,51 +139,12 @@ def batch_worth(entries: int) -> bool:
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) every kernel now, not inside a first step."""
-    from roger_daemon.learner import jit_fused as fk
-    from roger_daemon.learner import jit_kernels as k
-    from roger_daemon.learner import jit_particles as gk
-    from roger_daemon.learner import jit_resampling as rk
+    """Compile (or load from numba's cache) every kernel now, not inside a first step
+    (:mod:`.jit_warm`)."""
+    from roger_daemon.learner.jit_warm import warm
 
     _load()
-    n = 2
-    basis = np.zeros((n, 1))
-    mat = np.eye(n)
-    sym = np.array([1.0, 0.0, 1.0])  # the identity, packed (:mod:`.packed`)
-    k.kernel_vector(basis, np.zeros(1), 1.0, n)
-    k.sym_matvec(sym, np.zeros(n), n, n)
-    k.sym_row(sym, n, n, 1)
-    k.min_argmax(np.ones(n))
-    k.packed_add_lowrank(sym.copy(), n, n, np.zeros((1, n)), np.zeros(1))
-    k.expert_terms(basis, sym, np.zeros((n, 1)), np.zeros(1), 1.0, n, n)
-    k.rank_update_cq(sym.copy(), sym.copy(), n, n, 0, np.zeros((3, n)), np.zeros(3),
-                     np.zeros((2, n)), np.zeros(2), np.empty(n))
-    k.cholesky_inverse(mat, n, 0.0, np.empty((n, n)))
-    vn, one, weights = np.ones(n), np.ones(1), np.ones(1)
-    weights.setflags(write=False)  # as sogp_fused passes them: read-only, its own signature
-    fk.fused_step(basis.copy(), np.zeros((n, 1)), -sym.copy(), sym.copy(), 2 * vn,
-                  np.zeros(1), -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
-    k.gram_matrix(basis, 1.0, n)
-    from roger_daemon.learner import jit_small as sk
-
-    sk.sparse_update(np.zeros((n, 2)), sym.copy(), n, n, vn, vn, np.zeros(2), -0.5, 0.5)
-    sk.shift_mean(np.zeros((n, 2)), np.zeros(1), np.zeros(1), n, 1, np.empty(1))
-    sk.novelty_step(sym, np.zeros(n), n, n, 1.0, 1e-3, 1e-12, 1e-6)
-    sk.refresh_small(basis, 1.0, n, 0.0, sym.copy(), n)
-    slots = np.zeros(1, dtype=np.int64)
-    vec, cube = np.ones(1), np.ones((1, 1, 1))
-    gk.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
-                  cube.copy(), vec.copy())
-    gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
-    gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
-                     np.zeros(1, dtype=np.int64))
-    gk.lineage_assignments(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), 1,
-                           np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64),
-                           1, 0, np.zeros(0, dtype=np.int64), np.zeros((0, 1), dtype=np.int64))
-    w, order, _, inv_c, n_top = rk.fearnhead_split(np.array([1.0, 0.5, 0.25]), 1.75, 2)
-    rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), 0.0, 0.0)
-    rk.threshold_taus(np.array([0.5, 0.25]), 2)  # the resampler's decision margin
-    _warm_up_batches(basis, sym, weights)
+    warm()
     _check_threading_layer()
 
 
@@ -199,40 +159,6 @@ def _check_threading_layer() -> None:
         return
     if _workqueue and _threads_default:
         set_threads(None)
-
-
-def _warm_up_batches(basis: npt.NDArray[np.float64], sym: npt.NDArray[np.float64],
-                     weights: npt.NDArray[np.float64]) -> None:
-    """Compile the batched kernels (and the novelty test's) with the argument types the
-    learner passes them."""
-    from roger_daemon.learner import jit_batch as bk
-    from roger_daemon.learner import jit_kernels as k
-
-    n = basis.shape[0]
-    use_threads()
-    ints = np.full(WIDTH, n, dtype=np.int64)
-    coef = np.zeros((n, 1))
-    bk.copy_batch(padded([sym], 0), padded([sym.copy()], 0), 1)
-    from roger_daemon.learner import jit_evaluate as ek
-
-    for kernel in (bk.terms_batch, ek.evaluate_experts):
-        kernel(padded([basis], 0), padded([sym], 0), padded([coef], 0),
-               padded([np.zeros(1)], 0), 1, ints, ints, np.zeros(1), 1.0, 1.0, 1e-12, True,
-               np.zeros(2 * n + 2), np.zeros(WIDTH, dtype=np.int64), np.empty((1, 1)),
-               np.empty(1))
-    rows = np.ones((1, n))
-    k.projection(sym, np.zeros(n), n, n)
-    k.novelty_test(0.5, 1.0, 1e-6, 1e-12, 1e-6)
-    rule = np.array([1.0, 1e-6, 1e-12, 1e-6])
-    vec = np.ones(n)
-    bk.learn_full_expert(basis.copy(), coef.copy(), -sym, sym.copy(), np.zeros(1), 0.5 * vec,
-                         -0.1 * vec, 2 * vec, np.ones(1), -0.5, weights, rule, np.empty(n),
-                         np.empty(n), np.empty(n))
-    bk.learn_batch(padded([basis.copy()], 0), padded([coef.copy()], 0), padded([-sym], 0),
-                   padded([sym.copy()], 0), 1, np.zeros(1), 0.5 * rows, -0.1 * rows, 2 * rows,
-                   np.ones((1, 1)), np.array([-0.5]), weights, rule,
-                   np.empty((1, n)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, n)),
-                   np.empty((1, n)), np.empty(1), np.empty(1, dtype=np.int64))
 
 
 def compiled_signatures(package: str) -> int:

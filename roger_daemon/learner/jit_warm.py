@@ -1,0 +1,150 @@
+"""Compiling the learner's kernels ahead of use: :func:`.jit.warm_up`, and a share of them for
+``roger compile`` (:mod:`roger_daemon.tools.compile_kernels`), which fills numba's on-disk
+cache on every core.
+
+Each *warmer* below calls one family of kernels with the argument types the learner passes
+them, so that every signature a step uses exists before the step (tested:
+``tests/learner/test_jit.py``).  On a cold cache (a fresh clone or install, or after a kernel's
+source changed) compiling them all in one process took 58 s on a 2-core AMD EPYC, mostly the
+two batched kernels (14 and 13 s) and the fused step (6 s).  The families are independent
+call trees, so ``roger compile`` compiles them in several processes at once, each a share,
+and writes numba's cache for every later process (``make test`` and ``make demo`` run it
+first).  With a warm cache each share only loads the cache.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+
+from roger_daemon.learner import jit
+
+__all__ = ["WARMERS", "shares", "warm"]
+
+FloatArray = npt.NDArray[np.float64]
+N = 2  # basis vectors of the tiny experts the kernels are called on
+_BASIS = np.zeros((N, 1))
+_SYM = np.array([1.0, 0.0, 1.0])  # the identity, packed (:mod:`.packed`)
+
+
+def _weights() -> FloatArray:
+    weights = np.ones(1)
+    weights.setflags(write=False)  # as sogp_fused passes them: read-only, its own signature
+    return weights
+
+
+def _warm_learning() -> None:
+    """``Q k``, the novelty test and the fused add-then-delete step, one expert or batched."""
+    from roger_daemon.learner import jit_batch as bk
+    from roger_daemon.learner import jit_fused as fk
+    from roger_daemon.learner import jit_kernels as k
+
+    basis, sym, weights = _BASIS, _SYM, _weights()
+    vn, one = np.ones(N), np.ones(1)
+    k.rank_update_cq(sym.copy(), sym.copy(), N, N, 0, np.zeros((3, N)), np.zeros(3),
+                     np.zeros((2, N)), np.zeros(2), np.empty(N))
+    fk.fused_step(basis.copy(), np.zeros((N, 1)), -sym.copy(), sym.copy(), 2 * vn,
+                  np.zeros(1), -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
+    jit.use_threads()
+    coef = np.zeros((N, 1))
+    rows = np.ones((1, N))
+    k.projection(sym, np.zeros(N), N, N)
+    k.novelty_test(0.5, 1.0, 1e-6, 1e-12, 1e-6)
+    rule = np.array([1.0, 1e-6, 1e-12, 1e-6])
+    bk.learn_full_expert(basis.copy(), coef.copy(), -sym, sym.copy(), np.zeros(1), 0.5 * vn,
+                         -0.1 * vn, 2 * vn, np.ones(1), -0.5, weights, rule, np.empty(N),
+                         np.empty(N), np.empty(N))
+    pad = jit.padded
+    bk.learn_batch(pad([basis.copy()], 0), pad([coef.copy()], 0), pad([-sym], 0),
+                   pad([sym.copy()], 0), 1, np.zeros(1), 0.5 * rows, -0.1 * rows, 2 * rows,
+                   np.ones((1, 1)), np.array([-0.5]), weights, rule,
+                   np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, N)),
+                   np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64))
+
+
+def _warm_evaluation() -> None:
+    """The experts evaluated at one input: one at a time, several per call, batched."""
+    from roger_daemon.learner import jit_batch as bk
+    from roger_daemon.learner import jit_evaluate as ek
+    from roger_daemon.learner import jit_kernels as k
+
+    basis, sym = _BASIS, _SYM
+    k.kernel_vector(basis, np.zeros(1), 1.0, N)
+    k.sym_matvec(sym, np.zeros(N), N, N)
+    k.expert_terms(basis, sym, np.zeros((N, 1)), np.zeros(1), 1.0, N, N)
+    jit.use_threads()
+    ints = np.full(jit.WIDTH, N, dtype=np.int64)
+    coef = np.zeros((N, 1))
+    pad = jit.padded
+    for kernel in (bk.terms_batch, ek.evaluate_experts):
+        kernel(pad([basis], 0), pad([sym], 0), pad([coef], 0), pad([np.zeros(1)], 0), 1, ints,
+               ints, np.zeros(1), 1.0, 1.0, 1e-12, True, np.zeros(2 * N + 2),
+               np.zeros(jit.WIDTH, dtype=np.int64), np.empty((1, 1)), np.empty(1))
+
+
+def _warm_resampling() -> None:
+    """The optimal-threshold resampler (paper [15]) and its decision margin."""
+    from roger_daemon.learner import jit_resampling as rk
+
+    w, order, _, inv_c, n_top = rk.fearnhead_split(np.array([1.0, 0.5, 0.25]), 1.75, 2)
+    rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), 0.0, 0.0)
+    rk.threshold_taus(np.array([0.5, 0.25]), 2)
+
+
+def _warm_the_rest() -> None:
+    """Copies, the packed helpers, the small experts' kernels, the gates and the lineages."""
+    from roger_daemon.learner import jit_batch as bk
+    from roger_daemon.learner import jit_kernels as k
+    from roger_daemon.learner import jit_particles as gk
+    from roger_daemon.learner import jit_small as sk
+
+    basis, sym = _BASIS, _SYM
+    mat, vn = np.eye(N), np.ones(N)
+    k.sym_row(sym, N, N, 1)
+    k.min_argmax(np.ones(N))
+    k.packed_add_lowrank(sym.copy(), N, N, np.zeros((1, N)), np.zeros(1))
+    k.cholesky_inverse(mat, N, 0.0, np.empty((N, N)))
+    k.gram_matrix(basis, 1.0, N)
+    sk.sparse_update(np.zeros((N, 2)), sym.copy(), N, N, vn, vn, np.zeros(2), -0.5, 0.5)
+    sk.shift_mean(np.zeros((N, 2)), np.zeros(1), np.zeros(1), N, 1, np.empty(1))
+    sk.novelty_step(sym, np.zeros(N), N, N, 1.0, 1e-3, 1e-12, 1e-6)
+    sk.refresh_small(basis, 1.0, N, 0.0, sym.copy(), N)
+    slots = np.zeros(1, dtype=np.int64)
+    vec, cube = np.ones(1), np.ones((1, 1, 1))
+    gk.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
+                   cube.copy(), vec.copy())
+    gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
+    gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
+                      np.zeros(1, dtype=np.int64))
+    gk.lineage_assignments(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), 1,
+                           np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64),
+                           1, 0, np.zeros(0, dtype=np.int64), np.zeros((0, 1), dtype=np.int64))
+    jit.use_threads()
+    bk.copy_batch(jit.padded([sym], 0), jit.padded([sym.copy()], 0), 1)
+
+
+#: the families and what compiling each took on a cold cache, in seconds (2-core AMD EPYC, one
+#: process, 2026-11-28: 58 s in all); the costs only balance the shares (:func:`shares`)
+WARMERS: tuple[tuple[Callable[[], None], float], ...] = (
+    (_warm_learning, 27.6), (_warm_evaluation, 13.8), (_warm_the_rest, 9.7),
+    (_warm_resampling, 7.0))
+
+
+def shares(of: int) -> list[list[Callable[[], None]]]:
+    """The families split into ``of`` shares of about equal cost: each family, costliest
+    first, goes to the share with the least cost so far (two shares: 27.6 and 30.5 s)."""
+    out: list[list[Callable[[], None]]] = [[] for _ in range(of)]
+    cost = [0.0] * of
+    for warmer, seconds in sorted(WARMERS, key=lambda w: -w[1]):
+        least = cost.index(min(cost))
+        out[least].append(warmer)
+        cost[least] += seconds
+    return out
+
+
+def warm(share: int = 0, of: int = 1) -> None:
+    """Compile (or load from numba's cache) the kernels of share ``share`` of ``of``."""
+    for warmer in shares(of)[share]:
+        warmer()
