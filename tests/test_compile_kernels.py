@@ -75,3 +75,24 @@ def test_on_an_empty_cache_it_compiles_what_warm_up_needs(tmp_path: Path) -> Non
                            cwd=ROOT, timeout=600, env=env, check=True)
     got = json.loads(probe.stdout.strip().splitlines()[-1])
     assert got["misses"] == 0 and got["hits"] > 20
+
+
+def test_without_a_cache_directory_it_says_so_and_exits_1(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Where numba found no writable cache directory the kernels are compiled without its
+    cache (``jit_compile``, a ``NullCache``): compiling ahead would be lost, so it stops first
+    (as root the directory cannot be made unwritable, so the kernel is stood in for)."""
+    import argparse
+
+    from roger_daemon.learner import jit_batch
+    from roger_daemon.tools import compile_kernels
+
+    class Uncached:
+        _cache = object()  # numba's NullCache has no cache_path
+
+    monkeypatch.setattr(jit_batch, "terms_batch", Uncached())
+    spawned: list[object] = []
+    monkeypatch.setattr(compile_kernels.subprocess, "Popen", lambda *a, **k: spawned.append(a))
+    code = compile_kernels.run(argparse.Namespace(share=None, processes=2))
+    assert code == 1 and spawned == []
+    assert "numba has no writable cache directory here" in capsys.readouterr().err

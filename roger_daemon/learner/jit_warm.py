@@ -6,10 +6,10 @@ Each *warmer* below calls one family of kernels with the argument types the lear
 them, so that every signature a step uses exists before the step (tested:
 ``tests/learner/test_jit.py``).  On a cold cache (a fresh clone or install, or after a kernel's
 source changed) compiling them all in one process took 58 s on a 2-core AMD EPYC, mostly the
-two batched kernels (14 and 13 s) and the fused step (6 s).  The families are independent
-call trees, so ``roger compile`` compiles them in several processes at once, each a share,
-and writes numba's cache for every later process (``make test`` and ``make demo`` run it
-first).  With a warm cache each share only loads the cache.
+two batched kernels (14 and 13 s) and the fused step (6 s).  The families' call trees share
+only a few small kernels, so ``roger compile`` compiles them in several processes at once,
+each a share, and writes numba's cache for every later process (``make test`` and ``make
+demo`` run it first).  With a warm cache each share only loads the cache.
 """
 
 from __future__ import annotations

@@ -51,6 +51,15 @@ def run(args: argparse.Namespace) -> int:
         return 0
     require(args.processes is None or args.processes >= 1, "--processes", "an integer >= 1",
             args.processes)
+    from roger_daemon.learner import jit_batch
+
+    cache = getattr(jit_batch.terms_batch, "_cache", None)  # numba's cache, or its NullCache
+    where = getattr(cache, "cache_path", None)
+    if where is None:
+        print("roger compile: numba has no writable cache directory here, so every process "
+              "compiles the kernels again; set NUMBA_CACHE_DIR to a writable directory",
+              file=sys.stderr)
+        return 1
     n = min(args.processes or _usable_cores(), len(WARMERS))
     t0 = time.monotonic()
     procs = [subprocess.Popen([sys.executable, "-m", "roger_daemon", "compile", "--share",
@@ -60,9 +69,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"roger compile: share(s) {failed} of {n} failed (their errors are above)",
               file=sys.stderr)
         return 1
-    import numba
-
-    where = getattr(numba.config, "CACHE_DIR", "") or "beside the package's sources (__pycache__)"
     print(f"learner kernels compiled into numba's cache ({where}) by {n} processes in "
           f"{time.monotonic() - t0:.1f} s")
     return 0
