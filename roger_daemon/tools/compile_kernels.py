@@ -69,6 +69,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"roger compile: share(s) {failed} of {n} failed (their errors are above)",
               file=sys.stderr)
         return 1
-    print(f"learner kernels compiled into numba's cache ({where}) by {n} processes in "
-          f"{time.monotonic() - t0:.1f} s")
+    print(f"learner kernels in numba's cache ({where}): compiled, or found there, by {n} "
+          f"processes in {time.monotonic() - t0:.1f} s")
     return 0
