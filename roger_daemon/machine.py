@@ -25,7 +25,7 @@ import numpy as np
 from roger_daemon.blas import blas_info
 
 __all__ = ["busy_cpu_s", "cpu_time_split", "cpu_times", "describe", "finish", "machine_record",
-           "speed_probe"]
+           "speed_probe", "usable_cores"]
 
 _PROBE_ELEMENTS = 1 << 23  # 64 MB of float64: larger than the caches of the machines we use
 _PROBE_LOOP = 200_000
@@ -69,6 +69,12 @@ def speed_probe(repeats: int = 5) -> dict[str, float]:
         python = min(python, t1 - t0)
         memory = min(memory, t2 - t1)
     return {"python_ms": round(python * 1e3, 2), "memory_ms": round(memory * 1e3, 2)}
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity, which a container or ``taskset``
+    narrows; not ``os.cpu_count()``)."""
+    return len(os.sched_getaffinity(0))
 
 
 def cpu_times(path: str = "/proc/stat") -> list[int] | None:

@@ -143,7 +143,7 @@ def test_the_pool_has_one_process_per_core_and_never_more_than_robots(
     cores shared out among the processes for their learners' threads."""
     from roger_daemon.daemon import worker_procs
 
-    monkeypatch.setattr(worker_procs, "_usable_cores", lambda: 4)
+    monkeypatch.setattr(worker_procs, "usable_cores", lambda: 4)
     assert [worker_procs.pool_size(r) for r in (1, 2, 4, 8)] == [1, 2, 4, 4]
     assert [worker_procs.pool_size(8, p) for p in (1, 3, 16)] == [1, 3, 8]
     assert [worker_procs.threads_per_worker(p) for p in (1, 2, 4, 8)] == [4, 2, 1, 1]

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.worker import FrameReader, write_frame
+from roger_daemon.machine import usable_cores
 
 if TYPE_CHECKING:
     from roger_daemon.daemon.learners import RemoteModel
@@ -85,20 +86,16 @@ class WorkerSlot:
         return self.process.proc
 
 
-def _usable_cores() -> int:
-    return len(os.sched_getaffinity(0))
-
-
 def threads_per_worker(processes: int) -> int:
     """Learner threads of each of ``processes`` worker processes: this process's usable
     cores shared out, at least one (docs/fleet.md)."""
-    return max(1, _usable_cores() // max(1, processes))
+    return max(1, usable_cores() // max(1, processes))
 
 
 def pool_size(robots: int, processes: int = 0) -> int:
     """How many worker processes serve ``robots`` robots: ``processes`` (``[daemon]
     worker_processes``), or with 0 one per usable core; never more than one per robot."""
-    want = processes if processes > 0 else _usable_cores()
+    want = processes if processes > 0 else usable_cores()
     return max(1, min(robots, want))
 
 

@@ -11,7 +11,6 @@ it as the service's user with its ``NUMBA_CACHE_DIR`` (the systemd unit's) befor
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import time
@@ -19,11 +18,6 @@ import time
 from roger_daemon.console import require
 
 __all__ = ["configure", "run"]
-
-
-def _usable_cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
-        os.cpu_count() or 1)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -60,7 +54,9 @@ def run(args: argparse.Namespace) -> int:
               "compiles the kernels again; set NUMBA_CACHE_DIR to a writable directory",
               file=sys.stderr)
         return 1
-    n = min(args.processes or _usable_cores(), len(WARMERS))
+    from roger_daemon.machine import usable_cores
+
+    n = min(args.processes or usable_cores(), len(WARMERS))
     t0 = time.monotonic()
     procs = [subprocess.Popen([sys.executable, "-m", "roger_daemon", "compile", "--share",
                                f"{i}/{n}"]) for i in range(n)]
