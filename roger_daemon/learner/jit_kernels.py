@@ -48,6 +48,25 @@ __all__ = ["cholesky_inverse", "expert_terms", "gram_matrix", "kernel_vector", "
 FloatArray = npt.NDArray[np.float64]
 _FM = {"reassoc", "contract"}
 
+#: ``exp(a)`` is +0.0 for every ``a`` below this: the true value is under 2**-1082, far below
+#: half the smallest subnormal (2**-1075, ``a = -745.13``), so any libm accurate to one ulp
+#: rounds it to zero (tested over the range on the running machine)
+EXP_ZERO_BELOW = -750.0
+
+
+@_compiled(nogil=True, inline="always")
+def rbf(gamma: float, sq_dist: float) -> float:
+    """``exp(-gamma * sq_dist)``, the RBF kernel's value at squared distance ``sq_dist``: the
+    very float of ``math.exp``, without calling it where it underflows to zero.  With a narrow
+    kernel most basis vectors of an expert are far from the point (at the paper's parameters
+    ~85 % of them, ``-gamma * d^2`` near -1,000), and libm's underflow path costs ~25 ns a
+    call: three times the distance itself (docs/performance.md, *Underflowing kernel
+    values*).  The one owner of the kernel's value in the compiled code."""
+    a = -gamma * sq_dist
+    if a < EXP_ZERO_BELOW:
+        return 0.0
+    return math.exp(a)
+
 
 @_compiled(fastmath=_FM, nogil=True)
 def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> FloatArray:
@@ -59,7 +78,7 @@ def kernel_vector(basis: FloatArray, x: FloatArray, gamma: float, n: int) -> Flo
         for j in range(d):
             t = basis[i, j] - x[j]
             s += t * t
-        k[i] = math.exp(-gamma * s)
+        k[i] = rbf(gamma, s)
     return k
 
 
@@ -78,7 +97,7 @@ def gram_matrix(basis: FloatArray, gamma: float, n: int) -> FloatArray:
             for j in range(d):
                 t = basis[i, j] - basis[m, j]
                 s += t * t
-            v = math.exp(-gamma * s)
+            v = rbf(gamma, s)
             out[i, m] = v
             out[m, i] = v
     return out
@@ -215,7 +234,7 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
         for j in range(d):
             t = basis[i, j] - x[j]
             s += t * t
-        out[i] = math.exp(-gamma * s)
+        out[i] = rbf(gamma, s)
     k = out[:n]
     ck = out[n: 2 * n]
     sym_matvec_into(cov, k, n, alloc, ck)
