@@ -15,8 +15,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
-from roger_daemon.learner.sogp_batch import Evaluation, Terms, copy_many, evaluate_many
+from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood
+from roger_daemon.learner.sogp_batch import (
+    Evaluation,
+    copy_many,
+    evaluate_many,
+    update_evaluated,
+)
 
 if TYPE_CHECKING:
     from roger_daemon.learner.roger import Roger
@@ -149,7 +154,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     target: dict[int, int] = {}
     pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
-    upd_terms: list[Terms | None] = []
+    upd_terms: list[tuple[Evaluation, int] | None] = []  # where each one's terms are
     upd_slots: list[int] = []
     for s in np.unique(surv_slot).tolist():
         if s < 0:  # a new expert, shared by every survivor that opened one this step
@@ -173,14 +178,13 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
                 model._gates.copy_slot(t, s)
                 model._ids[t] = model._ids[s]
             upd_gps.append(gp)
-            at = terms.get(s)
-            upd_terms.append(None if at is None else at[0].terms(at[1]))
+            upd_terms.append(terms.get(s))
             upd_slots.append(t)
             model._npts[t] = model._npts[s] + 1
         target[s] = t
     copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
-    update_many(upd_gps, xs, ys, upd_terms)
+    update_evaluated(upd_gps, xs, ys, upd_terms)
     if upd_slots:
         model._gates.update_many(np.array(upd_slots, dtype=np.int64), xs)
     new_parts: list[IntArray] = []

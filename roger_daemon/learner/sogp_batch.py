@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -31,7 +30,8 @@ from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 if TYPE_CHECKING:
     from roger_daemon.learner.sogp import SparseOnlineGP
 
-__all__ = ["Evaluation", "copy_many", "evaluate_many", "predict_many", "update_many"]
+__all__ = ["Evaluation", "copy_many", "evaluate_many", "predict_many", "update_evaluated",
+           "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -142,108 +142,162 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     :data:`.jit.WIDTH` experts each (:func:`.jit_batch.learn_batch`); a non-novel point then
     gets its projection update here, and an expert whose ``Q`` drifted learns on its own.
     """
-    full: list[SparseOnlineGP] = []
-    full_terms: list[Terms] = []
-    for gp, t in zip(gps, terms, strict=True):
-        if gp._fusable() and (not full or gp.n == full[0].n) and not gp.q_drifted():
-            full.append(gp)
-            full_terms.append(t if t is not None else gp.terms(x))
-        else:
-            gp.update(x, y, t)
+    full = _hot_path(gps)
+    for j in sorted(set(range(len(gps))) - set(full)):
+        gps[j].update(x, y, terms[j])
     if not full:
         return
-    kstar = full[0].kernel.k_star
-    for gp, t, res in zip(full, full_terms, _learn_full(full, full_terms, x, y), strict=True):
-        if res.outcome == _jit.DRIFTED:  # Q re-inverted and the point learned on its own
-            gp.update(x, y, t)
-            continue
-        gp.record_novelty_margin(res.gamma)
-        gp.n_points += 1
-        if res.outcome == _jit.KEPT:  # step 4a for the non-novel few
-            k, ck, mean, latent = t
-            y_ext, mean = gp._targets(y, mean, k)
-            s0 = gp.noise
-            gp._sparse_update(ck, res.e_hat, res.gamma, -1.0 / (s0 + latent),
-                              (y_ext - mean) / (s0 + latent))
-        else:
-            gp._dg, gp._dq, gp._dq_min, gp._dq_argmax = res.diag, res.dq, res.dq_min, \
-                res.dq_argmax
-        gp._clean_up()
-        if res.outcome == _jit.FUSED and res.gamma < _NEAR_DEPENDENT * kstar and gp.n > 1:
-            gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
-        gp._shift_mean(y)
+    got: list[Terms] = []
+    for j in full:
+        t = terms[j]
+        got.append(t if t is not None else gps[j].terms(x))
+    _learn_full([gps[j] for j in full], x, y, np.array([t[0] for t in got]),
+                np.array([t[1] for t in got]), np.array([t[2] for t in got]),
+                np.array([t[3] for t in got], dtype=np.float64), got.__getitem__)
 
 
-class _Result(NamedTuple):
-    """One full expert's steps 3-5 (:func:`.jit_batch.learn_batch`): the outcome
-    (:data:`.jit.FUSED`, :data:`.jit.KEPT` or :data:`.jit.DRIFTED`), ``Q k``, ``gamma``, and
-    after a fused step the diagonals it returns."""
+def update_evaluated(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
+                     evaluated: Sequence[tuple[Evaluation, int] | None]) -> None:
+    """:func:`update_many` with each expert's terms where the step's evaluation left them
+    (``(evaluation, j)``: :meth:`Evaluation.terms` of ``j``; ``None``: not evaluated): the hot
+    path's kernel vectors, ``C k``, means and latent variances are read off the evaluation's
+    arrays, the same floats, without a tuple of terms per expert (a step updates ~10)."""
+    full = _hot_path(gps)
+    for j in sorted(set(range(len(gps))) - set(full)):
+        ref = evaluated[j]
+        gps[j].update(x, y, None if ref is None else ref[0].terms(ref[1]))
+    if not full:
+        return
+    refs = [evaluated[j] for j in full]
+    ev = refs[0][0] if refs[0] is not None else None
+    if ev is None or gps[full[0]].prior_mean or any(r is None or r[0] is not ev for r in refs):
+        update_many([gps[j] for j in full], x, y,
+                    [None if r is None else r[0].terms(r[1]) for r in refs])
+        return
+    rows = np.array([r[1] for r in refs if r is not None], dtype=np.int64)
+    n = gps[full[0]].n
+    at = np.array(ev.offsets, dtype=np.int64)[rows][:, None] + np.arange(n)
+    _learn_full([gps[j] for j in full], x, y, ev.packed[at], ev.packed[at + n], ev.means[rows],
+                ev.latent[rows], lambda i: ev.terms(int(rows[i])))
 
-    outcome: int
-    e_hat: FloatArray
-    gamma: float
-    diag: FloatArray | None = None
-    dq: FloatArray | None = None
-    dq_min: float = math.nan
-    dq_argmax: int = -1
+
+def _hot_path(gps: Sequence[SparseOnlineGP]) -> list[int]:
+    """Indices of the experts that take the batched fused step: full in buffers for exactly
+    ``beta``, the same ``n`` as the first of them, ``diag(Q)`` without drift."""
+    full: list[int] = []
+    n = -1
+    for j, gp in enumerate(gps):
+        if gp._fusable() and (n < 0 or gp.n == n) and not gp.q_drifted():
+            full.append(j)
+            n = gp.n
+    return full
 
 
-def _learn_full(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: FloatArray,
-                y: FloatArray) -> list[_Result]:
-    """Steps 3-5 of the full experts ``gps`` (the same ``n`` and kernel): by
+def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, ks: FloatArray,
+                cks: FloatArray, means: FloatArray, latent: FloatArray,
+                terms_of: Callable[[int], Terms]) -> None:
+    """Steps 3-6 of the full experts ``gps`` (the same ``n`` and kernel), their kernel vectors
+    ``ks``, ``C k`` (``cks``), predictive means and latent variances one row each
+    (``terms_of(i)``: expert ``i``'s terms, for the few that need them): by
     :func:`.jit_batch.learn_batch`, ``WIDTH`` at a time, on several threads
     (:func:`.jit.threads`) when there is enough work (:func:`.jit.batch_worth`); else its
     body's kernels one expert at a time (faster there: docs/performance.md); the same
     floats."""
     first = gps[0]
-    m = len(gps)
-    qs = np.empty((m, first.a_cols))  # Csató's K1 per expert
-    rs = np.empty(m)  # and K2
-    for j, (gp, (k, _, mean, latent)) in enumerate(zip(gps, terms, strict=True)):
-        y_ext, mean = gp._targets(y, mean, k)  # with a prior mean, the a1 column too
-        denom = gp.noise + latent
-        rs[j] = -1.0 / denom
-        qs[j] = (y_ext - mean) / denom
+    m, n = len(gps), first.n
+    denom = np.array([gp.noise for gp in gps]) + latent
+    rs = -1.0 / denom  # Csató's K2 per expert
+    if first.prior_mean:  # the a1 column too (:meth:`.sogp.SparseOnlineGP._targets`)
+        qs = np.empty((m, first.a_cols))  # and K1
+        for j, gp in enumerate(gps):
+            y_ext, mean = gp._targets(y, means[j], ks[j])
+            qs[j] = (y_ext - mean) / denom[j]
+    else:
+        qs = (y - means) / denom[:, None]
     rule = np.array(first._novelty_constants())
     cw = output_weights(first.a_cols, first.d_y)
-    if _jit.batch_worth(m * first.n * (first.n + 1) // 2):
-        return _learn_batched(gps, terms, x, qs, rs, cw, rule)
-    out: list[_Result] = []
-    for gp, (k, ck, _, _), q, r in zip(gps, terms, qs, rs.tolist(), strict=True):
-        e_hat, diag, dq = np.empty(gp.n), np.empty(gp.n), np.empty(gp.n)
-        outcome, gamma, dq_min, dq_argmax = _jit.learn_full_expert(
-            gp._B, gp._A, gp._Cp, gp._Qp, x, k, ck, gp._diag_cq(), q, r, cw, rule, e_hat,
-            diag, dq)
-        out.append(_Result(outcome, e_hat, gamma, diag, dq, dq_min, dq_argmax)
-                   if outcome == _jit.FUSED else _Result(outcome, e_hat, gamma))
-    return out
-
-
-def _learn_batched(gps: Sequence[SparseOnlineGP], terms: Sequence[Terms], x: FloatArray,
-                   qs: FloatArray, rs: FloatArray, cw: FloatArray, rule: FloatArray
-                   ) -> list[_Result]:
-    """:func:`_learn_full` by :func:`.jit_batch.learn_batch` calls."""
-    m, n = len(gps), gps[0].n
-    ks = np.array([t[0] for t in terms])  # rows of one length: np.array, cheaper than stack
-    cks = np.array([t[1] for t in terms])
+    # diag(Q) and its argmax are written after a fused step only: ones and 0 elsewhere
+    out = _Outcomes(np.empty(m, dtype=np.int64), np.empty(m), np.empty((m, n)),
+                    np.empty((m, n)), np.ones((m, n)), np.empty(m),
+                    np.zeros(m, dtype=np.int64))
     dgs = np.array([gp._diag_cq() for gp in gps])
-    e_hats, diags, dqs = np.empty((m, n)), np.empty((m, n)), np.empty((m, n))
-    gammas, dq_mins = np.empty(m), np.empty(m)
-    outcomes, dq_argmaxes = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
-    bases = [gp._B for gp in gps]
-    coefs = [gp._A for gp in gps]
-    cbufs = [gp._Cp for gp in gps]
-    qbufs = [gp._Qp for gp in gps]
+    if _jit.batch_worth(m * n * (n + 1) // 2):
+        _learn_batched(gps, x, ks, cks, dgs, qs, rs, cw, rule, out)
+    else:
+        for j, gp in enumerate(gps):
+            out.outcome[j], out.gamma[j], out.dq_min[j], out.dq_argmax[j] = \
+                _jit.learn_full_expert(gp._B, gp._A, gp._Cp, gp._Qp, x, ks[j], cks[j], dgs[j],
+                                       qs[j], rs[j], cw, rule, out.e_hat[j], out.diag[j],
+                                       out.dq[j])
+    _finish(gps, x, y, out, terms_of)
+
+
+class _Outcomes(NamedTuple):
+    """The full experts' steps 3-5 (:func:`.jit_batch.learn_batch`), one entry or row each:
+    the outcome (:data:`.jit.FUSED`, :data:`.jit.KEPT` or :data:`.jit.DRIFTED`), ``gamma``,
+    ``Q k``, and after a fused step the diagonals it returns with ``diag(Q)``'s minimum and
+    first argmax."""
+
+    outcome: IntArray
+    gamma: FloatArray
+    e_hat: FloatArray
+    diag: FloatArray
+    dq: FloatArray
+    dq_min: FloatArray
+    dq_argmax: IntArray
+
+
+def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, ks: FloatArray,
+                   cks: FloatArray, dgs: FloatArray, qs: FloatArray, rs: FloatArray,
+                   cw: FloatArray, rule: FloatArray, out: _Outcomes) -> None:
+    """:func:`_learn_full`'s kernels by :func:`.jit_batch.learn_batch` calls."""
+    bases, coefs, cbufs, qbufs = zip(*[(gp._B, gp._A, gp._Cp, gp._Qp) for gp in gps],
+                                     strict=True)
     with _jit.BATCH_LOCK:
-        for lo in range(0, m, _jit.WIDTH):
-            hi = min(lo + _jit.WIDTH, m)
+        for lo in range(0, len(gps), _jit.WIDTH):
+            hi = min(lo + _jit.WIDTH, len(gps))
             _jit.learn_batch(_jit.padded(bases, lo), _jit.padded(coefs, lo),
                              _jit.padded(cbufs, lo), _jit.padded(qbufs, lo), hi - lo, x,
                              ks[lo:hi], cks[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
-                             e_hats[lo:hi], gammas[lo:hi], outcomes[lo:hi], diags[lo:hi],
-                             dqs[lo:hi], dq_mins[lo:hi], dq_argmaxes[lo:hi])
-    return [_Result(o, e_hats[j], g, diags[j], dqs[j], mn, am) if o == _jit.FUSED
-            else _Result(o, e_hats[j], g)
-            for j, (o, g, mn, am) in enumerate(zip(outcomes.tolist(), gammas.tolist(),
-                                                  dq_mins.tolist(), dq_argmaxes.tolist(),
-                                                  strict=True))]
+                             out.e_hat[lo:hi], out.gamma[lo:hi], out.outcome[lo:hi],
+                             out.diag[lo:hi], out.dq[lo:hi], out.dq_min[lo:hi],
+                             out.dq_argmax[lo:hi])
+
+
+def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _Outcomes,
+            terms_of: Callable[[int], Terms]) -> None:
+    """After the kernels: each expert's novelty margin and point count; a non-novel point's
+    projection update (step 4a); the fused step's diagonals kept; the clean-up (step 6) where
+    ``diag(Q)``'s largest entry says one is due; ``Q`` re-inverted after a near-dependent
+    basis vector; the prior mean moved.  An expert whose ``Q`` drifted learns on its own."""
+    first = gps[0]
+    kstar = first.kernel.k_star
+    # gp.record_novelty_margin(gamma) of each, vectorised: the same floats
+    margins = (np.abs(out.gamma - first.novelty_threshold * kstar) / kstar).tolist()
+    floor = first.novelty_threshold * 1e-3  # the geometric clean-up's bound (_clean_up)
+    biggest = out.dq[np.arange(len(gps)), out.dq_argmax]
+    clean = ((1.0 / biggest >= floor) | (floor <= 0.0)).tolist()
+    gammas = out.gamma.tolist()
+    dq_mins, dq_argmaxes = out.dq_min.tolist(), out.dq_argmax.tolist()
+    for j, (gp, outcome) in enumerate(zip(gps, out.outcome.tolist(), strict=True)):
+        if outcome == _jit.DRIFTED:  # Q re-inverted and the point learned on its own
+            gp.update(x, y, terms_of(j))
+            continue
+        gp.novelty_margin = margins[j]
+        gp.n_points += 1
+        if outcome == _jit.KEPT:  # step 4a for the non-novel few
+            k, ck, mean, latent = terms_of(j)
+            y_ext, mean = gp._targets(y, mean, k)
+            s0 = gp.noise
+            gp._sparse_update(ck, out.e_hat[j], gammas[j], -1.0 / (s0 + latent),
+                              (y_ext - mean) / (s0 + latent))
+            gp._clean_up()
+        else:
+            gp._dg, gp._dq = out.diag[j], out.dq[j]
+            gp._dq_min, gp._dq_argmax = dq_mins[j], dq_argmaxes[j]
+            if not (clean[j] and gp.n == gp.capacity):
+                gp._clean_up()
+            if gammas[j] < _NEAR_DEPENDENT * kstar and gp.n > 1:
+                gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+        if gp.prior_mean:
+            gp._shift_mean(y)
