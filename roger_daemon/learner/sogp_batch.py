@@ -279,6 +279,7 @@ def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _O
     clean = ((1.0 / biggest >= floor) | (floor <= 0.0)).tolist()
     gammas = out.gamma.tolist()
     dq_mins, dq_argmaxes = out.dq_min.tolist(), out.dq_argmax.tolist()
+    diags, dqs = list(out.diag), list(out.dq)  # row views, made in one call
     for j, (gp, outcome) in enumerate(zip(gps, out.outcome.tolist(), strict=True)):
         if outcome == _jit.DRIFTED:  # Q re-inverted and the point learned on its own
             gp.update(x, y, terms_of(j))
@@ -293,7 +294,7 @@ def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _O
                               (y_ext - mean) / (s0 + latent))
             gp._clean_up()
         else:
-            gp._dg, gp._dq = out.diag[j], out.dq[j]
+            gp._dg, gp._dq = diags[j], dqs[j]
             gp._dq_min, gp._dq_argmax = dq_mins[j], dq_argmaxes[j]
             if not (clean[j] and gp.n == gp.capacity):
                 gp._clean_up()
