@@ -34,8 +34,8 @@ IntArray = npt.NDArray[np.int64]
 
 
 def _logsumexp(lw: FloatArray) -> float:
-    m = float(np.max(lw))
-    return m + float(np.log(np.sum(np.exp(lw - m))))
+    m = float(lw.max())  # the methods: numpy's reductions without its wrappers' overhead
+    return m + float(np.log(np.exp(lw - m).sum()))
 
 
 def fearnhead_threshold(weights: FloatArray, n_keep: int) -> tuple[float, int]:

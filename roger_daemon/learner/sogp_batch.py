@@ -14,7 +14,6 @@ those of a call of its own.  Split from :mod:`.sogp`
 from __future__ import annotations
 
 import contextlib
-import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
@@ -67,7 +66,7 @@ class Evaluation:
     means: FloatArray
     latent: FloatArray
     packed: FloatArray
-    offsets: list[int]
+    offsets: IntArray
     built: list[Terms | None]
 
     def terms(self, j: int) -> Terms:
@@ -75,7 +74,7 @@ class Evaluation:
         got = self.built[j]
         if got is None:
             gp = self.gps[j]
-            start = self.offsets[j]
+            start = int(self.offsets[j])
             got = gp._terms_from(self.packed[start: start + 2 * gp.n + 1 + gp.a_cols])
             self.built[j] = got
         return got
@@ -93,20 +92,20 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     if m == 0 or 0 in columns[0]:  # an expert without basis vectors answers with its prior
         each = [gp.terms(x) for gp in gps]
         return Evaluation(gps, np.array([t[2] for t in each]),
-                          np.array([t[3] for t in each], dtype=np.float64), np.empty(0), [],
-                          list(each))
+                          np.array([t[3] for t in each], dtype=np.float64), np.empty(0),
+                          np.zeros(m, dtype=np.int64), list(each))
     ns, allocs, bases, covs, coefs, priors = columns
     first = gps[0]
     cols = 1 + first.a_cols  # every expert of one model has as many output columns
-    offsets = [0, *itertools.accumulate(2 * n + cols for n in ns)]
-    packed = np.empty(offsets.pop())
-    means = np.empty((m, first.d_y))
-    latent = np.empty(m)
     ns_arr = np.array(ns, dtype=np.int64)
     allocs_arr = np.array(allocs, dtype=np.int64)
-    offsets_arr = np.array(offsets, dtype=np.int64)  # the kernels' copy of ``offsets``
+    ends = np.cumsum(2 * ns_arr + cols)
+    offsets = ends - (2 * ns_arr + cols)  # where each expert's terms start in ``packed``
+    packed = np.empty(int(ends[-1]))
+    means = np.empty((m, first.d_y))
+    latent = np.empty(m)
     kernel = first.kernel
-    batched = _jit.batch_worth(sum(n * (n + 1) // 2 for n in ns))
+    batched = _jit.batch_worth(int(ns_arr @ (ns_arr + 1)) // 2)  # packed entries in all
     call = _jit.terms_batch if batched else _jit.evaluate_experts
     with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
         for lo in range(0, m, _jit.WIDTH):
@@ -114,7 +113,7 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
             call(_jit.padded(bases, lo), _jit.padded(covs, lo), _jit.padded(coefs, lo),
                  _jit.padded(priors, lo), hi - lo, ns_arr[lo:hi], allocs_arr[lo:hi], x,
                  kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed,
-                 offsets_arr[lo:hi], means[lo:hi], latent[lo:hi])
+                 offsets[lo:hi], means[lo:hi], latent[lo:hi])
     return Evaluation(gps, means, latent, packed, offsets, [None] * m)
 
 
@@ -176,7 +175,7 @@ def update_evaluated(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray
         return
     rows = np.array([r[1] for r in refs if r is not None], dtype=np.int64)
     n = gps[full[0]].n
-    at = np.array(ev.offsets, dtype=np.int64)[rows][:, None] + np.arange(n)
+    at = ev.offsets[rows][:, None] + np.arange(n)
     _learn_full([gps[j] for j in full], x, y, ev.packed[at], ev.packed[at + n], ev.means[rows],
                 ev.latent[rows], lambda i: ev.terms(int(rows[i])))
 
