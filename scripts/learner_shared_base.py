@@ -55,7 +55,7 @@ def versions(points: int) -> tuple[dict[int, list[Any]], np.ndarray]:
     return groups, stream.x[points]
 
 
-_STEP_UPDATES = "update_many"  # the function a ROGER step updates its chosen experts with
+_STEP_UPDATES = "update_evaluated"  # the function a ROGER step updates its chosen experts with
 
 
 class Genealogy:
@@ -66,7 +66,7 @@ class Genealogy:
         self.updates: dict[int, tuple[int, ...]] = {}  # id(gp) -> update tokens, oldest first
         self.counter = itertools.count()
         self.since: list[int] = []  # per version and step: updates since the common ancestor
-        self.batched = False  # inside update_many, which counts its experts itself
+        self.batched = False  # inside the step's batched update, which counts its experts itself
 
     def updated(self, gp: Any) -> None:
         self.updates[id(gp)] = (*self.updates.get(id(gp), ()), next(self.counter))

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from roger_daemon.learner import Roger, RogerParams, jit
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
-from roger_daemon.learner.sogp_batch import evaluate_many, update_many
+from roger_daemon.learner.sogp_batch import evaluate_many, update_evaluated, update_many
 from roger_daemon.learner.synthetic import subtask_stream
 
 
@@ -229,3 +229,41 @@ def test_copy_many_fills_every_pending_copy(threads: int) -> None:
     for src, dst in zip(sources, copies, strict=True):
         np.testing.assert_array_equal(dst, src)
         assert dst is not src
+
+
+def _outcome_set(prior_mean: bool) -> tuple[list[SparseOnlineGP], np.ndarray]:
+    """Full experts whose point is novel, not novel (a basis vector's own input) or whose
+    ``Q`` drifted, plus one not full (learns on its own), and the point."""
+    experts = [_expert(60, seed, prior_mean=prior_mean) for seed in range(5)]
+    experts[2] = experts[1].copy()
+    experts[2]._Qp *= 1.5  # drifted: k^T Q k = 1.5 at experts[1]'s basis vector
+    experts[2]._forget_diagonals()
+    experts.append(_expert(4, 9, prior_mean=prior_mean))
+    return experts, experts[1].B[3].copy()
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("prior_mean", [False, True])
+def test_update_evaluated_is_update_many_bit_for_bit(threads: int, prior_mean: bool) -> None:
+    """The step's update, which reads the experts' terms off their evaluation, leaves every
+    expert as :func:`update_many` with each expert's own terms does, bit for bit: every
+    outcome, with and without a prior mean, an expert not evaluated, and the experts of two
+    evaluations (the pruned step evaluates in two stages)."""
+    jit.set_threads(threads)
+    y = np.array([0.2, -0.4])
+    for how in ("one evaluation", "one expert not evaluated", "two evaluations"):
+        mine, x = _outcome_set(prior_mean)
+        theirs = [gp.copy() for gp in mine]
+        got = evaluate_many(mine, x)
+        refs: list[tuple[object, int] | None] = [(got, j) for j in range(len(mine))]
+        if how == "one expert not evaluated":
+            refs[4] = None  # its terms are computed when needed
+        elif how == "two evaluations":
+            rest = evaluate_many(mine[3:], x)
+            refs[3:] = [(rest, j) for j in range(len(mine) - 3)]
+        update_evaluated(mine, x, y, refs)  # type: ignore[arg-type]
+        update_many(theirs, x, y, [gp.terms(x) for gp in theirs])
+        assert mine[2].q_refreshes == 1
+        for a, b in zip(mine, theirs, strict=True):
+            _same_state(a, b)
+            np.testing.assert_array_equal(a.mean_offset, b.mean_offset)
