@@ -21,9 +21,9 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from scipy.special import gammaln
 
 from roger_daemon.learner import jit as _jit
+from roger_daemon.learner.jit_scalar import student_t_normaliser
 
 __all__ = ["GatePool", "NIWGate", "niw_update"]
 
@@ -45,20 +45,6 @@ def niw_update(kappa: float, nu: float, mu: FloatArray, lam: FloatArray,
 
 
 _REFRESH = 32  # recompute the precision from Lambda every this many updates
-
-
-def _normaliser(kappa: float, nu: float, logdet_lam: float, d: int) -> tuple[float, float, float]:
-    """``(log normaliser, (nu_t + d)/2, 1/(nu_t c))`` of the Student-t of §3.3.
-
-    ``log t(x) = lognorm - (nu_t + d)/2 * log(1 + delta / nu_t)`` with
-    ``delta = (x - mu)^T Lambda^{-1} (x - mu) / c`` and ``Sigma_t = c Lambda``.
-    """
-    nu_t = nu - d + 1.0
-    c = (kappa + 1.0) / (kappa * nu_t)
-    logdet_sigma = d * math.log(c) + logdet_lam
-    lognorm = (math.lgamma((nu_t + d) / 2.0) - math.lgamma(nu_t / 2.0)
-               - 0.5 * d * math.log(nu_t * math.pi) - 0.5 * logdet_sigma)
-    return lognorm, 0.5 * (nu_t + d), 1.0 / (nu_t * c)
 
 
 def _precision(lam: FloatArray) -> tuple[FloatArray, float]:
@@ -95,7 +81,7 @@ class GatePool:
         self._prior = (float(kappa0), float(nu0), np.full(d, float(mu0)), np.eye(d) * lambda0)
         kappa, nu, mu, lam = self._prior
         self._prior_prec, self._prior_logdet = _precision(lam)
-        self._prior_norm = _normaliser(kappa, nu, self._prior_logdet, d)
+        self._prior_norm = student_t_normaliser(kappa, nu, self._prior_logdet, d)
 
     @property
     def capacity(self) -> int:
@@ -149,23 +135,14 @@ class GatePool:
         both are recomputed by Cholesky every 32 updates of a gate.
         """
         # Sherman-Morrison and the determinant lemma: t = w u^T P u,
-        # P' = P - w (P u)(P u)^T / (1 + t), log|Lambda'| = log|Lambda| + log(1 + t)
-        _jit.gate_update(slots, x, self.kappa, self.nu, self.mu, self.lam, self.prec,
-                         self.logdet)  # compiled, one pass per slot
-        kp1 = self.kappa[slots]
-        nu = self.nu[slots]
-        count = self.count[slots] + 1
-        self.count[slots] = count
-        for slot in slots[count % _REFRESH == 0].tolist():  # bound the round-off
+        # P' = P - w (P u)(P u)^T / (1 + t), log|Lambda'| = log|Lambda| + log(1 + t);
+        # then the count and the Student-t constants (§3.3): compiled, one pass per slot
+        _jit.gate_update(slots, x, self.count, self.kappa, self.nu, self.mu, self.lam,
+                         self.prec, self.logdet, self.lognorm, self.half_nu_d, self.inv_nu_c)
+        for slot in slots[self.count[slots] % _REFRESH == 0].tolist():  # bound the round-off
             self.prec[slot], self.logdet[slot] = _precision(self.lam[slot])
-        # Student-t constants (§3.3)
-        nu_t = nu - self.d + 1.0
-        c = (kp1 + 1.0) / (kp1 * nu_t)
-        logdet_sigma = self.d * np.log(c) + self.logdet[slots]
-        self.lognorm[slots] = (gammaln((nu_t + self.d) / 2.0) - gammaln(nu_t / 2.0)
-                               - 0.5 * self.d * np.log(nu_t * np.pi) - 0.5 * logdet_sigma)
-        self.half_nu_d[slots] = 0.5 * (nu_t + self.d)
-        self.inv_nu_c[slots] = 1.0 / (nu_t * c)
+            self.lognorm[slot], self.half_nu_d[slot], self.inv_nu_c[slot] = \
+                _jit.gate_constants(self.kappa[slot], self.nu[slot], self.logdet[slot], self.d)
 
     def log_predictive(self, slots: IntArray, x: FloatArray) -> FloatArray:
         """``log t_s(x)`` for every slot in ``slots`` (batched, §3.4)."""

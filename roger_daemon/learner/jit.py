@@ -53,8 +53,8 @@ _threads_default = True  # set_threads(None) (or never called)
 _workqueue = False  # warm_up found numba's threading layer to be workqueue
 _applied = threading.local()  # .count: what numba.set_num_threads was given in this thread
 
-KERNELS = ("cholesky_inverse", "copy_batch", "evaluate_expert", "evaluate_experts",
-           "expert_terms", "fearnhead_split", "fused_delete_index", "fused_step",
+KERNELS = ("cholesky_inverse", "copy_batch", "evaluate_expert", "evaluate_experts", "expert_terms",
+           "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
            "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
            "learn_batch", "learn_full_expert", "lineage_assignments", "novelty_step",
            "novelty_test", "packed_add_lowrank", "projection", "rank_update_cq", "refresh_small",

@@ -19,19 +19,29 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled
+from roger_daemon.learner.jit_scalar import student_t_normaliser
 
-__all__ = ["gate_log_predictive", "gate_update", "lineage_assignments", "trace_lineages"]
+#: :func:`.jit_scalar.student_t_normaliser` compiled: the gates' Student-t constants after an
+#: update (:func:`gate_update`) or a recomputation (:meth:`.gate.GatePool.update_many`)
+gate_constants = compiled(nogil=True)(student_t_normaliser)
+
+__all__ = ["gate_constants", "gate_log_predictive", "gate_update", "lineage_assignments",
+           "trace_lineages"]
 
 FloatArray = npt.NDArray[np.float64]
 
 
 @compiled(nogil=True)
-def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, nu: FloatArray,
-                mu: FloatArray, lam: FloatArray, prec: FloatArray, logdet: FloatArray) -> None:
+def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, count: npt.NDArray[np.int64],
+                kappa: FloatArray, nu: FloatArray, mu: FloatArray, lam: FloatArray,
+                prec: FloatArray, logdet: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
+                inv_nu_c: FloatArray) -> None:
     """NIW rank-1 updates of the gates in ``slots`` (docs/learner-math.md §3.2), in place.
 
     ``Lambda += w u u^T`` with ``u = x - mu``, ``w = kappa / (kappa + 1)``; the precision by
-    Sherman-Morrison, ``log|Lambda|`` by the determinant lemma (:class:`.gate.GatePool`).
+    Sherman-Morrison, ``log|Lambda|`` by the determinant lemma; the inputs counted, and the
+    Student-t constants of §3.3 (:data:`gate_constants`) recomputed
+    (:class:`.gate.GatePool`).
     """
     d = x.shape[0]
     u = np.empty(d)
@@ -66,6 +76,8 @@ def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, kappa: FloatArray, 
         kappa[s] = kp1
         nu[s] += 1.0
         logdet[s] += math.log1p(t)
+        count[s] += 1
+        lognorm[s], half_nu_d[s], inv_nu_c[s] = gate_constants(kp1, nu[s], logdet[s], d)
 
 
 @compiled(nogil=True)

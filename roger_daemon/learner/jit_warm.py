@@ -113,8 +113,10 @@ def _warm_the_rest() -> None:
     sk.refresh_small(basis, 1.0, N, 0.0, sym.copy(), N)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
-    gk.gate_update(slots, np.zeros(1), vec.copy(), vec.copy(), np.zeros((1, 1)), cube.copy(),
-                   cube.copy(), vec.copy())
+    gk.gate_update(slots, np.zeros(1), np.zeros(1, dtype=np.int64), vec.copy(), 4 * vec,
+                   np.zeros((1, 1)), cube.copy(), cube.copy(), vec.copy(), vec.copy(),
+                   vec.copy(), vec.copy())
+    gk.gate_constants(0.1, 4.0, 0.0, 1)
     gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
     gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                       np.zeros(1, dtype=np.int64))

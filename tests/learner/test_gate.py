@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -9,6 +11,7 @@ from hypothesis import strategies as st
 from scipy.stats import multivariate_t
 
 from roger_daemon.learner.gate import GatePool, NIWGate, niw_update
+from roger_daemon.learner.jit_scalar import student_t_normaliser
 
 
 def test_prior_predictive_matches_scipy_and_paper_values() -> None:
@@ -124,3 +127,48 @@ def test_batched_update_of_many_slots_matches_the_niw_recursion_and_scipy() -> N
                                     df=df).logpdf(q)
         assert got[j] == pytest.approx(want, rel=1e-9)
     assert pool.count[1] == 0 and pool.kappa[1] == 0.1  # untouched slot
+
+
+def test_the_compiled_student_t_constants_are_pythons_to_round_off() -> None:
+    """One formula (jit_scalar.student_t_normaliser), run by Python for the prior and compiled
+    for the gates' updates: numba's ``lgamma`` is not CPython's, so the log normaliser agrees
+    to round-off; the other two constants are bit for bit."""
+    from roger_daemon.learner import jit_particles
+
+    rng = np.random.default_rng(5)
+    for d in (1, 3, 23):
+        for _ in range(300):
+            kappa = float(rng.uniform(0.01, 1e4))
+            nu = d + float(rng.uniform(0.0, 1e5))
+            logdet = float(rng.normal(0.0, 50.0))
+            lognorm, half, inv = student_t_normaliser(kappa, nu, logdet, d)
+            got = jit_particles.gate_constants(kappa, nu, logdet, d)
+            # the two lgamma terms are up to ~1e6 and cancel: a few of their ulps
+            nu_t = nu - d + 1.0
+            scale = abs(math.lgamma((nu_t + d) / 2.0)) + abs(math.lgamma(nu_t / 2.0)) + 1.0
+            assert got[0] == pytest.approx(lognorm, rel=0.0, abs=1e-15 * scale)
+            assert got[1:] == (half, inv)
+
+
+def test_the_update_recomputes_the_constants_of_the_gates_it_updates() -> None:
+    """After updates (and the every-32 recomputation), each updated slot's cached Student-t
+    constants are the compiled formula's for its kappa, nu and log|Lambda|, bit for bit; the
+    others keep the prior's (Python's)."""
+    from roger_daemon.learner import jit_particles
+
+    d = 3
+    rng = np.random.default_rng(6)
+    pool = GatePool(d, 0.0, 0.1, 1.0, 5.0, capacity=4)
+    for s in range(4):
+        pool.set_prior(s)
+    slots = np.array([1, 3], dtype=np.int64)
+    prior = (pool.lognorm[0], pool.half_nu_d[0], pool.inv_nu_c[0])
+    assert prior == student_t_normaliser(0.1, 5.0, 0.0, d)  # log|I| = 0
+    for _ in range(33):
+        pool.update_many(slots, rng.normal(size=d))
+        for s in (1, 3):
+            want = jit_particles.gate_constants(pool.kappa[s], pool.nu[s], pool.logdet[s], d)
+            assert (pool.lognorm[s], pool.half_nu_d[s], pool.inv_nu_c[s]) == want
+        for s in (0, 2):
+            assert (pool.lognorm[s], pool.half_nu_d[s], pool.inv_nu_c[s]) == prior
+    assert pool.count.tolist() == [0, 33, 0, 33]
