@@ -83,18 +83,23 @@ def learn_full_expert(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbu
 @_compiled(parallel=True, nogil=True)
 def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
                 cbufs: tuple[FloatArray, ...], qbufs: tuple[FloatArray, ...], count: int,
-                x: FloatArray, ks: FloatArray, cks: FloatArray, dgs: FloatArray, qs: FloatArray,
-                rs: FloatArray, cw: FloatArray, rule: FloatArray, e_hats: FloatArray,
-                gammas: FloatArray, outcomes: IntArray, diags: FloatArray, dqs: FloatArray,
-                dq_mins: FloatArray, dq_argmaxes: IntArray) -> None:
-    """:func:`learn_full_expert` of each of the first ``count`` full experts, one row or entry
-    each of the per-expert inputs (``ks``, ``cks``, ``dgs``, ``qs``, ``rs``) and results
-    (``e_hats``, ``diags``, ``dqs``; ``outcomes``, ``gammas``, ``dq_mins``,
-    ``dq_argmaxes``)."""
+                x: FloatArray, terms: FloatArray, starts: IntArray, dgs: FloatArray,
+                qs: FloatArray, rs: FloatArray, cw: FloatArray, rule: FloatArray,
+                e_hats: FloatArray, gammas: FloatArray, outcomes: IntArray, diags: FloatArray,
+                dqs: FloatArray, dq_mins: FloatArray, dq_argmaxes: IntArray) -> None:
+    """:func:`learn_full_expert` of each of the first ``count`` full experts (``n`` basis
+    vectors each, the width of ``e_hats``), one row or entry each of the per-expert inputs
+    (``dgs``, ``qs``, ``rs``) and results (``e_hats``, ``diags``, ``dqs``; ``outcomes``,
+    ``gammas``, ``dq_mins``, ``dq_argmaxes``); expert ``e``'s kernel vector and ``C k`` are
+    ``terms[starts[e]:]`` and ``terms[starts[e] + n:]`` (an evaluation's packed terms,
+    :func:`.jit_evaluate.evaluate_expert`, read where they are)."""
+    n = e_hats.shape[1]
     for e in prange(count):
+        at = starts[e]
         outcome, gamma, dq_min, dq_argmax = learn_full_expert(
-            bases[e], coefs[e], cbufs[e], qbufs[e], x, ks[e], cks[e], dgs[e], qs[e], rs[e], cw,
-            rule, e_hats[e], diags[e], dqs[e])
+            bases[e], coefs[e], cbufs[e], qbufs[e], x, terms[at: at + n],
+            terms[at + n: at + 2 * n], dgs[e], qs[e], rs[e], cw, rule, e_hats[e], diags[e],
+            dqs[e])
         outcomes[e] = outcome
         gammas[e] = gamma
         dq_mins[e] = dq_min

@@ -57,9 +57,10 @@ def _warm_learning() -> None:
                          -0.1 * vn, 2 * vn, np.ones(1), -0.5, weights, rule, np.empty(N),
                          np.empty(N), np.empty(N))
     pad = jit.padded
+    terms = np.concatenate([0.5 * vn, -0.1 * vn])  # [k, C k], as an evaluation packs them
     bk.learn_batch(pad([basis.copy()], 0), pad([coef.copy()], 0), pad([-sym], 0),
-                   pad([sym.copy()], 0), 1, np.zeros(1), 0.5 * rows, -0.1 * rows, 2 * rows,
-                   np.ones((1, 1)), np.array([-0.5]), weights, rule,
+                   pad([sym.copy()], 0), 1, np.zeros(1), terms, np.zeros(1, dtype=np.int64),
+                   2 * rows, np.ones((1, 1)), np.array([-0.5]), weights, rule,
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, N)),
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64))
 

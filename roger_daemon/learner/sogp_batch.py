@@ -150,8 +150,9 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     for j in full:
         t = terms[j]
         got.append(t if t is not None else gps[j].terms(x))
-    _learn_full([gps[j] for j in full], x, y, np.array([t[0] for t in got]),
-                np.array([t[1] for t in got]), np.array([t[2] for t in got]),
+    n = gps[full[0]].n  # [k, C k] of each expert, one after the other, as an evaluation's
+    _learn_full([gps[j] for j in full], x, y, np.concatenate([v for t in got for v in t[:2]]),
+                np.arange(len(got), dtype=np.int64) * (2 * n), np.array([t[2] for t in got]),
                 np.array([t[3] for t in got], dtype=np.float64), got.__getitem__)
 
 
@@ -174,9 +175,7 @@ def update_evaluated(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray
                     [None if r is None else r[0].terms(r[1]) for r in refs])
         return
     rows = np.array([r[1] for r in refs if r is not None], dtype=np.int64)
-    n = gps[full[0]].n
-    at = ev.offsets[rows][:, None] + np.arange(n)
-    _learn_full([gps[j] for j in full], x, y, ev.packed[at], ev.packed[at + n], ev.means[rows],
+    _learn_full([gps[j] for j in full], x, y, ev.packed, ev.offsets[rows], ev.means[rows],
                 ev.latent[rows], lambda i: ev.terms(int(rows[i])))
 
 
@@ -192,42 +191,44 @@ def _hot_path(gps: Sequence[SparseOnlineGP]) -> list[int]:
     return full
 
 
-def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, ks: FloatArray,
-                cks: FloatArray, means: FloatArray, latent: FloatArray,
+def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, terms: FloatArray,
+                starts: IntArray, means: FloatArray, latent: FloatArray,
                 terms_of: Callable[[int], Terms]) -> None:
-    """Steps 3-6 of the full experts ``gps`` (the same ``n`` and kernel), their kernel vectors
-    ``ks``, ``C k`` (``cks``), predictive means and latent variances one row each
-    (``terms_of(i)``: expert ``i``'s terms, for the few that need them): by
+    """Steps 3-6 of the full experts ``gps`` (of one model: the same ``n``, kernel, noise and
+    novelty rule): expert ``i``'s kernel vector and ``C k`` at ``terms[starts[i]:]`` one after
+    the other (as an evaluation packs them), its predictive mean and latent variance a row of
+    ``means`` and ``latent`` (``terms_of(i)``: its terms, for the few that need them); by
     :func:`.jit_batch.learn_batch`, ``WIDTH`` at a time, on several threads
     (:func:`.jit.threads`) when there is enough work (:func:`.jit.batch_worth`); else its
     body's kernels one expert at a time (faster there: docs/performance.md); the same
     floats."""
     first = gps[0]
     m, n = len(gps), first.n
-    denom = np.array([gp.noise for gp in gps]) + latent
+    denom = first.noise + latent
     rs = -1.0 / denom  # Csató's K2 per expert
     if first.prior_mean:  # the a1 column too (:meth:`.sogp.SparseOnlineGP._targets`)
         qs = np.empty((m, first.a_cols))  # and K1
         for j, gp in enumerate(gps):
-            y_ext, mean = gp._targets(y, means[j], ks[j])
+            at = int(starts[j])
+            y_ext, mean = gp._targets(y, means[j], terms[at: at + n])
             qs[j] = (y_ext - mean) / denom[j]
     else:
         qs = (y - means) / denom[:, None]
     rule = np.array(first._novelty_constants())
     cw = output_weights(first.a_cols, first.d_y)
-    # diag(Q) and its argmax are written after a fused step only: ones and 0 elsewhere
-    out = _Outcomes(np.empty(m, dtype=np.int64), np.empty(m), np.empty((m, n)),
-                    np.empty((m, n)), np.ones((m, n)), np.empty(m),
-                    np.zeros(m, dtype=np.int64))
+    rows = np.empty((3, m, n))  # Q k, and the diagonals a fused step writes
+    rows[2] = 1.0  # diag(Q) where no fused step wrote it (its argmax stays 0)
+    out = _Outcomes(np.empty(m, dtype=np.int64), np.empty(m), rows[0], rows[1], rows[2],
+                    np.empty(m), np.zeros(m, dtype=np.int64))
     dgs = np.array([gp._diag_cq() for gp in gps])
     if _jit.batch_worth(m * n * (n + 1) // 2):
-        _learn_batched(gps, x, ks, cks, dgs, qs, rs, cw, rule, out)
+        _learn_batched(gps, x, terms, starts, dgs, qs, rs, cw, rule, out)
     else:
-        for j, gp in enumerate(gps):
+        for j, (gp, at) in enumerate(zip(gps, starts.tolist(), strict=True)):
             out.outcome[j], out.gamma[j], out.dq_min[j], out.dq_argmax[j] = \
-                _jit.learn_full_expert(gp._B, gp._A, gp._Cp, gp._Qp, x, ks[j], cks[j], dgs[j],
-                                       qs[j], rs[j], cw, rule, out.e_hat[j], out.diag[j],
-                                       out.dq[j])
+                _jit.learn_full_expert(gp._B, gp._A, gp._Cp, gp._Qp, x, terms[at: at + n],
+                                       terms[at + n: at + 2 * n], dgs[j], qs[j], rs[j], cw,
+                                       rule, out.e_hat[j], out.diag[j], out.dq[j])
     _finish(gps, x, y, out, terms_of)
 
 
@@ -246,8 +247,8 @@ class _Outcomes(NamedTuple):
     dq_argmax: IntArray
 
 
-def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, ks: FloatArray,
-                   cks: FloatArray, dgs: FloatArray, qs: FloatArray, rs: FloatArray,
+def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, terms: FloatArray,
+                   starts: IntArray, dgs: FloatArray, qs: FloatArray, rs: FloatArray,
                    cw: FloatArray, rule: FloatArray, out: _Outcomes) -> None:
     """:func:`_learn_full`'s kernels by :func:`.jit_batch.learn_batch` calls."""
     bases, coefs, cbufs, qbufs = zip(*[(gp._B, gp._A, gp._Cp, gp._Qp) for gp in gps],
@@ -257,7 +258,7 @@ def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, ks: FloatArray,
             hi = min(lo + _jit.WIDTH, len(gps))
             _jit.learn_batch(_jit.padded(bases, lo), _jit.padded(coefs, lo),
                              _jit.padded(cbufs, lo), _jit.padded(qbufs, lo), hi - lo, x,
-                             ks[lo:hi], cks[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
+                             terms, starts[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
                              out.e_hat[lo:hi], out.gamma[lo:hi], out.outcome[lo:hi],
                              out.diag[lo:hi], out.dq[lo:hi], out.dq_min[lo:hi],
                              out.dq_argmax[lo:hi])
