@@ -55,11 +55,12 @@ _applied = threading.local()  # .count: what numba.set_num_threads was given in 
 
 KERNELS = ("cholesky_inverse", "copy_batch", "evaluate_expert", "evaluate_experts", "expert_terms",
            "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
-           "gate_log_predictive", "gate_update", "gram_matrix", "kernel_vector", "min_argmax",
-           "learn_batch", "learn_full_expert", "lineage_assignments", "novelty_step",
-           "novelty_test", "packed_add_lowrank", "projection", "rank_update_cq", "refresh_small",
-           "shift_mean", "sorted_threshold", "sparse_update", "stratified_pass", "sym_matvec",
-           "sym_matvec_into", "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
+           "gate_log_predictive", "gate_update", "gram_matrix", "keeps_basis_vectors",
+           "kernel_vector", "learn_batch", "learn_full_expert", "lineage_assignments",
+           "min_argmax", "novelty_margin", "novelty_step", "novelty_test", "packed_add_lowrank",
+           "projection", "rank_update_cq", "refresh_small", "shift_mean", "sorted_threshold",
+           "sparse_update", "stratified_pass", "sym_matvec", "sym_matvec_into", "sym_row",
+           "terms_batch", "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:

@@ -24,7 +24,12 @@ from roger_daemon.learner.jit import DRIFTED, FUSED, KEPT
 from roger_daemon.learner.jit_compile import compiled as _compiled
 from roger_daemon.learner.jit_evaluate import evaluate_expert
 from roger_daemon.learner.jit_fused import fused_step
-from roger_daemon.learner.jit_kernels import novelty_test, projection
+from roger_daemon.learner.jit_kernels import (
+    keeps_basis_vectors,
+    novelty_margin,
+    novelty_test,
+    projection,
+)
 
 __all__ = ["copy_batch", "learn_batch", "learn_full_expert", "terms_batch"]
 
@@ -52,32 +57,36 @@ def learn_full_expert(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbu
                       x: FloatArray, k: FloatArray, ck: FloatArray, dg: FloatArray,
                       q: FloatArray, r: float, cw: FloatArray, rule: FloatArray,
                       e_hat_out: FloatArray, diag_out: FloatArray, dq_out: FloatArray
-                      ) -> tuple[int, float, float, int]:
+                      ) -> tuple[int, float, float, int, float, bool]:
     """Steps 3-5 of learning ``x`` in one full expert (``n`` basis vectors in buffers for
     ``n``; docs/learner-math.md §2.5): ``Q k`` and the novelty test
     (:func:`.jit_kernels.projection`, :func:`.jit_kernels.novelty_test` with
-    ``rule = [k*, threshold, floor, drift_tol]``), then, for a novel point, the fused
-    add-then-delete step (:func:`.jit_fused.fused_step`) while ``Q`` is still in the core's
-    cache.  In: its kernel vector ``k``, ``C k``, ``diag(C) + diag(Q)``, Csató's ``K1``
-    (``q``) and ``K2`` (``r``).  Writes ``Q k`` into ``e_hat_out`` and, after a fused step,
-    the diagonals it returns into ``diag_out`` and ``dq_out``; returns ``(outcome, gamma,
-    min(dq), argmax(dq))``, the outcome :data:`.jit.FUSED`, :data:`.jit.KEPT` (not novel:
-    left to the caller's projection update) or :data:`.jit.DRIFTED` (``Q`` must be
-    re-inverted first; nothing done).  One expert at a time (one thread) or several
-    (:func:`learn_batch`)."""
+    ``rule = [k*, threshold, floor, drift_tol, clean-up floor]``), then, for a novel point,
+    the fused add-then-delete step (:func:`.jit_fused.fused_step`) while ``Q`` is still in the
+    core's cache.  In: its kernel vector ``k``, ``C k``, ``diag(C) + diag(Q)``, Csató's
+    ``K1`` (``q``) and ``K2`` (``r``).  Writes ``Q k`` into ``e_hat_out`` and, after a fused
+    step, the diagonals it returns into ``diag_out`` and ``dq_out``; returns ``(outcome,
+    gamma, min(dq), argmax(dq), novelty margin, clean)``, the outcome :data:`.jit.FUSED`,
+    :data:`.jit.KEPT` (not novel: left to the caller's projection update) or
+    :data:`.jit.DRIFTED` (``Q`` must be re-inverted first; nothing done), the margin of the
+    novelty test (:func:`.jit_kernels.novelty_margin`) and, after a fused step, whether the
+    geometric clean-up keeps every basis vector (:func:`.jit_kernels.keeps_basis_vectors`).
+    One expert at a time (one thread) or several (:func:`learn_batch`)."""
     n = k.shape[0]
     e_hat, kqk = projection(qbuf, k, n, n)
     gamma, drifted, novel = novelty_test(kqk, rule[0], rule[1], rule[2], rule[3])
     e_hat_out[:] = e_hat
     if drifted:
-        return DRIFTED, gamma, math.nan, -1
+        return DRIFTED, gamma, math.nan, -1, math.nan, False
+    margin = novelty_margin(gamma, rule[0], rule[1])
     if not novel:
-        return KEPT, gamma, math.nan, -1
+        return KEPT, gamma, math.nan, -1, margin, False
     diag, dq, dq_min, dq_argmax = fused_step(basis, coef, cbuf, qbuf, dg, x, ck, e_hat, cw, q,
                                              r, gamma)
     diag_out[:] = diag
     dq_out[:] = dq
-    return FUSED, gamma, dq_min, dq_argmax
+    clean = n <= 1 or keeps_basis_vectors(dq[dq_argmax], rule[4])
+    return FUSED, gamma, dq_min, dq_argmax, margin, clean
 
 
 @_compiled(parallel=True, nogil=True)
@@ -86,17 +95,18 @@ def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
                 x: FloatArray, terms: FloatArray, starts: IntArray, dgs: FloatArray,
                 qs: FloatArray, rs: FloatArray, cw: FloatArray, rule: FloatArray,
                 e_hats: FloatArray, gammas: FloatArray, outcomes: IntArray, diags: FloatArray,
-                dqs: FloatArray, dq_mins: FloatArray, dq_argmaxes: IntArray) -> None:
+                dqs: FloatArray, dq_mins: FloatArray, dq_argmaxes: IntArray,
+                margins: FloatArray, clean: npt.NDArray[np.bool_]) -> None:
     """:func:`learn_full_expert` of each of the first ``count`` full experts (``n`` basis
     vectors each, the width of ``e_hats``), one row or entry each of the per-expert inputs
     (``dgs``, ``qs``, ``rs``) and results (``e_hats``, ``diags``, ``dqs``; ``outcomes``,
-    ``gammas``, ``dq_mins``, ``dq_argmaxes``); expert ``e``'s kernel vector and ``C k`` are
-    ``terms[starts[e]:]`` and ``terms[starts[e] + n:]`` (an evaluation's packed terms,
-    :func:`.jit_evaluate.evaluate_expert`, read where they are)."""
+    ``gammas``, ``dq_mins``, ``dq_argmaxes``, ``margins``, ``clean``); expert ``e``'s kernel
+    vector and ``C k`` are ``terms[starts[e]:]`` and ``terms[starts[e] + n:]`` (an
+    evaluation's packed terms, :func:`.jit_evaluate.evaluate_expert`, read where they are)."""
     n = e_hats.shape[1]
     for e in prange(count):
         at = starts[e]
-        outcome, gamma, dq_min, dq_argmax = learn_full_expert(
+        outcome, gamma, dq_min, dq_argmax, margin, kept = learn_full_expert(
             bases[e], coefs[e], cbufs[e], qbufs[e], x, terms[at: at + n],
             terms[at + n: at + 2 * n], dgs[e], qs[e], rs[e], cw, rule, e_hats[e], diags[e],
             dqs[e])
@@ -104,6 +114,8 @@ def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
         gammas[e] = gamma
         dq_mins[e] = dq_min
         dq_argmaxes[e] = dq_argmax
+        margins[e] = margin
+        clean[e] = kept
 
 
 @_compiled(parallel=True, nogil=True)

@@ -41,9 +41,9 @@ import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled as _compiled
 
-__all__ = ["cholesky_inverse", "expert_terms", "gram_matrix", "kernel_vector", "min_argmax",
-           "novelty_test", "packed_add_lowrank", "projection", "rank_update_cq", "sym_matvec",
-           "sym_matvec_into", "sym_row"]
+__all__ = ["cholesky_inverse", "expert_terms", "gram_matrix", "keeps_basis_vectors",
+           "kernel_vector", "min_argmax", "novelty_margin", "novelty_test", "packed_add_lowrank",
+           "projection", "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
 _FM = {"reassoc", "contract"}
@@ -187,6 +187,26 @@ def novelty_test(kqk: float, kstar: float, threshold: float, floor: float,
         gamma = 0.0
     novel = not (gamma < threshold * kstar or gamma <= 0.0)
     return gamma, drifted, novel
+
+
+@_compiled(nogil=True)
+def novelty_margin(gamma: float, kstar: float, threshold: float) -> float:
+    """How close the novelty test (:func:`novelty_test`) that gave ``gamma`` was to flipping,
+    in units of ``k*``: ``|gamma - threshold k*| / k*`` (a diagnostic, docs/reproducibility.md).
+    The one owner of the formula, for one expert
+    (:meth:`.sogp_steps.SOGPSteps.record_novelty_margin`) or in a full expert's batched step
+    (:func:`.jit_batch.learn_full_expert`)."""
+    return abs(gamma - threshold * kstar) / kstar
+
+
+@_compiled(nogil=True, error_model="numpy")
+def keeps_basis_vectors(q_max: float, floor: float) -> bool:
+    """Step 6, the geometric clean-up (Csató; docs/learner-math.md §2.7): the basis vector
+    with the largest ``Q_ii`` (``q_max``), and with it every other, stays while
+    ``1 / Q_ii >= floor``; ``floor <= 0`` turns the clean-up off.  The one owner of the test,
+    for :meth:`.sogp_steps.SOGPSteps._clean_up` and a full expert's batched step
+    (:func:`.jit_batch.learn_full_expert`)."""
+    return floor <= 0.0 or 1.0 / q_max >= floor
 
 
 @_compiled(nogil=True)

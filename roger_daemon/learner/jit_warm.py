@@ -52,7 +52,9 @@ def _warm_learning() -> None:
     rows = np.ones((1, N))
     k.projection(sym, np.zeros(N), N, N)
     k.novelty_test(0.5, 1.0, 1e-6, 1e-12, 1e-6)
-    rule = np.array([1.0, 1e-6, 1e-12, 1e-6])
+    k.novelty_margin(0.5, 1.0, 1e-6)
+    k.keeps_basis_vectors(1.0, 1e-9)
+    rule = np.array([1.0, 1e-6, 1e-12, 1e-6, 1e-9])
     bk.learn_full_expert(basis.copy(), coef.copy(), -sym, sym.copy(), np.zeros(1), 0.5 * vn,
                          -0.1 * vn, 2 * vn, np.ones(1), -0.5, weights, rule, np.empty(N),
                          np.empty(N), np.empty(N))
@@ -62,7 +64,8 @@ def _warm_learning() -> None:
                    pad([sym.copy()], 0), 1, np.zeros(1), terms, np.zeros(1, dtype=np.int64),
                    2 * rows, np.ones((1, 1)), np.array([-0.5]), weights, rule,
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, N)),
-                   np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64))
+                   np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty(1),
+                   np.empty(1, dtype=np.bool_))
 
 
 def _warm_evaluation() -> None:

@@ -214,29 +214,30 @@ def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, ter
             qs[j] = (y_ext - mean) / denom[j]
     else:
         qs = (y - means) / denom[:, None]
-    rule = np.array(first._novelty_constants())
+    rule = np.array([*first._novelty_constants(), first.cleanup_floor()])
     cw = output_weights(first.a_cols, first.d_y)
     rows = np.empty((3, m, n))  # Q k, and the diagonals a fused step writes
-    rows[2] = 1.0  # diag(Q) where no fused step wrote it (its argmax stays 0)
     out = _Outcomes(np.empty(m, dtype=np.int64), np.empty(m), rows[0], rows[1], rows[2],
-                    np.empty(m), np.zeros(m, dtype=np.int64))
+                    np.empty(m), np.empty(m, dtype=np.int64), np.empty(m),
+                    np.empty(m, dtype=np.bool_))
     dgs = np.array([gp._diag_cq() for gp in gps])
     if _jit.batch_worth(m * n * (n + 1) // 2):
         _learn_batched(gps, x, terms, starts, dgs, qs, rs, cw, rule, out)
     else:
         for j, (gp, at) in enumerate(zip(gps, starts.tolist(), strict=True)):
-            out.outcome[j], out.gamma[j], out.dq_min[j], out.dq_argmax[j] = \
-                _jit.learn_full_expert(gp._B, gp._A, gp._Cp, gp._Qp, x, terms[at: at + n],
-                                       terms[at + n: at + 2 * n], dgs[j], qs[j], rs[j], cw,
-                                       rule, out.e_hat[j], out.diag[j], out.dq[j])
+            (out.outcome[j], out.gamma[j], out.dq_min[j], out.dq_argmax[j], out.margin[j],
+             out.clean[j]) = _jit.learn_full_expert(
+                gp._B, gp._A, gp._Cp, gp._Qp, x, terms[at: at + n], terms[at + n: at + 2 * n],
+                dgs[j], qs[j], rs[j], cw, rule, out.e_hat[j], out.diag[j], out.dq[j])
     _finish(gps, x, y, out, terms_of)
 
 
 class _Outcomes(NamedTuple):
     """The full experts' steps 3-5 (:func:`.jit_batch.learn_batch`), one entry or row each:
     the outcome (:data:`.jit.FUSED`, :data:`.jit.KEPT` or :data:`.jit.DRIFTED`), ``gamma``,
-    ``Q k``, and after a fused step the diagonals it returns with ``diag(Q)``'s minimum and
-    first argmax."""
+    ``Q k``, after a fused step the diagonals it returns with ``diag(Q)``'s minimum and
+    first argmax, the novelty test's margin, and whether the clean-up keeps every basis
+    vector."""
 
     outcome: IntArray
     gamma: FloatArray
@@ -245,6 +246,8 @@ class _Outcomes(NamedTuple):
     dq: FloatArray
     dq_min: FloatArray
     dq_argmax: IntArray
+    margin: FloatArray
+    clean: npt.NDArray[np.bool_]
 
 
 def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, terms: FloatArray,
@@ -261,7 +264,7 @@ def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, terms: FloatArr
                              terms, starts[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
                              out.e_hat[lo:hi], out.gamma[lo:hi], out.outcome[lo:hi],
                              out.diag[lo:hi], out.dq[lo:hi], out.dq_min[lo:hi],
-                             out.dq_argmax[lo:hi])
+                             out.dq_argmax[lo:hi], out.margin[lo:hi], out.clean[lo:hi])
 
 
 def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _Outcomes,
@@ -270,13 +273,8 @@ def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _O
     projection update (step 4a); the fused step's diagonals kept; the clean-up (step 6) where
     ``diag(Q)``'s largest entry says one is due; ``Q`` re-inverted after a near-dependent
     basis vector; the prior mean moved.  An expert whose ``Q`` drifted learns on its own."""
-    first = gps[0]
-    kstar = first.kernel.k_star
-    # gp.record_novelty_margin(gamma) of each, vectorised: the same floats
-    margins = (np.abs(out.gamma - first.novelty_threshold * kstar) / kstar).tolist()
-    floor = first.novelty_threshold * 1e-3  # the geometric clean-up's bound (_clean_up)
-    biggest = out.dq[np.arange(len(gps)), out.dq_argmax]
-    clean = ((1.0 / biggest >= floor) | (floor <= 0.0)).tolist()
+    kstar = gps[0].kernel.k_star
+    margins, clean = out.margin.tolist(), out.clean.tolist()
     gammas = out.gamma.tolist()
     dq_mins, dq_argmaxes = out.dq_min.tolist(), out.dq_argmax.tolist()
     diags, dqs = list(out.diag), list(out.dq)  # row views, made in one call

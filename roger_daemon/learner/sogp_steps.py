@@ -75,9 +75,15 @@ class SOGPSteps:
         return e_hat, gamma, novel
 
     def record_novelty_margin(self, gamma: float) -> None:
-        """:attr:`novelty_margin` of a novelty test that gave ``gamma``."""
-        kstar = self.kernel.k_star
-        self.novelty_margin = abs(gamma - self.novelty_threshold * kstar) / kstar
+        """:attr:`novelty_margin` of a novelty test that gave ``gamma``
+        (:func:`.jit_kernels.novelty_margin`)."""
+        self.novelty_margin = _jit.novelty_margin(gamma, self.kernel.k_star,
+                                                  self.novelty_threshold)
+
+    def cleanup_floor(self) -> float:
+        """The geometric clean-up's bound on ``1 / Q_ii`` (step 6,
+        :func:`.jit_kernels.keeps_basis_vectors`): the novelty threshold times 1e-3."""
+        return self.novelty_threshold * 1e-3
 
     def _novelty_constants(self) -> tuple[float, float, float, float]:
         """``(k*, threshold, floor, drift_tol)``: :func:`.jit_kernels.novelty_test`'s
@@ -169,11 +175,11 @@ class SOGPSteps:
         if self.capacity is not None:
             while self.n > self.capacity:
                 self.delete(self._deletion_choice())
-        floor = self.novelty_threshold * 1e-3
+        floor = self.cleanup_floor()
         while self.n > 1 and floor > 0.0:
             diag = self._diag_q()
             i = self._dq_argmax if self._dq is not None else int(np.argmax(diag))
-            if 1.0 / diag[i] >= floor:
+            if _jit.keeps_basis_vectors(float(diag[i]), floor):
                 break
             self.delete(i)
 

@@ -142,6 +142,22 @@ def test_novelty_test_is_the_documented_rule(kqk: float, kstar: float, threshold
     assert jit.novelty_test(kqk, kstar, threshold, 1e-12, 1e-6) == want
 
 
+@settings(max_examples=200, deadline=None)
+@given(gamma=st.floats(0.0, 3.0), kstar=st.sampled_from([0.5, 1.0, 2.0]),
+       threshold=st.sampled_from([0.0, 1e-6, 1e-3, 0.5]),
+       q_max=st.floats(1e-3, 1e12), floor=st.sampled_from([-1.0, 0.0, 1e-9, 1e-3]))
+def test_the_margin_and_the_clean_up_are_the_documented_rules(
+        gamma: float, kstar: float, threshold: float, q_max: float, floor: float) -> None:
+    """Oracles: the novelty margin |gamma - threshold k*| / k* (docs/reproducibility.md) and
+    step 6's test 1 / Q_ii >= floor, off for floor <= 0 (docs/learner-math.md §2.7)."""
+    assert jit.novelty_margin(gamma, kstar, threshold) == abs(gamma - threshold * kstar) / kstar
+    assert jit.keeps_basis_vectors(q_max, floor) is (floor <= 0.0 or 1.0 / q_max >= floor)
+
+
+def test_the_clean_up_test_takes_a_zero_diagonal_without_raising() -> None:
+    assert jit.keeps_basis_vectors(0.0, 1e-9)  # 1 / 0 = inf, as numpy makes it
+
+
 def test_experts_are_batched_on_several_threads_with_enough_work(
         monkeypatch: pytest.MonkeyPatch) -> None:
     import numba
