@@ -18,7 +18,7 @@ from typing import Any, TypeVar, cast
 
 from numba import njit
 
-__all__ = ["FINGERPRINT_FILE", "compiled", "source_fingerprint"]
+__all__ = ["FINGERPRINT_FILE", "cache_dir", "compiled", "source_fingerprint"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -44,7 +44,7 @@ def drop_stale_entries(cache_dir: Path, fingerprint: str) -> bool:
     """Remove the kernel modules' entries from numba's ``cache_dir`` unless they were built
     from the sources ``fingerprint`` names, then record it; ``True`` if entries were dropped.
     Only files numba wrote for these modules (``jit_*.nbi``, ``jit_*.nbc``) are removed; an
-    unwritable directory is left as it is (numba then recompiles what it cannot trust)."""
+    unwritable directory is left as it is."""
     stamp = cache_dir / FINGERPRINT_FILE
     try:
         if stamp.read_text(encoding="ascii").strip() == fingerprint:
@@ -66,6 +66,13 @@ def drop_stale_entries(cache_dir: Path, fingerprint: str) -> bool:
     return dropped
 
 
+def cache_dir(kernel: Any) -> str | None:
+    """The directory of numba's on-disk cache that ``kernel`` (a :func:`compiled` function)
+    loads from and writes to; ``None`` where it has none (numba's ``NullCache``)."""
+    where: str | None = getattr(getattr(kernel, "_cache", None), "cache_path", None)
+    return where
+
+
 def compiled(**options: Any) -> Callable[[F], F]:
     """``numba.njit(cache=True, **options)``, with the cache checked against the kernel
     sources (module docstring); without the on-disk cache where no cache directory is writable
@@ -78,7 +85,7 @@ def compiled(**options: Any) -> Callable[[F], F]:
             dispatcher = njit(cache=True, **options)(fn)
         except RuntimeError:  # "cannot cache function ...: no locator available"
             return cast(F, njit(**options)(fn))
-        where = getattr(getattr(dispatcher, "_cache", None), "cache_path", None)
+        where = cache_dir(dispatcher)
         if where is not None and where not in _checked:
             _checked.add(where)
             drop_stale_entries(Path(where), source_fingerprint())

@@ -154,7 +154,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     target: dict[int, int] = {}
     pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
-    upd_terms: list[tuple[Evaluation, int] | None] = []  # where each one's terms are
+    upd_evaluated: list[tuple[Evaluation, int] | None] = []  # where each one's terms are
     upd_slots: list[int] = []
     for s in np.unique(surv_slot).tolist():
         if s < 0:  # a new expert, shared by every survivor that opened one this step
@@ -178,13 +178,13 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
                 model._gates.copy_slot(t, s)
                 model._ids[t] = model._ids[s]
             upd_gps.append(gp)
-            upd_terms.append(terms.get(s))
+            upd_evaluated.append(terms.get(s))
             upd_slots.append(t)
             model._npts[t] = model._npts[s] + 1
         target[s] = t
     copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
-    update_evaluated(upd_gps, xs, ys, upd_terms)
+    update_evaluated(upd_gps, xs, ys, upd_evaluated)
     if upd_slots:
         model._gates.update_many(np.array(upd_slots, dtype=np.int64), xs)
     new_parts: list[IntArray] = []

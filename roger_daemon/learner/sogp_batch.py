@@ -142,8 +142,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     gets its projection update here, and an expert whose ``Q`` drifted learns on its own.
     """
     full = _hot_path(gps)
-    for j in sorted(set(range(len(gps))) - set(full)):
-        gps[j].update(x, y, terms[j])
+    _learn_alone(gps, full, x, y, terms.__getitem__)
     if not full:
         return
     got: list[Terms] = []
@@ -163,9 +162,8 @@ def update_evaluated(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray
     path's kernel vectors, ``C k``, means and latent variances are read off the evaluation's
     arrays, the same floats, without a tuple of terms per expert (a step updates ~10)."""
     full = _hot_path(gps)
-    for j in sorted(set(range(len(gps))) - set(full)):
-        ref = evaluated[j]
-        gps[j].update(x, y, None if ref is None else ref[0].terms(ref[1]))
+    _learn_alone(gps, full, x, y,
+                 lambda j: None if (ref := evaluated[j]) is None else ref[0].terms(ref[1]))
     if not full:
         return
     refs = [evaluated[j] for j in full]
@@ -189,6 +187,16 @@ def _hot_path(gps: Sequence[SparseOnlineGP]) -> list[int]:
             full.append(j)
             n = gp.n
     return full
+
+
+def _learn_alone(gps: Sequence[SparseOnlineGP], full: list[int], x: FloatArray, y: FloatArray,
+                 terms_of: Callable[[int], Terms | None]) -> None:
+    """The experts off the hot path (not in ``full``) learn one at a time, with their terms
+    where known (``terms_of(j)``, ``None``: computed by the update)."""
+    hot = set(full)
+    for j, gp in enumerate(gps):
+        if j not in hot:
+            gp.update(x, y, terms_of(j))
 
 
 def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, terms: FloatArray,

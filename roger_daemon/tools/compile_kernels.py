@@ -46,9 +46,9 @@ def run(args: argparse.Namespace) -> int:
     require(args.processes is None or args.processes >= 1, "--processes", "an integer >= 1",
             args.processes)
     from roger_daemon.learner import jit_batch
+    from roger_daemon.learner.jit_compile import cache_dir
 
-    cache = getattr(jit_batch.terms_batch, "_cache", None)  # numba's cache, or its NullCache
-    where = getattr(cache, "cache_path", None)
+    where = cache_dir(jit_batch.terms_batch)
     if where is None:
         print("roger compile: numba has no writable cache directory here, so every process "
               "compiles the kernels again; set NUMBA_CACHE_DIR to a writable directory",
