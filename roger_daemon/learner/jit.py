@@ -1,6 +1,6 @@
 """The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`, :mod:`.jit_batch`,
-:mod:`.jit_particles`, :mod:`.jit_resampling`, :mod:`.jit_small`, :mod:`.jit_evaluate`), loaded on
-first use.
+:mod:`.jit_particles`, :mod:`.jit_layout`, :mod:`.jit_resampling`, :mod:`.jit_small`,
+:mod:`.jit_evaluate`), loaded on first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
@@ -58,9 +58,10 @@ KERNELS = ("cholesky_inverse", "copy_batch", "evaluate_expert", "evaluate_expert
            "gate_log_predictive", "gate_update", "gram_matrix", "keeps_basis_vectors",
            "kernel_vector", "learn_batch", "learn_full_expert", "lineage_assignments",
            "min_argmax", "novelty_margin", "novelty_step", "novelty_test", "packed_add_lowrank",
-           "projection", "rank_update_cq", "refresh_small", "shift_mean", "sorted_threshold",
-           "sparse_update", "stratified_pass", "sym_matvec", "sym_matvec_into", "sym_row",
-           "terms_batch", "threshold_taus", "trace_lineages")
+           "projection", "putative_layout", "rank_update_cq", "refresh_small", "shift_mean",
+           "sorted_threshold", "sparse_update", "stratified_pass", "survivor_counts",
+           "survivor_particles", "sym_matvec", "sym_matvec_into", "sym_row", "terms_batch",
+           "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:
@@ -69,13 +70,14 @@ def _load() -> None:
         jit_evaluate,
         jit_fused,
         jit_kernels,
+        jit_layout,
         jit_particles,
         jit_resampling,
         jit_small,
     )
 
-    for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_resampling, jit_small,
-                   jit_evaluate):
+    for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_layout, jit_resampling,
+                   jit_small, jit_evaluate):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 

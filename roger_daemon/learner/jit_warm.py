@@ -101,6 +101,7 @@ def _warm_the_rest() -> None:
     """Copies, the packed helpers, the small experts' kernels, the gates and the lineages."""
     from roger_daemon.learner import jit_batch as bk
     from roger_daemon.learner import jit_kernels as k
+    from roger_daemon.learner import jit_layout as lk
     from roger_daemon.learner import jit_particles as gk
     from roger_daemon.learner import jit_small as sk
 
@@ -127,6 +128,10 @@ def _warm_the_rest() -> None:
     gk.lineage_assignments(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), 1,
                            np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64),
                            1, 0, np.zeros(0, dtype=np.int64), np.zeros((0, 1), dtype=np.int64))
+    one, two = np.zeros(1, dtype=np.int64), np.array([0, 1], dtype=np.int64)
+    lk.putative_layout(one, two, np.zeros(1), np.zeros(1), 0.0)
+    lk.survivor_counts(one, two, one, one, 1)
+    lk.survivor_particles(one, two, one, one, one, one, 0, one)
     jit.use_threads()
     bk.copy_batch(jit.padded([sym], 0), jit.padded([sym.copy()], 0), 1)
 

@@ -55,7 +55,7 @@ def fit_partition(x: npt.ArrayLike, y: npt.ArrayLike, groups: Sequence[Hashable]
         want = expert_of.get(group)
         # the putative that puts the point in its group's expert (-1: a new expert)
         target = -1 if want is None else int(
-            next(s for s in model._particles[0].tolist() if model._ids[s] == want))
+            next(s for s in model.particle_slots(0).tolist() if model._ids[s] == want))
         j = int(np.flatnonzero(flat_slots == target)[0])
         instantiate(model, np.array([j]), np.zeros(1), flat_part, flat_slots, offsets, xs, ys,
                     terms)

@@ -14,16 +14,16 @@ Algorithm 1 (``learn_one``), docs/learner-math.md §4:
 3. only then incorporate ``(x, y)`` into the chosen expert of each survivor.
 
 Performance design (pitfalls 13-15): experts live in integer *slots* shared by all particles
-that contain them (a particle is an int array of slots); a slot is copied only when a survivor
-updates an expert that another survivor keeps unchanged (copy-on-write), and survivors that
-choose the same slot share one updated copy.  Per step each *unique* expert is evaluated once
-(all gates in one batched product, then each GP once, whatever the number of particles that
-share it), and the chosen experts are updated together (:func:`.sogp.update_many`), so the
-cost is bounded by (unique experts) x ``beta^2``, never by the data seen.  An opt-in bound
-(``prune_log_margin``) skips the GP of experts whose putatives cannot carry weight.  The
-segmentation history costs O(P) per step: survivors' ancestor index and chosen expert id,
-traced back by :meth:`Roger.assignments`, collapsed to one id per point once the particles'
-lineages meet (:mod:`.history`).
+that contain them (a particle is a run of slots in one flat int array); a slot is copied only
+when a survivor updates an expert that another survivor keeps unchanged (copy-on-write), and
+survivors that choose the same slot share one updated copy.  Per step each *unique* expert is
+evaluated once (all gates in one batched product, then each GP once, whatever the number of
+particles that share it), and the chosen experts are updated together
+(:func:`.sogp.update_many`), so the cost is bounded by (unique experts) x ``beta^2``, never
+by the data seen.  An opt-in bound (``prune_log_margin``) skips the GP of experts whose
+putatives cannot carry weight.  The segmentation history costs O(P) per step: survivors'
+ancestor index and chosen expert id, traced back by :meth:`Roger.assignments`, collapsed to
+one id per point once the particles' lineages meet (:mod:`.history`).
 
 The step itself is in :mod:`.roger_step`, the predictions in :mod:`.roger_predict`.
 """
@@ -140,7 +140,10 @@ class Roger:
         # dropped experts' packed matrices (C and Q), reused by copy-on-write copies (not
         # state): those of at most as many experts as there are particles
         self._pool = BufferPool(limit=2 * p.particles)
-        self._particles: list[IntArray] = [np.zeros(0, dtype=np.int64)]
+        # the particles, flat: particle p holds the expert slots _slots[_starts[p]:_starts[p + 1]]
+        # (one array for all, so a step's bookkeeping is one compiled call: :mod:`.jit_layout`)
+        self._slots = np.zeros(0, dtype=np.int64)
+        self._starts = np.zeros(2, dtype=np.int64)
         self._logw = np.zeros(1)
         self._history = SegmentationHistory(p.particles)
         self.n_learned = 0
@@ -263,7 +266,11 @@ class Roger:
     @property
     def n_particles(self) -> int:
         """Particles currently carried (``P`` once there are enough putatives)."""
-        return len(self._particles)
+        return self._starts.size - 1
+
+    def particle_slots(self, p: int) -> IntArray:
+        """The expert slots of particle ``p``, in order (a copy)."""
+        return self._slots[self._starts[p]: self._starts[p + 1]].copy()
 
     @property
     def n_unique_experts(self) -> int:

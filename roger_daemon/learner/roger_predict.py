@@ -28,7 +28,7 @@ IntArray = npt.NDArray[np.int64]
 
 def map_slots(model: Roger) -> IntArray:
     """Slots of the MAP particle (highest weight after the last resampling, §6)."""
-    return model._particles[int(model._logw.argmax())]
+    return model.particle_slots(int(model._logw.argmax()))
 
 
 def gate_probs(model: Roger, slots: IntArray, xs: FloatArray) -> FloatArray:

@@ -30,7 +30,7 @@ __all__ = ["load_roger_state", "roger_state_dict"]
 def roger_state_dict(model: Roger) -> dict[str, np.ndarray]:
     """Flat named arrays plus JSON metadata; see :mod:`.state`.  No object arrays."""
     # canonical order: slots by first appearance in the particles (not by slot number)
-    flat = np.concatenate(model._particles)
+    flat = model._slots
     _, first = np.unique(flat, return_index=True)
     live = flat[np.sort(first)]
     compact = np.full(len(model._gps), -1, dtype=np.int64)
@@ -43,9 +43,8 @@ def roger_state_dict(model: Roger) -> dict[str, np.ndarray]:
         out[f"gate_{name}"] = getattr(g, name)[live].copy()
     out["expert_id"] = model._ids[live].copy()
     out["expert_count"] = model._npts[live].copy()
-    sizes = np.array([a.size for a in model._particles], dtype=np.int64)
     out["particle_log_weights"] = model._logw.copy()
-    out["particle_offsets"] = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    out["particle_offsets"] = model._starts.copy()
     out["particle_experts"] = compact[flat]
     out.update(model._history.state())
     out["meta"] = pack_meta({
@@ -79,8 +78,7 @@ def load_roger_state(model: Roger, state: dict[str, np.ndarray], meta: dict[str,
     model._npts[:u] = state["expert_count"]
     offsets = np.asarray(state["particle_offsets"], dtype=np.int64)
     flat = np.asarray(state["particle_experts"], dtype=np.int64)
-    model._particles = [flat[offsets[i]:offsets[i + 1]].copy()
-                       for i in range(offsets.size - 1)]
+    model._slots, model._starts = flat.copy(), offsets.copy()
     model._logw = np.asarray(state["particle_log_weights"], dtype=np.float64).copy()
     model._ref = np.bincount(flat, minlength=len(model._gps)).astype(np.int64)
     model.n_learned = int(meta["n_learned"])

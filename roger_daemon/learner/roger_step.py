@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner import jit as _jit
 from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood
 from roger_daemon.learner.sogp_batch import (
     Evaluation,
@@ -34,7 +35,6 @@ IntArray = npt.NDArray[np.int64]
 #: expert's, built only then: :meth:`.sogp_batch.Evaluation.terms`)
 SlotTerms = dict[int, tuple[Evaluation, int]]
 
-_NEW = np.array([-1], dtype=np.int64)  # the "+1" empty expert in a putative list
 _STAGE1 = 4  # experts evaluated first to sharpen the pruning bound
 
 
@@ -46,23 +46,18 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
     of particle ``flat_part[j]``; particle ``p``'s putatives start at ``offsets[p]``.
     """
     p = model.params
-    parts = model._particles
-    sizes = np.fromiter((a.size + 1 for a in parts), dtype=np.int64, count=len(parts))
-    flat_slots = np.concatenate([a for s in parts for a in (s, _NEW)])
-    flat_part = np.repeat(np.arange(len(parts)), sizes)
-    offsets = np.cumsum(sizes) - sizes
-    is_new = flat_slots < 0
-    old_slots = flat_slots[~is_new]
     cap = len(model._gps)
-
     # gates of all unique experts, batched (§3.4); CRP prior n_k (N + alpha dropped, §4)
     live = np.flatnonzero(model._ref > 0)
     slot_gate = np.zeros(cap)
     slot_gate[live] = model._gates.log_predictive(live, xs)
     slot_gate[live] += np.log(model._npts[live])
-    base = model._logw[flat_part]
-    base[is_new] += model._log_alpha + model._gates.prior_log_predictive(xs)
-    base[~is_new] += slot_gate[old_slots]
+    # each particle's putatives: its experts, then the new one (:mod:`.jit_layout`)
+    flat_slots, flat_part, offsets, base = _jit.putative_layout(
+        model._slots, model._starts, model._logw, slot_gate,
+        model._log_alpha + model._gates.prior_log_predictive(xs))
+    is_new = flat_slots < 0
+    old_slots = flat_slots[~is_new]
     if p.sticky_kappa > 0.0 and model.n_learned > 0:
         add_stickiness(model, base, flat_part, flat_slots, is_new)
 
@@ -142,23 +137,22 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
 
     Returns the smallest novelty-test margin of the updated experts (``inf``: none).
     """
-    parts = model._particles
     surv_parent = flat_part[keep]
     surv_slot = flat_slots[keep]
     surv_pos = keep - offsets[surv_parent]
-    cap = len(model._gps)
     # how many survivors contain each slot, and how many of them chose it
-    contains = np.bincount(np.concatenate([parts[i] for i in surv_parent.tolist()]),
-                           minlength=cap)
-    chose = np.bincount(surv_slot[surv_slot >= 0], minlength=cap)
-    target: dict[int, int] = {}
+    contains, chose, chosen = _jit.survivor_counts(model._slots, model._starts, surv_parent,
+                                                   surv_slot, len(model._gps))
+    sources: list[int] = []  # each chosen slot, and the slot of its updated version
+    targets: list[int] = []
+    new_target = -1
     pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
     upd_evaluated: list[tuple[Evaluation, int] | None] = []  # where each one's terms are
     upd_slots: list[int] = []
-    for s in np.unique(surv_slot).tolist():
+    for s in chosen.tolist():
         if s < 0:  # a new expert, shared by every survivor that opened one this step
-            t = model._alloc_slot()
+            t = new_target = model._alloc_slot()
             gp = model._new_gp()
             gp.update(xs, ys)
             model._gps[t] = gp
@@ -166,43 +160,36 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
             model._ids[t] = model._next_id
             model._next_id += 1
             model._npts[t] = 1
+            continue
+        src = model._gps[s]
+        assert src is not None
+        if contains[s] == chose[s]:  # nobody keeps the old version: update in place
+            t, gp = s, src
         else:
-            src = model._gps[s]
-            assert src is not None
-            if contains[s] == chose[s]:  # nobody keeps the old version: update in place
-                t, gp = s, src
-            else:
-                t = model._alloc_slot()
-                gp = src.copy(model._pool, pending)
-                model._gps[t] = gp
-                model._gates.copy_slot(t, s)
-                model._ids[t] = model._ids[s]
-            upd_gps.append(gp)
-            upd_evaluated.append(terms.get(s))
-            upd_slots.append(t)
-            model._npts[t] = model._npts[s] + 1
-        target[s] = t
+            t = model._alloc_slot()
+            gp = src.copy(model._pool, pending)
+            model._gps[t] = gp
+            model._gates.copy_slot(t, s)
+            model._ids[t] = model._ids[s]
+        upd_gps.append(gp)
+        upd_evaluated.append(terms.get(s))
+        upd_slots.append(t)
+        model._npts[t] = model._npts[s] + 1
+        sources.append(s)
+        targets.append(t)
     copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
     update_evaluated(upd_gps, xs, ys, upd_evaluated)
     if upd_slots:
         model._gates.update_many(np.array(upd_slots, dtype=np.int64), xs)
-    new_parts: list[IntArray] = []
-    chosen_ids = np.empty(keep.size, dtype=np.int64)
-    for j, (i, s, pos) in enumerate(zip(surv_parent.tolist(), surv_slot.tolist(),
-                                        surv_pos.tolist(), strict=True)):
-        t = target[s]
-        arr = parts[i]
-        if s < 0:
-            arr = np.append(arr, t)
-        elif t != s:
-            arr = arr.copy()
-            arr[pos] = t
-        new_parts.append(arr)  # particle arrays are never mutated: sharing is safe
-        chosen_ids[j] = model._ids[t]
-    # reference counts; free the slots no survivor holds
+    # the survivors, each chosen expert replaced by its updated version; the reference counts
     cap = len(model._gps)
-    new_ref = np.bincount(np.concatenate(new_parts), minlength=cap)
+    target = np.full(cap, -1, dtype=np.int64)
+    target[sources] = targets
+    new_slots, new_starts, chosen_ids, new_ref = _jit.survivor_particles(
+        model._slots, model._starts, surv_parent, surv_slot, surv_pos, target, new_target,
+        model._ids)
+    # free the slots no survivor holds
     for s in np.flatnonzero((model._ref > 0) & (new_ref == 0)).tolist():
         dropped = model._gps[s]
         if dropped is not None:
@@ -213,7 +200,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
         model._free.append(s)
     model._free.sort(reverse=True)
     model._ref = new_ref
-    model._particles = new_parts
+    model._slots, model._starts = new_slots, new_starts
     model._logw = new_logw
     model._history.append(surv_parent, chosen_ids)
     model.n_learned += 1

@@ -145,7 +145,7 @@ def reference_log_weights(model: Roger, xs: np.ndarray, ys: np.ndarray) -> list[
                              df=p.nu0 - len(xs) + 1)
     for j, w in enumerate(model.particle_log_weights()):
         row = []
-        slot_of = {int(model._ids[s]): s for s in model._particles[j].tolist()}
+        slot_of = {int(model._ids[s]): s for s in model.particle_slots(j).tolist()}
         for idx in sd["particle_experts"][offsets[j]:offsets[j + 1]]:
             eid = int(sd["expert_id"][idx])
             n_k = float(sd["expert_count"][idx])

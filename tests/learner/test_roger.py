@@ -310,7 +310,7 @@ def check_bounded(model: Roger) -> None:
     assert all(g.alloc <= p.beta for g in gps)  # buffers too
     assert model.n_unique_experts == len(gps)
     # every particle's experts are in the pool; the pool holds nothing else
-    assert model.n_unique_experts <= sum(a.size for a in model._particles)
+    assert model.n_unique_experts <= model._slots.size
 
 
 def test_memory_bounded_fast_variant() -> None:
