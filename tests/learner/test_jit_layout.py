@@ -26,12 +26,12 @@ def _flat(parts: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
             np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64))
 
 
-def _survivors(draw: st.DrawFn, parts: list[np.ndarray]
+def _survivors(data: st.DataObject, parts: list[np.ndarray]
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distinct putatives (parent, position; position == size: a new expert)."""
     choices = [(i, pos) for i, a in enumerate(parts) for pos in range(a.size + 1)]
-    picked = draw(st.lists(st.sampled_from(choices), min_size=1, max_size=len(choices),
-                           unique=True))
+    picked = data.draw(st.lists(st.sampled_from(choices), min_size=1, max_size=len(choices),
+                                unique=True))
     parent = np.array([i for i, _ in picked], dtype=np.int64)
     pos = np.array([p for _, p in picked], dtype=np.int64)
     slot = np.array([parts[i][p] if p < parts[i].size else -1 for i, p in picked],
@@ -68,7 +68,7 @@ def test_putative_layout_is_the_per_particle_concatenation(parts: list[np.ndarra
 @given(parts=particle_sets(), data=st.data())
 def test_survivor_counts_and_particles_match_the_per_particle_code(parts: list[np.ndarray],
                                                                    data: st.DataObject) -> None:
-    parent, slot, pos = _survivors(data.draw, parts)
+    parent, slot, pos = _survivors(data, parts)
     slots, starts = _flat(parts)
     contains, chose, chosen = jit_layout.survivor_counts(slots, starts, parent, slot, CAP)
     np.testing.assert_array_equal(
