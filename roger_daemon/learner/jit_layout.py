@@ -15,7 +15,8 @@ slots ``slots[starts[p]:starts[p + 1]]``.  Per step (paper Algorithm 1, docs/lea
   replaced by its updated version, their expert ids and the slots' reference counts.
 
 Integers only, but for :func:`putative_layout`'s additions, which are the very IEEE additions
-the numpy code made (tests/learner/test_jit_layout.py, against plain-Python oracles).
+the numpy code made (tests/learner/test_jit_layout.py, against the per-particle numpy code
+they replaced).
 """
 
 from __future__ import annotations

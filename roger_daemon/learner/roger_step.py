@@ -143,8 +143,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     # how many survivors contain each slot, and how many of them chose it
     contains, chose, chosen = _jit.survivor_counts(model._slots, model._starts, surv_parent,
                                                    surv_slot, len(model._gps))
-    sources: list[int] = []  # each chosen slot, and the slot of its updated version
-    targets: list[int] = []
+    sources: list[int] = []  # each chosen slot; upd_slots: the slot of its updated version
     new_target = -1
     pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
@@ -176,7 +175,6 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
         upd_slots.append(t)
         model._npts[t] = model._npts[s] + 1
         sources.append(s)
-        targets.append(t)
     copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
     update_evaluated(upd_gps, xs, ys, upd_evaluated)
@@ -185,7 +183,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     # the survivors, each chosen expert replaced by its updated version; the reference counts
     cap = len(model._gps)
     target = np.full(cap, -1, dtype=np.int64)
-    target[sources] = targets
+    target[sources] = upd_slots
     new_slots, new_starts, chosen_ids, new_ref = _jit.survivor_particles(
         model._slots, model._starts, surv_parent, surv_slot, surv_pos, target, new_target,
         model._ids)
