@@ -35,17 +35,18 @@ from roger_daemon.learner.synthetic import BENCH_SEED
 from roger_daemon.machine import finish, machine_record, speed_probe
 
 #: the experts' kernels (evaluation, update, copies), batched and one expert at a time
-KERNELS = ("terms_batch", "learn_batch", "copy_batch", "evaluate_experts", "learn_full_expert")
+EXPERT_KERNELS = ("terms_batch", "learn_batch", "copy_batch", "evaluate_experts",
+                  "learn_full_expert")
 
 
 class KernelClock:
-    """Wraps :data:`KERNELS` in :mod:`roger_daemon.learner.jit` (this process only) and adds
-    up the nanoseconds spent in them."""
+    """Wraps :data:`EXPERT_KERNELS` in :mod:`roger_daemon.learner.jit` (this process only) and
+    adds up the nanoseconds spent in them."""
 
     def __init__(self) -> None:
         lazy_jit.warm_up()
         self.ns = 0
-        for name in KERNELS:
+        for name in EXPERT_KERNELS:
             setattr(lazy_jit, name, self._timed(getattr(lazy_jit, name)))
 
     def _timed(self, kernel: Callable[..., Any]) -> Callable[..., Any]:
