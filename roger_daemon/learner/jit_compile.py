@@ -5,7 +5,8 @@ calls (and inlines) kernels of another module keeps running the old callee after
 changes (numba documents this limitation).  So the cache is tied to all the kernel modules at
 once: :func:`compiled` keeps a fingerprint of their sources in the cache directory, and where
 it does not match, drops the entries of these modules before the first one is loaded
-(docs/performance.md, *numba's cache*).
+(docs/performance.md, *numba's cache*).  The kernels are compiled for one CPU model on every
+x86-64 host that can run its code (:mod:`.jit_target`), not for the host's own.
 """
 
 from __future__ import annotations
@@ -17,6 +18,10 @@ from pathlib import Path
 from typing import Any, TypeVar, cast
 
 from numba import njit
+
+from roger_daemon.learner.jit_target import pin
+
+pin()  # before the first kernel is decorated: one CPU model's code on every host (.jit_target)
 
 __all__ = ["FINGERPRINT_FILE", "cache_dir", "compiled", "source_fingerprint"]
 
