@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 import time
 from typing import Any
 
@@ -144,14 +145,21 @@ def machine_record(*, probe: bool = True) -> dict[str, Any]:
 
 
 def finish(record: dict[str, Any]) -> dict[str, Any]:
-    """``record`` with the 1-minute load average at the end of the run and how the machine's
+    """``record`` with the 1-minute load average at the end of the run, how the machine's
     CPU time was spent since :func:`machine_record` (``cpu_time``, where ``/proc/stat`` can
-    be read)."""
+    be read), and the CPU the learner's kernels were compiled for (``kernels_cpu``, where
+    they ran: :func:`.learner.jit_target.compiled_for`)."""
     record["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
     start, end = record.pop(_CPU_TIMES_START, None), cpu_times()
     split = cpu_time_split(start, end) if start is not None and end is not None else None
     if split is not None:
         record["cpu_time"] = split
+    if "numba" in sys.modules:  # the learner ran here: what its kernels were compiled for
+        from roger_daemon.learner.jit_target import compiled_for
+
+        kernels = compiled_for()
+        if kernels is not None:  # docs/reproducibility.md
+            record["kernels_cpu"] = kernels
     return record
 
 

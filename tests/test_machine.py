@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from pathlib import Path
 
@@ -66,3 +67,30 @@ def test_the_split_is_the_share_of_each_kind_of_time() -> None:
     assert cpu_time_split(start, end) == {"busy_percent": 40.0, "idle_percent": 55.0,
                                           "steal_percent": 5.0}
     assert cpu_time_split(start, start) is None
+
+
+def test_the_record_names_what_the_learners_kernels_were_compiled_for() -> None:
+    """Absent where no kernel ran (numba not loaded); else LLVM's CPU name, the one target of
+    roger_daemon/learner/jit_target.py where it applies, and the user's with the host's
+    features otherwise."""
+    import subprocess
+    import sys
+
+    probe = ("import json, numpy as np\n"
+             "from roger_daemon.machine import finish, machine_record\n"
+             "before = finish(machine_record(probe=False))\n"
+             "from roger_daemon.learner import jit, jit_target\n"
+             "jit.kernel_vector(np.zeros((2, 3)), np.zeros(3), 1.0, 2)\n"
+             "after = finish(machine_record(probe=False))\n"
+             "print(json.dumps([before.get('kernels_cpu'), after['kernels_cpu'],"
+             " jit_target.pinned()]))\n")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")}
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                         text=True, timeout=600, check=True)
+    before, after, pinned = json.loads(out.stdout.strip().splitlines()[-1])
+    assert before is None
+    assert after == (pinned if pinned is not None else f"{after.split()[0]} (host features)")
+    mine = subprocess.run([sys.executable, "-c", probe], env={**env, "NUMBA_CPU_NAME": "generic"},
+                          capture_output=True, text=True, timeout=600, check=True)
+    assert json.loads(mine.stdout.strip().splitlines()[-1])[1] == "generic"

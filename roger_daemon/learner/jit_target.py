@@ -21,7 +21,7 @@ import os
 import platform
 from collections.abc import Mapping
 
-__all__ = ["TARGET_CPU", "TARGET_FEATURES", "kernel_target", "pin", "pinned"]
+__all__ = ["TARGET_CPU", "TARGET_FEATURES", "compiled_for", "kernel_target", "pin", "pinned"]
 
 #: LLVM's name of the CPU the kernels are compiled for
 TARGET_CPU = "haswell"
@@ -74,3 +74,22 @@ def pinned() -> str | None:
     if name == TARGET_CPU and features == "":
         return TARGET_CPU
     return None
+
+
+def compiled_for() -> str | None:
+    """What this process's kernels are compiled for, for a run's record: LLVM's CPU name, with
+    `` (host features)`` when numba adds the host's features to it (its default); ``None``
+    where numba is not loaded (no kernel has run)."""
+    import sys
+
+    if "numba" not in sys.modules:
+        return None
+    from numba.core import config
+
+    name = config.CPU_NAME  # type: ignore[attr-defined]
+    if name is None:
+        import llvmlite.binding as llvm
+
+        name = llvm.get_host_cpu_name()
+    own = config.CPU_FEATURES == ""  # type: ignore[attr-defined]
+    return str(name) if own else f"{name} (host features)"
