@@ -164,7 +164,8 @@ def finish(record: dict[str, Any]) -> dict[str, Any]:
 
 
 def describe(record: dict[str, Any]) -> str:
-    """One line for a benchmark's table: CPU, load start -> end, the speed probe."""
+    """One line for a benchmark's table: CPU, load start -> end, the speed probe, stolen CPU
+    time, what the learner's kernels were compiled for."""
     text = f"{record['cpu']}, {record['cpus']} CPUs, load {record['load_avg_1m_start']}"
     if "load_avg_1m_end" in record:
         text += f" -> {record['load_avg_1m_end']}"
@@ -173,4 +174,6 @@ def describe(record: dict[str, Any]) -> str:
         text += f", speed probe: Python {probe['python_ms']} ms, memory {probe['memory_ms']} ms"
     if "cpu_time" in record:
         text += f", CPU stolen {record['cpu_time']['steal_percent']} %"
+    if "kernels_cpu" in record:
+        text += f", kernels for {record['kernels_cpu']}"
     return text

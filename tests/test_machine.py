@@ -94,3 +94,5 @@ def test_the_record_names_what_the_learners_kernels_were_compiled_for() -> None:
     mine = subprocess.run([sys.executable, "-c", probe], env={**env, "NUMBA_CPU_NAME": "generic"},
                           capture_output=True, text=True, timeout=600, check=True)
     assert json.loads(mine.stdout.strip().splitlines()[-1])[1] == "generic"
+    assert describe({"cpu": "x", "cpus": 2, "load_avg_1m_start": 0.5,
+                     "kernels_cpu": "haswell"}).endswith(", kernels for haswell")
