@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 from collections.abc import Mapping
 
 __all__ = ["TARGET_CPU", "TARGET_FEATURES", "compiled_for", "kernel_target", "pin", "pinned"]
@@ -66,22 +67,14 @@ def pin() -> str | None:
 
 def pinned() -> str | None:
     """The CPU this process's kernels are compiled for when :func:`pin` chose it, else
-    ``None`` (numba's default: the host, or what the user set)."""
-    from numba.core import config
-
-    name = config.CPU_NAME  # type: ignore[attr-defined]
-    features = config.CPU_FEATURES  # type: ignore[attr-defined]
-    if name == TARGET_CPU and features == "":
-        return TARGET_CPU
-    return None
+    ``None`` (numba's default: the host, or what the user set; or numba not loaded)."""
+    return TARGET_CPU if compiled_for() == TARGET_CPU else None
 
 
 def compiled_for() -> str | None:
     """What this process's kernels are compiled for, for a run's record: LLVM's CPU name, with
     `` (host features)`` when numba adds the host's features to it (its default); ``None``
     where numba is not loaded (no kernel has run)."""
-    import sys
-
     if "numba" not in sys.modules:
         return None
     from numba.core import config
