@@ -9,7 +9,8 @@ accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles e
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
 
 The batched kernels (:mod:`.jit_batch`) take several experts per call and run them on
-:func:`set_threads` threads; :func:`padded` builds their tuples of :data:`WIDTH` buffers.
+:func:`set_threads` threads; :func:`padded` builds their tuples of :data:`WIDTH` buffers
+(:data:`EVALUATION_WIDTH` for the evaluation's).
 """
 
 from __future__ import annotations
@@ -21,9 +22,9 @@ from typing import Any
 
 import numpy.typing as npt
 
-__all__ = ["BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "FUSED", "KEPT", "KERNELS", "SMALL",
-           "WIDTH", "batch_worth", "compiled_signatures", "padded", "set_threads", "threads",
-           "use_threads", "warm_up"]
+__all__ = ["BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "EVALUATION_WIDTH", "FUSED", "KEPT",
+           "KERNELS", "SMALL", "WIDTH", "batch_worth", "compiled_signatures", "padded",
+           "set_threads", "threads", "use_threads", "warm_up"]
 
 #: up to this many basis vectors ``Q`` is re-inverted by the compiled Cholesky
 #: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK.  (Expert evaluation and ``Q k``
@@ -32,8 +33,15 @@ SMALL = 64
 
 #: experts per call of a batched kernel (:mod:`.jit_batch`): its buffers come as tuples of
 #: exactly this many arrays, so each kernel has one compiled signature; at the paper's
-#: parameters a step makes two calls for its 20 distinct experts and one for its ~10 updates
+#: parameters a step's ~10 updates make one call
 WIDTH = 16
+
+#: experts per call of the evaluation's kernels (:func:`.jit_batch.terms_batch`,
+#: :func:`.jit_evaluate.evaluate_experts`): a step's ~20 distinct experts at the paper's
+#: parameters in one call, so one parallel region.  Each region ends when every thread has
+#: finished, and in this project's hosts' slow spells a region costs ~50 µs more than its
+#: work (docs/performance.md, *One parallel region for the evaluation*)
+EVALUATION_WIDTH = 32
 
 #: below this many packed matrix entries per call (~2 full experts at the paper's beta = 300)
 #: the experts go one at a time: a parallel call's start-up then costs more than splitting the
@@ -89,11 +97,13 @@ def __getattr__(name: str) -> Any:
     return globals()[name]
 
 
-def padded(arrays: Sequence[npt.NDArray[Any]], start: int) -> tuple[npt.NDArray[Any], ...]:
-    """``arrays[start:start + WIDTH]`` as a tuple of exactly :data:`WIDTH` arrays, the last
-    one repeated (a batched kernel reads only its first ``count``)."""
-    chunk = tuple(arrays[start: start + WIDTH])
-    return chunk + (chunk[-1],) * (WIDTH - len(chunk))
+def padded(arrays: Sequence[npt.NDArray[Any]], start: int, width: int = WIDTH
+           ) -> tuple[npt.NDArray[Any], ...]:
+    """``arrays[start:start + width]`` as a tuple of exactly ``width`` arrays (:data:`WIDTH`
+    or :data:`EVALUATION_WIDTH`), the last one repeated (a batched kernel reads only its
+    first ``count``)."""
+    chunk = tuple(arrays[start: start + width])
+    return chunk + (chunk[-1],) * (width - len(chunk))
 
 
 def set_threads(count: int | None) -> None:

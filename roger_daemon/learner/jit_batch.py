@@ -3,12 +3,13 @@
 A learner step evaluates every distinct expert on the new point and then updates each chosen
 one (paper Algorithm 1; docs/learner-math.md §4).  The experts are independent, so these
 kernels run the per-expert bodies of :mod:`.jit_kernels` and :mod:`.jit_fused` for up to
-:data:`.jit.WIDTH` experts per call, one expert per iteration of a parallel loop: each expert's
-floats are computed by one thread, in the same order whatever the number of threads, so the
-results do not depend on it (tested; docs/performance.md, *Both cores in one step*).
+:data:`.jit.WIDTH` experts per call (the evaluation's :data:`.jit.EVALUATION_WIDTH`), one
+expert per iteration of a parallel loop: each expert's floats are computed by one thread, in
+the same order whatever the number of threads, so the results do not depend on it (tested;
+docs/performance.md, *Both cores in one step*).
 
-The experts' buffers come as tuples of exactly :data:`.jit.WIDTH` arrays (:func:`.jit.padded`),
-so each kernel has one compiled signature whatever the number of experts; only the first
+The experts' buffers come as tuples of exactly that many arrays (:func:`.jit.padded`), so
+each kernel has one compiled signature whatever the number of experts; only the first
 ``count`` entries are read.  The number of threads is set by :func:`.jit.set_threads`.
 """
 

@@ -4,12 +4,13 @@ docs/learner-math.md §4) and a prediction's multimap (Algorithm 2, §6).
 Both evaluate many small experts at one point: the AIBO experiment's ~25 experts of ~10 basis
 vectors cost ~1.5 µs of compiled work each but ~7–10 µs each through
 :meth:`.sogp.SparseOnlineGP.terms` (a call, slicing, a tuple).  :func:`evaluate_experts` runs
-the same kernel, :func:`.jit_kernels.expert_terms`, for up to :data:`.jit.WIDTH` experts per
-call and finishes each expert's mean and latent variance as :meth:`.sogp.SparseOnlineGP.terms`
-does, operation for operation (:func:`evaluate_expert`), so the floats are its, bit for bit
-(tests/learner/test_jit_batch.py for a step's evaluation, tests/learner/test_jit.py for a
-prediction's).  One thread: the experts are small; large experts on several
-threads go to :func:`.jit_batch.terms_batch`, which runs :func:`evaluate_expert` too.
+the same kernel, :func:`.jit_kernels.expert_terms`, for up to :data:`.jit.EVALUATION_WIDTH`
+experts per call and finishes each expert's mean and latent variance as
+:meth:`.sogp.SparseOnlineGP.terms` does, operation for operation (:func:`evaluate_expert`), so
+the floats are its, bit for bit (tests/learner/test_jit_batch.py for a step's evaluation,
+tests/learner/test_jit.py for a prediction's).  One thread: the experts are small; large
+experts on several threads go to :func:`.jit_batch.terms_batch`, which runs
+:func:`evaluate_expert` too.
 """
 
 from __future__ import annotations

@@ -79,13 +79,17 @@ def _warm_evaluation() -> None:
     k.sym_matvec(sym, np.zeros(N), N, N)
     k.expert_terms(basis, sym, np.zeros((N, 1)), np.zeros(1), 1.0, N, N)
     jit.use_threads()
-    ints = np.full(jit.WIDTH, N, dtype=np.int64)
+    width = jit.EVALUATION_WIDTH
+    ints = np.full(width, N, dtype=np.int64)
     coef = np.zeros((N, 1))
-    pad = jit.padded
+
+    def pad(array: FloatArray) -> tuple[FloatArray, ...]:
+        return jit.padded([array], 0, width)
+
     for kernel in (bk.terms_batch, ek.evaluate_experts):
-        kernel(pad([basis], 0), pad([sym], 0), pad([coef], 0), pad([np.zeros(1)], 0), 1, ints,
-               ints, np.zeros(1), 1.0, 1.0, 1e-12, True, np.zeros(2 * N + 2),
-               np.zeros(jit.WIDTH, dtype=np.int64), np.empty((1, 1)), np.empty(1))
+        kernel(pad(basis), pad(sym), pad(coef), pad(np.zeros(1)), 1, ints, ints, np.zeros(1),
+               1.0, 1.0, 1e-12, True, np.zeros(2 * N + 2), np.zeros(width, dtype=np.int64),
+               np.empty((1, 1)), np.empty(1))
 
 
 def _warm_resampling() -> None:

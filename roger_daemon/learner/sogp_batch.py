@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from itertools import accumulate
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -82,38 +83,42 @@ class Evaluation:
 
 def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     """Every expert of ``gps`` (all of one model: one kernel and prior-mean setting) at
-    ``x``: by compiled calls of up to :data:`.jit.WIDTH` experts each, on one thread
-    (:func:`.jit_evaluate.evaluate_experts`) or, when :func:`.jit.batch_worth` says the
+    ``x``: by compiled calls of up to :data:`.jit.EVALUATION_WIDTH` experts each, on one
+    thread (:func:`.jit_evaluate.evaluate_experts`) or, when :func:`.jit.batch_worth` says the
     experts are large enough for the threads, spread over them
     (:func:`.jit_batch.terms_batch`); the same floats as each expert's own ``terms``."""
     m = len(gps)
-    columns = list(zip(*[(gp.n, gp._alloc, gp._B, gp._Cp, gp._A, gp._m) for gp in gps],
-                       strict=True))
-    if m == 0 or 0 in columns[0]:  # an expert without basis vectors answers with its prior
+    ns = [gp.n for gp in gps]
+    if m == 0 or 0 in ns:  # an expert without basis vectors answers with its prior
         each = [gp.terms(x) for gp in gps]
         return Evaluation(gps, np.array([t[2] for t in each]),
                           np.array([t[3] for t in each], dtype=np.float64), np.empty(0),
                           np.zeros(m, dtype=np.int64), list(each))
-    ns, allocs, bases, covs, coefs, priors = columns
     first = gps[0]
     cols = 1 + first.a_cols  # every expert of one model has as many output columns
-    ns_arr = np.array(ns, dtype=np.int64)
-    allocs_arr = np.array(allocs, dtype=np.int64)
-    ends = np.cumsum(2 * ns_arr + cols)
-    offsets = ends - (2 * ns_arr + cols)  # where each expert's terms start in ``packed``
-    packed = np.empty(int(ends[-1]))
+    sizes = [2 * n + cols for n in ns]  # each expert's terms, one after the other in ``packed``
+    offsets = np.fromiter(accumulate(sizes, initial=0), dtype=np.int64, count=m + 1)
+    packed = np.empty(int(offsets[m]))
     means = np.empty((m, first.d_y))
     latent = np.empty(m)
     kernel = first.kernel
-    batched = _jit.batch_worth(int(ns_arr @ (ns_arr + 1)) // 2)  # packed entries in all
+    batched = _jit.batch_worth(sum(n * (n + 1) for n in ns) // 2)  # packed entries in all
     call = _jit.terms_batch if batched else _jit.evaluate_experts
+    ns_arr = np.array(ns, dtype=np.int64)
+    allocs = np.array([gp._alloc for gp in gps], dtype=np.int64)
+    bases = [gp._B for gp in gps]
+    covs = [gp._Cp for gp in gps]
+    coefs = [gp._A for gp in gps]
+    priors = [gp._m for gp in gps]
     with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
-        for lo in range(0, m, _jit.WIDTH):
-            hi = min(lo + _jit.WIDTH, m)
-            call(_jit.padded(bases, lo), _jit.padded(covs, lo), _jit.padded(coefs, lo),
-                 _jit.padded(priors, lo), hi - lo, ns_arr[lo:hi], allocs_arr[lo:hi], x,
-                 kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed,
-                 offsets[lo:hi], means[lo:hi], latent[lo:hi])
+        width = _jit.EVALUATION_WIDTH
+        for lo in range(0, m, width):
+            hi = min(lo + width, m)
+            call(_jit.padded(bases, lo, width), _jit.padded(covs, lo, width),
+                 _jit.padded(coefs, lo, width), _jit.padded(priors, lo, width), hi - lo,
+                 ns_arr[lo:hi], allocs[lo:hi], x, kernel.gamma, kernel.k_star, _LATENT_FLOOR,
+                 first.prior_mean, packed, offsets[lo:hi], means[lo:hi], latent[lo:hi])
+    offsets = offsets[:m]
     return Evaluation(gps, means, latent, packed, offsets, [None] * m)
 
 

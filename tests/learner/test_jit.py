@@ -330,17 +330,17 @@ def test_the_small_reinversion_is_the_gram_cholesky_and_packing_it_replaced() ->
 @pytest.mark.parametrize("prior_mean", [True, False])
 def test_the_batched_prediction_is_each_experts_own_bit_for_bit(prior_mean: bool) -> None:
     """Oracle: ``SparseOnlineGP.predict`` of each expert on its own. ``predict_many`` (one
-    compiled call per 16 experts) gives the same means and variances, to the bit, for more
-    experts than one call takes, of different sizes, an input far from every basis vector, and
-    an expert with no basis vector (its prior)."""
-    from roger_daemon.learner.jit import WIDTH
+    compiled call per ``EVALUATION_WIDTH`` experts) gives the same means and variances, to the
+    bit, for more experts than one call takes, of different sizes, an input far from every
+    basis vector, and an expert with no basis vector (its prior)."""
+    from roger_daemon.learner.jit import EVALUATION_WIDTH
     from roger_daemon.learner.sogp import SparseOnlineGP
     from roger_daemon.learner.sogp_batch import predict_many
 
     rng = np.random.default_rng(11)
     d_x, d_y = 4, 3
     gps = []
-    for j in range(WIDTH + 5):
+    for j in range(EVALUATION_WIDTH + 5):
         gp = SparseOnlineGP(d_x, d_y, RBFKernel(0.5, d_x), noise=0.05, capacity=12,
                             prior_mean=prior_mean)
         for _ in range(1 + j % 17):  # 1 to 17 points: some experts full, some deleting

@@ -45,17 +45,17 @@ def _same_state(a: SparseOnlineGP, b: SparseOnlineGP) -> None:
 @pytest.mark.parametrize("threads", [1, 2])
 def test_batched_evaluation_is_each_experts_own(threads: int) -> None:
     """``evaluate_many`` on one thread (:func:`.jit_evaluate.evaluate_experts`) and on two
-    (:func:`.jit_batch.terms_batch`), 20 experts (more than one call of ``WIDTH``; sizes from
-    one basis vector to full at 12, with and without a prior mean) == ``gp.terms``, bit for
-    bit: the means, the latent variances and every expert's full terms; with an empty expert
-    among them, each is evaluated on its own, the same floats."""
+    (:func:`.jit_batch.terms_batch`), 40 experts (more than one call of ``EVALUATION_WIDTH``;
+    sizes from one basis vector to full at 12, with and without a prior mean) == ``gp.terms``,
+    bit for bit: the means, the latent variances and every expert's full terms; with an empty
+    expert among them, each is evaluated on its own, the same floats."""
     jit.set_threads(threads)
     live = [_expert(n, seed, prior_mean=seed % 3 == 0)
-            for seed, n in enumerate([1, 5, 12, 40, 60] * 4)]
+            for seed, n in enumerate([1, 5, 12, 40, 60] * 8)]
     x = np.array([0.1, -0.3, 0.7])
     for experts in (live, [*live[:3], _expert(0, 7), *live[3:]]):
         got = evaluate_many(experts, x)
-        assert len(experts) > jit.WIDTH
+        assert len(experts) > jit.EVALUATION_WIDTH
         for j, gp in enumerate(experts):
             k0, ck0, mean0, latent0 = gp.terms(x)
             k, ck, mean, latent = got.terms(j)
