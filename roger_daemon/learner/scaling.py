@@ -11,6 +11,8 @@ the gates and the kernel see ``x_m = (w * x_s)[w != 0]`` (``params.model_dims(d_
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -19,10 +21,14 @@ from roger_daemon.learner.params import RogerParams
 __all__ = ["AffineScaling", "as_vector"]
 
 FloatArray = npt.NDArray[np.float64]
+_FLOAT64 = np.dtype(np.float64)
 
 
 def as_vector(name: str, value: object, dim: int) -> FloatArray:
     """``value`` as a finite float64 vector of length ``dim``, else ``ValueError``."""
+    if (type(value) is np.ndarray and value.dtype is _FLOAT64 and value.shape == (dim,)
+            and all(map(math.isfinite, value.tolist()))):
+        return value  # what the checks below return for it, without numpy's calls
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
