@@ -107,9 +107,10 @@ def gram_matrix(basis: FloatArray, gamma: float, n: int) -> FloatArray:
 def sym_matvec_into(buf: FloatArray, v: FloatArray, n: int, alloc: int, out: FloatArray) -> None:
     """``out[:n] = S v`` for the symmetric ``S`` packed in ``buf`` (:mod:`.packed`): one
     streaming pass over the upper triangle of the live block, each stored ``S_ij`` used for
-    row ``i`` (a dot product) and row ``j`` (an axpy).  Two rows at a time, so that each
-    load and store of the axpy's accumulator serves two rows (1.2x cache-cold, 1.5x cached
-    against one row at a time: /tmp micro-benchmark, 2026-11-25, issue 11).
+    row ``i`` (a dot product) and row ``j`` (an axpy).  Four rows at a time
+    (:func:`_four_rows`), so that each load and store of the axpy's accumulator serves four
+    rows (1.2x against two rows at a time, which was 1.2x cache-cold and 1.5x cached against
+    one: docs/performance.md, *Four rows per pass*); the last rows two and one at a time.
 
     A ``v`` that is exactly zero (an expert far from the point: with a narrow kernel every
     ``exp`` underflows) gives ``out = 0`` without reading ``S``: the same floats, since every
@@ -124,7 +125,10 @@ def sym_matvec_into(buf: FloatArray, v: FloatArray, n: int, alloc: int, out: Flo
         return
     off = 0
     i = 0
-    while i + 1 < n:
+    while i + 3 < n:
+        off = _four_rows(buf, v, n, alloc, out, i, off)
+        i += 4
+    if i + 1 < n:
         r0 = buf[off: off + n - i]  # S[i, i:n]
         off1 = off + alloc - i
         r1 = buf[off1: off1 + n - i - 1]  # S[i+1, i+1:n]
@@ -133,23 +137,65 @@ def sym_matvec_into(buf: FloatArray, v: FloatArray, n: int, alloc: int, out: Flo
         s0 = r0[0] * v0 + r0[1] * v1
         s1 = r1[0] * v1
         out[i + 1] += r0[1] * v0
-        t0 = r0[2:]
-        t1 = r1[1:]
-        tail = v[i + 2:n]
-        acc = out[i + 2:n]
-        for j in range(n - i - 2):
-            a = t0[j]
-            b = t1[j]
-            t = tail[j]
+        if i + 2 < n:  # one row below: S[i, n-1] and S[i+1, n-1]
+            a = r0[2]
+            b = r1[1]
+            t = v[i + 2]
             s0 += a * t
             s1 += b * t
-            acc[j] += a * v0 + b * v1
+            out[i + 2] += a * v0 + b * v1
         out[i] += s0
         out[i + 1] += s1
         off = off1 + alloc - i - 1
         i += 2
     if i < n:  # the last row of an odd n: its diagonal entry only
         out[i] += buf[off] * v[i]
+
+
+@_compiled(fastmath=_FM, nogil=True, inline="always")
+def _four_rows(buf: FloatArray, v: FloatArray, n: int, alloc: int, out: FloatArray, i: int,
+               off: int) -> int:
+    """Rows ``i`` to ``i + 3`` of :func:`sym_matvec_into` (row ``i`` packed at ``off``):
+    their 4 x 4 diagonal block, then one pass over their columns ``j >= i + 4`` that adds
+    ``S_rj v_j`` to each row's dot product and ``sum_r S_rj v_r`` to ``out[j]``; returns
+    where row ``i + 4`` starts."""
+    off1 = off + alloc - i
+    off2 = off1 + alloc - i - 1
+    off3 = off2 + alloc - i - 2
+    r0 = buf[off: off + n - i]  # S[i, i:n]
+    r1 = buf[off1: off1 + n - i - 1]  # S[i+1, i+1:n]
+    r2 = buf[off2: off2 + n - i - 2]
+    r3 = buf[off3: off3 + n - i - 3]
+    v0 = v[i]
+    v1 = v[i + 1]
+    v2 = v[i + 2]
+    v3 = v[i + 3]
+    s0 = r0[0] * v0 + r0[1] * v1 + r0[2] * v2 + r0[3] * v3
+    s1 = r0[1] * v0 + r1[0] * v1 + r1[1] * v2 + r1[2] * v3
+    s2 = r0[2] * v0 + r1[1] * v1 + r2[0] * v2 + r2[1] * v3
+    s3 = r0[3] * v0 + r1[2] * v1 + r2[1] * v2 + r3[0] * v3
+    t0 = r0[4:]
+    t1 = r1[3:]
+    t2 = r2[2:]
+    t3 = r3[1:]
+    tail = v[i + 4:n]
+    acc = out[i + 4:n]
+    for j in range(n - i - 4):
+        a = t0[j]
+        b = t1[j]
+        c = t2[j]
+        d = t3[j]
+        t = tail[j]
+        s0 += a * t
+        s1 += b * t
+        s2 += c * t
+        s3 += d * t
+        acc[j] += a * v0 + b * v1 + c * v2 + d * v3
+    out[i] += s0
+    out[i + 1] += s1
+    out[i + 2] += s2
+    out[i + 3] += s3
+    return off3 + alloc - i - 3
 
 
 @_compiled(fastmath=_FM, nogil=True)
