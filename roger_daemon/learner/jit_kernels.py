@@ -110,7 +110,8 @@ def sym_matvec_into(buf: FloatArray, v: FloatArray, n: int, alloc: int, out: Flo
     row ``i`` (a dot product) and row ``j`` (an axpy).  Four rows at a time
     (:func:`_four_rows`), so that each load and store of the axpy's accumulator serves four
     rows (1.2x against two rows at a time, which was 1.2x cache-cold and 1.5x cached against
-    one: docs/performance.md, *Four rows per pass*); the last rows two and one at a time.
+    one: docs/performance.md, *One parallel region for the evaluation; four rows per pass*);
+    the last rows two and one at a time.
 
     A ``v`` that is exactly zero (an expert far from the point: with a narrow kernel every
     ``exp`` underflows) gives ``out = 0`` without reading ``S``: the same floats, since every
