@@ -64,6 +64,29 @@ def test_batched_evaluation_is_each_experts_own(threads: int) -> None:
             assert latent == latent0 == got.latent[j]
 
 
+@pytest.mark.parametrize(("experts", "calls"), [(1, 1), (20, 1), (32, 1), (33, 2), (65, 3)])
+def test_the_evaluation_takes_up_to_evaluation_width_experts_per_call(
+        monkeypatch: pytest.MonkeyPatch, experts: int, calls: int) -> None:
+    """One batched call (one parallel region) per ``EVALUATION_WIDTH`` experts: a step's ~20
+    distinct experts at the paper's parameters make one, not 16 + 4 (docs/performance.md, *One
+    parallel region for the evaluation*)."""
+    jit.set_threads(2)
+    made: list[int] = []
+    kernel = jit.terms_batch
+
+    def counted(*args: object) -> None:
+        made.append(int(args[4]))  # count: the experts this call evaluates
+        kernel(*args)
+
+    monkeypatch.setattr(jit, "terms_batch", counted)
+    gps = [_expert(5 + seed % 7, seed) for seed in range(experts)]
+    got = evaluate_many(gps, np.array([0.2, -0.1, 0.4]))
+    assert len(made) == calls and sum(made) == experts
+    assert max(made) <= jit.EVALUATION_WIDTH == 32
+    for j in (0, experts - 1):
+        np.testing.assert_array_equal(got.means[j], gps[j].terms(np.array([0.2, -0.1, 0.4]))[2])
+
+
 def _learn_stream(threads: int, points: int = 160) -> Roger:
     jit.set_threads(threads)
     s = subtask_stream(points, seed=4)
