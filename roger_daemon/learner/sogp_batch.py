@@ -110,8 +110,8 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     covs = [gp._Cp for gp in gps]
     coefs = [gp._A for gp in gps]
     priors = [gp._m for gp in gps]
+    width = _jit.EVALUATION_WIDTH
     with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
-        width = _jit.EVALUATION_WIDTH
         for lo in range(0, m, width):
             hi = min(lo + width, m)
             call(_jit.padded(bases, lo, width), _jit.padded(covs, lo, width),
