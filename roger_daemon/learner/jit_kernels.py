@@ -292,7 +292,12 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
                  gamma: float, n: int, alloc: int) -> FloatArray:
     """``[k, C k, k^T C k, k^T A]`` over the live ``n`` rows (every column of ``A``; ``C``
     packed for ``alloc`` basis vectors), packed in one array of length ``2 n + 1 + cols``
-    (one boxed result: each costs a numba unpickle)."""
+    (one boxed result: each costs a numba unpickle).
+
+    ``k^T A`` skips the rows whose kernel value is exactly zero (at the paper's parameters
+    about half of all entries: docs/performance.md, *Zero kernel vectors*): the same floats,
+    since such a row adds a signed zero to an accumulator that starts at ``+0.0`` and so is
+    never ``-0.0``."""
     cols = coef.shape[1]
     out = np.zeros(2 * n + 1 + cols)
     d = basis.shape[1]
@@ -312,8 +317,9 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
     base = 2 * n + 1
     for i in range(n):
         ki = out[i]
-        for c in range(cols):
-            out[base + c] += ki * coef[i, c]
+        if ki != 0.0:
+            for c in range(cols):
+                out[base + c] += ki * coef[i, c]
     return out
 
 

@@ -41,6 +41,36 @@ def test_kernel_vector_and_expert_terms_match_numpy(n: int) -> None:
     np.testing.assert_allclose(out[2 * n + 1:], k @ coef[:n], rtol=1e-12, atol=1e-14)
 
 
+def test_the_mean_skips_zero_kernel_values_bit_for_bit() -> None:
+    """``k^T A`` in :func:`.jit_kernels.expert_terms` skips the rows whose kernel value is
+    exactly zero: the same bits as the loop over every row compiled with the same flags (the
+    oracle below), for kernel vectors with many zeros, some negative coefficients whose
+    products are ``-0.0``, and an all-zero one."""
+    from numba import njit
+
+    @njit(fastmath={"reassoc", "contract"})
+    def every_row(k: np.ndarray, coef: np.ndarray) -> np.ndarray:
+        out = np.zeros(coef.shape[1])
+        for i in range(k.shape[0]):
+            for c in range(coef.shape[1]):
+                out[c] += k[i] * coef[i, c]
+        return out
+
+    rng = np.random.default_rng(5)
+    n, alloc, d = 60, 64, 3
+    basis = rng.normal(size=(alloc, d)) * 4.0  # far apart: many kernel values underflow to 0
+    coef = rng.normal(size=(alloc, 4))
+    cov = np.zeros(packed.packed_size(alloc))
+    zeros_seen = 0
+    for x in [*rng.normal(size=(20, d)) * 4.0, np.full(d, 1e3)]:
+        out = jit.expert_terms(basis, cov, coef, x, 40.0, n, alloc)
+        k = out[:n]
+        zeros_seen += int(np.sum(k == 0.0))
+        want = every_row(k, coef[:n])
+        assert out[2 * n + 1:].tobytes() == want.tobytes()
+    assert zeros_seen > n  # the skip was exercised (the last input alone gives n zeros)
+
+
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 6, 7, 40, 300])
 def test_sym_matvec_and_large_expert_terms_match_numpy(n: int) -> None:
     """Both compiled products also serve beta = 300 experts (no BLAS branch above 64 BVs);
