@@ -97,8 +97,9 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     first = gps[0]
     cols = 1 + first.a_cols  # every expert of one model has as many output columns
     sizes = [2 * n + cols for n in ns]  # each expert's terms, one after the other in ``packed``
-    offsets = np.fromiter(accumulate(sizes, initial=0), dtype=np.int64, count=m + 1)
-    packed = np.empty(int(offsets[m]))
+    bounds = np.fromiter(accumulate(sizes, initial=0), dtype=np.int64, count=m + 1)
+    offsets = bounds[:m]  # where each expert's terms start in ``packed``
+    packed = np.empty(int(bounds[m]))
     means = np.empty((m, first.d_y))
     latent = np.empty(m)
     kernel = first.kernel
@@ -118,7 +119,6 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
                  _jit.padded(coefs, lo, width), _jit.padded(priors, lo, width), hi - lo,
                  ns_arr[lo:hi], allocs[lo:hi], x, kernel.gamma, kernel.k_star, _LATENT_FLOOR,
                  first.prior_mean, packed, offsets[lo:hi], means[lo:hi], latent[lo:hi])
-    offsets = offsets[:m]
     return Evaluation(gps, means, latent, packed, offsets, [None] * m)
 
 
