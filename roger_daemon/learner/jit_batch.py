@@ -8,9 +8,10 @@ expert per iteration of a parallel loop: each expert's floats are computed by on
 the same order whatever the number of threads, so the results do not depend on it (tested;
 docs/performance.md, *Both cores in one step*).
 
-The experts' buffers come as tuples of exactly that many arrays (:func:`.jit.padded`), so
-each kernel has one compiled signature whatever the number of experts; only the first
-``count`` entries are read.  The number of threads is set by :func:`.jit.set_threads`.
+The experts come as a tuple of exactly that many slabs (:func:`.jit.padded`; each expert's
+buffers in one array, :mod:`.jit_slab`), so each kernel has one compiled signature whatever
+the number of experts; only the first ``count`` entries are read.  The number of threads is
+set by :func:`.jit.set_threads`.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from numba import prange
 
 from roger_daemon.learner.jit import DRIFTED, FUSED, KEPT
 from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_evaluate import evaluate_expert
+from roger_daemon.learner.jit_evaluate import evaluate_slab, slab_views
 from roger_daemon.learner.jit_fused import fused_step
 from roger_daemon.learner.jit_kernels import (
     keeps_basis_vectors,
@@ -39,18 +40,15 @@ IntArray = npt.NDArray[np.int64]
 
 
 @_compiled(parallel=True, nogil=True)
-def terms_batch(bases: tuple[FloatArray, ...], covs: tuple[FloatArray, ...],
-                coefs: tuple[FloatArray, ...], priors: tuple[FloatArray, ...], count: int,
-                ns: IntArray, allocs: IntArray, x: FloatArray, gamma: float, k_star: float,
-                floor: float, prior_mean: bool, out: FloatArray, offsets: IntArray,
-                means: FloatArray, latent: FloatArray) -> None:
+def terms_batch(slabs: tuple[FloatArray, ...], count: int, ns: IntArray, x: FloatArray,
+                gamma: float, k_star: float, floor: float, prior_mean: bool, out: FloatArray,
+                offsets: IntArray, means: FloatArray, latent: FloatArray) -> None:
     """:func:`.jit_evaluate.evaluate_experts` with the experts spread over the threads: expert
     ``e``'s ``[k, C k, k^T C k, k^T A]`` written at ``out[offsets[e]:]``, its predictive mean
     into ``means[e]``, its latent variance into ``latent[e]``."""
     for e in prange(count):
-        latent[e] = evaluate_expert(bases[e], covs[e], coefs[e], priors[e], ns[e], allocs[e],
-                                    x, gamma, k_star, floor, prior_mean, out, offsets[e],
-                                    means[e])
+        latent[e] = evaluate_slab(slabs[e], ns[e], x, gamma, k_star, floor, prior_mean, out,
+                                  offsets[e], means[e])
 
 
 @_compiled(nogil=True)
@@ -91,15 +89,14 @@ def learn_full_expert(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbu
 
 
 @_compiled(parallel=True, nogil=True)
-def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
-                cbufs: tuple[FloatArray, ...], qbufs: tuple[FloatArray, ...], count: int,
-                x: FloatArray, terms: FloatArray, starts: IntArray, dgs: FloatArray,
-                qs: FloatArray, rs: FloatArray, cw: FloatArray, rule: FloatArray,
-                e_hats: FloatArray, gammas: FloatArray, outcomes: IntArray, diags: FloatArray,
-                dqs: FloatArray, dq_mins: FloatArray, dq_argmaxes: IntArray,
-                margins: FloatArray, clean: npt.NDArray[np.bool_]) -> None:
-    """:func:`learn_full_expert` of each of the first ``count`` full experts (``n`` basis
-    vectors each, the width of ``e_hats``), one row or entry each of the per-expert inputs
+def learn_batch(slabs: tuple[FloatArray, ...], count: int, x: FloatArray, terms: FloatArray,
+                starts: IntArray, dgs: FloatArray, qs: FloatArray, rs: FloatArray,
+                cw: FloatArray, rule: FloatArray, e_hats: FloatArray, gammas: FloatArray,
+                outcomes: IntArray, diags: FloatArray, dqs: FloatArray, dq_mins: FloatArray,
+                dq_argmaxes: IntArray, margins: FloatArray, clean: npt.NDArray[np.bool_]) -> None:
+    """:func:`learn_full_expert` of each of the first ``count`` full experts, given by their
+    slabs (:mod:`.jit_slab`; ``n`` basis vectors in buffers for ``n``, ``n`` the width of
+    ``e_hats``), one row or entry each of the per-expert inputs
     (``dgs``, ``qs``, ``rs``) and results (``e_hats``, ``diags``, ``dqs``; ``outcomes``,
     ``gammas``, ``dq_mins``, ``dq_argmaxes``, ``margins``, ``clean``); expert ``e``'s kernel
     vector and ``C k`` are ``terms[starts[e]:]`` and ``terms[starts[e] + n:]`` (an
@@ -107,8 +104,9 @@ def learn_batch(bases: tuple[FloatArray, ...], coefs: tuple[FloatArray, ...],
     n = e_hats.shape[1]
     for e in prange(count):
         at = starts[e]
+        cbuf, qbuf, basis, coef, _ = slab_views(slabs[e])
         outcome, gamma, dq_min, dq_argmax, margin, kept = learn_full_expert(
-            bases[e], coefs[e], cbufs[e], qbufs[e], x, terms[at: at + n],
+            basis, coef, cbuf, qbuf, x, terms[at: at + n],
             terms[at + n: at + 2 * n], dgs[e], qs[e], rs[e], cw, rule, e_hats[e], diags[e],
             dqs[e])
         outcomes[e] = outcome

@@ -18,10 +18,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner import jit_slab
 from roger_daemon.learner.jit_compile import compiled as _compiled
 from roger_daemon.learner.jit_kernels import expert_terms
 
-__all__ = ["evaluate_expert", "evaluate_experts"]
+__all__ = ["evaluate_expert", "evaluate_experts", "evaluate_slab", "slab_views"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -52,15 +53,40 @@ def evaluate_expert(basis: FloatArray, cov: FloatArray, coef: FloatArray, prior:
     return latent
 
 
+_slab_offsets = _compiled(nogil=True)(jit_slab.slab_offsets)
+
+
 @_compiled(nogil=True)
-def evaluate_experts(bases: tuple[FloatArray, ...], covs: tuple[FloatArray, ...],
-                     coefs: tuple[FloatArray, ...], priors: tuple[FloatArray, ...], count: int,
-                     ns: IntArray, allocs: IntArray, x: FloatArray, gamma: float,
-                     k_star: float, floor: float, prior_mean: bool, out: FloatArray,
-                     offsets: IntArray, means: FloatArray, latent: FloatArray) -> None:
-    """:func:`evaluate_expert` of the first ``count`` experts: expert ``e``'s terms at
-    ``out[offsets[e]:]``, its mean into ``means[e]``, its latent variance into ``latent[e]``."""
+def slab_views(slab: FloatArray
+               ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """An expert's ``(C, Q, B, A, m)`` as views of its slab, laid out as its header says
+    (:mod:`.jit_slab`; the same views as :meth:`.sogp_steps.SOGPSteps._bind` takes)."""
+    alloc, a_cols, d_x, d_y = int(slab[0]), int(slab[1]), int(slab[2]), int(slab[3])
+    c, q, b, a, m, end = _slab_offsets(alloc, d_x, a_cols, d_y)
+    size = alloc * (alloc + 1) // 2
+    return (slab[c: c + size], slab[q: q + size],
+            slab[b: b + alloc * d_x].reshape((alloc, d_x)),
+            slab[a: a + alloc * a_cols].reshape((alloc, a_cols)), slab[m:end])
+
+
+@_compiled(nogil=True)
+def evaluate_slab(slab: FloatArray, n: int, x: FloatArray, gamma: float, k_star: float,
+                  floor: float, prior_mean: bool, out: FloatArray, start: int,
+                  mean_out: FloatArray) -> float:
+    """:func:`evaluate_expert` of the expert whose buffers are ``slab``."""
+    cov, _, basis, coef, prior = slab_views(slab)
+    return evaluate_expert(basis, cov, coef, prior, n, basis.shape[0], x, gamma, k_star,
+                           floor, prior_mean, out, start, mean_out)
+
+
+@_compiled(nogil=True)
+def evaluate_experts(slabs: tuple[FloatArray, ...], count: int, ns: IntArray, x: FloatArray,
+                     gamma: float, k_star: float, floor: float, prior_mean: bool,
+                     out: FloatArray, offsets: IntArray, means: FloatArray, latent: FloatArray
+                     ) -> None:
+    """:func:`evaluate_expert` of the first ``count`` experts, given by their slabs
+    (:mod:`.jit_slab`): expert ``e``'s terms at ``out[offsets[e]:]``, its mean into
+    ``means[e]``, its latent variance into ``latent[e]``."""
     for e in range(count):
-        latent[e] = evaluate_expert(bases[e], covs[e], coefs[e], priors[e], ns[e], allocs[e],
-                                    x, gamma, k_star, floor, prior_mean, out, offsets[e],
-                                    means[e])
+        latent[e] = evaluate_slab(slabs[e], ns[e], x, gamma, k_star, floor, prior_mean, out,
+                                  offsets[e], means[e])

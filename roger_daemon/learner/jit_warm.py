@@ -29,6 +29,18 @@ _BASIS = np.zeros((N, 1))
 _SYM = np.array([1.0, 0.0, 1.0])  # the identity, packed (:mod:`.packed`)
 
 
+def _slab(cov: FloatArray, inv: FloatArray, coef: FloatArray, prior_mean: bool) -> FloatArray:
+    """The slab (:mod:`.jit_slab`) of a tiny expert with ``N`` basis vectors at 0 and the
+    packed ``C``, ``Q`` and ``A`` given, as the batched kernels take them."""
+    from roger_daemon.learner.kernel import RBFKernel
+    from roger_daemon.learner.sogp import SparseOnlineGP
+
+    gp = SparseOnlineGP(1, 1, RBFKernel(1.0, 1), 0.1, N, prior_mean=prior_mean)
+    gp.load(_BASIS, coef, np.eye(N), np.eye(N), N)
+    gp._Cp[:], gp._Qp[:] = cov, inv
+    return gp._slab
+
+
 def _weights() -> FloatArray:
     weights = np.ones(1)
     weights.setflags(write=False)  # as sogp_fused passes them: read-only, its own signature
@@ -58,11 +70,10 @@ def _warm_learning() -> None:
     bk.learn_full_expert(basis.copy(), coef.copy(), -sym, sym.copy(), np.zeros(1), 0.5 * vn,
                          -0.1 * vn, 2 * vn, np.ones(1), -0.5, weights, rule, np.empty(N),
                          np.empty(N), np.empty(N))
-    pad = jit.padded
     terms = np.concatenate([0.5 * vn, -0.1 * vn])  # [k, C k], as an evaluation packs them
-    bk.learn_batch(pad([basis.copy()], 0), pad([coef.copy()], 0), pad([-sym], 0),
-                   pad([sym.copy()], 0), 1, np.zeros(1), terms, np.zeros(1, dtype=np.int64),
-                   2 * rows, np.ones((1, 1)), np.array([-0.5]), weights, rule,
+    bk.learn_batch(jit.padded([_slab(-sym, sym, coef, False)], 0), 1, np.zeros(1), terms,
+                   np.zeros(1, dtype=np.int64), 2 * rows, np.ones((1, 1)), np.array([-0.5]),
+                   weights, rule,
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, N)),
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty(1),
                    np.empty(1, dtype=np.bool_))
@@ -81,15 +92,14 @@ def _warm_evaluation() -> None:
     jit.use_threads()
     width = jit.EVALUATION_WIDTH
     ints = np.full(width, N, dtype=np.int64)
-    coef = np.zeros((N, 1))
 
     def pad(array: FloatArray) -> tuple[FloatArray, ...]:
         return jit.padded([array], 0, width)
 
+    slab = _slab(sym, sym, np.zeros((N, 2)), True)
     for kernel in (bk.terms_batch, ek.evaluate_experts):
-        kernel(pad(basis), pad(sym), pad(coef), pad(np.zeros(1)), 1, ints, ints, np.zeros(1),
-               1.0, 1.0, 1e-12, True, np.zeros(2 * N + 2), np.zeros(width, dtype=np.int64),
-               np.empty((1, 1)), np.empty(1))
+        kernel(pad(slab), 1, ints, np.zeros(1), 1.0, 1.0, 1e-12, True, np.zeros(2 * N + 3),
+               np.zeros(width, dtype=np.int64), np.empty((1, 1)), np.empty(1))
 
 
 def _warm_resampling() -> None:

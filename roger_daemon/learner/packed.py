@@ -78,9 +78,12 @@ def unpack(buf: FloatArray, alloc: int, n: int) -> FloatArray:
     return full
 
 
-def repack(buf: FloatArray, alloc: int, new_alloc: int, n: int) -> FloatArray:
-    """The live block moved into a new buffer for ``new_alloc`` basis vectors."""
-    out = np.zeros(packed_size(new_alloc))
+def repack(buf: FloatArray, alloc: int, new_alloc: int, n: int,
+           out: FloatArray | None = None) -> FloatArray:
+    """The live block moved into a new buffer for ``new_alloc`` basis vectors (``out``, zeroed,
+    when given)."""
+    if out is None:
+        out = np.zeros(packed_size(new_alloc))
     src, dst = row_offsets(alloc), row_offsets(new_alloc)
     for i in range(n):
         out[dst[i]: dst[i] + n - i] = buf[src[i]: src[i] + n - i]

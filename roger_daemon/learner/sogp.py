@@ -114,17 +114,13 @@ class SparseOnlineGP(SOGPSteps):
         self.novelty_threshold = float(novelty_threshold)
         self.normaliser = normaliser
         self.prior_mean = bool(prior_mean)
-        self._m: FloatArray = np.zeros(d_y)  # the prior mean (stays 0 unless prior_mean)
         self.fused = True  # full update + deletion in one pass at capacity (tests switch it)
         self.n = 0  # basis vectors
         self.n_points = 0  # pairs learned
+        # the buffers, views of one slab (:mod:`.jit_slab`): C and Q packed, their upper
+        # triangles row by row (:mod:`.packed`); B, A; the prior mean m (0 unless prior_mean)
         alloc = _alloc if _alloc is not None else self._initial_alloc()
-        self._alloc = alloc  # basis vectors the buffers hold
-        self._B: FloatArray = np.zeros((alloc, d_x))
-        self._A: FloatArray = np.zeros((alloc, self.a_cols))
-        # C and Q packed: their upper triangles, row by row (:mod:`.packed`)
-        self._Cp: FloatArray = np.zeros(_packed.packed_size(alloc))
-        self._Qp: FloatArray = np.zeros(_packed.packed_size(alloc))
+        self._bind(self._new_slab(alloc), alloc)
         # K_B is not kept: a re-inversion of Q recomputes it from B, to the same floats as the
         # kernel vectors computed when each basis vector entered (.jit_kernels.gram_matrix)
         self._dg: FloatArray | None = None  # cache of diag(C) + diag(Q), hot path only
@@ -134,11 +130,6 @@ class SparseOnlineGP(SOGPSteps):
         # |gamma - threshold k*| / k* of the last update's novelty test (diagnostic, not state;
         # docs/reproducibility.md): how close that discrete decision was to going the other way
         self.novelty_margin = math.inf
-
-    @property
-    def a_cols(self) -> int:
-        """Columns of the coefficient buffer: ``d_y``, plus ``a1`` with a prior mean."""
-        return self.d_y + 1 if self.prior_mean else self.d_y
 
     def _initial_alloc(self) -> int:
         return 8 if self.capacity is None else min(8, self.capacity)
@@ -227,10 +218,9 @@ class SparseOnlineGP(SOGPSteps):
         """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
         if not self.prior_mean:
             return
-        mean = np.empty(self.d_y)  # the new running mean in a new array, as numpy made it
-        # dm = (y - m) / n_points; m + dm; A[:, :d] -= a1 dm^T: numpy's floats, one call
-        _jit.shift_mean(self._A, self._m, y, self.n, self.n_points, mean)
-        self._m = mean
+        # dm = (y - m) / n_points; m + dm; A[:, :d] -= a1 dm^T: numpy's floats, one call, the
+        # new mean written over the old one in the slab
+        _jit.shift_mean(self._A, self._m, y, self.n, self.n_points, self._m)
 
     def predict(self, x: FloatArray) -> tuple[FloatArray, float]:
         """Predictive mean (d_y,) and variance of y (scalar, shared by the outputs)."""
@@ -290,26 +280,19 @@ class SparseOnlineGP(SOGPSteps):
 
     def copy(self, pool: BufferPool | None = None,
              pending: list[tuple[FloatArray, FloatArray]] | None = None) -> SparseOnlineGP:
-        """An independent copy (used for copy-on-write in :class:`~.roger.Roger`); its packed
-        matrices go into buffers kept in ``pool`` when it has some of their size.  With
-        ``pending`` (and a pool) those two are copied later, by the caller
+        """An independent copy (used for copy-on-write in :class:`~.roger.Roger`); its slab
+        (:mod:`.jit_slab`) goes into a buffer kept in ``pool`` when it has one of its size.
+        With ``pending`` (and a pool) the slab is copied later, by the caller
         (:meth:`.buffers.BufferPool.copy_of`)."""
         out = SparseOnlineGP(self.d_x, self.d_y, self.kernel, self.noise, self.capacity,
                              self.novelty_threshold, self.normaliser,
                              prior_mean=self.prior_mean, _alloc=0)
-        out._m = self._m.copy()
         out.fused = self.fused
         out.n = self.n
         out.n_points = self.n_points
-        out._alloc = self._alloc
-        # whole buffers: one memcpy each (the padding is never read)
-        out._B = self._B.copy()
-        out._A = self._A.copy()
-        if pool is None:
-            out._Cp, out._Qp = self._Cp.copy(), self._Qp.copy()
-        else:
-            out._Cp = pool.copy_of(self._Cp, pending)
-            out._Qp = pool.copy_of(self._Qp, pending)
+        # the whole slab: one memcpy (the padding is never read)
+        out._bind(self._slab.copy() if pool is None else pool.copy_of(self._slab, pending),
+                  self._alloc)
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
         out._dq_min, out._dq_argmax = self._dq_min, self._dq_argmax
@@ -317,10 +300,9 @@ class SparseOnlineGP(SOGPSteps):
         return out
 
     def release(self, pool: BufferPool) -> None:
-        """Give this expert's packed matrices to ``pool`` for later copies (the model has
-        dropped it: it must not be used afterwards)."""
-        for buf in (self._Cp, self._Qp):
-            pool.give(buf)
+        """Give this expert's slab to ``pool`` for later copies (the model has dropped it: it
+        must not be used afterwards)."""
+        pool.give(self._slab)
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
@@ -336,12 +318,7 @@ class SparseOnlineGP(SOGPSteps):
         self.n = 0
         self._forget_diagonals()
         size = max(n, self._alloc if alloc is None else int(alloc))
-        if size != self._alloc:
-            self._B = np.zeros((size, self.d_x))
-            self._A = np.zeros((size, self.a_cols))
-            self._alloc = size
-        self._Cp = np.zeros(_packed.packed_size(size))
-        self._Qp = np.zeros(_packed.packed_size(size))
+        self._bind(self._new_slab(size), size)
         self._B[:n] = B
         self._A[:n] = A
         # the upper triangles (a state from before packed storage may hold a C or Q that is
@@ -350,5 +327,6 @@ class SparseOnlineGP(SOGPSteps):
         _packed.pack_into(self._Qp, size, np.asarray(Q, dtype=np.float64), n)
         self.n = n
         self.n_points = int(n_points)
-        self._m = np.zeros(self.d_y) if mean is None else np.array(mean, dtype=np.float64)
+        if mean is not None:
+            self._m[:] = np.asarray(mean, dtype=np.float64)
         self._dg = None if diag_cache is None else np.array(diag_cache, dtype=np.float64)

@@ -106,19 +106,14 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     batched = _jit.batch_worth(sum(n * (n + 1) for n in ns) // 2)  # packed entries in all
     call = _jit.terms_batch if batched else _jit.evaluate_experts
     ns_arr = np.array(ns, dtype=np.int64)
-    allocs = np.array([gp._alloc for gp in gps], dtype=np.int64)
-    bases = [gp._B for gp in gps]
-    covs = [gp._Cp for gp in gps]
-    coefs = [gp._A for gp in gps]
-    priors = [gp._m for gp in gps]
+    slabs = [gp._slab for gp in gps]  # each expert's buffers in one array (.jit_slab)
     width = _jit.EVALUATION_WIDTH
     with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
         for lo in range(0, m, width):
             hi = min(lo + width, m)
-            call(_jit.padded(bases, lo, width), _jit.padded(covs, lo, width),
-                 _jit.padded(coefs, lo, width), _jit.padded(priors, lo, width), hi - lo,
-                 ns_arr[lo:hi], allocs[lo:hi], x, kernel.gamma, kernel.k_star, _LATENT_FLOOR,
-                 first.prior_mean, packed, offsets[lo:hi], means[lo:hi], latent[lo:hi])
+            call(_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x, kernel.gamma,
+                 kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed, offsets[lo:hi],
+                 means[lo:hi], latent[lo:hi])
     return Evaluation(gps, means, latent, packed, offsets, [None] * m)
 
 
@@ -267,13 +262,11 @@ def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, terms: FloatArr
                    starts: IntArray, dgs: FloatArray, qs: FloatArray, rs: FloatArray,
                    cw: FloatArray, rule: FloatArray, out: _Outcomes) -> None:
     """:func:`_learn_full`'s kernels by :func:`.jit_batch.learn_batch` calls."""
-    bases, coefs, cbufs, qbufs = zip(*[(gp._B, gp._A, gp._Cp, gp._Qp) for gp in gps],
-                                     strict=True)
+    slabs = [gp._slab for gp in gps]  # each expert's buffers in one array (.jit_slab)
     with _jit.BATCH_LOCK:
         for lo in range(0, len(gps), _jit.WIDTH):
             hi = min(lo + _jit.WIDTH, len(gps))
-            _jit.learn_batch(_jit.padded(bases, lo), _jit.padded(coefs, lo),
-                             _jit.padded(cbufs, lo), _jit.padded(qbufs, lo), hi - lo, x,
+            _jit.learn_batch(_jit.padded(slabs, lo), hi - lo, x,
                              terms, starts[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
                              out.e_hat[lo:hi], out.gamma[lo:hi], out.outcome[lo:hi],
                              out.diag[lo:hi], out.dq[lo:hi], out.dq_min[lo:hi],

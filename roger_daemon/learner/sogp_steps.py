@@ -4,7 +4,8 @@ the re-inversion of ``Q`` (Csató thesis eq. 2.46, App. G; docs/learner-math.md 
 A base class of :class:`.sogp.SparseOnlineGP`, split from it: these methods change the buffers
 ``_B``, ``_A``, ``_Cp``, ``_Qp`` in place; the class there owns them, predicts and
 dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.  ``C`` and ``Q`` are stored
-packed (their upper triangles, :mod:`.packed`) in buffers sized for ``_alloc`` basis vectors.
+packed (their upper triangles, :mod:`.packed`) in buffers sized for ``_alloc`` basis vectors;
+all the buffers are views of one slab per expert (:meth:`SOGPSteps._bind`, :mod:`.jit_slab`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from scipy.linalg.lapack import dpotri as _dpotri
 
 from roger_daemon.learner import jit as _jit
 from roger_daemon.learner import packed as _packed
+from roger_daemon.learner.jit_slab import slab_offsets
 from roger_daemon.learner.kernel import RBFKernel
 
 __all__ = ["GAMMA_FLOOR", "LATENT_FLOOR", "NEAR_DEPENDENT", "SOGPSteps"]
@@ -37,18 +39,21 @@ class SOGPSteps:
     """The in-place matrix steps of a sparse online GP (state: :class:`.sogp.SparseOnlineGP`)."""
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_alloc", "_B", "_A", "_Cp", "_Qp", "_dg",
+                 "fused", "n", "n_points", "_alloc", "_slab", "_B", "_A", "_Cp", "_Qp", "_dg",
                  "_dq", "_dq_min", "_dq_argmax", "q_refreshes", "prior_mean", "_m",
                  "novelty_margin")
     kernel: RBFKernel
     capacity: int | None
     novelty_threshold: float
     fused: bool
+    d_x: int
     d_y: int
+    prior_mean: bool
     n: int
     q_refreshes: int
     novelty_margin: float
     _alloc: int
+    _slab: FloatArray  # every buffer below is a view of it (:meth:`_bind`)
     _B: FloatArray
     _A: FloatArray
     _Cp: FloatArray
@@ -57,6 +62,12 @@ class SOGPSteps:
     _dq: FloatArray | None
     _dq_min: float  # min and first argmax of _dq (valid while _dq is not None)
     _dq_argmax: int
+    _m: FloatArray
+
+    @property
+    def a_cols(self) -> int:
+        """Columns of the coefficient buffer: ``d_y``, plus ``a1`` with a prior mean."""
+        return self.d_y + 1 if self.prior_mean else self.d_y
 
     def novelty(self, k: FloatArray) -> tuple[FloatArray, float, bool]:
         """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma, novel)`` with the projection
@@ -258,11 +269,29 @@ class SOGPSteps:
             new = min(new, self.capacity)
         new = max(new, need)
         n = self.n
-        for name in ("_B", "_A"):
-            old = getattr(self, name)
-            buf = np.zeros((new, old.shape[1]))
-            buf[:n] = old[:n]
-            setattr(self, name, buf)
-        self._Cp = _packed.repack(self._Cp, alloc, new, n)
-        self._Qp = _packed.repack(self._Qp, alloc, new, n)
-        self._alloc = new
+        old_b, old_a, old_c, old_q, old_m = self._B, self._A, self._Cp, self._Qp, self._m
+        self._bind(self._new_slab(new), new)
+        self._B[:n] = old_b[:n]
+        self._A[:n] = old_a[:n]
+        self._m[:] = old_m
+        _packed.repack(old_c, alloc, new, n, out=self._Cp)
+        _packed.repack(old_q, alloc, new, n, out=self._Qp)
+
+    def _new_slab(self, alloc: int) -> FloatArray:
+        """A zeroed slab for ``alloc`` basis vectors (:mod:`.jit_slab`)."""
+        return np.zeros(slab_offsets(alloc, self.d_x, self.a_cols, self.d_y)[5])
+
+    def _bind(self, slab: FloatArray, alloc: int) -> None:
+        """Take ``slab``, laid out for ``alloc`` basis vectors (:func:`.jit_slab.slab_offsets`),
+        as this expert's buffers: ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` become views of
+        it, its header is written (the batched kernels take the slab, :mod:`.jit_batch`)."""
+        c, q, b, a, m, end = slab_offsets(alloc, self.d_x, self.a_cols, self.d_y)
+        size = _packed.packed_size(alloc)
+        slab[:4] = alloc, self.a_cols, self.d_x, self.d_y  # the header (.jit_slab)
+        self._slab = slab
+        self._alloc = alloc
+        self._Cp = slab[c: c + size]
+        self._Qp = slab[q: q + size]
+        self._B = slab[b: b + alloc * self.d_x].reshape(alloc, self.d_x)
+        self._A = slab[a: a + alloc * self.a_cols].reshape(alloc, self.a_cols)
+        self._m = slab[m:end]

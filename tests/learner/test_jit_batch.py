@@ -75,7 +75,7 @@ def test_the_evaluation_takes_up_to_evaluation_width_experts_per_call(
     kernel = jit.terms_batch
 
     def counted(*args: object) -> None:
-        made.append(int(args[4]))  # count: the experts this call evaluates
+        made.append(int(args[1]))  # count: the experts this call evaluates
         kernel(*args)
 
     monkeypatch.setattr(jit, "terms_batch", counted)
