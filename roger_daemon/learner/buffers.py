@@ -2,14 +2,15 @@
 
 A ROGER step copies an expert when survivors that keep the old version share it with one that
 learns the new point (paper Algorithm 1; :func:`.roger_step.instantiate`), and frees the
-versions no survivor holds. At beta = 300 each copy allocates two packed matrices of 361 KB
-(``C`` and ``Q``; ``K_B`` is not kept). Where blocks that large are served by ``mmap`` (the
+versions no survivor holds. At beta = 300 each copy allocates the expert's slab
+(:mod:`.jit_slab`: two packed matrices of 361 KB, ``C`` and ``Q``, and the small ``B``, ``A``
+and prior mean; ``K_B`` is not kept). Where blocks that large are served by ``mmap`` (the
 daemon fixes glibc's threshold at 128 KiB to keep its resident size flat,
 :mod:`roger_daemon.daemon.memory`) every such allocation is ~90 page faults and every free an
 ``munmap``: measured at the paper's parameters (with ``K_B`` still kept), 84 faults per step
 and an update p99 of 5.0 ms instead of 2.9 ms. :class:`BufferPool` keeps the freed experts'
-packed buffers and hands them to the next copies, so the pages stay mapped. A copy writes
-every element of the buffer it takes, so which buffer it gets never changes a float.
+slabs and hands them to the next copies, so the pages stay mapped. A copy writes every
+element of the buffer it takes, so which buffer it gets never changes a float.
 """
 
 from __future__ import annotations
