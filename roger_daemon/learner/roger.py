@@ -137,9 +137,9 @@ class Roger:
         self._npts = np.zeros(cap, dtype=np.int64)
         self._ref = np.zeros(cap, dtype=np.int64)
         self._free: list[int] = list(range(cap - 1, -1, -1))  # pop() yields the lowest slot
-        # dropped experts' packed matrices (C and Q), reused by copy-on-write copies (not
-        # state): those of at most as many experts as there are particles
-        self._pool = BufferPool(limit=2 * p.particles)
+        # dropped experts' slabs (.jit_slab), reused by copy-on-write copies (not state): those
+        # of at most as many experts as there are particles
+        self._pool = BufferPool(limit=p.particles)
         # the particles, flat: particle p holds the expert slots _slots[_starts[p]:_starts[p + 1]]
         # (one array for all, so a step's bookkeeping is one compiled call: :mod:`.jit_layout`)
         self._slots = np.zeros(0, dtype=np.int64)
