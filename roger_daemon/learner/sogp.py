@@ -36,7 +36,9 @@ of several experts :mod:`.sogp_batch`, the compiled loops :mod:`.jit`.
 
 from __future__ import annotations
 
+import copy
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -297,6 +299,16 @@ class SparseOnlineGP(SOGPSteps):
         out._dq = None if self._dq is None else self._dq.copy()
         out._dq_min, out._dq_argmax = self._dq_min, self._dq_argmax
         out.q_refreshes = self.q_refreshes
+        return out
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> SparseOnlineGP:
+        """``copy.deepcopy``: :meth:`copy`, whose buffers are views of the copy's own slab (a
+        field-by-field deep copy would copy each view apart from the slab the batched kernels
+        read, :mod:`.jit_slab`)."""
+        out = self.copy()
+        out.kernel = copy.deepcopy(self.kernel, memo)
+        out.novelty_margin = self.novelty_margin
+        memo[id(self)] = out
         return out
 
     def release(self, pool: BufferPool) -> None:

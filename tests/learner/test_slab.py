@@ -4,6 +4,8 @@ whole expert through a copy, a growth, a restore and the buffer pool."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -50,13 +52,12 @@ def test_the_offsets_keep_the_parts_apart_and_aligned(alloc: int, d_x: int, d_y:
     assert a + alloc * a_cols <= m and end == m + d_y
 
 
-@pytest.mark.parametrize(("alloc_points", "prior"), [(1, False), (5, True), (12, False),
-                                                      (12, True)])
-def test_the_kernels_views_are_the_experts_own(alloc_points: int, prior: bool) -> None:
+@pytest.mark.parametrize(("points", "prior"), [(1, False), (5, True), (12, False), (12, True)])
+def test_the_kernels_views_are_the_experts_own(points: int, prior: bool) -> None:
     """:func:`.jit_evaluate.slab_views` reads the header and returns views of the very memory
     the expert's ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` are, with their shapes."""
     jit.warm_up()
-    gp = _expert(3, 2, 12, alloc_points, prior_mean=prior, seed=alloc_points)
+    gp = _expert(3, 2, 12, points, prior_mean=prior, seed=points)
     got = jit.slab_views(gp._slab)
     for mine, theirs in zip((gp._Cp, gp._Qp, gp._B, gp._A, gp._m), got, strict=True):
         assert theirs.shape == mine.shape
@@ -97,3 +98,30 @@ def test_a_copy_a_growth_and_a_restore_carry_the_whole_expert() -> None:
     got = jit.slab_views(grown._slab)
     np.testing.assert_array_equal(got[2][: grown.n], before[0])
     np.testing.assert_array_equal(got[4], before[4])
+
+
+def test_a_deep_copy_of_a_model_learns_as_the_model_does() -> None:
+    """``copy.deepcopy`` of a learning model: each expert's buffers stay views of its own slab
+    (the batched kernels read the slab), so the copy learns the next pairs to the same bits as
+    the original, and the original is untouched by the copy's learning."""
+    from roger_daemon.daemon.checkpoint import array_digest
+    from roger_daemon.learner import Roger, RogerParams
+    from roger_daemon.learner.synthetic import subtask_stream
+
+    jit.set_threads(2)
+    s = subtask_stream(120, seed=4)
+    model = Roger(s.x.shape[1], s.y.shape[1], RogerParams(beta=12), seed=3)
+    for i in range(80):
+        model.learn_one(s.x[i], s.y[i])
+    twin = copy.deepcopy(model)
+    before = array_digest(model.state_dict())
+    for gp in twin.distinct_experts():
+        views = jit.slab_views(gp._slab)
+        assert all(np.shares_memory(view, gp._slab) for view in (gp._Cp, gp._B, gp._m))
+        np.testing.assert_array_equal(views[2], gp._B)
+    for i in range(80, 120):
+        twin.learn_one(s.x[i], s.y[i])
+    assert array_digest(model.state_dict()) == before
+    for i in range(80, 120):
+        model.learn_one(s.x[i], s.y[i])
+    assert array_digest(twin.state_dict()) == array_digest(model.state_dict())
