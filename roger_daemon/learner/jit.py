@@ -9,8 +9,8 @@ accesses are plain attribute lookups.  :func:`warm_up` loads them and compiles e
 (or loads it from numba's on-disk cache) before a timed or latency-bound first step.
 
 The batched kernels (:mod:`.jit_batch`) take several experts per call and run them on
-:func:`set_threads` threads; :func:`padded` builds their tuples of :data:`WIDTH` buffers
-(:data:`EVALUATION_WIDTH` for the evaluation's).
+:func:`set_threads` threads; :func:`padded` builds their tuples of :data:`WIDTH` experts'
+slabs (:mod:`.jit_slab`; :data:`EVALUATION_WIDTH` for the evaluation's).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ __all__ = ["BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "EVALUATION_WIDTH", "FU
 #: are compiled at every size since issue 11's second pass.)
 SMALL = 64
 
-#: experts per call of a batched kernel (:mod:`.jit_batch`): its buffers come as tuples of
+#: experts per call of a batched kernel (:mod:`.jit_batch`): their slabs come as a tuple of
 #: exactly this many arrays, so each kernel has one compiled signature; at the paper's
 #: parameters a step's ~10 updates make one call
 WIDTH = 16
