@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy.typing as npt
 
-__all__ = ["BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "EVALUATION_WIDTH", "FUSED", "KEPT",
-           "KERNELS", "SMALL", "WIDTH", "batch_worth", "compiled_signatures", "padded",
-           "set_threads", "threads", "use_threads", "warm_up"]
+__all__ = ["ADDED", "BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "EVALUATION_WIDTH", "FUSED",
+           "KEPT", "KERNELS", "NEEDS_ROOM", "PROJECTED", "SMALL", "WIDTH", "batch_worth",
+           "compiled_signatures", "padded", "set_threads", "threads", "use_threads", "warm_up"]
 
 #: up to this many basis vectors ``Q`` is re-inverted by the compiled Cholesky
 #: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK.  (Expert evaluation and ``Q k``
@@ -56,6 +56,12 @@ BATCH_LOCK = threading.Lock()
 #: (the caller makes the projection update); ``Q`` drifted (the caller re-inverts it first)
 FUSED, KEPT, DRIFTED = 0, 1, 2
 
+#: :func:`.jit_small.growth_step`'s outcome for an expert with room for another basis
+#: vector: the point added as a basis vector (step 4b); its projection update made (not novel,
+#: step 4a); novel but the buffers are full (nothing changed: the caller grows them first).
+#: (:data:`DRIFTED`: ``Q`` must be re-inverted first; nothing changed.)
+ADDED, PROJECTED, NEEDS_ROOM = 3, 4, 5
+
 _threads: int | None = None  # set_threads(): None until set or first used
 _threads_default = True  # set_threads(None) (or never called)
 _workqueue = False  # warm_up found numba's threading layer to be workqueue
@@ -63,7 +69,7 @@ _applied = threading.local()  # .count: what numba.set_num_threads was given in 
 
 KERNELS = ("cholesky_inverse", "copy_batch", "evaluate_expert", "evaluate_experts",
            "evaluate_slab", "expert_terms", "fearnhead_split", "fused_delete_index", "fused_step",
-           "gate_constants", "gate_log_predictive", "gate_update", "gram_matrix",
+           "gate_constants", "gate_log_predictive", "gate_update", "gram_matrix", "growth_step",
            "keeps_basis_vectors", "kernel_vector", "learn_batch", "learn_full_expert",
            "lineage_assignments", "min_argmax", "novelty_margin", "novelty_step", "novelty_test",
            "packed_add_lowrank", "projection", "putative_layout", "rank_update_cq",

@@ -15,16 +15,18 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner.jit import ADDED, DRIFTED, NEEDS_ROOM, PROJECTED
 from roger_daemon.learner.jit_compile import compiled as _compiled
 from roger_daemon.learner.jit_kernels import (
     cholesky_inverse,
     gram_matrix,
+    keeps_basis_vectors,
     novelty_test,
     packed_add_lowrank,
     projection,
 )
 
-__all__ = ["novelty_step", "refresh_small", "shift_mean", "sparse_update"]
+__all__ = ["growth_step", "novelty_step", "refresh_small", "shift_mean", "sparse_update"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -100,3 +102,63 @@ def refresh_small(basis: FloatArray, gamma: float, n: int, jitter: float, qbuf: 
             qbuf[off + b - a] = inverse[a, b]
         off += alloc - a
     return True
+
+
+@_compiled(nogil=True)
+def growth_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
+                alloc: int, n: int, x: FloatArray, k: FloatArray, ck: FloatArray,
+                q: FloatArray, r: float, kstar: float, threshold: float, floor: float,
+                drift_tol: float, cleanup_floor: float) -> tuple[int, float, bool]:
+    """Steps 3, 4 and step 6's test of learning ``x`` in an expert that is not full
+    (docs/learner-math.md §2.5-§2.7), in one call: what :meth:`.sogp.SparseOnlineGP.update`
+    did in numpy and kernel calls, the same floats.  In: the kernel vector ``k``, ``C k``,
+    Csató's ``K1`` (``q``) and ``K2`` (``r``).  :func:`novelty_step`; not novel: the
+    projection update (:func:`sparse_update`); novel, with room in the buffers: ``x`` becomes
+    basis vector ``n`` (thesis eq. 2.46; ``Q`` by eq. 3.5), row and column ``n`` of ``C`` and
+    ``Q`` first zeroed (stale after a deletion).  Returns ``(outcome, gamma, clean)``: the
+    outcome :data:`.jit.ADDED`, :data:`.jit.PROJECTED`, :data:`.jit.DRIFTED` or
+    :data:`.jit.NEEDS_ROOM` (both: nothing changed), and whether the geometric clean-up keeps
+    every basis vector (:func:`.jit_kernels.keeps_basis_vectors` of the largest ``Q_ii``,
+    false if one is NaN)."""
+    e_hat, gamma, drifted, novel = novelty_step(qbuf, k, n, alloc, kstar, threshold, floor,
+                                                drift_tol)
+    if drifted:
+        return DRIFTED, gamma, False
+    if not novel:
+        sparse_update(coef, cbuf, alloc, n, ck, e_hat, q, r, 1.0 / (1.0 + gamma * r))
+        outcome = PROJECTED
+    elif n == alloc:
+        return NEEDS_ROOM, gamma, False
+    else:
+        basis[n, :] = x
+        s = np.empty(n + 1)  # [C k, 1] and [Q k, -1]
+        e = np.empty(n + 1)
+        s[:n] = ck
+        s[n] = 1.0
+        e[:n] = e_hat
+        e[n] = -1.0
+        coef[n, :] = 0.0
+        for i in range(n + 1):  # A += s q^T: numpy's outer product, then the sum
+            for j in range(q.shape[0]):
+                coef[i, j] += s[i] * q[j]
+        off = 0
+        for a in range(n + 1):  # column n of the upper triangles
+            cbuf[off + n - a] = 0.0
+            qbuf[off + n - a] = 0.0
+            off += alloc - a
+        packed_add_lowrank(cbuf, alloc, n + 1, s.reshape((1, n + 1)), np.array([r]))
+        packed_add_lowrank(qbuf, alloc, n + 1, e.reshape((1, n + 1)), np.array([1.0 / gamma]))
+        n += 1
+        outcome = ADDED
+    if n <= 1:
+        return outcome, gamma, True
+    q_max = qbuf[0]
+    off = 0
+    for a in range(1, n):  # np.argmax's maximum: the first NaN if there is one
+        off += alloc - (a - 1)
+        v = qbuf[off]
+        if v > q_max or v != v:
+            q_max = v
+        if q_max != q_max:
+            break
+    return outcome, gamma, keeps_basis_vectors(q_max, cleanup_floor)

@@ -130,6 +130,9 @@ def _warm_the_rest() -> None:
     sk.shift_mean(np.zeros((N, 2)), np.zeros(1), np.zeros(1), N, 1, np.empty(1))
     sk.novelty_step(sym, np.zeros(N), N, N, 1.0, 1e-3, 1e-12, 1e-6)
     sk.refresh_small(basis, 1.0, N, 0.0, sym.copy(), N)
+    sk.growth_step(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
+                   np.zeros(basis.shape[1]), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0,
+                   1e-3, 1e-12, 1e-6, 1e-9)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
     gk.gate_update(slots, np.zeros(1), np.zeros(1, dtype=np.int64), vec.copy(), 4 * vec,

@@ -265,7 +265,20 @@ class SparseOnlineGP(SOGPSteps):
         # step 2: Gaussian-likelihood scalars (Csató's K2 = r and K1 = q)
         r = -1.0 / (s0 + latent)
         q = (y - mean) / (s0 + latent)
-        e_hat, gamma, novel = self.novelty(k)  # step 3
+        if not self._fusable():  # steps 3, 4 and step 6's test in one compiled call
+            outcome, gamma, clean = _jit.growth_step(
+                self._B, self._A, self._Cp, self._Qp, self._alloc, n, x, k, ck, q, r,
+                *self._novelty_constants(), self.cleanup_floor())
+            if outcome in (_jit.ADDED, _jit.PROJECTED):  # else nothing changed: below
+                self.record_novelty_margin(gamma)
+                if outcome == _jit.ADDED:
+                    self.n = n + 1
+                # step 5 too past beta (buffers for beta + 1 without the fused step)
+                if not clean or (self.capacity is not None and self.n > self.capacity):
+                    self._clean_up()
+                self._after_update(gamma, y)
+                return
+        e_hat, gamma, novel = self.novelty(k)  # step 3 (Q re-inverted first if it drifted)
         if not novel:
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
         elif self._fusable():
@@ -274,7 +287,12 @@ class SparseOnlineGP(SOGPSteps):
         else:
             self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6
-        if 0.0 < gamma < _NEAR_DEPENDENT * kstar and self.n > 1:
+        self._after_update(gamma, y)
+
+    def _after_update(self, gamma: float, y: FloatArray) -> None:
+        """The end of :meth:`update`: ``Q`` re-inverted after a near-dependent basis vector
+        (residual ``gamma``); the prior mean moved towards ``y`` (its first ``d_y`` entries)."""
+        if 0.0 < gamma < _NEAR_DEPENDENT * self.kernel.k_star and self.n > 1:
             self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
         self._shift_mean(y[: self.d_y])
 
