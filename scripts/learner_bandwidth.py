@@ -13,6 +13,7 @@ time those passes alone take per step.
 from __future__ import annotations
 
 import argparse
+import inspect
 import time
 from collections import Counter
 from typing import Any
@@ -32,23 +33,26 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     one from Python (on several threads it batches both, :mod:`roger_daemon.learner.jit_batch`):
     the same passes.  A full
     expert's ``jit.learn_full_expert`` counts as its ``Q k`` pass and, when it made one, its
-    fused step; ``jit.novelty_step`` (a small expert's ``Q k`` and novelty test) as its
-    ``Q k`` pass."""
+    fused step; ``jit.growth_step`` (an expert that is not full: its ``Q k`` and novelty
+    test, then a rank-1 update) and ``jit.novelty_step`` as its ``Q k`` pass."""
     jit.set_threads(1)
     warm = points // 4
     model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
     jit._load()
-    kinds = ("evaluate_experts", "expert_terms", "projection", "novelty_step", "fused_step",
-             "learn_full_expert")
+    kinds = ("evaluate_experts", "expert_terms", "projection", "novelty_step", "growth_step",
+             "fused_step", "learn_full_expert")
     originals = {name: getattr(jit, name) for name in kinds}
+    # where evaluate_experts takes its number of experts (found by name: a reordered
+    # signature must not count another argument)
+    count_at = list(inspect.signature(jit.evaluate_experts.py_func).parameters).index("count")
 
     def counted(name: str, fn: Any) -> Any:
         def wrapper(*args: Any) -> Any:
             out = fn(*args)
             if name == "evaluate_experts":  # several experts' C k passes in one call
-                calls["expert_terms"] += args[4]  # its count
-            elif name == "novelty_step":  # an expert's Q k, with its novelty test
+                calls["expert_terms"] += args[count_at]
+            elif name in ("novelty_step", "growth_step"):  # an expert's Q k, novelty test
                 calls["projection"] += 1
             elif name != "learn_full_expert":
                 calls[name] += 1

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from roger_daemon.cli import main
+from roger_daemon.learner import jit
 from roger_daemon.learner.synthetic import subtask_stream
 
 MODULES = ["kernel", "sogp", "gate", "resampling", "roger", "unimap", "params", "synthetic",
@@ -124,5 +125,8 @@ def test_bandwidth_script_counts_the_compiled_passes_of_a_step() -> None:
     report = json.loads(out.stdout)
     passes = report["passes_per_step"]
     assert passes["expert_terms"] >= 1 and passes["projection"] >= 1
+    # each distinct expert once a step: the stream's ~20 in one call of at most
+    # EVALUATION_WIDTH (a wrong argument counted as the number of experts reads more)
+    assert passes["expert_terms"] <= jit.EVALUATION_WIDTH
     assert report["beta"] == 300 and report["distinct_experts"] >= 1
     assert report["passes_ms_per_step"] > 0 and report["pass_us_out_of_cache"] > 0
