@@ -69,8 +69,9 @@ _applied = threading.local()  # .count: what numba.set_num_threads was given in 
 
 KERNELS = ("cholesky_inverse", "copy_batch", "evaluate_expert", "evaluate_experts",
            "evaluate_slab", "expert_terms", "fearnhead_split", "fused_delete_index", "fused_step",
-           "gate_constants", "gate_log_predictive", "gate_update", "gram_matrix", "growth_step",
-           "keeps_basis_vectors", "kernel_vector", "learn_batch", "learn_full_expert",
+           "gate_constants", "gate_log_predictive", "gate_update", "gram_matrix", "grow_slab",
+           "growth_step", "keeps_basis_vectors", "kernel_vector", "learn_batch",
+           "learn_full_expert",
            "lineage_assignments", "min_argmax", "novelty_margin", "novelty_step", "novelty_test",
            "packed_add_lowrank", "projection", "putative_layout", "rank_update_cq",
            "refresh_small", "shift_mean", "slab_views", "sorted_threshold", "sparse_update",

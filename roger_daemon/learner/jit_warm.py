@@ -133,6 +133,8 @@ def _warm_the_rest() -> None:
     sk.growth_step(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
                    np.zeros(basis.shape[1]), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0,
                    1e-3, 1e-12, 1e-6, 1e-9)
+    grown = _slab(sym, sym, np.zeros((N, 1)), False)
+    sk.grow_slab(grown, grown.copy(), N)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
     gk.gate_update(slots, np.zeros(1), np.zeros(1, dtype=np.int64), vec.copy(), 4 * vec,

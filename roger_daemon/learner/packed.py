@@ -20,7 +20,7 @@ from functools import lru_cache
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["diagonal", "pack", "pack_into", "packed_size", "repack", "row_offsets", "unpack"]
+__all__ = ["diagonal", "pack", "pack_into", "packed_size", "row_offsets", "unpack"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -77,14 +77,3 @@ def unpack(buf: FloatArray, alloc: int, n: int) -> FloatArray:
     full[cols, rows] = vals
     return full
 
-
-def repack(buf: FloatArray, alloc: int, new_alloc: int, n: int,
-           out: FloatArray | None = None) -> FloatArray:
-    """The live block moved into a new buffer for ``new_alloc`` basis vectors (``out``, zeroed,
-    when given)."""
-    if out is None:
-        out = np.zeros(packed_size(new_alloc))
-    src, dst = row_offsets(alloc), row_offsets(new_alloc)
-    for i in range(n):
-        out[dst[i]: dst[i] + n - i] = buf[src[i]: src[i] + n - i]
-    return out

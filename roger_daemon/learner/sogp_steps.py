@@ -268,14 +268,9 @@ class SOGPSteps:
         if self.capacity is not None:
             new = min(new, self.capacity)
         new = max(new, need)
-        n = self.n
-        old_b, old_a, old_c, old_q, old_m = self._B, self._A, self._Cp, self._Qp, self._m
+        old = self._slab
         self._bind(self._new_slab(new), new)
-        self._B[:n] = old_b[:n]
-        self._A[:n] = old_a[:n]
-        self._m[:] = old_m
-        _packed.repack(old_c, alloc, new, n, out=self._Cp)
-        _packed.repack(old_q, alloc, new, n, out=self._Qp)
+        _jit.grow_slab(old, self._slab, self.n)  # every part moved, C and Q row by row
 
     def _new_slab(self, alloc: int) -> FloatArray:
         """A zeroed slab for ``alloc`` basis vectors (:mod:`.jit_slab`)."""
