@@ -44,16 +44,6 @@ def niw_update(kappa: float, nu: float, mu: FloatArray, lam: FloatArray,
     return kappa + 1.0, nu + 1.0, mu_new, lam_new
 
 
-_REFRESH = 32  # recompute the precision from Lambda every this many updates
-
-
-def _precision(lam: FloatArray) -> tuple[FloatArray, float]:
-    """``(Lambda^{-1}, log|Lambda|)`` through the Cholesky factor."""
-    chol = np.linalg.cholesky(lam)
-    linv = np.linalg.inv(chol)  # lower triangular (numpy LAPACK; no threaded trsm)
-    return linv.T @ linv, 2.0 * float(np.sum(np.log(np.diagonal(chol))))
-
-
 class GatePool:
     """Gates of many experts in stacked arrays, indexed by integer slot.
 
@@ -80,8 +70,13 @@ class GatePool:
         self.inv_nu_c = np.zeros(capacity)
         self._prior = (float(kappa0), float(nu0), np.full(d, float(mu0)), np.eye(d) * lambda0)
         kappa, nu, mu, lam = self._prior
-        self._prior_prec, self._prior_logdet = _precision(lam)
+        # Lambda_0 = lambda0 I: its precision and log-determinant in closed form
+        self._prior_prec = np.eye(d) / float(lambda0)
+        self._prior_logdet = d * math.log(lambda0)
         self._prior_norm = student_t_normaliser(kappa, nu, self._prior_logdet, d)
+        # the empty expert's gate as a one-slot stack, for the kernel (prior_log_predictive)
+        self._prior_stack = (np.zeros(1, dtype=np.int64), mu[None].copy(), self._prior_prec[None],
+                             *(np.array([v]) for v in self._prior_norm))
 
     @property
     def capacity(self) -> int:
@@ -136,13 +131,10 @@ class GatePool:
         """
         # Sherman-Morrison and the determinant lemma: t = w u^T P u,
         # P' = P - w (P u)(P u)^T / (1 + t), log|Lambda'| = log|Lambda| + log(1 + t);
-        # then the count and the Student-t constants (§3.3): compiled, one pass per slot
+        # every 32nd input of a gate both from Lambda by Cholesky; then the count and the
+        # Student-t constants (§3.3): compiled, one pass per slot, no BLAS or LAPACK
         _jit.gate_update(slots, x, self.count, self.kappa, self.nu, self.mu, self.lam,
                          self.prec, self.logdet, self.lognorm, self.half_nu_d, self.inv_nu_c)
-        for slot in slots[self.count[slots] % _REFRESH == 0].tolist():  # bound the round-off
-            self.prec[slot], self.logdet[slot] = _precision(self.lam[slot])
-            self.lognorm[slot], self.half_nu_d[slot], self.inv_nu_c[slot] = \
-                _jit.gate_constants(self.kappa[slot], self.nu[slot], self.logdet[slot], self.d)
 
     def log_predictive(self, slots: IntArray, x: FloatArray) -> FloatArray:
         """``log t_s(x)`` for every slot in ``slots`` (batched, §3.4)."""
@@ -151,11 +143,8 @@ class GatePool:
         return out
 
     def prior_log_predictive(self, x: FloatArray) -> float:
-        """``log t_0(x)``, the prior predictive of the empty expert."""
-        diff = x - self._prior[2]
-        delta = float(diff @ self._prior_prec @ diff)
-        lognorm, half, inv = self._prior_norm
-        return lognorm - half * math.log1p(delta * inv)
+        """``log t_0(x)``, the prior predictive of the empty expert (the slots' kernel)."""
+        return float(_jit.gate_log_predictive(self._prior_stack[0], x, *self._prior_stack[1:])[0])
 
     def predictive(self, slot: int) -> tuple[float, FloatArray, FloatArray]:
         """``(df, loc, shape)`` of slot's Student-t posterior predictive (for scipy)."""

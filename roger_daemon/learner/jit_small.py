@@ -30,8 +30,8 @@ from roger_daemon.learner.jit_kernels import (
     projection,
 )
 
-__all__ = ["grow_slab", "growth_step", "novelty_step", "refresh_small", "shift_mean",
-           "sparse_update"]
+__all__ = ["dot_column", "grow_slab", "growth_step", "novelty_step", "refresh_small",
+           "shift_mean", "sparse_update"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -188,3 +188,14 @@ def grow_slab(old: FloatArray, new: FloatArray, n: int) -> None:
         q_new[dst: dst + n - i] = q_old[src: src + n - i]
         src += alloc_old - i
         dst += alloc_new - i
+
+
+@_compiled(nogil=True)
+def dot_column(k: FloatArray, coef: FloatArray, col: int, n: int) -> float:
+    """``k[:n] . coef[:n, col]``, summed in index order: the prior mean's ``a1^T k``
+    (:meth:`.sogp.SparseOnlineGP._targets`), the same floats on every host (BLAS's dot of a
+    strided column sums in an order its CPU kernel chooses)."""
+    t = 0.0
+    for i in range(n):
+        t += k[i] * coef[i, col]
+    return t

@@ -130,6 +130,7 @@ def _warm_the_rest() -> None:
     sk.shift_mean(np.zeros((N, 2)), np.zeros(1), np.zeros(1), N, 1, np.empty(1))
     sk.novelty_step(sym, np.zeros(N), N, N, 1.0, 1e-3, 1e-12, 1e-6)
     sk.refresh_small(basis, 1.0, N, 0.0, sym.copy(), N)
+    sk.dot_column(np.zeros(N), np.zeros((N, 2)), 1, N)
     sk.growth_step(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
                    np.zeros(basis.shape[1]), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0,
                    1e-3, 1e-12, 1e-6, 1e-9)
@@ -141,6 +142,7 @@ def _warm_the_rest() -> None:
                    np.zeros((1, 1)), cube.copy(), cube.copy(), vec.copy(), vec.copy(),
                    vec.copy(), vec.copy())
     gk.gate_constants(0.1, 4.0, 0.0, 1)
+    gk.gate_precision(np.eye(1), np.empty((1, 1)))
     gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
     gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                       np.zeros(1, dtype=np.int64))

@@ -213,7 +213,7 @@ class SparseOnlineGP(SOGPSteps):
         ext[0, :d] = y
         ext[0, d] = 1.0
         ext[1, :d] = mean
-        ext[1, d] = float(k @ self._A[: self.n, d]) if self.n else 0.0
+        ext[1, d] = _jit.dot_column(k, self._A, d, self.n)  # a1^T k, no BLAS
         return ext[0], ext[1]
 
     def _shift_mean(self, y: FloatArray) -> None:
