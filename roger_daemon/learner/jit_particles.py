@@ -38,7 +38,7 @@ GATE_REFRESH = 32
 @compiled(nogil=True)
 def gate_precision(lam: FloatArray, prec: FloatArray) -> float:
     """``prec = Lambda^{-1}`` and ``log|Lambda|`` (returned) for the SPD ``lam`` (d x d), through
-    its Cholesky factor ``L``: ``Lambda^{-1} = L^{-T} L^{-1}`` (docs/learner-math.md §3.2),
+    its Cholesky factor ``L``: ``Lambda^{-1} = L^{-T} L^{-1}`` (docs/learner-math.md §3.4),
     in plain loops (no BLAS or LAPACK: the same floats on every host, exactly symmetric).  If
     round-off leaves a pivot that is not positive, ``prec`` is left as it is and NaN returned
     (the caller keeps its running values)."""

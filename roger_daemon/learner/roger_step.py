@@ -62,7 +62,8 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
         add_stickiness(model, base, flat_part, flat_slots, is_new)
 
     # GP factor: the empty expert analytically, the others once per unique expert
-    ll_new = float(gaussian_log_likelihood(float(ys @ ys), model._empty_var, model.d_y,
+    yy = _jit.dot_column(ys, ys.reshape(-1, 1), 0, model.d_y)  # |y|^2 in index order, no BLAS
+    ll_new = float(gaussian_log_likelihood(yy, model._empty_var, model.d_y,
                                            p.likelihood_normaliser))
     slot_ll, terms = gp_factors(model, xs, ys, live, base, is_new, old_slots, ll_new, cap)
     lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])

@@ -393,3 +393,23 @@ def test_the_batched_prediction_is_each_experts_own_bit_for_bit(prior_mean: bool
     for j, gp in enumerate(group):
         mean, var = gp.predict(queries[0])
         assert np.array_equal(means[j], mean) and variance[j] == var
+
+
+@pytest.mark.parametrize("n", [0, 1, 9, 40])
+def test_dot_column_sums_in_index_order(n: int) -> None:
+    """Oracle: the same products and additions in Python floats, one after the other (IEEE
+    operations: the same bits); a column of a wider matrix, and a vector as a one-column
+    view (the empty expert's ``|y|^2``)."""
+    from roger_daemon.learner import jit_small
+
+    rng = np.random.default_rng(n)
+    k, coef = rng.normal(size=n + 2), rng.normal(size=(n + 2, 3))
+    want = 0.0
+    for i in range(n):
+        want += float(k[i]) * float(coef[i, 2])
+    assert jit_small.dot_column(k, coef, 2, n) == want
+    square = 0.0
+    for v in k[:n].tolist():
+        square += v * v
+    y = k[:n].copy()
+    assert jit_small.dot_column(y, y.reshape(-1, 1), 0, n) == square
