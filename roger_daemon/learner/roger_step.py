@@ -150,6 +150,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     upd_gps: list[SparseOnlineGP] = []
     upd_evaluated: list[tuple[Evaluation, int] | None] = []  # where each one's terms are
     upd_slots: list[int] = []
+    kept_old = (contains != chose).tolist()  # by slot: some survivor keeps the old version
     for s in chosen.tolist():
         if s < 0:  # a new expert, shared by every survivor that opened one this step
             t = new_target = model._alloc_slot()
@@ -163,7 +164,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
             continue
         src = model._gps[s]
         assert src is not None
-        if contains[s] == chose[s]:  # nobody keeps the old version: update in place
+        if not kept_old[s]:  # nobody keeps the old version: update in place
             t, gp = s, src
         else:
             t = model._alloc_slot()
@@ -174,8 +175,8 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
         upd_gps.append(gp)
         upd_evaluated.append(terms.get(s))
         upd_slots.append(t)
-        model._npts[t] = model._npts[s] + 1
         sources.append(s)
+    model._npts[upd_slots] = model._npts[sources] + 1  # each updated version's count
     copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
     update_evaluated(upd_gps, xs, ys, upd_evaluated)

@@ -141,8 +141,8 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     :data:`.jit.WIDTH` experts each (:func:`.jit_batch.learn_batch`); a non-novel point then
     gets its projection update here, and an expert whose ``Q`` drifted learns on its own.
     """
-    full = _hot_path(gps)
-    _learn_alone(gps, full, x, y, terms.__getitem__)
+    full, alone = _hot_path(gps)
+    _learn_alone(gps, alone, x, y, terms.__getitem__)
     if not full:
         return
     got: list[Terms] = []
@@ -161,8 +161,8 @@ def update_evaluated(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray
     (``(evaluation, j)``: :meth:`Evaluation.terms` of ``j``; ``None``: not evaluated): the hot
     path's kernel vectors, ``C k``, means and latent variances are read off the evaluation's
     arrays, the same floats, without a tuple of terms per expert (a step updates ~10)."""
-    full = _hot_path(gps)
-    _learn_alone(gps, full, x, y,
+    full, alone = _hot_path(gps)
+    _learn_alone(gps, alone, x, y,
                  lambda j: None if (ref := evaluated[j]) is None else ref[0].terms(ref[1]))
     if not full:
         return
@@ -177,26 +177,28 @@ def update_evaluated(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray
                 ev.latent[rows], lambda i: ev.terms(int(rows[i])))
 
 
-def _hot_path(gps: Sequence[SparseOnlineGP]) -> list[int]:
-    """Indices of the experts that take the batched fused step: full in buffers for exactly
-    ``beta``, the same ``n`` as the first of them, ``diag(Q)`` without drift."""
+def _hot_path(gps: Sequence[SparseOnlineGP]) -> tuple[list[int], list[int]]:
+    """Indices of the experts that take the batched fused step (full in buffers for exactly
+    ``beta``, the same ``n`` as the first of them, ``diag(Q)`` without drift), and of the
+    others."""
     full: list[int] = []
+    alone: list[int] = []
     n = -1
     for j, gp in enumerate(gps):
         if gp._fusable() and (n < 0 or gp.n == n) and not gp.q_drifted():
             full.append(j)
             n = gp.n
-    return full
+        else:
+            alone.append(j)
+    return full, alone
 
 
-def _learn_alone(gps: Sequence[SparseOnlineGP], full: list[int], x: FloatArray, y: FloatArray,
+def _learn_alone(gps: Sequence[SparseOnlineGP], alone: list[int], x: FloatArray, y: FloatArray,
                  terms_of: Callable[[int], Terms | None]) -> None:
-    """The experts off the hot path (not in ``full``) learn one at a time, with their terms
-    where known (``terms_of(j)``, ``None``: computed by the update)."""
-    hot = set(full)
-    for j, gp in enumerate(gps):
-        if j not in hot:
-            gp.update(x, y, terms_of(j))
+    """The experts off the hot path (``alone``) learn one at a time, with their terms where
+    known (``terms_of(j)``, ``None``: computed by the update)."""
+    for j in alone:
+        gps[j].update(x, y, terms_of(j))
 
 
 def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, terms: FloatArray,
