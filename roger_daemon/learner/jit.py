@@ -67,16 +67,16 @@ _threads_default = True  # set_threads(None) (or never called)
 _workqueue = False  # warm_up found numba's threading layer to be workqueue
 _applied = threading.local()  # .count: what numba.set_num_threads was given in this thread
 
-KERNELS = ("cholesky_inverse", "copy_batch", "dot_column", "evaluate_expert", "evaluate_experts",
-           "evaluate_slab", "expert_terms", "fearnhead_split", "fused_delete_index", "fused_step",
-           "gate_constants", "gate_log_predictive", "gate_precision", "gate_update", "gram_matrix",
-           "grow_slab", "growth_step", "keeps_basis_vectors", "kernel_vector", "learn_batch",
-           "learn_full_expert", "lineage_assignments", "min_argmax", "novelty_margin",
-           "novelty_step", "novelty_test", "packed_add_lowrank", "projection", "putative_layout",
-           "rank_update_cq", "refresh_small", "shift_mean", "slab_views", "sorted_threshold",
-           "sparse_update", "stratified_pass", "survivor_counts", "survivor_particles",
-           "sym_matvec", "sym_matvec_into", "sym_row", "terms_batch", "threshold_taus",
-           "trace_lineages")
+KERNELS = ("cholesky_inverse", "cholesky_inverse_logdet", "copy_batch", "dot_column",
+           "evaluate_expert", "evaluate_experts", "evaluate_slab", "expert_terms",
+           "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
+           "gate_log_predictive", "gate_update", "gram_matrix", "grow_slab", "growth_step",
+           "keeps_basis_vectors", "kernel_vector", "learn_batch", "learn_full_expert",
+           "lineage_assignments", "min_argmax", "novelty_margin", "novelty_step", "novelty_test",
+           "packed_add_lowrank", "projection", "putative_layout", "rank_update_cq", "refresh_small",
+           "shift_mean", "slab_views", "sorted_threshold", "sparse_update", "stratified_pass",
+           "survivor_counts", "survivor_particles", "sym_matvec", "sym_matvec_into", "sym_row",
+           "terms_batch", "threshold_taus", "trace_lineages")
 
 
 def _load() -> None:

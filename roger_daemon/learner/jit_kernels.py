@@ -41,9 +41,10 @@ import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled as _compiled
 
-__all__ = ["cholesky_inverse", "expert_terms", "gram_matrix", "keeps_basis_vectors",
-           "kernel_vector", "min_argmax", "novelty_margin", "novelty_test", "packed_add_lowrank",
-           "projection", "rank_update_cq", "sym_matvec", "sym_matvec_into", "sym_row"]
+__all__ = ["cholesky_inverse", "cholesky_inverse_logdet", "expert_terms", "gram_matrix",
+           "keeps_basis_vectors", "kernel_vector", "min_argmax", "novelty_margin", "novelty_test",
+           "packed_add_lowrank", "projection", "rank_update_cq", "sym_matvec", "sym_matvec_into",
+           "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
 _FM = {"reassoc", "contract"}
@@ -369,18 +370,21 @@ def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: in
 
 
 @_compiled(nogil=True)
-def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -> bool:
-    """``out[:n, :n] = (K + jitter I)^{-1}`` for the SPD ``K = gram[:n, :n]``; False (``out``
-    untouched) if the Cholesky factorisation fails.  The result is exactly symmetric."""
+def cholesky_inverse_logdet(gram: FloatArray, n: int, jitter: float, out: FloatArray) -> float:
+    """``out[:n, :n] = (K + jitter I)^{-1}`` for the SPD ``K = gram[:n, :n]``, and
+    ``log|K + jitter I|`` returned; NaN (``out`` untouched) if the Cholesky factorisation
+    fails.  Plain loops (no BLAS or LAPACK); the result is exactly symmetric."""
     low = np.zeros((n, n))
+    logdet = 0.0
     for j in range(n):
         s = gram[j, j] + jitter
         for p in range(j):
             s -= low[j, p] * low[j, p]
         if not s > 0.0:
-            return False
+            return math.nan
         d = math.sqrt(s)
         low[j, j] = d
+        logdet += 2.0 * math.log(d)
         for r in range(j + 1, n):
             t = gram[r, j]
             for p in range(j):
@@ -402,7 +406,14 @@ def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -
                 t += inv[p, a] * inv[p, b]
             out[a, b] = t
             out[b, a] = t
-    return True
+    return logdet
+
+
+@_compiled(nogil=True)
+def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -> bool:
+    """``out[:n, :n] = (K + jitter I)^{-1}`` for the SPD ``K = gram[:n, :n]``; False (``out``
+    untouched) if the Cholesky factorisation fails (:func:`cholesky_inverse_logdet`)."""
+    return not math.isnan(cholesky_inverse_logdet(gram, n, jitter, out))
 
 
 @_compiled(nogil=True)

@@ -19,62 +19,21 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled
+from roger_daemon.learner.jit_kernels import cholesky_inverse_logdet
 from roger_daemon.learner.jit_scalar import student_t_normaliser
 
 #: :func:`.jit_scalar.student_t_normaliser` compiled: the gates' Student-t constants after an
 #: update (:func:`gate_update`) or a recomputation (:meth:`.gate.GatePool.update_many`)
 gate_constants = compiled(nogil=True)(student_t_normaliser)
 
-__all__ = ["gate_constants", "gate_log_predictive", "gate_precision", "gate_update",
-           "lineage_assignments", "trace_lineages"]
+__all__ = ["gate_constants", "gate_log_predictive", "gate_update", "lineage_assignments",
+           "trace_lineages"]
 
 FloatArray = npt.NDArray[np.float64]
 
 #: a gate's precision and ``log|Lambda|`` are recomputed from ``Lambda`` every this many
 #: updates (:func:`gate_update`), so the Sherman-Morrison round-off cannot accumulate
 GATE_REFRESH = 32
-
-
-@compiled(nogil=True)
-def gate_precision(lam: FloatArray, prec: FloatArray) -> float:
-    """``prec = Lambda^{-1}`` and ``log|Lambda|`` (returned) for the SPD ``lam`` (d x d), through
-    its Cholesky factor ``L``: ``Lambda^{-1} = L^{-T} L^{-1}`` (docs/learner-math.md §3.4),
-    in plain loops (no BLAS or LAPACK: the same floats on every host, exactly symmetric).  If
-    round-off leaves a pivot that is not positive, ``prec`` is left as it is and NaN returned
-    (the caller keeps its running values)."""
-    d = lam.shape[0]
-    low = np.zeros((d, d))  # L, then L^{-1} beside it
-    inv = np.zeros((d, d))
-    logdet = 0.0
-    for j in range(d):
-        t = lam[j, j]
-        for k in range(j):
-            t -= low[j, k] * low[j, k]
-        if not t > 0.0:
-            return math.nan
-        ljj = math.sqrt(t)
-        low[j, j] = ljj
-        logdet += 2.0 * math.log(ljj)
-        for i in range(j + 1, d):
-            t = lam[i, j]
-            for k in range(j):
-                t -= low[i, k] * low[j, k]
-            low[i, j] = t / ljj
-    for c in range(d):  # L^{-1} column by column: forward substitution of L y = e_c
-        inv[c, c] = 1.0 / low[c, c]
-        for i in range(c + 1, d):
-            t = 0.0
-            for k in range(c, i):
-                t -= low[i, k] * inv[k, c]
-            inv[i, c] = t / low[i, i]
-    for a in range(d):  # L^{-T} L^{-1}: the upper triangle, mirrored
-        for b in range(a, d):
-            t = 0.0
-            for k in range(b, d):
-                t += inv[k, a] * inv[k, b]
-            prec[a, b] = t
-            prec[b, a] = t
-    return logdet
 
 
 @compiled(nogil=True)
@@ -86,7 +45,8 @@ def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, count: npt.NDArray[
 
     ``Lambda += w u u^T`` with ``u = x - mu``, ``w = kappa / (kappa + 1)``; the precision by
     Sherman-Morrison, ``log|Lambda|`` by the determinant lemma, both recomputed from
-    ``Lambda`` every :data:`GATE_REFRESH` inputs of a gate (:func:`gate_precision`); the
+    ``Lambda`` every :data:`GATE_REFRESH` inputs of a gate
+    (:func:`.jit_kernels.cholesky_inverse_logdet`: no BLAS or LAPACK); the
     inputs counted, and the Student-t constants of §3.3 (:data:`gate_constants`) recomputed
     (:class:`.gate.GatePool`).
     """
@@ -124,9 +84,9 @@ def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, count: npt.NDArray[
         nu[s] += 1.0
         logdet[s] += math.log1p(t)
         count[s] += 1
-        if count[s] % GATE_REFRESH == 0:  # bound the round-off
-            fresh = gate_precision(lam[s], prec[s])
-            if fresh == fresh:
+        if count[s] % GATE_REFRESH == 0:  # bound the round-off: from Lambda by Cholesky
+            fresh = cholesky_inverse_logdet(lam[s], d, 0.0, prec[s])
+            if fresh == fresh:  # else (round-off left a pivot <= 0) the running values stay
                 logdet[s] = fresh
         lognorm[s], half_nu_d[s], inv_nu_c[s] = gate_constants(kp1, nu[s], logdet[s], d)
 

@@ -125,6 +125,7 @@ def _warm_the_rest() -> None:
     k.min_argmax(np.ones(N))
     k.packed_add_lowrank(sym.copy(), N, N, np.zeros((1, N)), np.zeros(1))
     k.cholesky_inverse(mat, N, 0.0, np.empty((N, N)))
+    k.cholesky_inverse_logdet(mat, N, 0.0, np.empty((N, N)))
     k.gram_matrix(basis, 1.0, N)
     sk.sparse_update(np.zeros((N, 2)), sym.copy(), N, N, vn, vn, np.zeros(2), -0.5, 0.5)
     sk.shift_mean(np.zeros((N, 2)), np.zeros(1), np.zeros(1), N, 1, np.empty(1))
@@ -142,7 +143,6 @@ def _warm_the_rest() -> None:
                    np.zeros((1, 1)), cube.copy(), cube.copy(), vec.copy(), vec.copy(),
                    vec.copy(), vec.copy())
     gk.gate_constants(0.1, 4.0, 0.0, 1)
-    gk.gate_precision(np.eye(1), np.empty((1, 1)))
     gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
     gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                       np.zeros(1, dtype=np.int64))
