@@ -25,9 +25,9 @@ _FLOAT64 = np.dtype(np.float64)
 
 
 def as_vector(name: str, value: object, dim: int) -> FloatArray:
-    """``value`` as a finite float64 vector of length ``dim``, else ``ValueError``."""
+    """``value`` as a finite, writable float64 vector of length ``dim``, else ``ValueError``."""
     if (type(value) is np.ndarray and value.dtype is _FLOAT64 and value.shape == (dim,)
-            and all(map(math.isfinite, value.tolist()))):
+            and value.flags.writeable and all(map(math.isfinite, value.tolist()))):
         return value  # what the checks below return for it, without numpy's calls
     try:
         arr = np.asarray(value, dtype=np.float64)
@@ -37,6 +37,8 @@ def as_vector(name: str, value: object, dim: int) -> FloatArray:
         raise ValueError(f"{name} must have shape ({dim},), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    if not arr.flags.writeable:  # a read-only array (np.frombuffer, a memory map) is another
+        arr = arr.copy()  # type to numba: each kernel would compile again for it, mid-step
     return arr
 
 

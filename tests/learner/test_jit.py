@@ -262,6 +262,26 @@ def test_warm_up_compiles_every_signature_a_learner_step_uses(
     assert compiled_signatures("roger_daemon.learner") == before
 
 
+def test_learning_from_read_only_arrays_compiles_nothing_after_warm_up() -> None:
+    """A read-only input (``np.frombuffer``, a memory map) is another array type to numba, so
+    each kernel it reached would compile again mid-step; ``as_vector`` hands the learner a
+    writable copy instead (with a prior mean, so that the targets' dot product runs too)."""
+    from roger_daemon.learner import Roger, RogerParams
+    from roger_daemon.learner.jit import compiled_signatures, warm_up
+    from roger_daemon.learner.synthetic import subtask_stream
+
+    warm_up()
+    before = compiled_signatures("roger_daemon.learner")
+    s = subtask_stream(60)
+    model = Roger(23, 9, RogerParams(beta=20, gp_prior_mean="expert"), seed=5)
+    for x, y in zip(s.x, s.y, strict=True):
+        rx, ry = np.frombuffer(x.tobytes()), np.frombuffer(y.tobytes())
+        assert not rx.flags.writeable
+        model.learn_one(rx, ry)
+    model.predict_with_multimap(np.frombuffer(s.x[0].tobytes()))
+    assert compiled_signatures("roger_daemon.learner") == before
+
+
 @pytest.mark.parametrize("values", [
     [3.0], [1.0, 5.0, 5.0, -2.0], [0.0, -0.0, 0.0], [2.0, np.nan, 7.0, np.nan],
     [np.nan, 1.0], [-np.inf, np.inf, 4.0], list(np.random.default_rng(3).normal(size=301)),
