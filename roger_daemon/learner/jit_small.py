@@ -25,6 +25,7 @@ from roger_daemon.learner.jit_kernels import (
     cholesky_inverse,
     gram_matrix,
     keeps_basis_vectors,
+    min_argmax,
     novelty_test,
     packed_add_lowrank,
     projection,
@@ -67,6 +68,19 @@ def shift_mean(coef: FloatArray, mean: FloatArray, y: FloatArray, n: int, n_poin
             coef[i, j] -= a1 * dm[j]
 
 
+@_compiled(nogil=True, inline="always")
+def _packed_diagonal(buf: FloatArray, n: int, alloc: int) -> FloatArray:
+    """The diagonal of the live ``n x n`` block of the packed ``buf`` (a copy; row ``a`` starts
+    ``alloc - (a - 1)`` after row ``a - 1``, :mod:`.packed`): :func:`.packed.diagonal`
+    compiled."""
+    out = np.empty(n)
+    off = 0
+    for a in range(n):
+        out[a] = buf[off]
+        off += alloc - a
+    return out
+
+
 @_compiled(nogil=True)
 def novelty_step(qbuf: FloatArray, k: FloatArray, n: int, alloc: int, kstar: float,
                  threshold: float, floor: float, drift_tol: float
@@ -78,15 +92,7 @@ def novelty_step(qbuf: FloatArray, k: FloatArray, n: int, alloc: int, kstar: flo
     e_hat, kqk = projection(qbuf, k, n, alloc)
     gamma, drifted, novel = novelty_test(kqk, kstar, threshold, floor, drift_tol)
     if not drifted and n > 0:
-        low = qbuf[0]
-        off = 0
-        for a in range(1, n):  # numpy's min: NaN if any entry is NaN
-            off += alloc - (a - 1)
-            v = qbuf[off]
-            if v < low or v != v:
-                low = v
-            if low != low:
-                break
+        low, _ = min_argmax(_packed_diagonal(qbuf, n, alloc))  # numpy's min: NaN if any is
         drifted = low * kstar < 1.0 - drift_tol
     return e_hat, gamma, drifted, novel
 
@@ -157,16 +163,9 @@ def growth_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Flo
         outcome = ADDED
     if n <= 1:
         return outcome, gamma, True
-    q_max = qbuf[0]
-    off = 0
-    for a in range(1, n):  # np.argmax's maximum: the first NaN if there is one
-        off += alloc - (a - 1)
-        v = qbuf[off]
-        if v > q_max or v != v:
-            q_max = v
-        if q_max != q_max:
-            break
-    return outcome, gamma, keeps_basis_vectors(q_max, cleanup_floor)
+    diag = _packed_diagonal(qbuf, n, alloc)
+    _, first_max = min_argmax(diag)  # np.argmax's: the first NaN if there is one
+    return outcome, gamma, keeps_basis_vectors(diag[first_max], cleanup_floor)
 
 
 @_compiled(nogil=True)
