@@ -142,6 +142,14 @@ class GatePool:
                                                    self.half_nu_d, self.inv_nu_c)
         return out
 
+    def crp_log_terms(self, slots: IntArray, x: FloatArray, npts: IntArray, out: FloatArray
+                      ) -> None:
+        """``out[s] = log t_s(x) + log n_s`` for every slot ``s`` in ``slots``: the gate and
+        CRP prior terms of an expert's putatives (§4), or of its gate probability in a
+        prediction (§6), ``npts`` the point counts by slot."""
+        _jit.gate_crp_log_terms(slots, x, self.mu, self.prec, self.lognorm, self.half_nu_d,
+                                self.inv_nu_c, npts, out)
+
     def prior_log_predictive(self, x: FloatArray) -> float:
         """``log t_0(x)``, the prior predictive of the empty expert (the slots' kernel)."""
         return float(_jit.gate_log_predictive(self._prior_stack[0], x, *self._prior_stack[1:])[0])

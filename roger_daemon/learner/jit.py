@@ -1,6 +1,6 @@
 """The learner's compiled kernels (:mod:`.jit_kernels`, :mod:`.jit_fused`, :mod:`.jit_batch`,
 :mod:`.jit_particles`, :mod:`.jit_layout`, :mod:`.jit_resampling`, :mod:`.jit_small`,
-:mod:`.jit_evaluate`), loaded on first use.
+:mod:`.jit_evaluate`, :mod:`.jit_weights`), loaded on first use.
 
 Importing numba takes about a second, so commands that import the learner without learning
 (configuration checks, replay listings, most of the CLI) do not pay it: the first access to a
@@ -70,11 +70,13 @@ _applied = threading.local()  # .count: what numba.set_num_threads was given in 
 KERNELS = ("cholesky_inverse", "cholesky_inverse_logdet", "copy_batch", "dot_column",
            "evaluate_expert", "evaluate_experts", "evaluate_slab", "expert_terms",
            "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
-           "gate_log_predictive", "gate_update", "gram_matrix", "grow_slab", "growth_step",
-           "keeps_basis_vectors", "kernel_vector", "learn_batch", "learn_full_expert",
-           "lineage_assignments", "min_argmax", "novelty_margin", "novelty_step", "novelty_test",
-           "packed_add_lowrank", "projection", "putative_layout", "rank_update_cq", "refresh_small",
-           "shift_mean", "slab_views", "sorted_threshold", "sparse_update", "stratified_pass",
+           "gate_crp_log_terms", "gate_log_predictive", "gate_update", "gaussian_log_density",
+           "gram_matrix", "grow_slab", "growth_step", "keeps_basis_vectors", "kernel_vector",
+           "learn_batch", "learn_full_expert", "lineage_assignments", "log_sum_exp",
+           "min_argmax", "novelty_margin", "novelty_step", "novelty_test",
+           "packed_add_lowrank", "projection", "putative_layout", "putative_log_weights",
+           "rank_update_cq", "refresh_small", "shift_mean", "slab_views",
+           "slot_log_likelihoods", "sorted_threshold", "sparse_update", "stratified_pass",
            "survivor_counts", "survivor_particles", "sym_matvec", "sym_matvec_into", "sym_row",
            "terms_batch", "threshold_taus", "trace_lineages")
 
@@ -89,10 +91,11 @@ def _load() -> None:
         jit_particles,
         jit_resampling,
         jit_small,
+        jit_weights,
     )
 
     for module in (jit_kernels, jit_fused, jit_batch, jit_particles, jit_layout, jit_resampling,
-                   jit_small, jit_evaluate):
+                   jit_small, jit_evaluate, jit_weights):
         for name in module.__all__:
             globals()[name] = getattr(module, name)
 

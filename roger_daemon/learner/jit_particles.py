@@ -4,6 +4,8 @@ Imported through :mod:`.jit`, like :mod:`.jit_kernels` (the experts' GP kernels)
 
 * :func:`gate_update`, :func:`gate_log_predictive`: the NIW gates' rank-1 updates and
   Student-t log densities over a set of slots (:class:`.gate.GatePool`), in one call each;
+  :func:`gate_crp_log_terms` adds each expert's CRP prior term (a step's putatives, a
+  prediction's gate probabilities);
 * :func:`trace_lineages`: particles' experts over the segmentation history's window, chased
   back through the stored ancestors (integers only: exact; :mod:`.history`).
 
@@ -26,8 +28,8 @@ from roger_daemon.learner.jit_scalar import student_t_normaliser
 #: update (:func:`gate_update`) or a recomputation (:meth:`.gate.GatePool.update_many`)
 gate_constants = compiled(nogil=True)(student_t_normaliser)
 
-__all__ = ["gate_constants", "gate_log_predictive", "gate_update", "lineage_assignments",
-           "trace_lineages"]
+__all__ = ["gate_constants", "gate_crp_log_terms", "gate_log_predictive", "gate_update",
+           "lineage_assignments", "trace_lineages"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -92,25 +94,48 @@ def gate_update(slots: npt.NDArray[np.int64], x: FloatArray, count: npt.NDArray[
 
 
 @compiled(nogil=True)
+def _gate_log_density(s: int, x: FloatArray, diff: FloatArray, mu: FloatArray,
+                      prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
+                      inv_nu_c: FloatArray) -> float:
+    """``log t_s(x)``, slot ``s``'s Student-t predictive (§3.3); ``diff`` is scratch."""
+    d = x.shape[0]
+    for a in range(d):
+        diff[a] = x[a] - mu[s, a]
+    delta = 0.0
+    for a in range(d):
+        t = 0.0
+        for b in range(d):
+            t += prec[s, a, b] * diff[b]
+        delta += diff[a] * t
+    log_t: float = lognorm[s] - half_nu_d[s] * math.log1p(delta * inv_nu_c[s])
+    return log_t
+
+
+@compiled(nogil=True)
 def gate_log_predictive(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatArray,
                         prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
                         inv_nu_c: FloatArray) -> FloatArray:
     """``log t_s(x)`` of the Student-t predictive of every gate in ``slots`` (§3.3)."""
-    d = x.shape[0]
     out = np.empty(slots.shape[0])
-    diff = np.empty(d)
+    diff = np.empty(x.shape[0])
+    for j in range(slots.shape[0]):
+        out[j] = _gate_log_density(slots[j], x, diff, mu, prec, lognorm, half_nu_d, inv_nu_c)
+    return out
+
+
+@compiled(nogil=True)
+def gate_crp_log_terms(slots: npt.NDArray[np.int64], x: FloatArray, mu: FloatArray,
+                       prec: FloatArray, lognorm: FloatArray, half_nu_d: FloatArray,
+                       inv_nu_c: FloatArray, npts: npt.NDArray[np.int64],
+                       out: FloatArray) -> None:
+    """``out[s] = log t_s(x) + log n_s`` for every slot ``s`` of ``slots``: an expert's gate
+    and CRP prior terms of a putative's log weight (§4; the normaliser ``N + alpha`` dropped),
+    the log of the point count the C library's."""
+    diff = np.empty(x.shape[0])
     for j in range(slots.shape[0]):
         s = slots[j]
-        for a in range(d):
-            diff[a] = x[a] - mu[s, a]
-        delta = 0.0
-        for a in range(d):
-            t = 0.0
-            for b in range(d):
-                t += prec[s, a, b] * diff[b]
-            delta += diff[a] * t
-        out[j] = lognorm[s] - half_nu_d[s] * math.log1p(delta * inv_nu_c[s])
-    return out
+        out[s] = _gate_log_density(s, x, diff, mu, prec, lognorm, half_nu_d, inv_nu_c)
+        out[s] += math.log(npts[s])
 
 
 @compiled(nogil=True)

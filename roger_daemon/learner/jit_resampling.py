@@ -1,21 +1,24 @@
 """Compiled steps of Fearnhead & Clifford's resampling (numba; :mod:`.resampling`,
 docs/learner-math.md §5).
 
-Imported through :mod:`.jit` with the other kernels.  Only exact IEEE operations happen here
-(divisions, sequential sums, comparisons, a stable sort): ``exp`` and ``log`` stay with numpy
-and the C library in :mod:`.resampling`, so the floats are those of the numpy code they
-replaced, bit for bit (tests/learner/test_resampling.py runs that code as the oracle).  Two
-calls per step instead of ~30 small numpy calls (~40 µs per step, issue 11).
+Imported through :mod:`.jit` with the other kernels.  Sums run in index order; ``exp`` and
+``log`` are the C library's (compiled ``math`` calls), not numpy's CPU-dependent SIMD loops
+(docs/reproducibility.md, *numpy's SIMD loops*), so the floats are those of a plain Python
+version (tests/learner/resampling_numpy.py, the oracle of tests/learner/test_resampling.py),
+bit for bit, on every host.  Two calls per step instead of ~30 small numpy calls (issue 11).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled
 
-__all__ = ["fearnhead_split", "sorted_threshold", "stratified_pass", "threshold_taus"]
+__all__ = ["fearnhead_split", "log_sum_exp", "sorted_threshold", "stratified_pass",
+           "threshold_taus"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -54,22 +57,47 @@ def sorted_threshold(ws: FloatArray, n_keep: int) -> tuple[float, int]:
 
 
 @compiled(nogil=True)
-def fearnhead_split(expw: FloatArray, total: float, n_keep: int
-                    ) -> tuple[FloatArray, IntArray, FloatArray, float, int]:
-    """``(w, order, ws, 1/c, L)``: the normalised weights ``expw / total``, their order by
-    decreasing weight (ties by index), the sorted weights, and :func:`sorted_threshold`."""
+def _exp_shifted(lv: FloatArray, expw: FloatArray) -> tuple[float, float]:
+    """``expw_i = exp(lv_i - top)`` for finite ``lv`` with ``top`` its largest; returns
+    ``(top, total)``, ``total`` their sum in index order."""
+    top = lv[0]
+    for i in range(1, lv.shape[0]):
+        if lv[i] > top:
+            top = lv[i]
+    total = 0.0
+    for i in range(lv.shape[0]):
+        expw[i] = math.exp(lv[i] - top)
+        total += expw[i]
+    return top, total
+
+
+@compiled(nogil=True)
+def log_sum_exp(lv: FloatArray) -> float:
+    """``log sum_i exp(lv_i)`` of finite ``lv`` (:func:`_exp_shifted`)."""
+    top, total = _exp_shifted(lv, np.empty(lv.shape[0]))
+    return top + math.log(total)
+
+
+@compiled(nogil=True)
+def fearnhead_split(lv: FloatArray, n_keep: int
+                    ) -> tuple[FloatArray, IntArray, FloatArray, float, int, float]:
+    """``(w, order, ws, 1/c, L, lse)`` of finite log weights ``lv``: the normalised weights,
+    their order by decreasing weight (ties by index), the sorted weights,
+    :func:`sorted_threshold`, and :func:`log_sum_exp` of ``lv`` (its very floats)."""
+    expw = np.empty(lv.shape[0])
+    top, total = _exp_shifted(lv, expw)
     w = expw / total
     order = np.argsort(-w, kind="mergesort")  # stable: ties broken by index
     ws = w[order]
     inv_c, n_top = sorted_threshold(ws, n_keep)
-    return w, order, ws, inv_c, n_top
+    return w, order, ws, inv_c, n_top, top + math.log(total)
 
 
 @compiled(nogil=True)
 def stratified_pass(w: FloatArray, order: IntArray, n_top: int, n_keep: int, inv_c: float,
                     u0: float, lv: FloatArray, lse: float, log_inv_c: float
                     ) -> tuple[IntArray, FloatArray, FloatArray]:
-    """``(selected indices, their log weights before normalising, cumulative weights)``.
+    """``(selected indices, their normalised log weights, cumulative weights)``.
 
     The top ``n_top`` are kept with their weights ``lv - lse``; the others, in their original
     order, are picked where the running sum ``cum_i`` crosses ``u0 + j/c`` and get weight
@@ -113,4 +141,6 @@ def stratified_pass(w: FloatArray, order: IntArray, n_top: int, n_keep: int, inv
         new_lw[i] = log_inv_c
         keep[i] = True
     sel = np.flatnonzero(keep)
-    return sel, new_lw[sel], cum
+    out = new_lw[sel]
+    out -= log_sum_exp(out)
+    return sel, out, cum

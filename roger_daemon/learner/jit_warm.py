@@ -106,8 +106,9 @@ def _warm_resampling() -> None:
     """The optimal-threshold resampler (paper [15]) and its decision margin."""
     from roger_daemon.learner import jit_resampling as rk
 
-    w, order, _, inv_c, n_top = rk.fearnhead_split(np.array([1.0, 0.5, 0.25]), 1.75, 2)
-    rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), 0.0, 0.0)
+    w, order, _, inv_c, n_top, lse = rk.fearnhead_split(np.log([1.0, 0.5, 0.25]), 2)
+    rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), lse, 0.0)
+    rk.log_sum_exp(np.zeros(2))
     rk.threshold_taus(np.array([0.5, 0.25]), 2)
 
 
@@ -118,6 +119,7 @@ def _warm_the_rest() -> None:
     from roger_daemon.learner import jit_layout as lk
     from roger_daemon.learner import jit_particles as gk
     from roger_daemon.learner import jit_small as sk
+    from roger_daemon.learner import jit_weights as wk
 
     basis, sym = _BASIS, _SYM
     mat, vn = np.eye(N), np.ones(N)
@@ -144,6 +146,11 @@ def _warm_the_rest() -> None:
                    vec.copy(), vec.copy())
     gk.gate_constants(0.1, 4.0, 0.0, 1)
     gk.gate_log_predictive(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec)
+    gk.gate_crp_log_terms(slots, np.zeros(1), np.zeros((1, 1)), cube, vec, vec, vec,
+                          np.ones(1, dtype=np.int64), np.zeros(1))
+    wk.gaussian_log_density(0.0, 1.0, 1)
+    wk.slot_log_likelihoods(slots, np.zeros(1), np.zeros((1, 1)), vec, 0.1, 1, np.zeros(1))
+    wk.putative_log_weights(np.zeros(2), np.array([0, -1]), np.zeros(1), 0.0)
     gk.trace_lineages(np.zeros((1, 1), dtype=np.int32), np.zeros((1, 1), dtype=np.int64), 1,
                       np.zeros(1, dtype=np.int64))
     gk.lineage_assignments(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), 1,

@@ -33,11 +33,6 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 
-def _logsumexp(lw: FloatArray) -> float:
-    m = float(lw.max())  # the methods: numpy's reductions without its wrappers' overhead
-    return m + float(np.log(np.exp(lw - m).sum()))
-
-
 def fearnhead_threshold(weights: FloatArray, n_keep: int) -> tuple[float, int]:
     """``(1/c, L)``: the threshold and the number of putatives kept outright.
 
@@ -103,18 +98,14 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Gene
         if valid.size == 0:
             raise ValueError("no putative has a finite log weight")
         lv = lw[valid]
-    top = float(lv.max())
-    expw = np.exp(lv - top)
-    total = float(expw.sum())
-    lse = top + math.log(total)
     if diagnostics is not None:
         diagnostics["margin"] = math.inf
     if lv.size <= n_keep:  # M <= P: keep them all
         keep_all = np.arange(lv.size) if valid is None else valid
-        return keep_all, lv - lse
-    # the threshold, the stratified pass and the new weights: two compiled calls
-    # (exact operations only, :mod:`.jit_resampling`); exp, log and the draw stay here
-    w, order, ws, inv_c, n_top = _jit.fearnhead_split(expw, total, n_keep)
+        return keep_all, lv - _jit.log_sum_exp(lv)
+    # the weights, the threshold, the stratified pass and the new weights: two compiled calls
+    # (:mod:`.jit_resampling`; libm's exp and log); the draw stays here
+    w, order, ws, inv_c, n_top, lse = _jit.fearnhead_split(lv, n_keep)
     if inv_c <= 0.0:  # fewer than P weights survive exp(): resample the rest in log space
         sel, out = _underflow_resample(lv, lse, order[:n_top], n_keep, rng)
         return (sel if valid is None else valid[sel]), out
@@ -125,7 +116,6 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Gene
     if diagnostics is not None:
         margin = partial(_decision_margin, ws, n_keep, n_top, inv_c, u0, cum)
         diagnostics["margin"] = margin if lazy else margin()
-    out -= _logsumexp(out)
     return (sel if valid is None else valid[sel]), out
 
 
@@ -142,8 +132,7 @@ def _underflow_resample(lv: FloatArray, lse: float, top: IntArray, n_keep: int,
     """
     rest = np.setdiff1d(np.arange(lv.size), top)
     lw_rest = lv[rest]
-    top_rest = float(lw_rest.max())
-    lse_rest = top_rest + math.log(float(np.sum(np.exp(lw_rest - top_rest))))
+    lse_rest = _jit.log_sum_exp(lw_rest)
     picked, out_rest = fearnhead_resample(lw_rest, n_keep - top.size, rng)
     sel = np.concatenate([top, rest[picked]])
     out = np.concatenate([lv[top] - lse, out_rest + (lse_rest - lse)])

@@ -48,7 +48,7 @@ from roger_daemon.learner.roger_predict import map_slots, predict, predict_table
 from roger_daemon.learner.roger_state import load_roger_state, roger_state_dict
 from roger_daemon.learner.roger_step import SlotTerms, instantiate, putatives
 from roger_daemon.learner.scaling import AffineScaling, as_vector
-from roger_daemon.learner.sogp import LATENT_FLOOR, SparseOnlineGP
+from roger_daemon.learner.sogp import LATENT_FLOOR, SparseOnlineGP, likelihood_dims
 from roger_daemon.learner.state import (
     Seed,
     spawn_generators,
@@ -154,7 +154,7 @@ class Roger:
         self._next_id = 0
         self._log_alpha = math.log(p.alpha)
         self._empty_var = self.kernel.k_star + p.theta_n  # empty expert: y ~ N(0, (k*+s0^2) I)
-        dims = self.d_y if p.likelihood_normaliser == "multivariate" else 1
+        dims = self._ll_dims = likelihood_dims(self.d_y, p.likelihood_normaliser)
         # upper bound of any expert's log N(y; mu, s^2 I): s^2 >= s0^2 (+ latent floor)
         self._gp_bound = -0.5 * dims * math.log(2.0 * math.pi * (p.theta_n + LATENT_FLOOR))
 

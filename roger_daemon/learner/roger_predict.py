@@ -34,8 +34,10 @@ def map_slots(model: Roger) -> IntArray:
 def gate_probs(model: Roger, slots: IntArray, xs: FloatArray) -> FloatArray:
     """``p(k | x) ∝ n_k t_k(x)`` over ``slots`` (+ ``alpha t_0(x)`` if the empty expert
     takes part), normalised (paper Algorithm 2, docs/learner-math.md §6)."""
+    by_slot = np.empty(model._npts.size)
+    model._gates.crp_log_terms(slots, xs, model._npts, by_slot)
+    lg = by_slot[slots]
     npts = model._npts[slots]
-    lg = model._gates.log_predictive(slots, xs) + np.log(npts)
     support = model.params.min_support
     if support > 1:  # too small to compete, unless no expert has the support
         small = npts < support

@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner import jit as _jit
-from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood
+from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.sogp_batch import (
     Evaluation,
     copy_many,
@@ -50,8 +50,7 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
     # gates of all unique experts, batched (§3.4); CRP prior n_k (N + alpha dropped, §4)
     live = np.flatnonzero(model._ref > 0)
     slot_gate = np.zeros(cap)
-    slot_gate[live] = model._gates.log_predictive(live, xs)
-    slot_gate[live] += np.log(model._npts[live])
+    model._gates.crp_log_terms(live, xs, model._npts, slot_gate)
     # each particle's putatives: its experts, then the new one (:mod:`.jit_layout`)
     flat_slots, flat_part, offsets, base = _jit.putative_layout(
         model._slots, model._starts, model._logw, slot_gate,
@@ -63,10 +62,9 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
 
     # GP factor: the empty expert analytically, the others once per unique expert
     yy = _jit.dot_column(ys, ys.reshape(-1, 1), 0, model.d_y)  # |y|^2 in index order, no BLAS
-    ll_new = float(gaussian_log_likelihood(yy, model._empty_var, model.d_y,
-                                           p.likelihood_normaliser))
+    ll_new = _jit.gaussian_log_density(yy, model._empty_var, model._ll_dims)
     slot_ll, terms = gp_factors(model, xs, ys, live, base, is_new, old_slots, ll_new, cap)
-    lw = base + np.where(is_new, ll_new, slot_ll[flat_slots])
+    lw = _jit.putative_log_weights(base, flat_slots, slot_ll, ll_new)
     return lw, flat_part, flat_slots, offsets, terms
 
 
@@ -83,7 +81,8 @@ def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slo
     if math.isinf(kappa):
         base[~is_prev] = -np.inf
     else:
-        base[is_prev] += np.log1p(kappa / model._npts[flat_slots[is_prev]])
+        # the C library's log1p, as every log of the learning path (docs/reproducibility.md)
+        base[is_prev] += [math.log1p(kappa / n) for n in model._npts[flat_slots[is_prev]].tolist()]
 
 
 def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
@@ -116,10 +115,8 @@ def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, bas
         chosen = slots.tolist()
         got = evaluate_many([gps[s] for s in chosen], xs)
         terms.update((s, (got, j)) for j, s in enumerate(chosen))
-        diff = ys - got.means
-        var = p.theta_n + got.latent
-        slot_ll[slots] = gaussian_log_likelihood(np.einsum("ij,ij->i", diff, diff), var,
-                                                 model.d_y, p.likelihood_normaliser)
+        _jit.slot_log_likelihoods(slots, ys, got.means, got.latent, p.theta_n, model._ll_dims,
+                                  slot_ll)
 
     if math.isinf(margin) or order.size <= _STAGE1:
         evaluate(order)

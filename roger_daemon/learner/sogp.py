@@ -52,23 +52,29 @@ from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delet
 from roger_daemon.learner.sogp_steps import LATENT_FLOOR, SOGPSteps
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
-__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "update_many"]
+__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "likelihood_dims",
+           "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 
-_LOG_2PI = math.log(2.0 * math.pi)
 
 
-def gaussian_log_likelihood(sq_err: FloatArray | float, var: FloatArray | float, d_y: int,
-                            normaliser: str = "multivariate") -> FloatArray:
+def likelihood_dims(d_y: int, normaliser: str) -> int:
+    """The dimensions in the Gaussian's normalising constant: ``d_y``, or 1 with
+    ``normaliser="grollman"`` (Grollman's ``SOGP::log_prob``, fidelity switch 2)."""
+    return d_y if normaliser == "multivariate" else 1
+
+
+def gaussian_log_likelihood(sq_err: float, var: float, d_y: int,
+                            normaliser: str = "multivariate") -> float:
     """``log N(y; mu, var * I)`` from ``|y - mu|^2`` and the scalar variance (§2.4).
 
     ``normaliser="grollman"`` uses the 1-D constant of Grollman's ``SOGP::log_prob``
-    (fidelity switch 2): ``-log sqrt(2 pi) - log sigma - |y - mu|^2 / (2 sigma^2)``.
+    (fidelity switch 2): ``-log sqrt(2 pi) - log sigma - |y - mu|^2 / (2 sigma^2)``.  The
+    compiled density a step's putatives use (:func:`.jit_weights.gaussian_log_density`).
     """
-    var = np.asarray(var, dtype=np.float64)
-    dims = d_y if normaliser == "multivariate" else 1
-    return np.asarray(-0.5 * dims * (_LOG_2PI + np.log(var)) - 0.5 * np.asarray(sq_err) / var)
+    return float(_jit.gaussian_log_density(float(sq_err), float(var),
+                                           likelihood_dims(d_y, normaliser)))
 
 
 class SparseOnlineGP(SOGPSteps):
@@ -233,7 +239,7 @@ class SparseOnlineGP(SOGPSteps):
         """``log p(y | x)`` under the predictive Gaussian (§2.4)."""
         mean, var = self.predict(x)
         diff = y - mean
-        return float(gaussian_log_likelihood(float(diff @ diff), var, self.d_y, self.normaliser))
+        return gaussian_log_likelihood(float(diff @ diff), var, self.d_y, self.normaliser)
 
     # -- learning ----------------------------------------------------------------------------------
 

@@ -1,6 +1,8 @@
 """The numpy implementation of Fearnhead's resampling that :mod:`.jit_resampling` replaced,
 kept as the oracle of a bit-for-bit test (tests/learner/test_resampling.py): finite log
-weights, more putatives than survivors and no underflow (the paths the kernels took over)."""
+weights, more putatives than survivors and no underflow (the paths the kernels took over).
+Its ``exp`` and ``log`` are the C library's (``math``) and its sums run in index order, as the
+kernels' do: numpy's own ``exp`` is CPU-dependent (docs/reproducibility.md)."""
 
 from __future__ import annotations
 
@@ -11,12 +13,23 @@ import numpy as np
 FloatArray = np.ndarray
 
 
+def libm_exp(v: FloatArray) -> FloatArray:
+    return np.array([math.exp(t) for t in v.tolist()])
+
+
+def sum_in_order(v: FloatArray) -> float:
+    total = 0.0
+    for t in v.tolist():
+        total += t
+    return total
+
+
 def numpy_resample(lv: FloatArray, n_keep: int, rng: np.random.Generator
                    ) -> tuple[np.ndarray, FloatArray, float]:
     """``(indices, log weights, 1/c)`` as the numpy code computed them."""
     top = float(lv.max())
-    expw = np.exp(lv - top)
-    total = float(expw.sum())
+    expw = libm_exp(lv - top)
+    total = sum_in_order(expw)
     lse = top + math.log(total)
     w = expw / total
     order = np.argsort(-w, kind="stable")
@@ -49,5 +62,5 @@ def numpy_resample(lv: FloatArray, n_keep: int, rng: np.random.Generator
     sel = np.flatnonzero(keep)
     out = new_lw[sel]
     m = float(np.max(out))
-    out -= m + float(np.log(np.sum(np.exp(out - m))))
+    out -= m + math.log(sum_in_order(libm_exp(out - m)))
     return sel, out, inv_c

@@ -213,7 +213,7 @@ def test_fused_step_keeps_the_basis_and_the_diagonal_cache_consistent() -> None:
     np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
 
 
-def test_the_lazy_loader_binds_exactly_the_kernels_of_the_eight_modules() -> None:
+def test_the_lazy_loader_binds_exactly_the_kernels_of_the_nine_modules() -> None:
     """``jit.KERNELS`` (what ``roger_daemon.learner.jit`` serves and ``warm_up`` compiles) is
     the union of the kernel modules' exports, and each name resolves to that module's kernel."""
     from roger_daemon.learner import jit as lazy
@@ -225,10 +225,11 @@ def test_the_lazy_loader_binds_exactly_the_kernels_of_the_eight_modules() -> Non
         jit_particles,
         jit_resampling,
         jit_small,
+        jit_weights,
     )
 
     modules = (jit, jit_fused, jit_batch, jit_particles, jit_layout, jit_resampling, jit_small,
-               jit_evaluate)
+               jit_evaluate, jit_weights)
     exports = [set(m.__all__) for m in modules]
     assert set(lazy.KERNELS) == set().union(*exports)
     assert sum(map(len, exports)) == len(set().union(*exports))  # no name in two modules
