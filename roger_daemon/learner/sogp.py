@@ -58,7 +58,6 @@ __all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "likelih
 FloatArray = npt.NDArray[np.float64]
 
 
-
 def likelihood_dims(d_y: int, normaliser: str) -> int:
     """The dimensions in the Gaussian's normalising constant: ``d_y``, or 1 with
     ``normaliser="grollman"`` (Grollman's ``SOGP::log_prob``, fidelity switch 2)."""
