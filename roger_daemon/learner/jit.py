@@ -27,9 +27,11 @@ __all__ = ["ADDED", "BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "EVALUATION_WI
            "compiled_signatures", "padded", "set_threads", "threads", "use_threads", "warm_up"]
 
 #: up to this many basis vectors ``Q`` is re-inverted by the compiled Cholesky
-#: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK.  (Expert evaluation and ``Q k``
-#: are compiled at every size since issue 11's second pass.)
-SMALL = 64
+#: (:func:`.jit_kernels.cholesky_inverse`); above, by LAPACK, which is faster there (2026-11-28,
+#: 2-core AMD EPYC: 0.38 against 0.39 ms at 128, 0.81 against 0.71 ms at 200, 2.8 against 1.2
+#: ms at 300, docs/performance.md, *A faster compiled re-inversion*).  (Expert evaluation and
+#: ``Q k`` are compiled at every size since issue 11's second pass.)
+SMALL = 128
 
 #: experts per call of a batched kernel (:mod:`.jit_batch`): their slabs come as a tuple of
 #: exactly this many arrays, so each kernel has one compiled signature; at the paper's
@@ -75,7 +77,7 @@ KERNELS = ("cholesky_inverse", "cholesky_inverse_logdet", "copy_batch", "dot_col
            "learn_batch", "learn_full_expert", "lineage_assignments", "log_sum_exp",
            "min_argmax", "novelty_margin", "novelty_step", "novelty_test",
            "packed_add_lowrank", "projection", "putative_layout", "putative_log_weights",
-           "rank_update_cq", "refresh_small", "shift_mean", "slab_views",
+           "rank_update_cq", "refresh_inverse", "shift_mean", "slab_views",
            "slot_log_likelihoods", "sorted_threshold", "sparse_update", "stratified_pass",
            "survivor_counts", "survivor_particles", "sym_matvec", "sym_matvec_into", "sym_row",
            "terms_batch", "threshold_taus", "trace_lineages")

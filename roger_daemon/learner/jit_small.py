@@ -6,7 +6,7 @@ numpy or kernel calls each, ~20 µs of per-call overhead for a few hundred flops
 do each in one call and give the same floats as before, bit for bit
 (tests/learner/test_jit.py): :func:`sparse_update` and :func:`shift_mean` make numpy's
 elementwise operations in its order (no ``fastmath``, so no fused multiply-adds, and no
-reductions); :func:`novelty_step` and :func:`refresh_small` call the kernels the separate
+reductions); :func:`novelty_step` and :func:`refresh_inverse` call the kernels the separate
 calls made.  At the paper's parameters an expert that is not yet full (~0.8 of the ~10 a step
 updates on the benchmark stream) learns by :func:`growth_step`, the same floats as the dozen
 calls it replaced (tests/learner/test_growth_step.py), and its buffers grow by
@@ -31,7 +31,7 @@ from roger_daemon.learner.jit_kernels import (
     projection,
 )
 
-__all__ = ["dot_column", "grow_slab", "growth_step", "novelty_step", "refresh_small",
+__all__ = ["dot_column", "grow_slab", "growth_step", "novelty_step", "refresh_inverse",
            "shift_mean", "sparse_update"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -98,7 +98,7 @@ def novelty_step(qbuf: FloatArray, k: FloatArray, n: int, alloc: int, kstar: flo
 
 
 @_compiled(nogil=True)
-def refresh_small(basis: FloatArray, gamma: float, n: int, jitter: float, qbuf: FloatArray,
+def refresh_inverse(basis: FloatArray, gamma: float, n: int, jitter: float, qbuf: FloatArray,
                   alloc: int) -> bool:
     """``Q = (K_B + jitter I)^{-1}`` re-inverted (docs/learner-math.md, matrix drift): ``K_B``
     of the live basis (:func:`.jit_kernels.gram_matrix`), its inverse by

@@ -132,7 +132,7 @@ def _warm_the_rest() -> None:
     sk.sparse_update(np.zeros((N, 2)), sym.copy(), N, N, vn, vn, np.zeros(2), -0.5, 0.5)
     sk.shift_mean(np.zeros((N, 2)), np.zeros(1), np.zeros(1), N, 1, np.empty(1))
     sk.novelty_step(sym, np.zeros(N), N, N, 1.0, 1e-3, 1e-12, 1e-6)
-    sk.refresh_small(basis, 1.0, N, 0.0, sym.copy(), N)
+    sk.refresh_inverse(basis, 1.0, N, 0.0, sym.copy(), N)
     sk.dot_column(np.zeros(N), np.zeros((N, 2)), 1, N)
     sk.growth_step(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
                    np.zeros(basis.shape[1]), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0,

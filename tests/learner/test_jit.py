@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 
@@ -152,6 +153,55 @@ def test_cholesky_inverse_matches_numpy_and_is_symmetric(n: int) -> None:
     assert jit.cholesky_inverse(gram, n, 0.5, out)
     np.testing.assert_allclose(out[:n, :n], np.linalg.inv(gram[:n, :n] + 0.5 * np.eye(n)),
                                rtol=1e-10, atol=1e-12)
+
+
+def _textbook_cholesky_inverse(gram: np.ndarray, n: int, jitter: float) -> tuple[float, np.ndarray]:
+    """The oracle: ``L``, ``W = L^{-1}`` and ``W^T W`` as three plain triple loops, one sum at a
+    time in index order (the kernel's code before it took four sums side by side)."""
+    low = np.zeros((n, n))
+    logdet = 0.0
+    for j in range(n):
+        s = gram[j, j] + jitter
+        for p in range(j):
+            s -= low[j, p] * low[j, p]
+        d = math.sqrt(s)
+        low[j, j] = d
+        logdet += 2.0 * math.log(d)
+        for r in range(j + 1, n):
+            t = gram[r, j]
+            for p in range(j):
+                t -= low[r, p] * low[j, p]
+            low[r, j] = t / d
+    inv = np.zeros((n, n))
+    for j in range(n):
+        inv[j, j] = 1.0 / low[j, j]
+        for r in range(j + 1, n):
+            t = 0.0
+            for p in range(j, r):
+                t -= low[r, p] * inv[p, j]
+            inv[r, j] = t / low[r, r]
+    out = np.zeros((n, n))
+    for a in range(n):
+        for b in range(a + 1):
+            t = 0.0
+            for p in range(a, n):
+                t += inv[p, a] * inv[p, b]
+            out[a, b] = out[b, a] = t
+    return logdet, out
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 8, 9, 23, 40])
+def test_cholesky_inverse_gives_the_textbook_loops_bits(n: int) -> None:
+    """Four sums side by side, each in the textbook loops' order: the very floats (every
+    remainder of the blocks of four is reached by some ``n``), with and without jitter."""
+    rng = np.random.default_rng(100 + n)
+    gram = _spd(n, rng, cond=1e4)
+    for jitter in (0.0, 0.25):
+        out = np.empty((n, n))
+        logdet = jit.cholesky_inverse_logdet(gram, n, jitter, out)
+        want_logdet, want = _textbook_cholesky_inverse(gram, n, jitter)
+        assert logdet == want_logdet
+        assert out.tobytes() == want.tobytes()
 
 
 def test_cholesky_inverse_refuses_a_matrix_that_is_not_positive_definite() -> None:
@@ -356,7 +406,7 @@ def test_the_novelty_step_is_the_projection_test_and_drift_check(drift: bool) ->
     assert (drifted, novel) == (d_want, n_want) and drifted == drift
 
 
-def test_the_small_reinversion_is_the_gram_cholesky_and_packing_it_replaced() -> None:
+def test_the_reinversion_is_the_gram_cholesky_and_packing_it_replaced() -> None:
     """Oracle: ``gram_matrix``, ``cholesky_inverse`` and ``packed.pack_into``, as the separate
     calls made them: the same floats; a failed factorisation leaves ``Q`` untouched."""
     from roger_daemon.learner import jit_kernels, jit_small
@@ -370,12 +420,12 @@ def test_the_small_reinversion_is_the_gram_cholesky_and_packing_it_replaced() ->
     assert jit_kernels.cholesky_inverse(jit_kernels.gram_matrix(basis, gamma, n), n, 0.0,
                                         inverse)
     pack_into(want, alloc, inverse, n)
-    assert jit_small.refresh_small(basis, gamma, n, 0.0, got, alloc)
+    assert jit_small.refresh_inverse(basis, gamma, n, 0.0, got, alloc)
     assert np.array_equal(got, want)
     twin = basis.copy()
     twin[1] = twin[0]  # two equal basis vectors: K_B is singular
     before = got.copy()
-    assert not jit_small.refresh_small(twin, gamma, 2, -1.0, got, alloc)
+    assert not jit_small.refresh_inverse(twin, gamma, 2, -1.0, got, alloc)
     assert np.array_equal(got, before)
 
 
