@@ -99,7 +99,7 @@ def novelty_step(qbuf: FloatArray, k: FloatArray, n: int, alloc: int, kstar: flo
 
 @_compiled(nogil=True)
 def refresh_inverse(basis: FloatArray, gamma: float, n: int, jitter: float, qbuf: FloatArray,
-                  alloc: int) -> bool:
+                    alloc: int) -> bool:
     """``Q = (K_B + jitter I)^{-1}`` re-inverted (docs/learner-math.md, matrix drift): ``K_B``
     of the live basis (:func:`.jit_kernels.gram_matrix`), its inverse by
     :func:`.jit_kernels.cholesky_inverse`, stored as the packed upper triangle of ``qbuf``;
