@@ -124,7 +124,7 @@ class SOGPSteps:
         jitter = 0.0
         if n <= _jit.SMALL:  # compiled, in one call: no LAPACK call overhead at this size
             while not _jit.refresh_inverse(self._B, self.kernel.gamma, n, jitter, self._Qp,
-                                         self._alloc):
+                                           self._alloc):
                 jitter = max(10.0 * jitter, _Q_JITTER * self.kernel.k_star)
             self._forget_diagonals()
             self.q_refreshes += 1
