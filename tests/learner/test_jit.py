@@ -42,6 +42,30 @@ def test_kernel_vector_and_expert_terms_match_numpy(n: int) -> None:
     np.testing.assert_allclose(out[2 * n + 1:], k @ coef[:n], rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("d", [1, 3, 23])
+def test_a_kernel_value_does_not_depend_on_its_rows_place(d: int) -> None:
+    """Each row's sum may be reassociated by LLVM, so every row must go through the one
+    four-row code (:func:`jit_kernels.kernel_values`): the same value wherever the basis
+    vector sits (first rows, a block, the last rows, fewer than four), in a kernel vector,
+    in an expert's terms and in the Gram matrix of a re-inversion."""
+    rng = np.random.default_rng(d)
+    gamma = 0.3
+    for n in range(1, 14):
+        basis = rng.normal(size=(n, d))
+        x = rng.normal(size=d)
+        k = jit.kernel_vector(basis, x, gamma, n)
+        for shift in (1, 2, 3, 5):
+            moved = np.vstack([rng.normal(size=(shift, d)), basis])
+            assert np.array_equal(jit.kernel_vector(moved, x, gamma, n + shift)[shift:], k)
+        cov = np.zeros(packed.packed_size(n))
+        assert np.array_equal(jit.expert_terms(basis, cov, np.zeros((n, 1)), x, gamma, n, n)[:n],
+                              k)
+        gram = jit.gram_matrix(basis, gamma, n)
+        assert np.array_equal(gram, gram.T)
+        for m in range(n):
+            assert np.array_equal(gram[m], jit.kernel_vector(basis, basis[m].copy(), gamma, n))
+
+
 def test_the_mean_skips_zero_kernel_values_bit_for_bit() -> None:
     """``k^T A`` in :func:`.jit_kernels.expert_terms` skips the rows whose kernel value is
     exactly zero: the same bits as the loop over every row compiled with the same flags (the
