@@ -67,14 +67,16 @@ def exact_step_passes(bases: FloatArray, cs: FloatArray, qs: FloatArray, coefs: 
     for u in prange(updated.shape[0]):
         v = updated[u]
         qk = jit_kernels.sym_matvec(qs[v], ks[v], n, n)
-        uvs = np.empty((4, n))  # s, g, w, e (rank_update_cq): g in both updates
-        uvs[0] = cks[v]
-        uvs[1] = ks[v]
-        uvs[2] = ks[v]
-        uvs[3] = qk
+        uc = np.empty((3, n))
+        uc[0] = cks[v]
+        uc[1] = qk
+        uc[2] = ks[v]
+        uq = np.empty((2, n))
+        uq[0] = qk
+        uq[1] = ks[v]
         cc = np.array([scale, -scale, scale])
         cq = np.array([scale, -scale])
-        jit_kernels.rank_update_cq(cs[v], qs[v], n, n, -1, uvs, cc, cq, np.empty(n))
+        jit_kernels.rank_update_cq(cs[v], qs[v], n, n, -1, uc, cc, uq, cq, np.empty(n))
     return float(kck.sum())
 
 

@@ -106,29 +106,31 @@ def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Floa
     if old:
         for c in range(d_a):
             coef[idx, c] = 0.0  # the new BV's row (at i) is 0 + 1 * q
-    u = np.empty((4, n))  # s, g = Q1[:, i], w = Q1[:, i] + C1[:, i], e (rank_update_cq)
+    uc = np.empty((3, n))
+    uq = np.empty((2, n))
     for a in range(n):
         w = vs[3, a] + vs[2, a]
         for c in range(d_a):
             coef[a, c] += vs[0, a] * q[c] + (-w) * (a_star[c] * inv_den)
-        u[0, a] = vs[0, a]
-        u[1, a] = vs[3, a]
-        u[2, a] = w
-        u[3, a] = vs[1, a]
+        uc[0, a] = vs[0, a]
+        uc[1, a] = vs[3, a]
+        uc[2, a] = w
+        uq[0, a] = vs[1, a]
+        uq[1, a] = vs[3, a]
     cc = np.array([r, 1.0 / q_star, -inv_den])
     cq = np.array([inv_gamma, -1.0 / q_star])
     diag = dg.copy()
     if old:
         diag[idx] = 0.0
     for a in range(n):
-        diag[a] += (u[0, a] * u[0, a] * cc[0] + u[1, a] * u[1, a] * cc[1]
-                    + u[2, a] * u[2, a] * cc[2])
-        diag[a] += u[3, a] * u[3, a] * cq[0] + u[1, a] * u[1, a] * cq[1]
+        diag[a] += (uc[0, a] * uc[0, a] * cc[0] + uc[1, a] * uc[1, a] * cc[1]
+                    + uc[2, a] * uc[2, a] * cc[2])
+        diag[a] += uq[0, a] * uq[0, a] * cq[0] + uq[1, a] * uq[1, a] * cq[1]
     i = -1
     if old:
         i = idx
         basis[i, :] = x
     dq = np.empty(n)
-    rank_update_cq(cbuf, qbuf, n, n, i, u, cc, cq, dq)
+    rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
     dq_min, dq_argmax = min_argmax(dq)
     return diag, dq, dq_min, dq_argmax

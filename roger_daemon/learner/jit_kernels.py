@@ -353,21 +353,16 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
     return out
 
 
-@_compiled(nogil=True)  # no contraction into FMAs: IEEE products and sums, in written order
+@_compiled(fastmath={"contract"}, nogil=True)
 def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: int,
-                   u: FloatArray, cc: FloatArray, cq: FloatArray, dq: FloatArray) -> None:
-    """Zero row and column ``i`` (none if ``i < 0``), then ``C += cc0 s s^T + cc1 g g^T + cc2
-    w w^T`` and ``Q += cq0 e e^T + cq1 g g^T`` on the live ``n x n`` blocks of the packed
-    ``C`` and ``Q``, in place; ``dq[:n]`` receives the new ``diag(Q)`` as stored (the novelty
-    test's drift check and the clean-up read it, docs/performance.md).
+                   uc: FloatArray, cc: FloatArray, uq: FloatArray, cq: FloatArray,
+                   dq: FloatArray) -> None:
+    """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
+    ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks of the packed ``C`` and ``Q``, in
+    place, one pass over each upper triangle; ``dq[:n]`` receives the new ``diag(Q)`` as
+    stored (the novelty test's drift check and the clean-up read it, docs/performance.md).
 
-    ``u`` is (4, n): the fused add-then-delete step's columns ``s``, ``g``, ``w``, ``e`` as
-    rows; ``g`` (the permuted ``Q1[:, i]``) is in both updates.  One pass over both upper
-    triangles, row by row: each row of ``Q`` and then the same row of ``C``, so that ``g``'s
-    entries are loaded once for both (docs/performance.md, *One pass for both rank updates*).
-    Compiled without contracting ``a * b + c`` into an FMA: each entry is the IEEE products
-    and sums in the order written, whatever the CPU or LLVM's choices (the pass is bound by
-    the bytes it moves, not by its arithmetic).
+    ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.
     """
     if i >= 0:
         off = 0
@@ -378,22 +373,28 @@ def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: in
         for a in range(n - i):
             cbuf[off + a] = 0.0
             qbuf[off + a] = 0.0
-    s, g, w, e = u[0], u[1], u[2], u[3]
+    # Q first: the caller has just read it for Q k, so it is still in the core's cache
+    q0, q1 = uq[0], uq[1]
     off = 0
     for a in range(n):
-        qrow = qbuf[off: off + n - a]
-        crow = cbuf[off: off + n - a]
-        ts, tg, tw, te = s[a:n], g[a:n], w[a:n], e[a:n]
-        q0 = cq[0] * e[a]
-        q1 = cq[1] * g[a]
-        v0 = cc[0] * s[a]
-        v1 = cc[1] * g[a]
-        v2 = cc[2] * w[a]
+        row = qbuf[off: off + n - a]
+        t0, t1 = q0[a:n], q1[a:n]
+        w0 = cq[0] * q0[a]
+        w1 = cq[1] * q1[a]
         for b in range(n - a):
-            gb = tg[b]
-            qrow[b] += q0 * te[b] + q1 * gb
-            crow[b] += v0 * ts[b] + v1 * gb + v2 * tw[b]
-        dq[a] = qrow[0]
+            row[b] += w0 * t0[b] + w1 * t1[b]
+        dq[a] = row[0]
+        off += alloc - a
+    c0, c1, c2 = uc[0], uc[1], uc[2]
+    off = 0
+    for a in range(n):
+        row = cbuf[off: off + n - a]
+        t0, t1, t2 = c0[a:n], c1[a:n], c2[a:n]
+        v0 = cc[0] * c0[a]
+        v1 = cc[1] * c1[a]
+        v2 = cc[2] * c2[a]
+        for b in range(n - a):
+            row[b] += v0 * t0[b] + v1 * t1[b] + v2 * t2[b]
         off += alloc - a
 
 
