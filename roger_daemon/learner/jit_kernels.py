@@ -10,12 +10,15 @@ expert's work in one call:
 ``C`` and ``Q`` are stored packed (their upper triangles, :mod:`.packed`): every pass over
 them streams half the bytes of a full matrix.
 
+* :func:`kernel_values`: the kernel's values ``exp(-gamma |b_i - x|^2)``, four basis vectors
+  at a time, the one code of every kernel vector (:func:`kernel_vector`, :func:`expert_terms`)
+  and of :func:`gram_matrix`'s rows;
 * :func:`expert_terms`: ``k``, ``C k``, ``k^T C k`` and ``k^T A`` in one pass, at every size;
 * :func:`sym_matvec`: ``S v`` of a packed matrix (:func:`sym_matvec_into`), and
   :func:`sym_row`, one row of it; :func:`projection`: ``Q k`` and ``k^T Q k`` for the novelty
   test, whose rule is :func:`novelty_test`;
 * :func:`rank_update_cq`: the fused hot path's rank-3 update of ``C`` and rank-2 update of
-  ``Q`` in one pass over the two buffers, with row and column ``i`` zeroed first;
+  ``Q``, one pass over each buffer, with row and column ``i`` zeroed first;
   :func:`packed_add_lowrank`: the other steps' low-rank updates;
 * :func:`.jit_fused.fused_step` (with :func:`.jit_fused.fused_delete_index`): the whole fused
   add-then-delete step of one full expert (:mod:`.sogp_fused`), ending in
