@@ -75,8 +75,8 @@ def rbf(gamma: float, sq_dist: float) -> float:
 
 @_compiled(fastmath=_FM, nogil=True, inline="always")
 def _four_values(basis: FloatArray, i0: int, i1: int, i2: int, i3: int, x: FloatArray,
-                 gamma: float, out: FloatArray, o0: int, o1: int, o2: int, o3: int) -> None:
-    """``out[o_r] = exp(-gamma |basis[i_r] - x|^2)`` for four rows (:func:`kernel_values`)."""
+                 gamma: float, out: FloatArray) -> None:
+    """``out[i_r] = exp(-gamma |basis[i_r] - x|^2)`` for four rows (:func:`kernel_values`)."""
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0
@@ -91,10 +91,10 @@ def _four_values(basis: FloatArray, i0: int, i1: int, i2: int, i3: int, x: Float
         s1 += t1 * t1
         s2 += t2 * t2
         s3 += t3 * t3
-    out[o0] = rbf(gamma, s0)
-    out[o1] = rbf(gamma, s1)
-    out[o2] = rbf(gamma, s2)
-    out[o3] = rbf(gamma, s3)
+    out[i0] = rbf(gamma, s0)
+    out[i1] = rbf(gamma, s1)
+    out[i2] = rbf(gamma, s2)
+    out[i3] = rbf(gamma, s3)
 
 
 @_compiled(fastmath=_FM, nogil=True, inline="always")
@@ -116,7 +116,7 @@ def kernel_values(basis: FloatArray, x: FloatArray, gamma: float, n: int,
     for block in range((n + 3) // 4):  # one call site: one compiled body for every row
         i = max(min(4 * block, n - 4), 0)
         _four_values(basis, i, min(i + 1, last), min(i + 2, last), min(i + 3, last), x, gamma,
-                     out, i, min(i + 1, last), min(i + 2, last), min(i + 3, last))
+                     out)
 
 
 @_compiled(fastmath=_FM, nogil=True)
