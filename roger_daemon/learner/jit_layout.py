@@ -12,7 +12,8 @@ slots ``slots[starts[p]:starts[p + 1]]``.  Per step (paper Algorithm 1, docs/lea
   many chose it (copy-on-write, :func:`.roger_step.instantiate`), and the chosen slots in
   ascending order (``-1``, a new expert, first);
 * :func:`survivor_particles`: the surviving particles, the chosen expert of each survivor
-  replaced by its updated version, their expert ids and the slots' reference counts.
+  replaced by its updated version, their expert ids, the slots' reference counts and the
+  slots no survivor holds any more.
 
 Integers only, but for :func:`putative_layout`'s additions, which are the very IEEE additions
 the numpy code made (tests/learner/test_jit_layout.py, against the per-particle numpy code
@@ -98,14 +99,18 @@ def survivor_counts(slots: IntArray, starts: IntArray, surv_parent: IntArray,
 
 @compiled(nogil=True)
 def survivor_particles(slots: IntArray, starts: IntArray, surv_parent: IntArray,
-                       surv_slot: IntArray, surv_pos: IntArray, target: IntArray,
-                       new_target: int, ids: IntArray
-                       ) -> tuple[IntArray, IntArray, IntArray, IntArray]:
-    """``(new_slots, new_starts, chosen_ids, ref)``: survivor ``r`` is its parent particle with
-    its choice applied: the slot at position ``surv_pos[r]`` replaced by ``target[s]`` (the
-    chosen expert's updated version), or ``new_target`` appended for a new expert;
-    ``chosen_ids[r]`` is that expert's id (``ids``) and ``ref`` counts each slot's holders
-    (as many entries as ``ids``)."""
+                       surv_slot: IntArray, surv_pos: IntArray, sources: IntArray,
+                       updated: IntArray, new_target: int, ids: IntArray, old_ref: IntArray
+                       ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray]:
+    """``(new_slots, new_starts, chosen_ids, ref, freed)``: survivor ``r`` is its parent
+    particle with its choice applied: the slot ``s`` at position ``surv_pos[r]`` replaced by
+    its updated version (``updated[i]`` where ``sources[i] == s``), or ``new_target`` appended
+    for a new expert; ``chosen_ids[r]`` is that expert's id (``ids``), ``ref`` counts each
+    slot's holders (as many entries as ``ids``) and ``freed`` lists, ascending, the slots held
+    before (``old_ref > 0``) that no survivor holds."""
+    target = np.full(ids.size, -1, dtype=np.int64)
+    for i in range(sources.size):
+        target[sources[i]] = updated[i]
     k = surv_parent.size
     total = 0
     for r in range(k):
@@ -134,4 +139,14 @@ def survivor_particles(slots: IntArray, starts: IntArray, surv_parent: IntArray,
     ref = np.zeros(ids.size, dtype=np.int64)
     for a in range(j):
         ref[new_slots[a]] += 1
-    return new_slots, new_starts, chosen_ids, ref
+    n_freed = 0
+    for s in range(old_ref.size):
+        if old_ref[s] > 0 and ref[s] == 0:
+            n_freed += 1
+    freed = np.empty(n_freed, dtype=np.int64)
+    n_freed = 0
+    for s in range(old_ref.size):
+        if old_ref[s] > 0 and ref[s] == 0:
+            freed[n_freed] = s
+            n_freed += 1
+    return new_slots, new_starts, chosen_ids, ref, freed

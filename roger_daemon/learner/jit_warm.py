@@ -159,7 +159,7 @@ def _warm_the_rest() -> None:
     one, two = np.zeros(1, dtype=np.int64), np.array([0, 1], dtype=np.int64)
     lk.putative_layout(one, two, np.zeros(1), np.zeros(1), 0.0)
     lk.survivor_counts(one, two, one, one, 1)
-    lk.survivor_particles(one, two, one, one, one, one, 0, one)
+    lk.survivor_particles(one, two, one, one, one, one, one, 0, one, one)
     jit.use_threads()
     bk.copy_batch(jit.padded([sym], 0), jit.padded([sym.copy()], 0), 1)
 

@@ -110,7 +110,7 @@ def fearnhead_resample(log_weights: FloatArray, n_keep: int, rng: np.random.Gene
         sel, out = _underflow_resample(lv, lse, order[:n_top], n_keep, rng)
         return (sel if valid is None else valid[sel]), out
     # stratified pass: with U0 ~ U(0, 1/c), i is picked when cum_{i-1} <= U0 + j/c < cum_i
-    u0 = float(rng.uniform(0.0, inv_c))
+    u0 = inv_c * rng.random()  # rng.uniform(0, inv_c)'s float: 0 + inv_c * U, U ~ U[0, 1)
     sel, out, cum = _jit.stratified_pass(w, order, n_top, n_keep, inv_c, u0, lv, lse,
                                          math.log(inv_c))
     if diagnostics is not None:

@@ -55,15 +55,13 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
     flat_slots, flat_part, offsets, base = _jit.putative_layout(
         model._slots, model._starts, model._logw, slot_gate,
         model._log_alpha + model._gates.prior_log_predictive(xs))
-    is_new = flat_slots < 0
-    old_slots = flat_slots[~is_new]
     if p.sticky_kappa > 0.0 and model.n_learned > 0:
-        add_stickiness(model, base, flat_part, flat_slots, is_new)
+        add_stickiness(model, base, flat_part, flat_slots, flat_slots < 0)
 
     # GP factor: the empty expert analytically, the others once per unique expert
     yy = _jit.dot_column(ys, ys.reshape(-1, 1), 0, model.d_y)  # |y|^2 in index order, no BLAS
     ll_new = _jit.gaussian_log_density(yy, model._empty_var, model._ll_dims)
-    slot_ll, terms = gp_factors(model, xs, ys, live, base, is_new, old_slots, ll_new, cap)
+    slot_ll, terms = gp_factors(model, xs, ys, live, base, flat_slots, ll_new, cap)
     lw = _jit.putative_log_weights(base, flat_slots, slot_ll, ll_new)
     return lw, flat_part, flat_slots, offsets, terms
 
@@ -86,9 +84,10 @@ def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slo
 
 
 def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, base: FloatArray,
-                is_new: npt.NDArray[np.bool_], old_slots: IntArray, ll_new: float, cap: int
-                ) -> tuple[FloatArray, SlotTerms]:
-    """``log N(y; mu_s(x), s_s^2 I)`` per slot, ``-inf`` where provably negligible."""
+                flat_slots: IntArray, ll_new: float, cap: int) -> tuple[FloatArray, SlotTerms]:
+    """``log N(y; mu_s(x), s_s^2 I)`` per slot, ``-inf`` where provably negligible (the
+    putatives' slots ``flat_slots``, ``-1`` a new expert, with their log weights before the
+    GP factor ``base``)."""
     slot_ll = np.full(cap, -np.inf)
     terms: SlotTerms = {}
     if live.size == 0:
@@ -99,8 +98,9 @@ def gp_factors(model: Roger, xs: FloatArray, ys: FloatArray, live: IntArray, bas
         order: IntArray = cand
     else:
         # best (particle weight + CRP + gate) over the putatives of each slot
+        is_new = flat_slots < 0
         best = np.full(cap, -np.inf)
-        np.maximum.at(best, old_slots, base[~is_new])
+        np.maximum.at(best, flat_slots[~is_new], base[~is_new])
         known = float(np.max(base[is_new])) + ll_new  # exact, from the empty expert
         upper = best[live] + model._gp_bound
         cand = live[upper >= known - margin]
@@ -173,21 +173,20 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
         upd_evaluated.append(terms.get(s))
         upd_slots.append(t)
         sources.append(s)
-    model._npts[upd_slots] = model._npts[sources] + 1  # each updated version's count
+    upd_arr = np.array(upd_slots, dtype=np.int64)
+    src_arr = np.array(sources, dtype=np.int64)
+    model._npts[upd_arr] = model._npts[src_arr] + 1  # each updated version's count
     copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
     update_evaluated(upd_gps, xs, ys, upd_evaluated)
     if upd_slots:
-        model._gates.update_many(np.array(upd_slots, dtype=np.int64), xs)
-    # the survivors, each chosen expert replaced by its updated version; the reference counts
-    cap = len(model._gps)
-    target = np.full(cap, -1, dtype=np.int64)
-    target[sources] = upd_slots
-    new_slots, new_starts, chosen_ids, new_ref = _jit.survivor_particles(
-        model._slots, model._starts, surv_parent, surv_slot, surv_pos, target, new_target,
-        model._ids)
-    # free the slots no survivor holds
-    for s in np.flatnonzero((model._ref > 0) & (new_ref == 0)).tolist():
+        model._gates.update_many(upd_arr, xs)
+    # the survivors, each chosen expert replaced by its updated version; the reference
+    # counts; the slots no survivor holds, freed
+    new_slots, new_starts, chosen_ids, new_ref, freed = _jit.survivor_particles(
+        model._slots, model._starts, surv_parent, surv_slot, surv_pos, src_arr, upd_arr,
+        new_target, model._ids, model._ref)
+    for s in freed.tolist():
         dropped = model._gps[s]
         if dropped is not None:
             dropped.release(model._pool)  # its buffers serve later copies (.buffers)

@@ -85,8 +85,11 @@ def test_survivor_counts_and_particles_match_the_per_particle_code(parts: list[n
     new_target = next(fresh)
     ids = np.array(data.draw(st.lists(st.integers(0, 99), min_size=cap, max_size=cap)),
                    dtype=np.int64)
-    new_slots, new_starts, chosen_ids, ref = jit_layout.survivor_particles(
-        slots, starts, parent, slot, pos, target, new_target, ids)
+    sources = np.flatnonzero(target >= 0)
+    old_ref = np.array(data.draw(st.lists(st.integers(0, 3), min_size=cap, max_size=cap)),
+                       dtype=np.int64)
+    new_slots, new_starts, chosen_ids, ref, freed = jit_layout.survivor_particles(
+        slots, starts, parent, slot, pos, sources, target[sources], new_target, ids, old_ref)
     want = []
     for i, s, p in zip(parent.tolist(), slot.tolist(), pos.tolist(), strict=True):
         arr = parts[i].copy()
@@ -100,3 +103,4 @@ def test_survivor_counts_and_particles_match_the_per_particle_code(parts: list[n
     np.testing.assert_array_equal(
         chosen_ids, [ids[new_target if s < 0 else target[s]] for s in slot.tolist()])
     np.testing.assert_array_equal(ref, np.bincount(np.concatenate(want), minlength=cap))
+    np.testing.assert_array_equal(freed, np.flatnonzero((old_ref > 0) & (ref == 0)))
