@@ -139,14 +139,10 @@ def survivor_particles(slots: IntArray, starts: IntArray, surv_parent: IntArray,
     ref = np.zeros(ids.size, dtype=np.int64)
     for a in range(j):
         ref[new_slots[a]] += 1
-    n_freed = 0
-    for s in range(old_ref.size):
-        if old_ref[s] > 0 and ref[s] == 0:
-            n_freed += 1
-    freed = np.empty(n_freed, dtype=np.int64)
+    freed = np.empty(old_ref.size, dtype=np.int64)
     n_freed = 0
     for s in range(old_ref.size):
         if old_ref[s] > 0 and ref[s] == 0:
             freed[n_freed] = s
             n_freed += 1
-    return new_slots, new_starts, chosen_ids, ref, freed
+    return new_slots, new_starts, chosen_ids, ref, freed[:n_freed]
