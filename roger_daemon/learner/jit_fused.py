@@ -146,10 +146,10 @@ def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: in
     place, one pass over each upper triangle; ``dq[:n]`` receives the new ``diag(Q)`` as
     stored (the novelty test's drift check and the clean-up read it, docs/performance.md).
 
-    ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.  Four
+    ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.  Two
     rows at a time (:func:`_rank2_rows`, :func:`_rank3_rows`): each column's entries of the
-    vectors are loaded once for the four, and every entry gets the expression a row at a time
-    gave, so the same floats (docs/performance.md, *Four rows per pass of the rank updates*).
+    vectors are loaded once for both, and every entry gets the expression a row at a time
+    gave, so the same floats (docs/performance.md, *Two rows per pass of the rank updates*).
     """
     if i >= 0:
         off = 0
@@ -168,84 +168,59 @@ def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: in
 @_compiled(fastmath={"contract"}, nogil=True, inline="always")
 def _rank2_rows(buf: FloatArray, n: int, alloc: int, u0: FloatArray, u1: FloatArray,
                 c0: float, c1: float, diag: FloatArray) -> None:
-    """``S += c0 u0 u0^T + c1 u1 u1^T`` on the packed ``S``, rows ``a .. a + 3`` in one pass
-    over their common columns ``a + 3 ..`` (the few entries left of them first), the last
-    rows one at a time; ``diag`` receives the new diagonal."""
+    """``S += c0 u0 u0^T + c1 u1 u1^T`` on the packed ``S``, rows ``a`` and ``a + 1`` in one
+    pass over their columns; ``diag`` receives the new diagonal."""
     off = 0
     a = 0
-    while a + 3 < n:
-        o1 = off + alloc - a  # rows a + 1, a + 2, a + 3 start at their diagonal entries
-        o2 = o1 + alloc - a - 1
-        o3 = o2 + alloc - a - 2
-        w0, w1 = c0 * u0[a], c1 * u1[a]
-        v0, v1 = c0 * u0[a + 1], c1 * u1[a + 1]
-        s0, s1 = c0 * u0[a + 2], c1 * u1[a + 2]
-        r0, r1 = c0 * u0[a + 3], c1 * u1[a + 3]
-        for b in range(3):  # columns a .. a + 2 of rows a .. a + 2
-            buf[off + b] += w0 * u0[a + b] + w1 * u1[a + b]
-        for b in range(2):
-            buf[o1 + b] += v0 * u0[a + 1 + b] + v1 * u1[a + 1 + b]
-        buf[o2] += s0 * u0[a + 2] + s1 * u1[a + 2]
-        m = n - a - 3
-        row_a, row_b = buf[off + 3: off + 3 + m], buf[o1 + 2: o1 + 2 + m]
-        row_c, row_d = buf[o2 + 1: o2 + 1 + m], buf[o3: o3 + m]
-        t0, t1 = u0[a + 3:n], u1[a + 3:n]
-        for b in range(m):
+    while a < n:
+        w0 = c0 * u0[a]
+        w1 = c1 * u1[a]
+        buf[off] += w0 * u0[a] + w1 * u1[a]  # row a's diagonal entry
+        diag[a] = buf[off]
+        if a + 1 == n:
+            break
+        nxt = off + alloc - a  # row a + 1 starts at its diagonal entry, column a + 1
+        v0 = c0 * u0[a + 1]
+        v1 = c1 * u1[a + 1]
+        row_a = buf[off + 1: off + n - a]  # columns a + 1 .. n - 1 of both rows
+        row_b = buf[nxt: nxt + n - a - 1]
+        t0, t1 = u0[a + 1:n], u1[a + 1:n]
+        for b in range(n - a - 1):
             x0 = t0[b]
             x1 = t1[b]
             row_a[b] += w0 * x0 + w1 * x1
             row_b[b] += v0 * x0 + v1 * x1
-            row_c[b] += s0 * x0 + s1 * x1
-            row_d[b] += r0 * x0 + r1 * x1
-        diag[a], diag[a + 1], diag[a + 2], diag[a + 3] = buf[off], buf[o1], buf[o2], buf[o3]
-        off = o3 + alloc - a - 3
-        a += 4
-    while a < n:
-        w0, w1 = c0 * u0[a], c1 * u1[a]
-        for b in range(n - a):
-            buf[off + b] += w0 * u0[a + b] + w1 * u1[a + b]
-        diag[a] = buf[off]
-        off += alloc - a
-        a += 1
+        diag[a + 1] = buf[nxt]
+        off = nxt + alloc - a - 1
+        a += 2
 
 
 @_compiled(fastmath={"contract"}, nogil=True, inline="always")
 def _rank3_rows(buf: FloatArray, n: int, alloc: int, u0: FloatArray, u1: FloatArray,
                 u2: FloatArray, c0: float, c1: float, c2: float) -> None:
-    """``S += c0 u0 u0^T + c1 u1 u1^T + c2 u2 u2^T`` on the packed ``S``, four rows per pass
-    as :func:`_rank2_rows`."""
+    """``S += c0 u0 u0^T + c1 u1 u1^T + c2 u2 u2^T`` on the packed ``S``, rows ``a`` and
+    ``a + 1`` in one pass over their columns."""
     off = 0
     a = 0
-    while a + 3 < n:
-        o1 = off + alloc - a
-        o2 = o1 + alloc - a - 1
-        o3 = o2 + alloc - a - 2
-        w0, w1, w2 = c0 * u0[a], c1 * u1[a], c2 * u2[a]
-        v0, v1, v2 = c0 * u0[a + 1], c1 * u1[a + 1], c2 * u2[a + 1]
-        s0, s1, s2 = c0 * u0[a + 2], c1 * u1[a + 2], c2 * u2[a + 2]
-        r0, r1, r2 = c0 * u0[a + 3], c1 * u1[a + 3], c2 * u2[a + 3]
-        for b in range(3):
-            buf[off + b] += w0 * u0[a + b] + w1 * u1[a + b] + w2 * u2[a + b]
-        for b in range(2):
-            buf[o1 + b] += v0 * u0[a + 1 + b] + v1 * u1[a + 1 + b] + v2 * u2[a + 1 + b]
-        buf[o2] += s0 * u0[a + 2] + s1 * u1[a + 2] + s2 * u2[a + 2]
-        m = n - a - 3
-        row_a, row_b = buf[off + 3: off + 3 + m], buf[o1 + 2: o1 + 2 + m]
-        row_c, row_d = buf[o2 + 1: o2 + 1 + m], buf[o3: o3 + m]
-        t0, t1, t2 = u0[a + 3:n], u1[a + 3:n], u2[a + 3:n]
-        for b in range(m):
+    while a < n:
+        w0 = c0 * u0[a]
+        w1 = c1 * u1[a]
+        w2 = c2 * u2[a]
+        buf[off] += w0 * u0[a] + w1 * u1[a] + w2 * u2[a]  # row a's diagonal entry
+        if a + 1 == n:
+            break
+        nxt = off + alloc - a
+        v0 = c0 * u0[a + 1]
+        v1 = c1 * u1[a + 1]
+        v2 = c2 * u2[a + 1]
+        row_a = buf[off + 1: off + n - a]
+        row_b = buf[nxt: nxt + n - a - 1]
+        t0, t1, t2 = u0[a + 1:n], u1[a + 1:n], u2[a + 1:n]
+        for b in range(n - a - 1):
             x0 = t0[b]
             x1 = t1[b]
             x2 = t2[b]
             row_a[b] += w0 * x0 + w1 * x1 + w2 * x2
             row_b[b] += v0 * x0 + v1 * x1 + v2 * x2
-            row_c[b] += s0 * x0 + s1 * x1 + s2 * x2
-            row_d[b] += r0 * x0 + r1 * x1 + r2 * x2
-        off = o3 + alloc - a - 3
-        a += 4
-    while a < n:
-        w0, w1, w2 = c0 * u0[a], c1 * u1[a], c2 * u2[a]
-        for b in range(n - a):
-            buf[off + b] += w0 * u0[a + b] + w1 * u1[a + b] + w2 * u2[a + b]
-        off += alloc - a
-        a += 1
+        off = nxt + alloc - a - 1
+        a += 2

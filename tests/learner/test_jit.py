@@ -180,7 +180,7 @@ def _one_row_at_a_time(buf: np.ndarray, n: int, u: np.ndarray, c: np.ndarray) ->
         off += n - a
 
 
-@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 7, 8, 9, 300])
+@pytest.mark.parametrize("n", [1, 2, 3, 8, 9, 300])
 def test_rank_update_cq_two_rows_per_pass_gives_the_floats_of_one(n: int) -> None:
     import numba
 
