@@ -1,10 +1,9 @@
 """The fused add-then-delete step of one full expert, compiled (numba; docs/learner-math.md
 §2.5 step 4b and §2.7, :mod:`.sogp_fused`).
 
-Imported through :mod:`.jit` with :mod:`.jit_kernels`, whose packed row and min/argmax
-kernels it calls; :func:`rank_update_cq` is its in-place update of the packed ``C`` and
-``Q``.  Split from :mod:`.jit_kernels` to keep modules short.  Tested against the unfused
-steps (tests/learner/test_jit.py, tests/learner/test_sogp.py).
+Imported through :mod:`.jit` with :mod:`.jit_kernels`, whose packed row, rank update and
+min/argmax kernels it calls.  Split from :mod:`.jit_kernels` to keep modules short.  Tested
+against the unfused steps (tests/learner/test_jit.py, tests/learner/test_sogp.py).
 """
 
 from __future__ import annotations
@@ -15,9 +14,9 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_kernels import min_argmax, sym_row
+from roger_daemon.learner.jit_kernels import min_argmax, rank_update_cq, sym_row
 
-__all__ = ["fused_delete_index", "fused_step", "rank_update_cq"]
+__all__ = ["fused_delete_index", "fused_step"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -135,92 +134,3 @@ def fused_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Floa
     rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
     dq_min, dq_argmax = min_argmax(dq)
     return diag, dq, dq_min, dq_argmax
-
-
-@_compiled(fastmath={"contract"}, nogil=True)
-def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: int,
-                   uc: FloatArray, cc: FloatArray, uq: FloatArray, cq: FloatArray,
-                   dq: FloatArray) -> None:
-    """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
-    ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks of the packed ``C`` and ``Q``, in
-    place, one pass over each upper triangle; ``dq[:n]`` receives the new ``diag(Q)`` as
-    stored (the novelty test's drift check and the clean-up read it, docs/performance.md).
-
-    ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.  Two
-    rows at a time (:func:`_rank2_rows`, :func:`_rank3_rows`): each column's entries of the
-    vectors are loaded once for both, and every entry gets the expression a row at a time
-    gave, so the same floats (docs/performance.md, *Two rows per pass of the rank updates*).
-    """
-    if i >= 0:
-        off = 0
-        for a in range(i):
-            cbuf[off + i - a] = 0.0
-            qbuf[off + i - a] = 0.0
-            off += alloc - a
-        for a in range(n - i):
-            cbuf[off + a] = 0.0
-            qbuf[off + a] = 0.0
-    # Q first: the caller has just read it for Q k, so it is still in the core's cache
-    _rank2_rows(qbuf, n, alloc, uq[0], uq[1], cq[0], cq[1], dq)
-    _rank3_rows(cbuf, n, alloc, uc[0], uc[1], uc[2], cc[0], cc[1], cc[2])
-
-
-@_compiled(fastmath={"contract"}, nogil=True, inline="always")
-def _rank2_rows(buf: FloatArray, n: int, alloc: int, u0: FloatArray, u1: FloatArray,
-                c0: float, c1: float, diag: FloatArray) -> None:
-    """``S += c0 u0 u0^T + c1 u1 u1^T`` on the packed ``S``, rows ``a`` and ``a + 1`` in one
-    pass over their columns; ``diag`` receives the new diagonal."""
-    off = 0
-    a = 0
-    while a < n:
-        w0 = c0 * u0[a]
-        w1 = c1 * u1[a]
-        buf[off] += w0 * u0[a] + w1 * u1[a]  # row a's diagonal entry
-        diag[a] = buf[off]
-        if a + 1 == n:
-            break
-        nxt = off + alloc - a  # row a + 1 starts at its diagonal entry, column a + 1
-        v0 = c0 * u0[a + 1]
-        v1 = c1 * u1[a + 1]
-        row_a = buf[off + 1: off + n - a]  # columns a + 1 .. n - 1 of both rows
-        row_b = buf[nxt: nxt + n - a - 1]
-        t0, t1 = u0[a + 1:n], u1[a + 1:n]
-        for b in range(n - a - 1):
-            x0 = t0[b]
-            x1 = t1[b]
-            row_a[b] += w0 * x0 + w1 * x1
-            row_b[b] += v0 * x0 + v1 * x1
-        diag[a + 1] = buf[nxt]
-        off = nxt + alloc - a - 1
-        a += 2
-
-
-@_compiled(fastmath={"contract"}, nogil=True, inline="always")
-def _rank3_rows(buf: FloatArray, n: int, alloc: int, u0: FloatArray, u1: FloatArray,
-                u2: FloatArray, c0: float, c1: float, c2: float) -> None:
-    """``S += c0 u0 u0^T + c1 u1 u1^T + c2 u2 u2^T`` on the packed ``S``, rows ``a`` and
-    ``a + 1`` in one pass over their columns."""
-    off = 0
-    a = 0
-    while a < n:
-        w0 = c0 * u0[a]
-        w1 = c1 * u1[a]
-        w2 = c2 * u2[a]
-        buf[off] += w0 * u0[a] + w1 * u1[a] + w2 * u2[a]  # row a's diagonal entry
-        if a + 1 == n:
-            break
-        nxt = off + alloc - a
-        v0 = c0 * u0[a + 1]
-        v1 = c1 * u1[a + 1]
-        v2 = c2 * u2[a + 1]
-        row_a = buf[off + 1: off + n - a]
-        row_b = buf[nxt: nxt + n - a - 1]
-        t0, t1, t2 = u0[a + 1:n], u1[a + 1:n], u2[a + 1:n]
-        for b in range(n - a - 1):
-            x0 = t0[b]
-            x1 = t1[b]
-            x2 = t2[b]
-            row_a[b] += w0 * x0 + w1 * x1 + w2 * x2
-            row_b[b] += v0 * x0 + v1 * x1 + v2 * x2
-        off = nxt + alloc - a - 1
-        a += 2

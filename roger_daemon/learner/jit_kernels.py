@@ -17,11 +17,12 @@ them streams half the bytes of a full matrix.
 * :func:`sym_matvec`: ``S v`` of a packed matrix (:func:`sym_matvec_into`), and
   :func:`sym_row`, one row of it; :func:`projection`: ``Q k`` and ``k^T Q k`` for the novelty
   test, whose rule is :func:`novelty_test`;
-* :func:`packed_add_lowrank`: the low-rank updates of the steps off the fused hot path;
+* :func:`rank_update_cq`: the fused hot path's rank-3 update of ``C`` and rank-2 update of
+  ``Q``, one pass over each buffer, with row and column ``i`` zeroed first;
+  :func:`packed_add_lowrank`: the other steps' low-rank updates;
 * :func:`.jit_fused.fused_step` (with :func:`.jit_fused.fused_delete_index`): the whole fused
   add-then-delete step of one full expert (:mod:`.sogp_fused`), ending in
-  :func:`.jit_fused.rank_update_cq`, its rank-3 update of ``C`` and rank-2 update of ``Q``,
-  in a module of its own;
+  :func:`rank_update_cq`, in a module of its own;
 * :func:`gram_matrix`: ``K_B`` recomputed from the basis for a re-inversion of ``Q``;
 * :func:`cholesky_inverse`: ``K^{-1}`` of an SPD matrix (Cholesky, then the inverse from the
   factor): the gates' refresh, and the re-inversion of ``Q`` up to :data:`.jit.SMALL` basis
@@ -46,7 +47,8 @@ from roger_daemon.learner.jit_compile import compiled as _compiled
 
 __all__ = ["cholesky_inverse", "cholesky_inverse_logdet", "expert_terms", "gram_matrix",
            "keeps_basis_vectors", "kernel_vector", "min_argmax", "novelty_margin", "novelty_test",
-           "packed_add_lowrank", "projection", "sym_matvec", "sym_matvec_into", "sym_row"]
+           "packed_add_lowrank", "projection", "rank_update_cq", "sym_matvec", "sym_matvec_into",
+           "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
 _FM = {"reassoc", "contract"}
@@ -352,6 +354,51 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
             for c in range(cols):
                 out[base + c] += ki * coef[i, c]
     return out
+
+
+@_compiled(fastmath={"contract"}, nogil=True)
+def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: int,
+                   uc: FloatArray, cc: FloatArray, uq: FloatArray, cq: FloatArray,
+                   dq: FloatArray) -> None:
+    """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
+    ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks of the packed ``C`` and ``Q``, in
+    place, one pass over each upper triangle; ``dq[:n]`` receives the new ``diag(Q)`` as
+    stored (the novelty test's drift check and the clean-up read it, docs/performance.md).
+
+    ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.
+    """
+    if i >= 0:
+        off = 0
+        for a in range(i):
+            cbuf[off + i - a] = 0.0
+            qbuf[off + i - a] = 0.0
+            off += alloc - a
+        for a in range(n - i):
+            cbuf[off + a] = 0.0
+            qbuf[off + a] = 0.0
+    # Q first: the caller has just read it for Q k, so it is still in the core's cache
+    q0, q1 = uq[0], uq[1]
+    off = 0
+    for a in range(n):
+        row = qbuf[off: off + n - a]
+        t0, t1 = q0[a:n], q1[a:n]
+        w0 = cq[0] * q0[a]
+        w1 = cq[1] * q1[a]
+        for b in range(n - a):
+            row[b] += w0 * t0[b] + w1 * t1[b]
+        dq[a] = row[0]
+        off += alloc - a
+    c0, c1, c2 = uc[0], uc[1], uc[2]
+    off = 0
+    for a in range(n):
+        row = cbuf[off: off + n - a]
+        t0, t1, t2 = c0[a:n], c1[a:n], c2[a:n]
+        v0 = cc[0] * c0[a]
+        v1 = cc[1] * c1[a]
+        v2 = cc[2] * c2[a]
+        for b in range(n - a):
+            row[b] += v0 * t0[b] + v1 * t1[b] + v2 * t2[b]
+        off += alloc - a
 
 
 @_compiled(nogil=True)

@@ -55,7 +55,7 @@ def _warm_learning() -> None:
 
     basis, sym, weights = _BASIS, _SYM, _weights()
     vn, one = np.ones(N), np.ones(1)
-    fk.rank_update_cq(sym.copy(), sym.copy(), N, N, 0, np.zeros((3, N)), np.zeros(3),
+    k.rank_update_cq(sym.copy(), sym.copy(), N, N, 0, np.zeros((3, N)), np.zeros(3),
                      np.zeros((2, N)), np.zeros(2), np.empty(N))
     fk.fused_step(basis.copy(), np.zeros((N, 1)), -sym.copy(), sym.copy(), 2 * vn,
                   np.zeros(1), -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
