@@ -56,7 +56,7 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
         model._slots, model._starts, model._logw, slot_gate,
         model._log_alpha + model._gates.prior_log_predictive(xs))
     if p.sticky_kappa > 0.0 and model.n_learned > 0:
-        add_stickiness(model, base, flat_part, flat_slots, flat_slots < 0)
+        add_stickiness(model, base, flat_part, flat_slots)
 
     # GP factor: the empty expert analytically, the others once per unique expert
     yy = _jit.dot_column(ys, ys.reshape(-1, 1), 0, model.d_y)  # |y|^2 in index order, no BLAS
@@ -66,14 +66,15 @@ def putatives(model: Roger, xs: FloatArray, ys: FloatArray
     return lw, flat_part, flat_slots, offsets, terms
 
 
-def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slots: IntArray,
-                    is_new: npt.NDArray[np.bool_]) -> None:
+def add_stickiness(model: Roger, base: FloatArray, flat_part: IntArray, flat_slots: IntArray
+                    ) -> None:
     """Sticky CRP (Fox et al. 2008; paper section V): the expert of the previous point in
     each particle weighs ``n_k + kappa`` instead of ``n_k``; with ``kappa = inf`` every
     other putative of that particle gets weight 0.  The common normaliser
     ``N + alpha + kappa`` is dropped like ``N + alpha`` (docs/learner-math.md)."""
     kappa = model.params.sticky_kappa
     prev_ids = model._history.last_ids()  # chosen expert id of each particle
+    is_new = flat_slots < 0
     ids = np.where(is_new, -2, model._ids[np.where(is_new, 0, flat_slots)])
     is_prev = ids == prev_ids[flat_part]
     if math.isinf(kappa):
