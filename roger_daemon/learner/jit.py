@@ -69,8 +69,8 @@ _threads_default = True  # set_threads(None) (or never called)
 _workqueue = False  # warm_up found numba's threading layer to be workqueue
 _applied = threading.local()  # .count: what numba.set_num_threads was given in this thread
 
-KERNELS = ("cholesky_inverse", "cholesky_inverse_logdet", "copy_batch", "dot_column",
-           "evaluate_expert", "evaluate_experts", "evaluate_slab", "expert_terms",
+KERNELS = ("balanced_owners", "cholesky_inverse", "cholesky_inverse_logdet", "copy_batch",
+           "dot_column", "evaluate_expert", "evaluate_experts", "evaluate_slab", "expert_terms",
            "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
            "gate_crp_log_terms", "gate_log_predictive", "gate_update", "gaussian_log_density",
            "gram_matrix", "grow_slab", "growth_step", "keeps_basis_vectors", "kernel_vector",

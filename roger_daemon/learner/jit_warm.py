@@ -76,7 +76,7 @@ def _warm_learning() -> None:
                    weights, rule,
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, N)),
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty(1),
-                   np.empty(1, dtype=np.bool_))
+                   np.empty(1, dtype=np.bool_), np.zeros(1, dtype=np.int64), 1)
 
 
 def _warm_evaluation() -> None:
@@ -97,9 +97,10 @@ def _warm_evaluation() -> None:
         return jit.padded([array], 0, width)
 
     slab = _slab(sym, sym, np.zeros((N, 2)), True)
-    for kernel in (bk.terms_batch, ek.evaluate_experts):
-        kernel(pad(slab), 1, ints, np.zeros(1), 1.0, 1.0, 1e-12, True, np.zeros(2 * N + 3),
-               np.zeros(width, dtype=np.int64), np.empty((1, 1)), np.empty(1))
+    args = (pad(slab), 1, ints, np.zeros(1), 1.0, 1.0, 1e-12, True, np.zeros(2 * N + 3),
+            np.zeros(width, dtype=np.int64), np.empty((1, 1)), np.empty(1))
+    ek.evaluate_experts(*args)
+    bk.terms_batch(*args, np.zeros(1, dtype=np.int64), 1)
 
 
 def _warm_resampling() -> None:
@@ -161,7 +162,9 @@ def _warm_the_rest() -> None:
     lk.survivor_counts(one, two, one, one, 1)
     lk.survivor_particles(one, two, one, one, one, one, one, 0, one, one)
     jit.use_threads()
-    bk.copy_batch(jit.padded([sym], 0), jit.padded([sym.copy()], 0), 1)
+    bk.copy_batch(jit.padded([sym], 0), jit.padded([sym.copy()], 0), 1,
+                  np.zeros(1, dtype=np.int64), 1)
+    bk.balanced_owners(np.array([-1, 0]), np.array([1, 2]), 2, True)
 
 
 #: the families and what compiling each took on a cold cache, in seconds (2-core AMD EPYC, one

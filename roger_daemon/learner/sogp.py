@@ -121,6 +121,7 @@ class SparseOnlineGP(SOGPSteps):
         self.novelty_threshold = float(novelty_threshold)
         self.normaliser = normaliser
         self.prior_mean = bool(prior_mean)
+        self.home = -1
         self.fused = True  # full update + deletion in one pass at capacity (tests switch it)
         self.n = 0  # basis vectors
         self.n_points = 0  # pairs learned
@@ -313,6 +314,7 @@ class SparseOnlineGP(SOGPSteps):
                              self.novelty_threshold, self.normaliser,
                              prior_mean=self.prior_mean, _alloc=0)
         out.fused = self.fused
+        out.home = self.home
         out.n = self.n
         out.n_points = self.n_points
         # the whole slab: one memcpy (the padding is never read)

@@ -13,7 +13,6 @@ those of a call of its own.  Split from :mod:`.sogp`
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from itertools import accumulate
@@ -39,20 +38,27 @@ IntArray = npt.NDArray[np.int64]
 Terms = tuple[FloatArray, FloatArray, FloatArray, float]
 
 
-def copy_many(pending: Sequence[tuple[FloatArray, FloatArray]]) -> None:
+def copy_many(pending: Sequence[tuple[FloatArray, FloatArray]],
+              homes: Sequence[int] | None = None) -> None:
     """``np.copyto(dst, src)`` for each pair (a step's copy-on-write copies,
     :meth:`.sogp.SparseOnlineGP.copy` with ``pending``): several per compiled call
-    (:func:`.jit_batch.copy_batch`) when :func:`.jit.batch_worth` says so."""
+    (:func:`.jit_batch.copy_batch`) when :func:`.jit.batch_worth` says so, each by the thread
+    of its source's ``homes`` entry."""
     if not _jit.batch_worth(sum(src.size for src, _ in pending)):
         for src, dst in pending:
             np.copyto(dst, src)
         return
     srcs = [src for src, _ in pending]
     dsts = [dst for _, dst in pending]
+    groups = _jit.threads()
+    owners = _jit.balanced_owners(
+        np.array([-1] * len(pending) if homes is None else homes, dtype=np.int64),
+        np.array([src.size for src in srcs], dtype=np.int64), groups, False)
     with _jit.BATCH_LOCK:
         for lo in range(0, len(pending), _jit.WIDTH):
             hi = min(lo + _jit.WIDTH, len(pending))
-            _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo)
+            _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo,
+                            owners[lo:hi], groups)
 
 
 @dataclass(slots=True)
@@ -104,17 +110,36 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     latent = np.empty(m)
     kernel = first.kernel
     batched = _jit.batch_worth(sum(n * (n + 1) for n in ns) // 2)  # packed entries in all
-    call = _jit.terms_batch if batched else _jit.evaluate_experts
     ns_arr = np.array(ns, dtype=np.int64)
     slabs = [gp._slab for gp in gps]  # each expert's buffers in one array (.jit_slab)
     width = _jit.EVALUATION_WIDTH
-    with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
+    if batched:
+        owners, groups = _owners(gps, ns_arr * (ns_arr + 1) // 2)
+        with _jit.BATCH_LOCK:
+            for lo in range(0, m, width):
+                hi = min(lo + width, m)
+                _jit.terms_batch(_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x,
+                                 kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean,
+                                 packed, offsets[lo:hi], means[lo:hi], latent[lo:hi],
+                                 owners[lo:hi], groups)
+    else:
         for lo in range(0, m, width):
             hi = min(lo + width, m)
-            call(_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x, kernel.gamma,
-                 kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed, offsets[lo:hi],
-                 means[lo:hi], latent[lo:hi])
+            _jit.evaluate_experts(_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x,
+                                  kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean,
+                                  packed, offsets[lo:hi], means[lo:hi], latent[lo:hi])
     return Evaluation(gps, means, latent, packed, offsets, [None] * m)
+
+
+def _owners(gps: Sequence[SparseOnlineGP], work: IntArray) -> tuple[IntArray, int]:
+    """Each expert's thread for a batched kernel (:func:`.jit_batch.balanced_owners`: its home
+    where the threads' loads allow), kept as its new home; and the number of threads."""
+    groups = _jit.threads()
+    owners = _jit.balanced_owners(np.array([gp.home for gp in gps], dtype=np.int64), work,
+                                  groups, True)
+    for gp, owner in zip(gps, owners.tolist(), strict=True):
+        gp.home = owner
+    return owners, groups
 
 
 def predict_many(gps: Sequence[SparseOnlineGP], x: FloatArray, means: FloatArray,
@@ -265,6 +290,7 @@ def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, terms: FloatArr
                    cw: FloatArray, rule: FloatArray, out: _Outcomes) -> None:
     """:func:`_learn_full`'s kernels by :func:`.jit_batch.learn_batch` calls."""
     slabs = [gp._slab for gp in gps]  # each expert's buffers in one array (.jit_slab)
+    owners, groups = _owners(gps, np.ones(len(gps), dtype=np.int64))
     with _jit.BATCH_LOCK:
         for lo in range(0, len(gps), _jit.WIDTH):
             hi = min(lo + _jit.WIDTH, len(gps))
@@ -272,7 +298,8 @@ def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, terms: FloatArr
                              terms, starts[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
                              out.e_hat[lo:hi], out.gamma[lo:hi], out.outcome[lo:hi],
                              out.diag[lo:hi], out.dq[lo:hi], out.dq_min[lo:hi],
-                             out.dq_argmax[lo:hi], out.margin[lo:hi], out.clean[lo:hi])
+                             out.dq_argmax[lo:hi], out.margin[lo:hi], out.clean[lo:hi],
+                             owners[lo:hi], groups)
 
 
 def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _Outcomes,

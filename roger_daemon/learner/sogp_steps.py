@@ -41,7 +41,7 @@ class SOGPSteps:
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
                  "fused", "n", "n_points", "_alloc", "_slab", "_B", "_A", "_Cp", "_Qp", "_dg",
                  "_dq", "_dq_min", "_dq_argmax", "q_refreshes", "prior_mean", "_m",
-                 "novelty_margin")
+                 "novelty_margin", "home")
     kernel: RBFKernel
     capacity: int | None
     novelty_threshold: float
@@ -52,6 +52,7 @@ class SOGPSteps:
     n: int
     q_refreshes: int
     novelty_margin: float
+    home: int  # the batched kernels' thread whose cache holds it (-1: none yet)
     _alloc: int
     _slab: FloatArray  # every buffer below is a view of it (:meth:`_bind`)
     _B: FloatArray
