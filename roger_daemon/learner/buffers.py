@@ -10,7 +10,11 @@ daemon fixes glibc's threshold at 128 KiB to keep its resident size flat,
 ``munmap``: measured at the paper's parameters (with ``K_B`` still kept), 84 faults per step
 and an update p99 of 5.0 ms instead of 2.9 ms. :class:`BufferPool` keeps the freed experts'
 slabs and hands them to the next copies, so the pages stay mapped. A copy writes every
-element of the buffer it takes, so which buffer it gets never changes a float.
+element of the buffer it takes, so which buffer it gets never changes a float. Each kept slab
+remembers the thread whose cache last held it (its expert's home, :mod:`.jit_batch`), and a
+copy made on that thread takes one of those first: on a host that places the two cores far
+apart, writing a slab the other core last held costs twice as much (docs/performance.md,
+*Each expert on one thread*).
 """
 
 from __future__ import annotations
@@ -38,27 +42,45 @@ class BufferPool:
         if limit < 0:
             raise ValueError(f"limit must be an integer >= 0, got {limit!r}")
         self.limit = limit
-        self._free: defaultdict[int, list[FloatArray]] = defaultdict(list)
+        self._free: defaultdict[int, list[tuple[int, FloatArray]]] = defaultdict(list)
 
-    def give(self, buf: FloatArray) -> None:
-        """Keep ``buf`` (1-D, float64, contiguous, owned by nobody else) for a later copy."""
+    def give(self, buf: FloatArray, home: int = -1) -> None:
+        """Keep ``buf`` (1-D, float64, contiguous, owned by nobody else) for a later copy;
+        ``home``: the thread whose cache last held it (:mod:`.jit_batch`)."""
         spare = self._free[buf.size]
         if len(spare) < self.limit:
-            spare.append(buf)
+            spare.append((home, buf))
 
-    def take(self, size: int) -> FloatArray | None:
-        """A kept buffer of ``size`` elements (its contents are stale), or ``None``."""
+    def take(self, size: int, home: int = -1) -> FloatArray | None:
+        """A kept buffer of ``size`` elements (its contents are stale), or ``None``: the
+        last kept of those last held by ``home``, else the last kept.
+
+        >>> pool = BufferPool(limit=3)
+        >>> a, b, c = np.zeros(2), np.zeros(2), np.zeros(2)
+        >>> pool.give(a, home=0); pool.give(b, home=1); pool.give(c, home=1)
+        >>> pool.take(2, home=0) is a, pool.take(2, home=0) is c, pool.take(2, home=1) is b
+        (True, True, True)
+        """
         spare = self._free.get(size)
-        return spare.pop() if spare else None
+        if not spare:
+            return None
+        at = len(spare) - 1
+        for i in range(len(spare) - 1, -1, -1):
+            if spare[i][0] == home:
+                at = i
+                break
+        return spare.pop(at)[1]
 
     def copy_of(self, src: FloatArray,
-                pending: list[tuple[FloatArray, FloatArray]] | None = None) -> FloatArray:
+                pending: list[tuple[FloatArray, FloatArray]] | None = None,
+                home: int = -1) -> FloatArray:
         """A copy of the 1-D ``src``, into a kept buffer when there is one of its size.
 
-        With ``pending``, the buffer is returned unfilled and ``(src, buffer)`` appended: the
+        ``home``: the thread that will make the copy (:meth:`take`).  With ``pending``, the
+        buffer is returned unfilled and ``(src, buffer)`` appended: the
         caller copies every pending pair before the buffer is read (several copies at once:
         :func:`.sogp_batch.copy_many`)."""
-        buf = self.take(src.size)
+        buf = self.take(src.size, home)
         if pending is not None:
             buf = np.empty_like(src) if buf is None else buf
             pending.append((src, buf))

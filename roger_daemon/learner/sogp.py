@@ -318,8 +318,9 @@ class SparseOnlineGP(SOGPSteps):
         out.n = self.n
         out.n_points = self.n_points
         # the whole slab: one memcpy (the padding is never read)
-        out._bind(self._slab.copy() if pool is None else pool.copy_of(self._slab, pending),
-                  self._alloc)
+        slab = (self._slab.copy() if pool is None
+                else pool.copy_of(self._slab, pending, self.home))
+        out._bind(slab, self._alloc)
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
         out._dq_min, out._dq_argmax = self._dq_min, self._dq_argmax
@@ -338,8 +339,8 @@ class SparseOnlineGP(SOGPSteps):
 
     def release(self, pool: BufferPool) -> None:
         """Give this expert's slab to ``pool`` for later copies (the model has dropped it: it
-        must not be used afterwards)."""
-        pool.give(self._slab)
+        must not be used afterwards), with its home (:meth:`.buffers.BufferPool.give`)."""
+        pool.give(self._slab, self.home)
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,
