@@ -13,7 +13,8 @@ thread (``groups``), iteration ``g`` takes the experts whose ``owners`` entry is
 numba's static schedule runs iteration ``g`` on thread ``g``.  The caller keeps each expert
 on the thread that took it last (its *home*, :func:`balanced_owners`), so its matrices stay
 in that core's caches: when a host places the two cores far apart, an expert that changes
-thread is read across the machine (docs/performance.md, *Each expert on one thread*).
+thread is read across the machine (docs/performance.md, *The slow spells are the two cores
+far apart*).
 
 The experts come as a tuple of exactly that many slabs (:func:`.jit.padded`; each expert's
 buffers in one array, :mod:`.jit_slab`), so each kernel has one compiled signature whatever

@@ -1,9 +1,9 @@
 """Which thread takes which expert (roger_daemon/learner/jit_batch.py, ``balanced_owners``).
 
 Each expert keeps the thread that took it last (its home) so that its matrices stay in that
-core's caches (docs/performance.md, *Each expert on one thread*). Which thread computes an
-expert must never change a float: the batched kernels are compared bit for bit across owner
-assignments, and the assignment itself with a brute-force oracle.
+core's caches (docs/performance.md, *The slow spells are the two cores far apart*). Which
+thread computes an expert must never change a float: learning is compared bit for bit across
+owner assignments, and the assignment itself with exact cases and a brute-force oracle.
 """
 
 from __future__ import annotations
