@@ -24,9 +24,12 @@ from collections import defaultdict
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["BufferPool"]
+__all__ = ["BufferPool", "PendingCopy"]
 
 FloatArray = npt.NDArray[np.float64]
+#: a copy deferred by :meth:`BufferPool.copy_of`: its source, its buffer and the thread that
+#: is to make it (the source's home, :mod:`.jit_batch`)
+PendingCopy = tuple[FloatArray, FloatArray, int]
 
 
 class BufferPool:
@@ -72,18 +75,18 @@ class BufferPool:
         return spare.pop(at)[1]
 
     def copy_of(self, src: FloatArray,
-                pending: list[tuple[FloatArray, FloatArray]] | None = None,
+                pending: list[PendingCopy] | None = None,
                 home: int = -1) -> FloatArray:
         """A copy of the 1-D ``src``, into a kept buffer when there is one of its size.
 
         ``home``: the thread that will make the copy (:meth:`take`).  With ``pending``, the
-        buffer is returned unfilled and ``(src, buffer)`` appended: the
-        caller copies every pending pair before the buffer is read (several copies at once:
+        buffer is returned unfilled and ``(src, buffer, home)`` appended: the
+        caller makes every pending copy before the buffer is read (several copies at once:
         :func:`.sogp_batch.copy_many`)."""
         buf = self.take(src.size, home)
         if pending is not None:
             buf = np.empty_like(src) if buf is None else buf
-            pending.append((src, buf))
+            pending.append((src, buf, home))
             return buf
         if buf is None:
             return src.copy()

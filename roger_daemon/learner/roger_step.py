@@ -25,6 +25,7 @@ from roger_daemon.learner.sogp_batch import (
 )
 
 if TYPE_CHECKING:
+    from roger_daemon.learner.buffers import PendingCopy
     from roger_daemon.learner.roger import Roger
 
 __all__ = ["SlotTerms", "instantiate", "putatives"]
@@ -144,8 +145,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
                                                    surv_slot, len(model._gps))
     sources: list[int] = []  # each chosen slot; upd_slots: the slot of its updated version
     new_target = -1
-    pending: list[tuple[FloatArray, FloatArray]] = []  # copy-on-write copies to fill
-    homes: list[int] = []  # the thread that holds each copy's source
+    pending: list[PendingCopy] = []  # copy-on-write copies to fill
     upd_gps: list[SparseOnlineGP] = []
     upd_evaluated: list[tuple[Evaluation, int] | None] = []  # where each one's terms are
     upd_slots: list[int] = []
@@ -168,7 +168,6 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
         else:
             t = model._alloc_slot()
             gp = src.copy(model._pool, pending)
-            homes.append(src.home)
             model._gps[t] = gp
             model._gates.copy_slot(t, s)
             model._ids[t] = model._ids[s]
@@ -179,7 +178,7 @@ def instantiate(model: Roger, keep: IntArray, new_logw: FloatArray, flat_part: I
     upd_arr = np.array(upd_slots, dtype=np.int64)
     src_arr = np.array(sources, dtype=np.int64)
     model._npts[upd_arr] = model._npts[src_arr] + 1  # each updated version's count
-    copy_many(pending, homes)  # the copies' matrices, several at once
+    copy_many(pending)  # the copies' matrices, several at once
     # incorporate the point: SOGP (§2.5, batched hot path) and NIW gate (§3.2)
     update_evaluated(upd_gps, xs, ys, upd_evaluated)
     if upd_slots:

@@ -45,7 +45,7 @@ import numpy.typing as npt
 
 from roger_daemon.learner import jit as _jit
 from roger_daemon.learner import packed as _packed
-from roger_daemon.learner.buffers import BufferPool
+from roger_daemon.learner.buffers import BufferPool, PendingCopy
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
@@ -305,7 +305,7 @@ class SparseOnlineGP(SOGPSteps):
     # -- copies and state ----------------------------------------------------------------------
 
     def copy(self, pool: BufferPool | None = None,
-             pending: list[tuple[FloatArray, FloatArray]] | None = None) -> SparseOnlineGP:
+             pending: list[PendingCopy] | None = None) -> SparseOnlineGP:
         """An independent copy (used for copy-on-write in :class:`~.roger.Roger`); its slab
         (:mod:`.jit_slab`) goes into a buffer kept in ``pool`` when it has one of its size.
         With ``pending`` (and a pool) the slab is copied later, by the caller

@@ -27,6 +27,7 @@ from roger_daemon.learner.sogp_steps import LATENT_FLOOR as _LATENT_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
 if TYPE_CHECKING:
+    from roger_daemon.learner.buffers import PendingCopy
     from roger_daemon.learner.sogp import SparseOnlineGP
 
 __all__ = ["Evaluation", "copy_many", "evaluate_many", "predict_many", "update_evaluated",
@@ -38,21 +39,20 @@ IntArray = npt.NDArray[np.int64]
 Terms = tuple[FloatArray, FloatArray, FloatArray, float]
 
 
-def copy_many(pending: Sequence[tuple[FloatArray, FloatArray]],
-              homes: Sequence[int] | None = None) -> None:
+def copy_many(pending: Sequence[PendingCopy]) -> None:
     """``np.copyto(dst, src)`` for each pair (a step's copy-on-write copies,
     :meth:`.sogp.SparseOnlineGP.copy` with ``pending``): several per compiled call
     (:func:`.jit_batch.copy_batch`) when :func:`.jit.batch_worth` says so, each by the thread
-    of its source's ``homes`` entry."""
-    if not _jit.batch_worth(sum(src.size for src, _ in pending)):
-        for src, dst in pending:
+    it names (its source's home)."""
+    if not _jit.batch_worth(sum(src.size for src, _, _ in pending)):
+        for src, dst, _ in pending:
             np.copyto(dst, src)
         return
-    srcs = [src for src, _ in pending]
-    dsts = [dst for _, dst in pending]
+    srcs = [src for src, _, _ in pending]
+    dsts = [dst for _, dst, _ in pending]
     groups = _jit.threads()
     owners = _jit.balanced_owners(
-        np.array([-1] * len(pending) if homes is None else homes, dtype=np.int64),
+        np.array([home for _, _, home in pending], dtype=np.int64),
         np.array([src.size for src in srcs], dtype=np.int64), groups, False)
     with _jit.BATCH_LOCK:
         for lo in range(0, len(pending), _jit.WIDTH):
