@@ -13,17 +13,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.learner import Roger, RogerParams, jit
+from roger_daemon.learner import jit
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.sogp_batch import evaluate_many, update_evaluated, update_many
-from roger_daemon.learner.synthetic import subtask_stream
 
+from .batched import learn_stream
 
-@pytest.fixture(autouse=True)
-def _batch_every_size(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The experts here are small: batch them whatever their size (on two threads)."""
-    monkeypatch.setattr(jit, "BATCH_MIN_ENTRIES", 0)
+pytestmark = pytest.mark.usefixtures("batch_every_size")  # small experts, batched (conftest)
 
 
 def _expert(n_points: int, seed: int, *, capacity: int = 12, prior_mean: bool = False
@@ -87,19 +84,10 @@ def test_the_evaluation_takes_up_to_evaluation_width_experts_per_call(
         np.testing.assert_array_equal(got.means[j], gps[j].terms(np.array([0.2, -0.1, 0.4]))[2])
 
 
-def _learn_stream(threads: int, points: int = 160) -> Roger:
-    jit.set_threads(threads)
-    s = subtask_stream(points, seed=4)
-    model = Roger(23, 9, RogerParams(beta=20), seed=3)
-    for x, y in zip(s.x, s.y, strict=True):
-        model.learn_one(x, y)
-    return model
-
-
 def test_learning_does_not_depend_on_the_thread_count() -> None:
     """The same stream on one thread and on two: the same state, bit for bit (the experts
     fill, so the batched fused step runs)."""
-    one, two = _learn_stream(1), _learn_stream(2)
+    one, two = learn_stream(1), learn_stream(2)
     assert max(g.n for g in two.distinct_experts()) == 20
     a, b = one.state_dict(), two.state_dict()
     assert a.keys() == b.keys()
@@ -251,7 +239,7 @@ def test_set_threads_caps_at_numbas_thread_count() -> None:
 def test_copy_many_fills_every_pending_copy(threads: int) -> None:
     """Copies deferred by ``BufferPool.copy_of(..., pending)`` (a kept buffer and new ones,
     more than one batch of ``WIDTH``) are filled by ``copy_many``, on one thread or two."""
-    from roger_daemon.learner.buffers import BufferPool
+    from roger_daemon.learner.buffers import BufferPool, PendingCopy
     from roger_daemon.learner.sogp_batch import copy_many
 
     jit.set_threads(threads)
@@ -260,7 +248,7 @@ def test_copy_many_fills_every_pending_copy(threads: int) -> None:
     pool = BufferPool(limit=1)
     kept = np.full(45, 7.0)
     pool.give(kept)
-    pending: list[tuple[np.ndarray, np.ndarray]] = []
+    pending: list[PendingCopy] = []
     copies = [pool.copy_of(src, pending) for src in sources]
     assert copies[0] is kept and len(pending) == len(sources)
     assert np.all(kept == 7.0)  # not filled yet

@@ -18,6 +18,8 @@ from hypothesis import strategies as st
 from roger_daemon.learner import Roger, RogerParams, jit
 from roger_daemon.learner.synthetic import subtask_stream
 
+from .batched import learn_stream
+
 _I64 = np.int64
 
 
@@ -85,12 +87,7 @@ def test_the_assignment_is_as_balanced_as_one_move_at_a_time_allows(data: st.Dat
         assert gap <= best + max(work)
 
 
-@pytest.fixture
-def _batch_every_size(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(jit, "BATCH_MIN_ENTRIES", 0)
-
-
-@pytest.mark.usefixtures("_batch_every_size")
+@pytest.mark.usefixtures("batch_every_size")
 def test_learning_does_not_depend_on_which_thread_takes_an_expert(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The same stream with each expert on its home thread and with every expert's thread
@@ -107,10 +104,7 @@ def test_learning_does_not_depend_on_which_thread_takes_an_expert(
     states = []
     for owners in (real, shuffled):
         monkeypatch.setattr(jit, "balanced_owners", owners)
-        s = subtask_stream(160, seed=4)
-        model = Roger(23, 9, RogerParams(beta=20), seed=3)
-        for x, y in zip(s.x, s.y, strict=True):
-            model.learn_one(x, y)
+        model = learn_stream(2)
         assert max(g.n for g in model.distinct_experts()) == 20
         states.append(model.state_dict())
     assert states[0].keys() == states[1].keys()
@@ -118,7 +112,7 @@ def test_learning_does_not_depend_on_which_thread_takes_an_expert(
         np.testing.assert_array_equal(states[0][key], states[1][key], err_msg=key)
 
 
-@pytest.mark.usefixtures("_batch_every_size")
+@pytest.mark.usefixtures("batch_every_size")
 def test_each_expert_keeps_its_thread_from_step_to_step() -> None:
     """After a step every expert has a home (a thread) but the one opened by that step (not
     evaluated yet); copies inherit their source's; from one step to the next few experts
