@@ -2,15 +2,18 @@
 
 Every ``roger bench`` command and ``roger experiment goal-scoring`` put this record in their
 JSON (``"machine"``): the CPU model and count, Python, numpy, the platform, the BLAS and its
-threads, the 1-minute load average at the start and at the end, how the machine's CPU time
-was spent over the run (``cpu_time``: busy, idle, and *stolen* by the hypervisor, from
-``/proc/stat``), and a *speed probe*: two fixed reference workloads timed when the run
-starts. The probe is there because this project's machines are shared virtual machines whose
-speed drifts (the same fleet run took 59 % of a core one evening and 83 % the next, on an
-idle machine): two runs' figures are comparable only when their probes are
-(docs/performance.md, *Comparing runs*). Stolen time is CPU time the virtual machine's
-processes were ready to use and did not get; a few percent of it shows in the fleet's
-latency tails (docs/fleet.md).
+threads, the 1-minute load average at the start and at the end, how the machine's CPU time was
+spent over the run (``cpu_time``: busy, idle, and *stolen* by the hypervisor, from
+``/proc/stat``), a *speed probe*: two fixed reference workloads timed when the run starts, and
+how far apart the first two CPUs are at the start and at the end (a cache line's round trip
+between them, :mod:`.core_probe`). The probe is there because this project's machines are
+shared virtual machines whose speed drifts (the same fleet run took 59 % of a core one evening
+and 83 % the next, on an idle machine): two runs' figures are comparable only when their probes
+are (docs/performance.md, *Comparing runs*). Stolen time is CPU time the virtual machine's
+processes were ready to use and did not get; a few percent of it shows in the fleet's latency
+tails (docs/fleet.md). The speed probe runs on one CPU and does not see the host's spells of
+running the two vCPUs on cores far apart, which slow the learner's two threads; the round trip
+does (docs/performance.md, *The slow spells are the two cores far apart*).
 """
 
 from __future__ import annotations
@@ -25,12 +28,13 @@ import numpy as np
 
 from roger_daemon.blas import blas_info
 
-__all__ = ["busy_cpu_s", "cpu_time_split", "cpu_times", "describe", "finish", "machine_record",
-           "speed_probe", "usable_cores"]
+__all__ = ["busy_cpu_s", "cpu_time_split", "cpu_times", "cross_core_ns", "describe", "finish",
+           "machine_record", "speed_probe", "usable_cores"]
 
 _PROBE_ELEMENTS = 1 << 23  # 64 MB of float64: larger than the caches of the machines we use
 _PROBE_LOOP = 200_000
 _CPU_TIMES_START = "_cpu_times_start"  # kept in the record between machine_record and finish
+_KERNELS = "roger_daemon.learner.jit_compile"  # loaded with the learner's first kernel
 
 
 def _cpu_model() -> str:
@@ -70,6 +74,15 @@ def speed_probe(repeats: int = 5) -> dict[str, float]:
         python = min(python, t1 - t0)
         memory = min(memory, t2 - t1)
     return {"python_ms": round(python * 1e3, 2), "memory_ms": round(memory * 1e3, 2)}
+
+
+def cross_core_ns() -> float | None:
+    """How far apart this process's first two CPUs are now: ns per round trip of a cache line
+    between them (:func:`.core_probe.round_trip_ns`), ``None`` with fewer than two CPUs.
+    Imports numba (the probe is compiled), so it is taken only with the speed probe."""
+    from roger_daemon.core_probe import round_trip_ns
+
+    return round_trip_ns()
 
 
 def usable_cores() -> int:
@@ -140,6 +153,7 @@ def machine_record(*, probe: bool = True) -> dict[str, Any]:
     }
     if probe:
         record["speed_probe"] = speed_probe()
+        record["cross_core_ns_start"] = cross_core_ns()
     record[_CPU_TIMES_START] = cpu_times()  # after the probe: the run's time only
     return record
 
@@ -147,14 +161,17 @@ def machine_record(*, probe: bool = True) -> dict[str, Any]:
 def finish(record: dict[str, Any]) -> dict[str, Any]:
     """``record`` with the 1-minute load average at the end of the run, how the machine's
     CPU time was spent since :func:`machine_record` (``cpu_time``, where ``/proc/stat`` can
-    be read), and the CPU the learner's kernels were compiled for (``kernels_cpu``, where
+    be read), the cores' distance again (``cross_core_ns_end``, where it was taken at the
+    start), and the CPU the learner's kernels were compiled for (``kernels_cpu``, where
     they ran: :func:`.learner.jit_target.compiled_for`)."""
     record["load_avg_1m_end"] = round(os.getloadavg()[0], 2)
+    if "cross_core_ns_start" in record:
+        record["cross_core_ns_end"] = cross_core_ns()
     start, end = record.pop(_CPU_TIMES_START, None), cpu_times()
     split = cpu_time_split(start, end) if start is not None and end is not None else None
     if split is not None:
         record["cpu_time"] = split
-    if "numba" in sys.modules:  # the learner ran here: what its kernels were compiled for
+    if _KERNELS in sys.modules:  # the learner ran here: what its kernels were compiled for
         from roger_daemon.learner.jit_target import compiled_for
 
         kernels = compiled_for()
@@ -164,14 +181,19 @@ def finish(record: dict[str, Any]) -> dict[str, Any]:
 
 
 def describe(record: dict[str, Any]) -> str:
-    """One line for a benchmark's table: CPU, load start -> end, the speed probe, stolen CPU
-    time, what the learner's kernels were compiled for."""
+    """One line for a benchmark's table: CPU, load start -> end, the speed probe, the cores'
+    distance start -> end, stolen CPU time, what the learner's kernels were compiled for."""
     text = f"{record['cpu']}, {record['cpus']} CPUs, load {record['load_avg_1m_start']}"
     if "load_avg_1m_end" in record:
         text += f" -> {record['load_avg_1m_end']}"
     if "speed_probe" in record:
         probe = record["speed_probe"]
         text += f", speed probe: Python {probe['python_ms']} ms, memory {probe['memory_ms']} ms"
+    if record.get("cross_core_ns_start") is not None:
+        text += f", cross-core round trip {record['cross_core_ns_start']}"
+        if record.get("cross_core_ns_end") is not None:
+            text += f" -> {record['cross_core_ns_end']}"
+        text += " ns"
     if "cpu_time" in record:
         text += f", CPU stolen {record['cpu_time']['steal_percent']} %"
     if "kernels_cpu" in record:

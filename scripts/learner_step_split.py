@@ -10,9 +10,11 @@ and everything else (Python, numpy and the small compiled calls of the gates, re
 bookkeeping).  Each sample restores the model learned to ``--warm-points`` pairs (the
 benchmark's timed window starts at 2,500), learns the next ``--steps`` pairs on every core,
 then the same pairs on one thread, then times the speed probe
-(:func:`roger_daemon.machine.speed_probe`).  Samples repeat for ``--minutes``: this
+(:func:`roger_daemon.machine.speed_probe`) and the cross-core round trip
+(:func:`roger_daemon.machine.cross_core_ns`).  Samples repeat for ``--minutes``: this
 project's hosts have spells in which the kernels slow down and the Python does not, which the
-speed probe does not see; the split shows which part moved.
+speed probe does not see and the round trip does (the two vCPUs on cores far apart); the
+split shows which part moved.
 
     .venv/bin/python scripts/learner_step_split.py [--minutes 2] [--steps 800]
         [--warm-points 2500] [--pause 3] [--json]
@@ -32,7 +34,7 @@ from roger_daemon.bench.learner import learned_model, load_stream
 from roger_daemon.learner import Roger
 from roger_daemon.learner import jit as lazy_jit
 from roger_daemon.learner.synthetic import BENCH_SEED
-from roger_daemon.machine import finish, machine_record, speed_probe
+from roger_daemon.machine import cross_core_ns, finish, machine_record, speed_probe
 
 #: the experts' kernels (evaluation, update, copies), batched and one expert at a time
 EXPERT_KERNELS = ("terms_batch", "learn_batch", "copy_batch", "evaluate_experts",
@@ -75,13 +77,14 @@ def timed_steps(clock: KernelClock, state: dict[str, Any], x: Any, y: Any, start
 
 def sample(clock: KernelClock, state: dict[str, Any], x: Any, y: Any, start: int,
            steps: int, cores: int) -> dict[str, Any]:
-    """One sample: every core, one thread, the speed probe."""
+    """One sample: every core, one thread, the speed probe, the cross-core round trip."""
     out: dict[str, Any] = {"time": time.strftime("%H:%M:%S")}
     for label, threads in (("all_cores", cores), ("one_thread", 1)):
         step_us, kernel_us = timed_steps(clock, state, x, y, start, steps, threads)
         out[label] = {"step_us": round(step_us, 1), "kernel_us": round(kernel_us, 1),
                       "other_us": round(step_us - kernel_us, 1)}
     out["speed_probe"] = speed_probe(repeats=1)
+    out["cross_core_ns"] = cross_core_ns()
     return out
 
 
@@ -101,7 +104,8 @@ def _line(s: dict[str, Any]) -> str:
     return (f"{s['time']}  all cores: step {a['step_us']:7.1f} us = kernels {a['kernel_us']:6.1f}"
             f" + other {a['other_us']:6.1f}  |  one thread: step {o['step_us']:7.1f} = kernels "
             f"{o['kernel_us']:6.1f} + other {o['other_us']:6.1f}  |  probe Python "
-            f"{p['python_ms']} ms, memory {p['memory_ms']} ms")
+            f"{p['python_ms']} ms, memory {p['memory_ms']} ms  |  cross-core "
+            f"{s['cross_core_ns']} ns")
 
 
 def main() -> int:
