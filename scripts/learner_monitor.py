@@ -26,6 +26,8 @@ import sys
 import time
 from typing import Any
 
+from roger_daemon.tools.common import non_negative
+
 STATES = ("far apart", "near", "mixed", "unknown")
 _BENCH = [sys.executable, "-m", "roger_daemon", "bench", "learner", "--json", "--no-unimap"]
 _RUN_TIMEOUT_S = 1800  # one run takes seconds; a loaded machine may take minutes
@@ -96,19 +98,14 @@ def _line(run: dict[str, Any]) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--minutes", type=float, default=15.0,
+    parser.add_argument("--minutes", type=non_negative, default=15.0,
                         help="keep running this long (default 15; 0: one run)")
-    parser.add_argument("--far-ns", type=float, default=250.0,
+    parser.add_argument("--far-ns", type=non_negative, default=250.0,
                         help="a round trip above this is far apart (default 250)")
-    parser.add_argument("--target", type=float, default=2000.0,
+    parser.add_argument("--target", type=non_negative, default=2000.0,
                         help="updates/s a run should reach (default 2000)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    args = parser.parse_args()
-    for name, value in (("--minutes", args.minutes), ("--far-ns", args.far_ns),
-                        ("--target", args.target)):
-        if not value >= 0:
-            parser.exit(2, f"{parser.prog}: error: {name} must be a number >= 0 "
-                           f"(got {value})\n")
+    args = parser.parse_args()  # a bad number: argparse names it and exits 2
     runs: list[dict[str, Any]] = []
     end = time.monotonic() + 60.0 * args.minutes
     while True:

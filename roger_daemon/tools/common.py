@@ -39,6 +39,7 @@ __all__ = [
     "decode_sample",
     "dumps",
     "key_expr",
+    "non_negative",
     "open_from_args",
     "settings_from_args",
 ]
@@ -59,12 +60,25 @@ def count(text: str) -> int:
 
 def seconds(text: str) -> float:
     """argparse type: a finite number of seconds >= 0."""
+    return _finite_non_negative(text, "a number of seconds >= 0")
+
+
+def non_negative(text: str) -> float:
+    """argparse type: a finite number >= 0.
+
+    >>> non_negative("2.5"), non_negative("0")
+    (2.5, 0.0)
+    """
+    return _finite_non_negative(text, "a finite number >= 0")
+
+
+def _finite_non_negative(text: str, expected: str) -> float:
     try:
         value = float(text)
     except ValueError:
         value = -1.0
     if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number of seconds >= 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return value
 
 
