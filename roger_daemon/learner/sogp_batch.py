@@ -13,6 +13,7 @@ those of a call of its own.  Split from :mod:`.sogp`
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from itertools import accumulate
@@ -113,21 +114,17 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     ns_arr = np.array(ns, dtype=np.int64)
     slabs = [gp._slab for gp in gps]  # each expert's buffers in one array (.jit_slab)
     width = _jit.EVALUATION_WIDTH
-    if batched:
-        owners, groups = _owners(gps, ns_arr * (ns_arr + 1) // 2)
-        with _jit.BATCH_LOCK:
-            for lo in range(0, m, width):
-                hi = min(lo + width, m)
-                _jit.terms_batch(_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x,
-                                 kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean,
-                                 packed, offsets[lo:hi], means[lo:hi], latent[lo:hi],
-                                 owners[lo:hi], groups)
-    else:
+    owners, groups = _owners(gps, ns_arr * (ns_arr + 1) // 2) if batched else (None, 0)
+    with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
         for lo in range(0, m, width):
             hi = min(lo + width, m)
-            _jit.evaluate_experts(_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x,
-                                  kernel.gamma, kernel.k_star, _LATENT_FLOOR, first.prior_mean,
-                                  packed, offsets[lo:hi], means[lo:hi], latent[lo:hi])
+            args = (_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x, kernel.gamma,
+                    kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed, offsets[lo:hi],
+                    means[lo:hi], latent[lo:hi])
+            if owners is None:
+                _jit.evaluate_experts(*args)
+            else:
+                _jit.terms_batch(*args, owners[lo:hi], groups)
     return Evaluation(gps, means, latent, packed, offsets, [None] * m)
 
 
