@@ -18,11 +18,11 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner.model_args import Seed
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.roger import Roger
 from roger_daemon.learner.roger_step import instantiate, putatives
 from roger_daemon.learner.scaling import as_vector
-from roger_daemon.learner.state import Seed
 
 __all__ = ["fit_partition"]
 
