@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
-from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg import cho_solve
 
 from roger_daemon.learner.params import RogerParams
 
@@ -243,18 +243,19 @@ class ReferenceGate:
         d = self.mu.size
         nu_t = self.nu - d + 1.0
         c = (self.kappa + 1.0) / (self.kappa * nu_t)
-        low, logdet_lam = self._factor
-        z = solve_triangular(low, x - self.mu, lower=True, check_finite=False)
-        delta = (z @ z) / c  # (x - mu)^T Sigma_t^-1 (x - mu)
+        prec, logdet_lam = self._factor
+        u = x - self.mu
+        delta = (u @ prec @ u) / c  # (x - mu)^T Sigma_t^-1 (x - mu)
         log_norm = (math.lgamma((nu_t + d) / 2.0) - math.lgamma(nu_t / 2.0)
                     - 0.5 * d * math.log(nu_t * math.pi) - 0.5 * (d * math.log(c) + logdet_lam))
         return log_norm - 0.5 * (nu_t + d) * math.log1p(delta / nu_t)
 
     @cached_property
     def _factor(self) -> tuple[FloatArray, float]:
-        """``L`` with ``L L^T = Lambda``, and ``log|Lambda|`` (§3.4: cached per gate)."""
-        low = np.asarray(np.linalg.cholesky(self.lam), dtype=np.float64)
-        return low, 2.0 * float(np.sum(np.log(np.diag(low))))
+        """``Lambda^-1`` and ``log|Lambda|`` by Cholesky (§3.4: cached per gate)."""
+        low = np.linalg.cholesky(self.lam)
+        prec = cho_solve((low, True), np.eye(self.mu.size))
+        return prec, 2.0 * float(np.sum(np.log(np.diag(low))))
 
 
 @dataclass(frozen=True)
