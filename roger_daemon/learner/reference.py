@@ -77,11 +77,15 @@ class ReferenceRoger:
 
     Examples
     --------
-    >>> model = ReferenceRoger(d_x=1, d_y=1, params=RogerParams(particles=3), seed=0)
-    >>> for i in range(40):
-    ...     model.learn_one([i % 10 / 10.0], [(-1.0) ** i * (i % 10 / 10.0)])
-    >>> model.n_learned, model.n_experts >= 2
-    (40, True)
+    >>> from roger_daemon.learner.synthetic import sqrt_multimap
+    >>> data = sqrt_multimap(200)  # y = +sqrt(x) and -sqrt(x), interleaved
+    >>> params = RogerParams(particles=5, theta_w=0.3, novelty_threshold=1e-3)
+    >>> model = ReferenceRoger(d_x=1, d_y=1, params=params, seed=0)
+    >>> for x, y in zip(data.x, data.y):
+    ...     model.learn_one(x, y)
+    >>> means = [float(b.mean[0]) for b in model.predict_multimap([0.5])]
+    >>> min(abs(m - 0.707) for m in means) < 0.05, min(abs(m + 0.707) for m in means) < 0.05
+    (True, True)
     """
 
     kind = "reference"
