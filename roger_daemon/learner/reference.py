@@ -9,7 +9,7 @@ particles as plain Python objects: a particle is a log weight, a tuple of expert
 the chain of its choices.  It is
 
 * the page to read beside the paper: each step cites its equation or section;
-* the place to try a new lever first (docs/learner-math.md, *The plain reference*);
+* the place to try a new lever first (docs/learner-math.md §9);
 * the oracle of the fast learner: on the same stream, params and seed the two make the same
   discrete decisions (it draws from the same generators as the fast learner, in the same
   order) and agree on every float to the replay tolerance (tests/learner/test_reference.py).
@@ -136,8 +136,7 @@ class ReferenceRoger:
                 base.append(part.log_weight + prior[id(e)] + self._sticky(e, last))
                 choices.append((i, j))
                 owner.append(id(e))
-            new_sticky = -math.inf if math.isinf(p.sticky_kappa) and last is not None else 0.0
-            base.append(part.log_weight + new_prior + new_sticky)
+            base.append(part.log_weight + new_prior + self._sticky(None, last))
             choices.append((i, -1))
             owner.append(0)
         # the GP factor: the empty expert's in closed form, each other expert's once
@@ -147,13 +146,14 @@ class ReferenceRoger:
                           for b, c, k in zip(base, choices, owner, strict=True)])
         return log_w, choices
 
-    def _sticky(self, expert: ReferenceExpert, last: int | None) -> float:
-        """§8, sticky CRP: the previous point's expert weighs ``n_k + kappa``
-        (``log1p(kappa / n_k)`` more); with ``kappa = inf`` every other putative weighs 0."""
+    def _sticky(self, expert: ReferenceExpert | None, last: int | None) -> float:
+        """§8, sticky CRP: the previous point's expert (id ``last``) weighs ``n_k + kappa``
+        (``log1p(kappa / n_k)`` more); with ``kappa = inf`` every other putative (a new
+        expert's, ``None``, too) weighs 0."""
         kappa = self.params.sticky_kappa
         if kappa == 0.0 or last is None:
             return 0.0
-        if expert.id != last:
+        if expert is None or expert.id != last:
             return -math.inf if math.isinf(kappa) else 0.0
         return 0.0 if math.isinf(kappa) else math.log1p(kappa / expert.count)
 
