@@ -72,13 +72,14 @@ def check_dims(d_x: object, d_y: object) -> tuple[int, int]:
 
 def resolve_model_args(d_x: object, d_y: object, params: RogerParams | None
                        ) -> tuple[int, int, RogerParams]:
-    """Validated ``(d_x, d_y, params)`` of a model constructor (paper defaults for ``None``)."""
+    """Validated ``(d_x, d_y, params)`` of a model constructor (paper defaults for ``None``;
+    ``nu0`` resolved for ``d_x``, :meth:`RogerParams.for_dims`)."""
     dx, dy = check_dims(d_x, d_y)
     resolved = RogerParams() if params is None else params
     if not isinstance(resolved, RogerParams):
         raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
     resolved.check_dims(dx, dy)
-    return dx, dy, resolved
+    return dx, dy, resolved.for_dims(dx)
 
 
 class Roger:
@@ -130,7 +131,7 @@ class Roger:
         self._scaling = AffineScaling(p, self.d_x, self.d_y)
         self._dm = self._scaling.d_model  # input dimensions after input_weights
         self.kernel = RBFKernel(p.theta_w, self._dm, p.kernel_dim_scaling)
-        self._gates = GatePool(self._dm, p.mu0, p.kappa0, p.lambda0, p.nu0)
+        self._gates = GatePool(self._dm, p.mu0, p.kappa0, p.lambda0, p.nu0_for(self.d_x))
         cap = self._gates.capacity
         self._gps: list[SparseOnlineGP | None] = [None] * cap
         self._ids = np.full(cap, -1, dtype=np.int64)
