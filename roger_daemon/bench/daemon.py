@@ -110,7 +110,7 @@ def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
             i = tick % len(stream.x)
             sent = c.perception(tick, stream.x[i])
             try:
-                got = c.wait_prediction(tick, timeout=1.0)
+                got = c.wait_received(tick, timeout=1.0)
                 if time.monotonic() - t0 >= 1.0:
                     lat.append((got.recv_ns - sent) / 1e6)
             except TimeoutError:
@@ -129,7 +129,7 @@ def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
             i = tick % len(stream.x)
             sent = c.perception(tick, stream.x[i])
             try:
-                got = c.wait_prediction(tick, timeout=1.0)
+                got = c.wait_received(tick, timeout=1.0)
                 lat_predict.append((got.recv_ns - sent) / 1e6)
             except TimeoutError:
                 lost += 1
