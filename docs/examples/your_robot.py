@@ -92,7 +92,7 @@ def free_port() -> int:
 
 
 def main() -> int:
-    """Start a daemon, demonstrate 600 ticks (20 s at 30 Hz), then ask for predictions on new perceptions."""
+    """Start a daemon, demonstrate 600 ticks (20 s at 30 Hz), then predict new ones."""
     arm = Arm(seed=1)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
