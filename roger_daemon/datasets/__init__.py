@@ -40,8 +40,8 @@ def write_dataset(pairs: Pairs, fmt: str, out: str | Path, stem: str, *,
     if fmt == "lerobot":
         return lerobot.write_lerobot(pairs, d, dtype=dtype)
     target = d / f"{stem}{FORMATS[fmt]}"
-    writer = tables.write_parquet if fmt == "parquet" else tables.write_hdf5
-    return [writer(pairs, target)]
+    (tables.write_parquet if fmt == "parquet" else tables.write_hdf5)(pairs, target)
+    return [target]
 
 
 def export_log(log: str | Path, fmt: str, out: str | Path, *, robot: str | None = None,

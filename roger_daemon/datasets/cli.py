@@ -139,17 +139,12 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def _atomically(pairs: Any, fmt: str, target: Path) -> list[Path]:
-    """Write one dataset file complete or not at all (a temporary name, then a rename)."""
-    import os
-
+    """Write one dataset file complete or not at all (:func:`roger_daemon.atomic.atomic_write`)."""
+    from roger_daemon.atomic import atomic_write
     from roger_daemon.datasets import tables
 
-    tmp = target.with_name(f".{target.name}.tmp")
-    try:
-        (tables.write_parquet if fmt == "parquet" else tables.write_hdf5)(pairs, tmp)
-        os.replace(tmp, target)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_write(target) as f:
+        (tables.write_parquet if fmt == "parquet" else tables.write_hdf5)(pairs, f)
     return [target]
 
 

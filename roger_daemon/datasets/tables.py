@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -91,8 +91,8 @@ def _pairs(doc: dict[str, Any], profile: RobotProfile, **arrays: Any) -> Pairs:
                  task=str(doc.get("task") or ""), meta=meta, **arrays)
 
 
-def write_parquet(pairs: Pairs, path: str | Path) -> Path:
-    """Write the pairs as one Parquet table at ``path``."""
+def write_parquet(pairs: Pairs, path: str | Path | IO[bytes]) -> None:
+    """Write the pairs as one Parquet table at ``path`` (or into an open binary file)."""
     pa = require_pyarrow()
     import pyarrow.parquet as pq
 
@@ -111,8 +111,7 @@ def write_parquet(pairs: Pairs, path: str | Path) -> Path:
         for i, name in enumerate(names):
             cols[f"{axis}.{name}"] = pa.array(values[:, i], pa.float64())
     table = pa.table(cols).replace_schema_metadata({b"roger": _roger_json(pairs).encode()})
-    pq.write_table(table, str(path))
-    return Path(path)
+    pq.write_table(table, path if hasattr(path, "write") else str(path))
 
 
 def read_parquet(path: str | Path) -> Pairs:
@@ -138,12 +137,13 @@ def read_parquet(path: str | Path) -> Pairs:
                   source=[str(v) for v in column_array(table, "source")])
 
 
-def write_hdf5(pairs: Pairs, path: str | Path) -> Path:
-    """Write the pairs in robomimic's HDF5 layout at ``path``."""
+def write_hdf5(pairs: Pairs, path: str | Path | IO[bytes]) -> None:
+    """Write the pairs in robomimic's HDF5 layout at ``path`` (or into an open binary file,
+    readable and seekable)."""
     h5py = _h5py()
     text = h5py.string_dtype()
     starts = np.flatnonzero(np.diff(pairs.episode, prepend=-1))
-    with h5py.File(str(path), "w") as f:
+    with h5py.File(path if hasattr(path, "write") else str(path), "w") as f:
         data = f.create_group("data")
         for e, (a, b) in enumerate(zip(starts, [*starts[1:], len(pairs)], strict=True)):
             demo = data.create_group(f"demo_{e}")
@@ -161,7 +161,6 @@ def write_hdf5(pairs: Pairs, path: str | Path) -> Path:
         data.attrs["env_args"] = json.dumps({"env_name": pairs.robot, "type": "roger",
                                              "env_kwargs": {}})
         data.attrs["roger"] = _roger_json(pairs)
-    return Path(path)
 
 
 def read_hdf5(path: str | Path) -> Pairs:
