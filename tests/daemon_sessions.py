@@ -148,8 +148,9 @@ def record_session(
     ``<directory>/checkpoints``; a checkpoint already there is what the daemon resumes from),
     and its model is kept in :attr:`DaemonSession.checkpoints`. The learner is the paper's
     (``preset = "paper"``, with its ``nu0 = 24``), seed ``seed``. ``close=False`` leaves the
-    recorder open, as a killed daemon does (what was flushed is on disk). ``recover``: start as ``roger daemon``
-    does (``start_robots``: start-up self-recovery from the logs already in ``directory``).
+    recorder open, as a killed daemon does (what was flushed is on disk). ``recover``: start
+    as ``roger daemon`` does (``start_robots``: start-up self-recovery from the logs already
+    in ``directory``).
     ``workers``: the model learns and predicts in a learner worker process
     (``roger_daemon.daemon.learners.ProcessLearners``, ``[daemon] workers = "process"``).
     """
