@@ -128,7 +128,9 @@ def test_config_example_prints_the_shipped_file(capsys: pytest.CaptureFixture[st
 
 @pytest.mark.parametrize(("argv", "message"), [
     (["bench", "fleet", "--robots", "0"], "--robots must be an integer >= 1, got 0"),
-    (["bench", "fleet", "--seconds", "-1"], "--seconds must be a number > 0, got -1.0"),
+    (["bench", "fleet", "--seconds", "-1"], "--duration must be a number > 0, got -1.0"),
+    (["bench", "fleet", "--duration", "-1"], "--duration must be a number > 0, got -1.0"),
+    (["bench", "soak", "--duration", "0"], "--duration must be a number > 0, got 0.0"),
     (["bench", "soak", "--minutes", "0"], "--minutes must be a number > 0, got 0.0"),
     (["bench", "soak", "--interval", "0"], "--interval must be a number > 0, got 0.0"),
 ])

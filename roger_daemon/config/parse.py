@@ -261,7 +261,9 @@ def _zenoh_section(z: Table) -> ZenohSettings:
 def _checkpoint_section(c: Table) -> CheckpointConfig:
     """The ``[checkpoint]`` table."""
     ckpt = CheckpointConfig(
-        dir=c.path("dir", CheckpointConfig.dir) or CheckpointConfig.dir,
+        # absolute (from the working directory at start): status, `roger control checkpoint`
+        # and the logs name files any reader can open (issue 56)
+        dir=(c.path("dir", CheckpointConfig.dir) or CheckpointConfig.dir).absolute(),
         every_updates=c.integer("every_updates", CheckpointConfig.every_updates, lo=0),
         every_s=c.number("every_s", CheckpointConfig.every_s, lo=0.0, lo_open=False),
         keep=c.integer("keep", CheckpointConfig.keep, lo=1),
@@ -286,7 +288,7 @@ def _recording_section(rec: Table) -> RecordingConfig:
     """The ``[recording]`` table."""
     recording = RecordingConfig(
         enabled=rec.boolean("enabled", True),
-        dir=rec.path("dir", RecordingConfig.dir) or RecordingConfig.dir,
+        dir=(rec.path("dir", RecordingConfig.dir) or RecordingConfig.dir).absolute(),
         max_bytes=rec.integer("max_bytes", 0, lo=0),
         max_age_days=rec.number("max_age_days", 0.0, lo=0.0, lo_open=False),
     )
