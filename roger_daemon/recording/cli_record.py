@@ -35,7 +35,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--key", default=keyexpr.everything(), help="key expression to record (default roger/**)"
     )
-    parser.add_argument("--out", required=True, type=Path, help="directory for the MCAP files")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR",
+                        help="directory for the MCAP files")
     parser.add_argument(
         "--robot",
         help="robot id for the file name (default: from --key roger/<robot>/..., else 'all')",

@@ -59,7 +59,7 @@ MERGED_MEANING = ("each group of experts (those sharing a majority label) refitt
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger demo``."""
-    parser.add_argument("--out", type=Path, default=Path("runs/demo"),
+    parser.add_argument("--out", type=Path, default=Path("runs/demo"), metavar="DIR",
                         help="output directory (default runs/demo); what an earlier demo "
                              "wrote there is replaced, anything else is kept")
     parser.add_argument("--force", action="store_true",

@@ -109,7 +109,7 @@ class Plan:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger experiment goal-scoring``."""
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--quick", action="store_true",
                         help="small version for CI: 2 locations, 1 attempt, 150 points per "
                         "subtask, 20 s episodes, fast vision (each can still be overridden)")

@@ -255,4 +255,4 @@ def _live(args: argparse.Namespace) -> int:
         if writer is not None:
             writer.close()
         server.stop()
-    return 128 + stop[0] if stop else 0  # stopped by SIGTERM: 143, as every command
+    return 0  # SIGTERM is a supervisor's stop (roger up): 0; Ctrl-C raises and exits 130
