@@ -253,13 +253,15 @@ def test_13_no_pybullet_banner_on_stderr() -> None:
 def test_16_the_scene_render_draws_one_path_per_episode(tmp_path: Path) -> None:
     pytest.importorskip("google.protobuf")
     from simulator.view.node import convert_log
-    from simulator.view.render import render_scene
+    from simulator.view.render import episode_paths, render_scene
 
     log = _small_log(tmp_path / "logs")
     view = tmp_path / "view.mcap"
     convert_log(log, view)
-    drawn = render_scene(view, tmp_path / "scene.png")
-    assert drawn["robot_poses"] == 40 and drawn["robot_paths"] == 2
+    assert render_scene(view, tmp_path / "scene.png")["robot_poses"] == 40
+    paths = episode_paths(view)["robot"]
+    assert [len(p) for p in paths] == [20, 20]  # not one line from x = -1.8 back to 2.0
+    assert paths[0][-1][0] == pytest.approx(-1.81) and paths[1][0][0] == pytest.approx(2.2)
 
 
 # 17 ------------------------------------------------------------------------------------------

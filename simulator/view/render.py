@@ -20,7 +20,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-__all__ = ["read_messages", "render_scene"]
+__all__ = ["episode_paths", "read_messages", "render_scene"]
 
 #: an episode's start on /roger/events (simulator.view.scene: "episode N: start ...")
 _START = re.compile(r"^episode \S+: start\b")
@@ -147,7 +147,14 @@ def render_scene(path: Path, out: Path, title: str = "") -> dict[str, int]:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)
     plt.close(fig)
-    return {"robot_poses": len(robot), "ball_positions": len(ball), "robot_paths": len(paths)}
+    return {"robot_poses": len(robot), "ball_positions": len(ball)}
+
+
+def episode_paths(path: Path) -> dict[str, list[list[tuple[float, float]]]]:
+    """The robot's and the ball's paths on ``/scene``, one per episode: what is drawn."""
+    _, robot, ball, cuts = _tracks(path)
+    return {"robot": _pieces([(x, y) for x, y, _ in robot], [c[0] for c in cuts]),
+            "ball": _pieces(ball, [c[1] for c in cuts])}
 
 
 def _pieces(points: list[tuple[float, float]], cuts: list[int]
