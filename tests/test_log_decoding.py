@@ -52,12 +52,15 @@ def test_json_export_names_the_fields_and_its_schemas_validate(tmp_path: Path) -
     out = tmp_path / "named.mcap"
     assert roger(["log", "export", str(SESSIONS[0]), "--format", "json",
                   "--out", str(out)]) == 0
-    seen = set()
+    seen: set[str] = set()
+    validated: dict[str, int] = {}
     with out.open("rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():
             assert channel.message_encoding == "json" and schema is not None
             value = json.loads(message.data)
-            jsonschema.validate(value, json.loads(schema.data))
+            if validated.get(channel.topic, 0) < 5:  # a few per channel: validation is slow
+                jsonschema.validate(value, json.loads(schema.data))
+                validated[channel.topic] = validated.get(channel.topic, 0) + 1
             kind = channel.topic.rsplit("/", 1)[1]
             if kind == "perception":
                 named = value["named"]["x"]
