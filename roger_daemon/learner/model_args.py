@@ -28,13 +28,14 @@ def check_dims(d_x: object, d_y: object) -> tuple[int, int]:
 
 def resolve_model_args(d_x: object, d_y: object, params: RogerParams | None
                        ) -> tuple[int, int, RogerParams]:
-    """Validated ``(d_x, d_y, params)`` of a model constructor (paper defaults for ``None``)."""
+    """Validated ``(d_x, d_y, params)`` of a model constructor (paper defaults for ``None``;
+    ``nu0`` resolved for ``d_x``, :meth:`RogerParams.for_dims`)."""
     dx, dy = check_dims(d_x, d_y)
     resolved = RogerParams() if params is None else params
     if not isinstance(resolved, RogerParams):
         raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
     resolved.check_dims(dx, dy)
-    return dx, dy, resolved
+    return dx, dy, resolved.for_dims(dx)
 
 
 def spawn_generators(seed: Seed) -> tuple[np.random.Generator, np.random.Generator]:

@@ -226,7 +226,9 @@ class ReferenceGate:
 
     @classmethod
     def prior(cls, params: RogerParams, d: int) -> ReferenceGate:
-        """``mu0 1``, ``kappa0``, ``Lambda0 = lambda0 I`` (a scale matrix), ``nu0`` (§3)."""
+        """``mu0 1``, ``kappa0``, ``Lambda0 = lambda0 I`` (a scale matrix), ``nu0`` (§3;
+        resolved for the data's dimension by the model's constructor)."""
+        assert params.nu0 is not None, "params not resolved for the data (RogerParams.for_dims)"
         return cls(params.kappa0, params.nu0, np.full(d, params.mu0), params.lambda0 * np.eye(d))
 
     def updated(self, x: FloatArray) -> ReferenceGate:

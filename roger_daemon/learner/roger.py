@@ -107,7 +107,7 @@ class Roger:
         self._scaling = AffineScaling(p, self.d_x, self.d_y)
         self._dm = self._scaling.d_model  # input dimensions after input_weights
         self.kernel = RBFKernel(p.theta_w, self._dm, p.kernel_dim_scaling)
-        self._gates = GatePool(self._dm, p.mu0, p.kappa0, p.lambda0, p.nu0)
+        self._gates = GatePool(self._dm, p.mu0, p.kappa0, p.lambda0, p.nu0_for(self.d_x))
         cap = self._gates.capacity
         self._gps: list[SparseOnlineGP | None] = [None] * cap
         self._ids = np.full(cap, -1, dtype=np.int64)

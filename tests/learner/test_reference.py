@@ -43,7 +43,9 @@ AIBO = Path(__file__).parents[2] / "roger_daemon" / "bench" / "data" / "aibo-dem
 
 #: small dims, a kernel and novelty threshold that keep K_B well conditioned (with the paper's
 #: 1e-6 and a broad kernel, round-off decides the floats, docs/reproducibility.md)
-BASE = RogerParams(particles=5, beta=15, theta_w=0.7, novelty_threshold=1e-3)
+# nu0 = 24 (the paper's, for 23-D inputs): the streams below were chosen so that each lever acts
+# with it; the d_x + 1 default would make some of them inert on these 4-D streams
+BASE = RogerParams(particles=5, beta=15, theta_w=0.7, novelty_threshold=1e-3, nu0=24.0)
 
 
 @cache
@@ -302,15 +304,18 @@ def test_a_drifted_q_is_re_inverted_before_the_novelty_test() -> None:
 def test_the_same_arguments_are_refused_and_bad_pairs_change_nothing() -> None:
     """One owner of the constructor's checks (``model_args``); ``learn_one``'s ValueError
     leaves the model as it was; before learning both predict the prior."""
-    for args in ((0, 1), (2, 1.5), (23, 9)):  # nu0 = 24 > d_x - 1 fails only at 26
+    for args in ((0, 1), (2, 1.5), (23, 9)):
         for cls in (Roger, ReferenceRoger):
             if args == (23, 9):
                 cls(*args)
                 continue
             with pytest.raises(ValueError):
                 cls(*args)
-    with pytest.raises(ValueError, match="nu0"):
-        ReferenceRoger(26, 1)
+    # an explicit nu0 must exceed d_x - 1 (the default, d_x + 1, always does)
+    for cls in (Roger, ReferenceRoger):
+        cls(26, 1)
+        with pytest.raises(ValueError, match="nu0"):
+            cls(26, 1, RogerParams(nu0=24.0))
     ref, fast = ReferenceRoger(2, 1, BASE, seed=0), Roger(2, 1, BASE, seed=0)
     p_ref, p_fast = ref.predict_one([0.1, 0.2]), fast.predict_one([0.1, 0.2])
     assert (p_ref.expert_id, p_ref.gate_prob) == (p_fast.expert_id, p_fast.gate_prob) == (-1, 1.0)
