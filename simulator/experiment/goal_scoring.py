@@ -40,13 +40,14 @@ from simulator.experiment.runner import json_default, machine
 
 __all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "plan_from_args", "run"]
 
-CONTROLLERS = ("hcc", "roger", "dpa", "oracle", "groups")
+CONTROLLERS = ("hcc", "roger", "dpa", "oracle", "groups", "autonomous")
 CONTROLLER_NAMES = {
     "hcc": "HCC (hand-coded controller)",
     "oracle": "segmentation oracle (GP per true subtask)",
     "roger": "ROGER experts + HCC transitioner",
     "dpa": "unimap GP (DPA)",
     "groups": "ROGER experts merged per group + HCC transitioner",
+    "autonomous": "ROGER experts + learned transitions (no HCC)",
 }
 #: The paper's numbers (section IV.A): success rates, experts, ratio learned/HCC.
 PAPER = {"hcc": 0.69, "roger": 0.31, "dpa": 0.0, "experts": 85, "ratio": 0.45}

@@ -17,6 +17,9 @@ Controllers (all act on the 23-D perception only):
   subtask (trained on that subtask's demonstrations), the same HCC transitions. The
   demonstrator's labels group its data, so it is a ceiling for ROGER, never part of ROGER.
 * :class:`MeanController`: the unimap GP's mean drives the robot (the paper's DPA).
+* :class:`AutonomousController`: ROGER's experts chosen by learned transitions
+  (:class:`roger_daemon.fsm.LearnedFSM`), no hand-coded code and no label at run time
+  (docs/autonomy.md).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from simulator.experiment.averaging import MultimapNeighbourhood
 from simulator.experiment.training import Demonstrations
 
 __all__ = [
+    "AutonomousController",
     "EpisodeRecord",
     "MeanController",
     "OracleController",
@@ -174,6 +178,34 @@ class OracleController:
             y = _finite(np.asarray(gp.predict_one(x).mean, dtype=np.float64), x, self.counts)
         self.hcc.commit(y)
         return y, subtask
+
+
+class AutonomousController:
+    """ROGER's experts chosen by the learned transitions: the robot plays alone.
+
+    Each tick: the model's multimap at ``x`` (one ``predict_table``), the learned FSM's choice
+    among its experts, that expert's mean as the command (``LearnedFSM.act``). The label it
+    returns is the chosen expert (``fsm:<id>``), never a demonstrator's subtask."""
+
+    def __init__(self, model: Any, fsm: Any) -> None:
+        self.model = model
+        self.fsm = fsm
+        self.counts: Counter[str] = Counter()
+
+    def reset(self) -> None:
+        """Start an episode: the FSM's acting side back to its start state."""
+        self.fsm.reset()
+
+    def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
+        """One tick: the learned state's expert mean as the command."""
+        _, table = self.model.predict_table(x)
+        y = self.fsm.act(x, table)
+        if not np.all(np.isfinite(y)):
+            self.counts["non_finite"] += 1
+            y = hold_command(x)
+            self.fsm.commit(y)
+        self.counts["learned"] += 1
+        return y, f"fsm:{self.fsm.state}"
 
 
 class MeanController:

@@ -30,6 +30,7 @@ from simulator.experiment.training import Demonstrations, train
 
 __all__ = [
     "controllers_for",
+    "fit_transitions",
     "downsample",
     "evaluate_in_process",
     "MergedGroups",
@@ -111,6 +112,20 @@ class MergedGroups:
     labels: dict[int, str]  # merged expert id -> group name
 
 
+def fit_transitions(data: Demonstrations, models: Sequence[tuple[int, Any]],
+                    plan: Any) -> list[Any]:
+    """A learned FSM over each ROGER model's experts (docs/autonomy.md), from every
+    demonstration tick in order (``data``: the whole stream, before downsampling; an
+    episode starts where its tick is 0). Labels are not read. None unless the plan
+    evaluates ``autonomous``."""
+    if "autonomous" not in plan.controllers:
+        return []
+    from roger_daemon.fsm import aibo_memory, fit_fsm
+
+    spec = aibo_memory()
+    return [fit_fsm(model, data.x, data.y, data.tick == 0, spec) for _, model in models]
+
+
 def merge_expert_groups(stream: Demonstrations, model: Any, params: Any,
                         seed: int) -> MergedGroups:
     """ROGER's experts merged per group: a one-particle ROGER model
@@ -133,7 +148,8 @@ def merge_expert_groups(stream: Demonstrations, model: Any, params: Any,
 
 def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[int, Any]],
                     unimap: Any, oracle: Mapping[str, Any] | None,
-                    merged: Sequence[MergedGroups] = ()) -> dict[str, Any]:
+                    merged: Sequence[MergedGroups] = (), fsms: Sequence[Any] = ()
+                    ) -> dict[str, Any]:
     """Controller key -> in-process controller, for the plan's controllers."""
     out: dict[str, Any] = {}
     if "hcc" in plan.controllers:
@@ -145,6 +161,9 @@ def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[in
             groups = majority_labels(np.asarray(model.assignments()).tolist(), stream.labels)
             out[f"roger:{k}"] = ip.TransitionerController(make_hcc(plan), model, groups,
                                                           plan.rule)
+    if "autonomous" in plan.controllers:
+        for k, ((_, model), fsm) in enumerate(zip(models, fsms, strict=True)):
+            out[f"autonomous:{k}"] = ip.AutonomousController(model, fsm)
     if "dpa" in plan.controllers:
         out["dpa"] = ip.MeanController(unimap, MultimapNeighbourhood(stream.x, stream.y))
     out.update(group_controllers(plan, merged))
@@ -227,15 +246,18 @@ def run_in_process(plan: Any, params: Any, console: Any,
     oracle = fit_segmentation_oracle(stream, params, plan.seeds["learner"])
     merged = merge_all(stream, models, params, plan)
     timings["training"] = round(time.monotonic() - t0, 2)
+    t0 = time.monotonic()
+    fsms = fit_transitions(data, models, plan)
+    timings["transitions"] = round(time.monotonic() - t0, 2)
     save_training_data(plan.out, stream, models[0][1])
     if context is not None:
         context.update(stream=stream, models=models, unimap=unimap, oracle=oracle,
-                       merged=merged)
+                       merged=merged, fsms=fsms)
     console.log(f"learned {len(stream)} pairs: "
                 + ", ".join(f"seed {s}: {m.n_experts} experts" for s, m in models))
     t0 = time.monotonic()
     episodes = evaluate_in_process(
-        plan, controllers_for(plan, stream, models, unimap, oracle, merged),
+        plan, controllers_for(plan, stream, models, unimap, oracle, merged, fsms),
         on_episode=lambda k, r: console.log(f"{k:>8} location {r.location} "
                                             f"#{r.repetition}: {r.failure_mode}"))
     timings["evaluation"] = round(time.monotonic() - t0, 2)

@@ -4,6 +4,7 @@
 
     {"hcc": {"success_rate", "trials", ...}, "roger": {...}, "dpa": {...},
      "oracle": {...}, "roger_seeds": [{"learner_seed", "success_rate", ...}, ...],
+     "autonomous": {...}, "autonomous_seeds": [...], "ratio_autonomous_to_hcc",
      "experts", "ari", "nmi", "purity", "seed", "config", "per_location", "paper", ...}
 
 :func:`check_results` validates that shape (used by the tests and by ``--quick`` in CI).
@@ -116,6 +117,18 @@ def _seed_blocks(episodes: dict[str, list[dict[str, Any]]], models: Sequence[tup
     return rows
 
 
+def autonomous_seed_blocks(episodes: dict[str, list[dict[str, Any]]],
+                           models: Sequence[tuple[int, Any]], hcc_rate: float | None
+                           ) -> list[dict[str, Any]]:
+    """One row per learner seed of the learned-transitions controller (``autonomous:K``)."""
+    rows = []
+    for k, (seed, _) in enumerate(models):
+        block = controller_block(episodes.get(f"autonomous:{k}", []))
+        rows.append({"learner_seed": seed, **block,
+                     "ratio_to_hcc": _ratio(block["success_rate"], hcc_rate)})
+    return rows
+
+
 def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], data: Any,
                   stream: Any, models: Sequence[tuple[int, Any]],
                   episodes: dict[str, list[dict[str, Any]]], check: dict[str, Any] | None,
@@ -149,7 +162,7 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
         },
     }
     pooled = {c: [e for k in range(len(models)) for e in episodes.get(f"{c}:{k}", [])]
-              for c in ("roger", "groups")}
+              for c in ("roger", "groups", "autonomous")}
     blocks = {"hcc": episodes.get("hcc"), "dpa": episodes.get("dpa"),
               "oracle": episodes.get("oracle"), **{c: e or None for c, e in pooled.items()}}
     for c, eps in blocks.items():
@@ -162,7 +175,11 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
                                  "label, learning ROGER's partition of that group)")
     hcc_rate = out.get("hcc", {}).get("success_rate")
     out["roger_seeds"] = _seed_blocks(episodes, models, stream.labels, hcc_rate)
-    for c in ("roger", "oracle", "groups"):
+    if "autonomous" in out:
+        out["autonomous"]["name"] = ("ROGER experts chosen by learned transitions: no HCC, no "
+                                     "label at run time (docs/autonomy.md)")
+        out["autonomous_seeds"] = autonomous_seed_blocks(episodes, models, hcc_rate)
+    for c in ("roger", "oracle", "groups", "autonomous"):
         out[f"ratio_{c}_to_hcc"] = _ratio(out.get(c, {}).get("success_rate"), hcc_rate)
     dpa_rate = out.get("dpa", {}).get("success_rate")
     out["dpa_above_aliasing_limit"] = (
@@ -248,20 +265,22 @@ def print_report(console: Any, results: dict[str, Any]) -> None:
     t = Table(title="Goal scoring (paper section IV)", show_lines=False)
     for col in ("controller", "goals / trials", "success", "95% CI (Wilson)", "paper"):
         t.add_column(col, justify="left" if col == "controller" else "right")
-    for c in ("hcc", "oracle", "roger", "groups", "dpa"):
+    for c in ("hcc", "oracle", "roger", "groups", "autonomous", "dpa"):
         b = results.get(c)
         if not b:
             continue
         t.add_row(CONTROLLER_NAMES[c], f"{b['successes']} / {b['trials']}",
                   _pct(b["success_rate"]),
                   f"{_pct(b['ci95_low'])} - {_pct(b['ci95_high'])}", _pct(paper.get(c)))
-        if c in ("roger", "groups") and len(results.get("roger_seeds", [])) > 1:
-            for row in results["roger_seeds"]:
-                r = row if c == "roger" else row.get("groups", {})
+        if c in ("roger", "groups", "autonomous") and len(results.get("roger_seeds", [])) > 1:
+            seeds = results.get("autonomous_seeds", []) if c == "autonomous" else []
+            for row, seg in zip(seeds or results["roger_seeds"], results["roger_seeds"],
+                                strict=True):
+                r = row if c in ("roger", "autonomous") else row.get("groups", {})
                 t.add_row(f"  learner seed {row['learner_seed']}",
                           f"{r.get('successes')} / {r.get('trials')}",
                           _pct(r.get("success_rate", math.nan)),
-                          f"ratio {r.get('ratio_to_hcc') or 0:.2f}, ARI {row['ari']:.2f}", "")
+                          f"ratio {r.get('ratio_to_hcc') or 0:.2f}, ARI {seg['ari']:.2f}", "")
         if c == "dpa" and b.get("averaging"):
             a = b["averaging"]
             t.add_row("  failures that average the multimap",
@@ -270,7 +289,8 @@ def print_report(console: Any, results: dict[str, Any]) -> None:
     ratio = results.get("ratio_roger_to_hcc")
     t.add_row("ratio ROGER / HCC", "", "-" if ratio is None else f"{ratio:.2f}", "",
               f"{paper['ratio']:.2f}")
-    for c, what in (("oracle", "segmentation oracle"), ("groups", "merged groups")):
+    for c, what in (("oracle", "segmentation oracle"), ("groups", "merged groups"),
+                    ("autonomous", "learned transitions")):
         r = results.get(f"ratio_{c}_to_hcc")
         if r is not None:
             t.add_row(f"ratio {what} / HCC", "", f"{r:.2f}", "", "-")

@@ -110,8 +110,8 @@ def load_start_poses(path: str | Path, field_size: tuple[float, float] = (5.4, 3
 
 def evaluate_held_out(plan: Any, context: dict[str, Any], starts: list[StartLocation]
                       ) -> dict[str, Any]:
-    """HCC, segmentation oracle, every ROGER model and its merged groups from ``starts``
-    (in-process)."""
+    """HCC, segmentation oracle, every ROGER model, its merged groups and its learned
+    transitions from ``starts`` (in-process)."""
     from dataclasses import replace
 
     from simulator.experiment.pipeline import controllers_for, evaluate_in_process
@@ -120,7 +120,8 @@ def evaluate_held_out(plan: Any, context: dict[str, Any], starts: list[StartLoca
     locs = list(range(len(starts)))
     sub = replace(plan, controllers=tuple(c for c in plan.controllers if c != "dpa"))
     ctl = controllers_for(sub, context["stream"], context["models"], None,
-                          context.get("oracle"), context.get("merged", []))
+                          context.get("oracle"), context.get("merged", []),
+                          context.get("fsms", []))
     episodes = evaluate_in_process(sub, ctl, locations=locs, starts=starts)
     out: dict[str, Any] = {
         "file": plan.start_poses,
@@ -132,14 +133,14 @@ def evaluate_held_out(plan: Any, context: dict[str, Any], starts: list[StartLoca
     for key in ("hcc", "oracle"):
         if key in episodes:
             out[key] = controller_block(episodes[key])
-    for c in ("roger", "groups"):
+    for c in ("roger", "groups", "autonomous"):
         pooled = [e for k, eps in episodes.items() if k.startswith(f"{c}:") for e in eps]
         if pooled:
             out[c] = controller_block(pooled)
             out[f"{c}_seeds"] = [controller_block(eps) for k, eps in sorted(episodes.items())
                                  if k.startswith(f"{c}:")]
     hcc = out.get("hcc", {}).get("success_rate")
-    for key in ("roger", "oracle", "groups"):
+    for key in ("roger", "oracle", "groups", "autonomous"):
         rate = out.get(key, {}).get("success_rate")
         out[f"ratio_{key}_to_hcc"] = rate / hcc if hcc and rate is not None else None
     return out
