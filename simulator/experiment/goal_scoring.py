@@ -38,7 +38,8 @@ from simulator.controllers.transitioner import DEFAULT_RULE, RULES
 from simulator.experiment.jobs import EpisodeJob
 from simulator.experiment.runner import json_default, machine
 
-__all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "plan_from_args", "run"]
+__all__ = ["CONTROLLERS", "PAPER", "Plan", "configure", "derived_seeds", "plan_from_args",
+           "run"]
 
 CONTROLLERS = ("hcc", "roger", "dpa", "oracle", "groups", "autonomous")
 CONTROLLER_NAMES = {
@@ -97,6 +98,7 @@ class Plan:
     in_process: bool = False
     start_poses: str | None = None
     preset: str | None = None
+    streams: tuple[int, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The plan as plain JSON (paths as strings)."""
@@ -105,6 +107,7 @@ class Plan:
         d["locations"] = list(self.locations)
         d["controllers"] = list(self.controllers)
         d["overrides"] = list(self.overrides)
+        d["streams"] = list(self.streams)
         return d
 
 
@@ -163,6 +166,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start-poses", default=None, metavar="FILE",
                         help="also evaluate HCC, oracle and ROGER from these start poses "
                         "(TOML or JSON, docs/goal-scoring.md), in-process")
+    parser.add_argument("--streams", default=None, metavar="LIST",
+                        help="run these demonstration streams (e.g. '0-4'; stream S is --seed "
+                        "S) with one configuration, in-process, and report them side by side: "
+                        "settings chosen on 0-2, the rest validation (docs/goal-scoring.md)")
     parser.add_argument("--plan", action="store_true", help="print the resolved plan and exit")
 
 
@@ -199,13 +206,10 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
             raise ValueError(f"--set {o!r}: only learner.KEY=VALUE overrides are used here")
     jobs = args.jobs if args.jobs and args.jobs > 0 else (os.cpu_count() or 1)
     seed = int(args.seed)
-    seeds = {
-        "master": seed,
-        "demo_sim": seed,
-        "downsample": seed,
-        "learner": seed,
-        "eval_sim": seed + _EVAL_SEED_OFFSET,
-    }
+    seeds = derived_seeds(seed)
+    from simulator.experiment.streams import parse_streams
+
+    streams = parse_streams(args.streams) if args.streams else ()
     return Plan(
         out=Path(args.out), seed=seed, jobs=jobs, quick=quick, locations=tuple(locations),
         attempts=attempts, per_subtask=per_subtask, time_limit=float(time_limit),
@@ -213,8 +217,15 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         config=args.config, overrides=tuple(overrides), task_config=args.task_config,
         retries=max(0, int(args.retries)), resume=bool(args.resume), seeds=seeds,
         shots=shots, learner_seeds=learner_seeds, rule=args.rule,
-        in_process=bool(args.in_process), start_poses=args.start_poses, preset=args.preset,
+        in_process=bool(args.in_process) or bool(streams), start_poses=args.start_poses,
+        preset=args.preset, streams=streams,
     )
+
+
+def derived_seeds(seed: int) -> dict[str, int]:
+    """Every seed of a run, derived from ``--seed`` (all of them go to results.json)."""
+    return {"master": seed, "demo_sim": seed, "downsample": seed, "learner": seed,
+            "eval_sim": seed + _EVAL_SEED_OFFSET}
 
 
 def learner_params(plan: Plan) -> Any:
@@ -296,6 +307,10 @@ def run(args: argparse.Namespace) -> int:
     from simulator.experiment.procs import stop_children_on_signals
 
     stop_children_on_signals()
+    if plan.streams:
+        from simulator.experiment.streams import run_streams
+
+        return run_streams(plan, params, console, starts)
     return Experiment(plan, params, console, starts).run()
 
 

@@ -115,7 +115,6 @@ def evaluate_held_out(plan: Any, context: dict[str, Any], starts: list[StartLoca
     from dataclasses import replace
 
     from simulator.experiment.pipeline import controllers_for, evaluate_in_process
-    from simulator.experiment.report import controller_block
 
     locs = list(range(len(starts)))
     sub = replace(plan, controllers=tuple(c for c in plan.controllers if c != "dpa"))
@@ -123,6 +122,15 @@ def evaluate_held_out(plan: Any, context: dict[str, Any], starts: list[StartLoca
                           context.get("oracle"), context.get("merged", []),
                           context.get("fsms", []))
     episodes = evaluate_in_process(sub, ctl, locations=locs, starts=starts)
+    return held_out_block(plan, starts, episodes)
+
+
+def held_out_block(plan: Any, starts: list[StartLocation],
+                   episodes: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    """``results.json``'s ``held_out``: the poses, every controller's block (pooled over
+    learner seeds, and per seed) and its ratio to the HCC."""
+    from simulator.experiment.report import controller_block
+
     out: dict[str, Any] = {
         "file": plan.start_poses,
         "poses": [{"name": s.name, "robot": list(s.robot), "ball": list(s.ball)}
