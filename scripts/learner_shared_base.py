@@ -35,7 +35,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import learned_model, print_report
-from roger_daemon.learner import jit, packed, roger_step, sogp
+from roger_daemon.learner import roger_step, sogp
+from roger_daemon.learner.engine import jit, packed
 
 
 def low_rank(delta: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:

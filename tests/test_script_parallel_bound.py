@@ -34,7 +34,7 @@ def _script() -> ModuleType:
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_step_reads_every_version_and_writes_the_updated_ones(threads: int) -> None:
-    from roger_daemon.learner import jit
+    from roger_daemon.learner.engine import jit
 
     script = _script()
     beta, versions = 12, 5
@@ -61,7 +61,7 @@ def test_floor_and_openblas_comparison_touch_what_they_claim() -> None:
     """The bytes-only floor reads every version's ``C`` and the updated ``Q`` (their sums) and
     leaves the matrices as they were; OpenBLAS's ``dspmv`` on the learner's packed buffer is
     the learner's ``C k``, up to rounding."""
-    from roger_daemon.learner import packed
+    from roger_daemon.learner.engine import packed
 
     script = _script()
     beta, versions = 12, 5

@@ -20,7 +20,7 @@ import numpy as np
 from roger_daemon.bench.learner import NOTE, BenchStream, _ms
 from roger_daemon.bench.reference import load_reference
 from roger_daemon.learner import Roger
-from roger_daemon.learner.jit import compiled_signatures, threads, warm_up
+from roger_daemon.learner.engine.jit import compiled_signatures, threads, warm_up
 from roger_daemon.machine import describe, finish, machine_record
 
 __all__ = ["compare", "compare_table"]
@@ -36,9 +36,14 @@ def _warm_up_reference(ref_pkg: ModuleType) -> None:
     first used mid-run (the fused step, once experts are full) would otherwise put its
     compilation, seconds for a revision not seen before, into the reference's time.  A
     reference with batched kernels runs them on this learner's threads (``--threads``)."""
-    try:
-        ref_jit = importlib.import_module(f"{ref_pkg.__name__}.jit")
-    except ImportError:  # a revision from before the compiled kernels
+    ref_jit = None
+    for where in ("engine.jit", "jit"):  # its kernels' facade: under engine/ since issue 58
+        try:
+            ref_jit = importlib.import_module(f"{ref_pkg.__name__}.{where}")
+            break
+        except ImportError:
+            continue
+    if ref_jit is None:  # a revision from before the compiled kernels
         return
     same_threads = getattr(ref_jit, "set_threads", None)
     if callable(same_threads):  # a revision with batched kernels: on this learner's threads

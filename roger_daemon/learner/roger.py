@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.buffers import BufferPool
-from roger_daemon.learner.gate import GatePool
+from roger_daemon.learner.engine.buffers import BufferPool
+from roger_daemon.learner.engine.gates import GatePool
 from roger_daemon.learner.history import SegmentationHistory
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit as _jit
+from roger_daemon.learner.engine import jit as _jit
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.sogp_batch import (
     Evaluation,
@@ -25,7 +25,7 @@ from roger_daemon.learner.sogp_batch import (
 )
 
 if TYPE_CHECKING:
-    from roger_daemon.learner.buffers import PendingCopy
+    from roger_daemon.learner.engine.buffers import PendingCopy
     from roger_daemon.learner.roger import Roger
 
 __all__ = ["SlotTerms", "instantiate", "putatives"]

@@ -24,7 +24,7 @@ unchanged; deletion scores use the centred columns only.
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
 vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
 one rank-2 update of ``Q``, done in place in one compiled pass over each buffer
-(:mod:`.sogp_fused`, :mod:`.jit`; one expert after another by :func:`update_many`).  ``C`` and
+(:mod:`.engine.jit_fused`; several experts per call by :func:`.sogp_batch.update_many`).  ``C`` and
 ``Q`` are symmetric and stored packed, upper triangle only (:mod:`.packed`): every pass streams
 half the bytes.  Buffers grow by 1.5x as an expert does, up to ``beta`` rows.  Cost per step:
 O(n d_x + n^2 + n d_y).
@@ -43,12 +43,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit as _jit
-from roger_daemon.learner import packed as _packed
-from roger_daemon.learner.buffers import BufferPool, PendingCopy
+from roger_daemon.learner.engine import jit as _jit
+from roger_daemon.learner.engine import packed as _packed
+from roger_daemon.learner.engine.buffers import BufferPool, PendingCopy
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp_batch import update_many
-from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
 from roger_daemon.learner.sogp_steps import LATENT_FLOOR, SOGPSteps
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
@@ -289,7 +288,7 @@ class SparseOnlineGP(SOGPSteps):
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
         elif self._fusable():
             # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix
-            _fused_add_delete(self, x, y, ck, mean, latent, e_hat, gamma)
+            self._fused_add_delete(x, ck, e_hat, gamma, r, q)
         else:
             self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6

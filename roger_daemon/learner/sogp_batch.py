@@ -4,7 +4,7 @@
 (and, with the noise added, :func:`predict_many` a prediction's);
 :func:`update_many` is :meth:`.sogp.SparseOnlineGP.update` for each expert it updates, where
 the experts on the hot path (full: ``n = beta`` basis vectors in buffers for ``beta``) take
-the fused add-then-delete step (:mod:`.sogp_fused`).  Both run the experts' compiled kernels
+the fused add-then-delete step (:mod:`.engine.jit_fused`).  Both run the experts' compiled kernels
 several per call, on one thread (:mod:`.jit_evaluate`) or spread over the cores
 (:mod:`.jit_batch`; docs/performance.md, *Both cores in one step*); each expert's floats are
 those of a call of its own.  Split from :mod:`.sogp`
@@ -22,13 +22,13 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit as _jit
-from roger_daemon.learner.sogp_fused import output_weights
+from roger_daemon.learner.engine import jit as _jit
+from roger_daemon.learner.engine.jit_slab import output_weights
 from roger_daemon.learner.sogp_steps import LATENT_FLOOR as _LATENT_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
 if TYPE_CHECKING:
-    from roger_daemon.learner.buffers import PendingCopy
+    from roger_daemon.learner.engine.buffers import PendingCopy
     from roger_daemon.learner.sogp import SparseOnlineGP
 
 __all__ = ["Evaluation", "copy_many", "evaluate_many", "predict_many", "update_evaluated",
@@ -159,7 +159,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     Equivalent to ``gp.update(x, y, t)`` for each (except that a non-novel point never
     re-inverts ``Q``: a projection update leaves ``Q`` unchanged).  The experts on the hot path
     (full, contiguous, the same ``n``, no drift in ``diag(Q)``) take ``Q k``, the novelty
-    test and the fused add-then-delete step (:mod:`.sogp_fused`) in compiled calls of up to
+    test and the fused add-then-delete step (:mod:`.engine.jit_fused`) in compiled calls of up to
     :data:`.jit.WIDTH` experts each (:func:`.jit_batch.learn_batch`); a non-novel point then
     gets its projection update here, and an expert whose ``Q`` drifted learns on its own.
     """

@@ -15,9 +15,9 @@ import numpy.typing as npt
 from scipy.linalg.lapack import dpotrf as _dpotrf
 from scipy.linalg.lapack import dpotri as _dpotri
 
-from roger_daemon.learner import jit as _jit
-from roger_daemon.learner import packed as _packed
-from roger_daemon.learner.jit_slab import slab_offsets
+from roger_daemon.learner.engine import jit as _jit
+from roger_daemon.learner.engine import jit_slab
+from roger_daemon.learner.engine import packed as _packed
 from roger_daemon.learner.kernel import RBFKernel
 
 __all__ = ["GAMMA_FLOOR", "LATENT_FLOOR", "NEAR_DEPENDENT", "SOGPSteps"]
@@ -217,6 +217,24 @@ class SOGPSteps:
         _jit.packed_add_lowrank(self._Qp, self._alloc, n + 1, e[None], np.array([1.0 / gamma]))
         self.n = n + 1
 
+    def _fused_add_delete(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray,
+                          gamma: float, r: float, q: FloatArray) -> None:
+        """Steps 4b and 5 fused at capacity (docs/learner-math.md §2.5 step 4b, §2.7): the
+        full update to ``n + 1`` basis vectors, then one KL-optimal deletion, in place, as one
+        rank-3 update of ``C`` and one rank-2 update of ``Q`` in one compiled call
+        (:func:`.engine.jit_fused.fused_step`, whose docstring derives it).
+
+        With ``s = [Ck; 1]`` and ``e = [Q k; -1]`` the (n+1)-BV state would be
+        ``C1 = C (+) 0 + r s s^T``, ``Q1 = Q (+) 0 + e e^T / gamma``, ``A1 = A (+) 0 + s q^T``;
+        deleting BV ``i`` needs only column ``i`` and the diagonals of ``C1`` and ``Q1``, O(n)
+        from ``C``, ``Q``, ``s`` and ``e``; the new BV takes the place of ``i``.  Equal to
+        :meth:`_full_update` then :meth:`delete` up to round-off (tested); ``n_points`` is not
+        touched.  ``r``, ``q``: Csató's ``K2`` and ``K1`` (with a prior mean, ``q`` has the
+        ``a1`` column too)."""
+        self._dg, self._dq, self._dq_min, self._dq_argmax = _jit.fused_step(
+            self._B, self._A, self._Cp, self._Qp, self._diag_cq(), x, ck, e_hat,
+            jit_slab.output_weights(self.a_cols, self.d_y), q, r, gamma)
+
     def _deletion_choice(self) -> int:
         """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
         n = self.n
@@ -274,20 +292,15 @@ class SOGPSteps:
         _jit.grow_slab(old, self._slab, self.n)  # every part moved, C and Q row by row
 
     def _new_slab(self, alloc: int) -> FloatArray:
-        """A zeroed slab for ``alloc`` basis vectors (:mod:`.jit_slab`)."""
-        return np.zeros(slab_offsets(alloc, self.d_x, self.a_cols, self.d_y)[5])
+        """A zeroed slab for ``alloc`` basis vectors (:func:`.engine.jit_slab.new_slab`)."""
+        return jit_slab.new_slab(alloc, self.d_x, self.a_cols, self.d_y)
 
     def _bind(self, slab: FloatArray, alloc: int) -> None:
-        """Take ``slab``, laid out for ``alloc`` basis vectors (:func:`.jit_slab.slab_offsets`),
-        as this expert's buffers: ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` become views of
-        it, its header is written (the batched kernels take the slab, :mod:`.jit_batch`)."""
-        c, q, b, a, m, end = slab_offsets(alloc, self.d_x, self.a_cols, self.d_y)
-        size = _packed.packed_size(alloc)
-        slab[:4] = alloc, self.a_cols, self.d_x, self.d_y  # the header (.jit_slab)
+        """Take ``slab``, laid out for ``alloc`` basis vectors, as this expert's buffers:
+        ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` become views of it, its header is written
+        (:func:`.engine.jit_slab.bind`; the batched kernels take the slab,
+        :mod:`.engine.jit_batch`)."""
         self._slab = slab
         self._alloc = alloc
-        self._Cp = slab[c: c + size]
-        self._Qp = slab[q: q + size]
-        self._B = slab[b: b + alloc * self.d_x].reshape(alloc, self.d_x)
-        self._A = slab[a: a + alloc * self.a_cols].reshape(alloc, self.a_cols)
-        self._m = slab[m:end]
+        self._Cp, self._Qp, self._B, self._A, self._m = jit_slab.bind(
+            slab, alloc, self.d_x, self.a_cols, self.d_y)

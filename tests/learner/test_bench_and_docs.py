@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from roger_daemon.cli import main
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine import jit
 from roger_daemon.learner.synthetic import subtask_stream
 
 MODULES = ["kernel", "sogp", "gate", "resampling", "roger", "unimap", "params", "synthetic",

@@ -1,4 +1,4 @@
-"""Reused matrix buffers for copy-on-write copies (:mod:`roger_daemon.learner.buffers`)."""
+"""Reused matrix buffers for copy-on-write copies (:mod:`roger_daemon.learner.engine.buffers`)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from roger_daemon.learner import Roger, RogerParams
-from roger_daemon.learner.buffers import BufferPool
+from roger_daemon.learner.engine.buffers import BufferPool
 from roger_daemon.learner.synthetic import subtask_stream
 
 

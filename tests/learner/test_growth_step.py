@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine import jit
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
 

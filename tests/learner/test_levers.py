@@ -369,7 +369,7 @@ def test_the_recomputed_gram_matrix_has_the_floats_of_the_kernel_vectors() -> No
     """``K_B`` is not kept: a re-inversion recomputes it, and each entry must be the very float
     of the kernel vector computed when that basis vector entered (``expert_terms``, as a
     kept ``K_B`` held), so that recomputing changes no result."""
-    from roger_daemon.learner import jit
+    from roger_daemon.learner.engine import jit
 
     rng = np.random.default_rng(5)
     for n, d, width in ((1, 1, 0.5), (7, 3, 0.3), (40, 23, 0.1), (60, 9, 2.0)):

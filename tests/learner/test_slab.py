@@ -1,4 +1,4 @@
-"""One buffer per expert (roger_daemon/learner/jit_slab.py): the views an expert takes of its
+"""One buffer per expert (roger_daemon/learner/engine/jit_slab.py): the views an expert takes of its
 slab and the views the compiled kernels take are the same memory, and the slab carries the
 whole expert through a copy, a growth, a restore and the buffer pool."""
 
@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.learner import jit
-from roger_daemon.learner.buffers import BufferPool
-from roger_daemon.learner.jit_slab import ALIGN, HEADER, slab_offsets
+from roger_daemon.learner.engine import jit
+from roger_daemon.learner.engine.buffers import BufferPool
+from roger_daemon.learner.engine.jit_slab import ALIGN, HEADER, slab_offsets
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
 

@@ -18,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit import ADDED, DRIFTED, NEEDS_ROOM, PROJECTED
-from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_evaluate import slab_views
-from roger_daemon.learner.jit_kernels import (
-    cholesky_inverse,
+from roger_daemon.learner.engine.jit_cholesky import cholesky_inverse
+from roger_daemon.learner.engine.jit_compile import compiled as _compiled
+from roger_daemon.learner.engine.jit_constants import ADDED, DRIFTED, NEEDS_ROOM, PROJECTED
+from roger_daemon.learner.engine.jit_evaluate import slab_views
+from roger_daemon.learner.engine.jit_kernels import (
     gram_matrix,
     keeps_basis_vectors,
     min_argmax,

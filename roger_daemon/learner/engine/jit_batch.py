@@ -30,11 +30,11 @@ import numpy as np
 import numpy.typing as npt
 from numba import prange
 
-from roger_daemon.learner.jit import DRIFTED, FUSED, KEPT
-from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_evaluate import evaluate_slab, slab_views
-from roger_daemon.learner.jit_fused import fused_step
-from roger_daemon.learner.jit_kernels import (
+from roger_daemon.learner.engine.jit_compile import compiled as _compiled
+from roger_daemon.learner.engine.jit_constants import DRIFTED, FUSED, KEPT
+from roger_daemon.learner.engine.jit_evaluate import evaluate_slab, slab_views
+from roger_daemon.learner.engine.jit_fused import fused_step
+from roger_daemon.learner.engine.jit_kernels import (
     keeps_basis_vectors,
     novelty_margin,
     novelty_test,
