@@ -23,7 +23,7 @@ from roger_daemon.learner import Roger
 from roger_daemon.learner.engine.jit import compiled_signatures, threads, warm_up
 from roger_daemon.machine import describe, finish, machine_record
 
-__all__ = ["compare", "compare_table"]
+__all__ = ["compare", "compare_table", "reference_kernels"]
 
 
 def _summary(samples: list[int]) -> dict[str, float]:
@@ -31,18 +31,23 @@ def _summary(samples: list[int]) -> dict[str, float]:
             "update_p50_ms": _ms(samples, 50), "update_p99_ms": _ms(samples, 99)}
 
 
+def reference_kernels(ref_pkg: ModuleType) -> ModuleType | None:
+    """The reference learner's kernel facade: ``engine.jit`` (since issue 58), ``jit`` before;
+    ``None`` for a revision from before the compiled kernels."""
+    for where in ("engine.jit", "jit"):
+        try:
+            return importlib.import_module(f"{ref_pkg.__name__}.{where}")
+        except ModuleNotFoundError:
+            continue
+    return None
+
+
 def _warm_up_reference(ref_pkg: ModuleType) -> None:
     """Compile (or load from numba's cache) the reference's kernels before timing: a kernel
     first used mid-run (the fused step, once experts are full) would otherwise put its
     compilation, seconds for a revision not seen before, into the reference's time.  A
     reference with batched kernels runs them on this learner's threads (``--threads``)."""
-    ref_jit = None
-    for where in ("engine.jit", "jit"):  # its kernels' facade: under engine/ since issue 58
-        try:
-            ref_jit = importlib.import_module(f"{ref_pkg.__name__}.{where}")
-            break
-        except ImportError:
-            continue
+    ref_jit = reference_kernels(ref_pkg)
     if ref_jit is None:  # a revision from before the compiled kernels
         return
     same_threads = getattr(ref_jit, "set_threads", None)

@@ -47,12 +47,10 @@ from roger_daemon.learner.engine import jit as _jit
 from roger_daemon.learner.engine import packed as _packed
 from roger_daemon.learner.engine.buffers import BufferPool, PendingCopy
 from roger_daemon.learner.kernel import RBFKernel
-from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.sogp_steps import LATENT_FLOOR, SOGPSteps
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
-__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "likelihood_dims",
-           "update_many"]
+__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "likelihood_dims"]
 
 FloatArray = npt.NDArray[np.float64]
 

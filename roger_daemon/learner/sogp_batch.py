@@ -17,49 +17,23 @@ import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from itertools import accumulate
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.engine import jit as _jit
 from roger_daemon.learner.engine.jit_slab import output_weights
+from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.sogp_steps import LATENT_FLOOR as _LATENT_FLOOR
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
-if TYPE_CHECKING:
-    from roger_daemon.learner.engine.buffers import PendingCopy
-    from roger_daemon.learner.sogp import SparseOnlineGP
-
-__all__ = ["Evaluation", "copy_many", "evaluate_many", "predict_many", "update_evaluated",
-           "update_many"]
+__all__ = ["Evaluation", "evaluate_many", "predict_many", "update_evaluated", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 Terms = tuple[FloatArray, FloatArray, FloatArray, float]
-
-
-def copy_many(pending: Sequence[PendingCopy]) -> None:
-    """``np.copyto(dst, src)`` for each pair (a step's copy-on-write copies,
-    :meth:`.sogp.SparseOnlineGP.copy` with ``pending``): several per compiled call
-    (:func:`.jit_batch.copy_batch`) when :func:`.jit.batch_worth` says so, each by the thread
-    it names (its source's home)."""
-    if not _jit.batch_worth(sum(src.size for src, _, _ in pending)):
-        for src, dst, _ in pending:
-            np.copyto(dst, src)
-        return
-    srcs = [src for src, _, _ in pending]
-    dsts = [dst for _, dst, _ in pending]
-    groups = _jit.threads()
-    owners = _jit.balanced_owners(
-        np.array([home for _, _, home in pending], dtype=np.int64),
-        np.array([src.size for src in srcs], dtype=np.int64), groups, False)
-    with _jit.BATCH_LOCK:
-        for lo in range(0, len(pending), _jit.WIDTH):
-            hi = min(lo + _jit.WIDTH, len(pending))
-            _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo,
-                            owners[lo:hi], groups)
 
 
 @dataclass(slots=True)

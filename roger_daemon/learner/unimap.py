@@ -17,6 +17,7 @@ from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
 from roger_daemon.learner.roger import resolve_model_args
+from roger_daemon.learner.roger_terms import new_expert
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
@@ -70,10 +71,7 @@ class UnimapGP:
         self._gp = self._new_gp()
 
     def _new_gp(self) -> SparseOnlineGP:
-        p = self.params
-        return SparseOnlineGP(self._scaling.d_model, self.d_y, self.kernel, p.theta_n, p.beta,
-                              p.novelty_threshold, p.likelihood_normaliser,
-                              prior_mean=p.gp_prior_mean == "expert")
+        return new_expert(self.params, self._scaling.d_model, self.d_y, self.kernel)
 
     @property
     def n_learned(self) -> int:

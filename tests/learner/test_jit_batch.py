@@ -239,8 +239,7 @@ def test_set_threads_caps_at_numbas_thread_count() -> None:
 def test_copy_many_fills_every_pending_copy(threads: int) -> None:
     """Copies deferred by ``BufferPool.copy_of(..., pending)`` (a kept buffer and new ones,
     more than one batch of ``WIDTH``) are filled by ``copy_many``, on one thread or two."""
-    from roger_daemon.learner.engine.buffers import BufferPool, PendingCopy
-    from roger_daemon.learner.sogp_batch import copy_many
+    from roger_daemon.learner.engine.buffers import BufferPool, PendingCopy, copy_many
 
     jit.set_threads(threads)
     rng = np.random.default_rng(2)

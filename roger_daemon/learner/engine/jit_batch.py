@@ -136,7 +136,7 @@ def learn_batch(slabs: tuple[FloatArray, ...], count: int, x: FloatArray, terms:
 def copy_batch(srcs: tuple[FloatArray, ...], dsts: tuple[FloatArray, ...], count: int,
                owners: IntArray, groups: int) -> None:
     """``dsts[e][:] = srcs[e]`` for the first ``count`` pairs: a step's copy-on-write copies
-    (:func:`.sogp_batch.copy_many`); by iteration ``owners[e]`` of ``groups``."""
+    (:func:`.buffers.copy_many`); by iteration ``owners[e]`` of ``groups``."""
     for g in prange(groups):
         for e in range(count):
             if owners[e] == g:
