@@ -39,7 +39,7 @@ class SOGPSteps:
     """The in-place matrix steps of a sparse online GP (state: :class:`.sogp.SparseOnlineGP`)."""
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_alloc", "_slab", "_B", "_A", "_Cp", "_Qp", "_dg",
+                 "fused", "n", "n_points", "_alloc", "slab", "_B", "_A", "_Cp", "_Qp", "_dg",
                  "_dq", "_dq_min", "_dq_argmax", "q_refreshes", "prior_mean", "_m",
                  "novelty_margin", "home")
     kernel: RBFKernel
@@ -50,11 +50,13 @@ class SOGPSteps:
     d_y: int
     prior_mean: bool
     n: int
+    n_points: int
+    noise: float
     q_refreshes: int
     novelty_margin: float
     home: int  # the batched kernels' thread whose cache holds it (-1: none yet)
     _alloc: int
-    _slab: FloatArray  # every buffer below is a view of it (:meth:`_bind`)
+    slab: FloatArray  # every buffer below is a view of it (:meth:`_bind`)
     _B: FloatArray
     _A: FloatArray
     _Cp: FloatArray
@@ -70,6 +72,31 @@ class SOGPSteps:
         """Columns of the coefficient buffer: ``d_y``, plus ``a1`` with a prior mean."""
         return self.d_y + 1 if self.prior_mean else self.d_y
 
+    def targets(self, y: FloatArray, mean: FloatArray, k: FloatArray
+                ) -> tuple[FloatArray, FloatArray]:
+        """``(y, mean)`` extended by the ``a1`` column (target 1, prediction ``a1^T k``).
+
+        ``y - mean`` is then the residual of every column of ``A``: with a prior mean the
+        columns model ``y - m`` and predict ``mean - m``, whose difference is ``y - mean``.
+        """
+        if not self.prior_mean:
+            return y, mean
+        d = self.d_y
+        ext = np.empty((2, d + 1))  # [y, 1] and [mean, a1^T k] (cheaper than two np.append)
+        ext[0, :d] = y
+        ext[0, d] = 1.0
+        ext[1, :d] = mean
+        ext[1, d] = _jit.dot_column(k, self._A, d, self.n)  # a1^T k, no BLAS
+        return ext[0], ext[1]
+
+    def _shift_mean(self, y: FloatArray) -> None:
+        """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
+        if not self.prior_mean:
+            return
+        # dm = (y - m) / n_points; m + dm; A[:, :d] -= a1 dm^T: numpy's floats, one call, the
+        # new mean written over the old one in the slab
+        _jit.shift_mean(self._A, self._m, y, self.n, self.n_points, self._m)
+
     def novelty(self, k: FloatArray) -> tuple[FloatArray, float, bool]:
         """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma, novel)`` with the projection
         residual ``gamma = k* - k^T Q k`` of the kernel vector ``k``, after re-inverting ``Q``
@@ -78,11 +105,11 @@ class SOGPSteps:
         :attr:`novelty_margin`."""
         # projection, the test and Q's diagonal checked for drift in one call
         e_hat, gamma, drifted, novel = _jit.novelty_step(
-            self._Qp, k, self.n, self._alloc, *self._novelty_constants())
+            self._Qp, k, self.n, self._alloc, *self.novelty_constants())
         if drifted:
             self.refresh_inverse_gram()
             e_hat, kqk = _jit.projection(self._Qp, k, self.n, self._alloc)
-            gamma, _, novel = _jit.novelty_test(kqk, *self._novelty_constants())
+            gamma, _, novel = _jit.novelty_test(kqk, *self.novelty_constants())
         self.record_novelty_margin(gamma)
         return e_hat, gamma, novel
 
@@ -97,7 +124,7 @@ class SOGPSteps:
         :func:`.jit_kernels.keeps_basis_vectors`): the novelty threshold times 1e-3."""
         return self.novelty_threshold * 1e-3
 
-    def _novelty_constants(self) -> tuple[float, float, float, float]:
+    def novelty_constants(self) -> tuple[float, float, float, float]:
         """``(k*, threshold, floor, drift_tol)``: :func:`.jit_kernels.novelty_test`'s
         arguments besides ``k^T Q k``."""
         return self.kernel.k_star, self.novelty_threshold, GAMMA_FLOOR, _Q_DRIFT_TOL
@@ -160,7 +187,7 @@ class SOGPSteps:
             return self._dq
         return _packed.diagonal(self._Qp, self._alloc, self.n)
 
-    def _diag_cq(self) -> FloatArray:
+    def diag_cq(self) -> FloatArray:
         """``diag(C) + diag(Q)`` (cached by the fused hot path, else read off the matrices)."""
         if self._dg is not None:
             return self._dg
@@ -168,7 +195,7 @@ class SOGPSteps:
         return (_packed.diagonal(self._Cp, self._alloc, n)
                 + _packed.diagonal(self._Qp, self._alloc, n))
 
-    def _fusable(self) -> bool:
+    def fusable(self) -> bool:
         """Full, in buffers sized for exactly ``beta``: the fused add-then-delete hot path
         applies."""
         return (self.fused and self.capacity is not None and self.n == self.capacity
@@ -197,24 +224,13 @@ class SOGPSteps:
 
     def _full_update(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray,
                      gamma: float, r: float, q: FloatArray) -> None:
-        """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
+        """Step 4b: x becomes basis vector n, the buffers grown first if they are full
+        (:func:`.engine.jit_small.add_basis_vector`, thesis eq. 2.46; Q by eq. 3.5)."""
         n = self.n
         self._forget_diagonals()
         self._grow(n + 1)
-        self._B[n] = x
-        s = np.empty(n + 1)
-        s[:n] = ck
-        s[n] = 1.0
-        self._A[n] = 0.0
-        self._A[: n + 1] += np.outer(s, q)
-        e = np.empty(n + 1)
-        e[:n] = e_hat
-        e[n] = -1.0
-        column = _packed.row_offsets(self._alloc)[: n + 1] + (n - np.arange(n + 1))
-        for buf in (self._Cp, self._Qp):
-            buf[column] = 0.0  # row and column n (stale padding after a deletion)
-        _jit.packed_add_lowrank(self._Cp, self._alloc, n + 1, s[None], np.array([r]))
-        _jit.packed_add_lowrank(self._Qp, self._alloc, n + 1, e[None], np.array([1.0 / gamma]))
+        _jit.add_basis_vector(self._B, self._A, self._Cp, self._Qp, self._alloc, n, x, ck,
+                              e_hat, q, r, gamma)
         self.n = n + 1
 
     def _fused_add_delete(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray,
@@ -232,7 +248,7 @@ class SOGPSteps:
         touched.  ``r``, ``q``: Csató's ``K2`` and ``K1`` (with a prior mean, ``q`` has the
         ``a1`` column too)."""
         self._dg, self._dq, self._dq_min, self._dq_argmax = _jit.fused_step(
-            self._B, self._A, self._Cp, self._Qp, self._diag_cq(), x, ck, e_hat,
+            self._B, self._A, self._Cp, self._Qp, self.diag_cq(), x, ck, e_hat,
             jit_slab.output_weights(self.a_cols, self.d_y), q, r, gamma)
 
     def _deletion_choice(self) -> int:
@@ -287,9 +303,9 @@ class SOGPSteps:
         if self.capacity is not None:
             new = min(new, self.capacity)
         new = max(new, need)
-        old = self._slab
+        old = self.slab
         self._bind(self._new_slab(new), new)
-        _jit.grow_slab(old, self._slab, self.n)  # every part moved, C and Q row by row
+        _jit.grow_slab(old, self.slab, self.n)  # every part moved, C and Q row by row
 
     def _new_slab(self, alloc: int) -> FloatArray:
         """A zeroed slab for ``alloc`` basis vectors (:func:`.engine.jit_slab.new_slab`)."""
@@ -300,7 +316,7 @@ class SOGPSteps:
         ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` become views of it, its header is written
         (:func:`.engine.jit_slab.bind`; the batched kernels take the slab,
         :mod:`.engine.jit_batch`)."""
-        self._slab = slab
+        self.slab = slab
         self._alloc = alloc
         self._Cp, self._Qp, self._B, self._A, self._m = jit_slab.bind(
             slab, alloc, self.d_x, self.a_cols, self.d_y)

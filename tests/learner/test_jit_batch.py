@@ -103,7 +103,7 @@ def test_update_many_takes_every_outcome_like_one_expert_at_a_time(threads: int)
     jit.set_threads(threads)
     experts = [_expert(60, seed) for seed in range(4)]
     experts[2] = experts[1].copy()
-    assert all(gp._fusable() for gp in experts)
+    assert all(gp.fusable() for gp in experts)
     x = experts[1].B[3].copy()  # a basis vector of experts 1 and 2: gamma = 0, not novel
     drifted = experts[2]
     drifted._Qp *= 1.5  # k^T Q k = 1.5: gamma < -tol k*

@@ -44,18 +44,17 @@ __all__ = ["ADDED", "BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "EVALUATION_WI
            "compiled_signatures", "load", "padded", "set_threads", "threads", "use_threads",
            "warm_up"]
 
-KERNELS = ("balanced_owners", "cholesky_inverse", "cholesky_inverse_logdet", "copy_batch",
-           "dot_column", "evaluate_expert", "evaluate_experts", "evaluate_slab", "expert_terms",
-           "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
+KERNELS = ("add_basis_vector", "balanced_owners", "cholesky_inverse", "cholesky_inverse_logdet",
+           "copy_batch", "dot_column", "evaluate_expert", "evaluate_experts", "evaluate_slab",
+           "expert_terms", "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
            "gate_crp_log_terms", "gate_log_predictive", "gate_update", "gaussian_log_density",
            "gram_matrix", "grow_slab", "growth_step", "keeps_basis_vectors", "kernel_vector",
-           "learn_batch", "learn_full_expert", "lineage_assignments", "log_sum_exp",
-           "min_argmax", "novelty_margin", "novelty_step", "novelty_test",
-           "packed_add_lowrank", "projection", "putative_layout", "putative_log_weights",
-           "rank_update_cq", "refresh_inverse", "shift_mean", "slab_views",
-           "slot_log_likelihoods", "sorted_threshold", "sparse_update", "stratified_pass",
-           "survivor_counts", "survivor_particles", "sym_matvec", "sym_matvec_into", "sym_row",
-           "terms_batch", "threshold_taus", "trace_lineages")
+           "learn_batch", "learn_full_expert", "lineage_assignments", "log_sum_exp", "min_argmax",
+           "novelty_margin", "novelty_step", "novelty_test", "packed_add_lowrank", "projection",
+           "putative_layout", "putative_log_weights", "rank_update_cq", "refresh_inverse",
+           "shift_mean", "slab_views", "slot_log_likelihoods", "sorted_threshold", "sparse_update",
+           "stratified_pass", "survivor_counts", "survivor_particles", "sym_matvec",
+           "sym_matvec_into", "sym_row", "terms_batch", "threshold_taus", "trace_lineages")
 
 
 def load() -> None:

@@ -134,6 +134,8 @@ def _warm_the_rest() -> None:
     sk.growth_step(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
                    np.zeros(basis.shape[1]), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0,
                    1e-3, 1e-12, 1e-6, 1e-9)
+    sk.add_basis_vector(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
+                        np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0)
     grown = _slab(sym, sym, np.zeros((N, 1)))
     sk.grow_slab(grown, grown.copy(), N)
     slots = np.zeros(1, dtype=np.int64)
