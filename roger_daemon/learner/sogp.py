@@ -10,7 +10,7 @@ share the covariance coefficients ``C`` and the inverse Gram matrix ``Q``
 Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (docs/learner-math.md
 §2.5); capacity ``beta`` is enforced by a ``while n > beta`` loop of KL-optimal deletions
 (thesis App. G(g), §2.7), followed by the geometric clean-up.  Every update is a symmetric
-low-rank term and ``C`` and ``Q`` are stored as their upper triangles (:mod:`.packed`), so
+low-rank term and ``C`` and ``Q`` are stored as their upper triangles (:mod:`.engine.packed`), so
 they are exactly symmetric (Csató's ``(C + C^T)/2`` is not needed).
 
 Prior mean (``prior_mean=True``, issue 13): the GP models ``y - m`` where ``m`` is the running
@@ -22,16 +22,15 @@ the new ``m`` (docs/learner-math.md).  The variance does not involve the targets
 unchanged; deletion scores use the centred columns only.
 
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
-vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
-one rank-2 update of ``Q``, done in place in one compiled pass over each buffer
-(:mod:`.engine.jit_fused`; several experts per call by :func:`.sogp_batch.update_many`).  ``C`` and
-``Q`` are symmetric and stored packed, upper triangle only (:mod:`.packed`): every pass streams
-half the bytes.  Buffers grow by 1.5x as an expert does, up to ``beta`` rows.  Cost per step:
-O(n d_x + n^2 + n d_y).
+vector, then delete one" at every step, fused into one rank-3 update of ``C`` and one rank-2
+update of ``Q`` in one compiled pass over each (:mod:`.engine.jit_fused`; several experts per
+call by :mod:`.sogp_batch`).  ``C`` and ``Q`` are stored packed, upper triangle only
+(:mod:`.engine.packed`): every pass streams half the bytes.  Buffers grow by 1.5x as an expert
+does, up to ``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
 
-Modules: this one holds the state, prediction and the update's dispatch; the matrix steps
-(updates, deletion, clean-up, re-inversion of ``Q``) are :mod:`.sogp_steps`, the batched update
-of several experts :mod:`.sogp_batch`, the compiled loops :mod:`.jit`.
+Modules: this one holds the state, prediction and the update's steps in order; the matrix
+steps themselves (updates, deletion, clean-up, re-inversion of ``Q``) are :mod:`.sogp_steps`,
+on the engine's compiled kernels (:mod:`.engine`).
 """
 
 from __future__ import annotations
@@ -289,47 +288,6 @@ class SparseOnlineGP(SOGPSteps):
         if 0.0 < gamma < _NEAR_DEPENDENT * self.kernel.k_star and self.n > 1:
             self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
         self._shift_mean(y[: self.d_y])
-
-    # -- the rest of a step whose steps 3-5 ran batched (:mod:`.sogp_batch`) -------------------
-
-    @property
-    def buffers(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """``(B, A, C, Q)``: this expert's buffers as views of its slab (``C`` and ``Q``
-        packed), as the compiled kernels take them (:mod:`.engine.experts`)."""
-        return self._B, self._A, self._Cp, self._Qp
-
-    def finish_kept(self, y: FloatArray, terms: tuple[FloatArray, FloatArray, FloatArray, float],
-                    e_hat: FloatArray, gamma: float, margin: float) -> None:
-        """Learning ``y`` after a batched novelty test found the point not novel
-        (:data:`.engine.jit.KEPT`, ``Q k = e_hat``, residual ``gamma``, test margin
-        ``margin``): the projection update (step 4a), the clean-up, the prior mean moved.
-        Unlike :meth:`update`, ``Q`` is not re-inverted: step 4a leaves it unchanged."""
-        self.novelty_margin = margin
-        self.n_points += 1
-        k, ck, mean, latent = terms
-        y_ext, mean = self.targets(y, mean, k)
-        s0 = self.noise
-        self._sparse_update(ck, e_hat, gamma, -1.0 / (s0 + latent),
-                            (y_ext - mean) / (s0 + latent))
-        self._clean_up()
-        self._shift_mean(y)
-
-    def finish_fused(self, y: FloatArray, diag: FloatArray, dq: FloatArray, dq_min: float,
-                     dq_argmax: int, clean: bool, gamma: float, margin: float) -> None:
-        """Learning ``y`` after a batched fused step (:data:`.engine.jit.FUSED`; its returned
-        ``diag(C) + diag(Q)``, ``diag(Q)`` with its minimum and first argmax, whether the
-        clean-up keeps every basis vector, the residual ``gamma`` and the test margin): the
-        diagonals kept, the clean-up where one is due, ``Q`` re-inverted after a
-        near-dependent basis vector, the prior mean moved."""
-        self.novelty_margin = margin
-        self.n_points += 1
-        self._dg, self._dq = diag, dq
-        self._dq_min, self._dq_argmax = dq_min, dq_argmax
-        if not (clean and self.n == self.capacity):
-            self._clean_up()
-        if gamma < _NEAR_DEPENDENT * self.kernel.k_star and self.n > 1:
-            self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
-        self._shift_mean(y)
 
     # -- copies and state ----------------------------------------------------------------------
 

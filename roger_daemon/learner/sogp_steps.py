@@ -1,11 +1,13 @@
-"""The sparse online GP's matrix steps: projection and full updates, deletion, clean-up, and
-the re-inversion of ``Q`` (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5-§2.7).
+"""The sparse online GP's matrix steps: projection and full updates, deletion, clean-up, the
+re-inversion of ``Q``, the prior mean's shift (Csató thesis eq. 2.46, App. G;
+docs/learner-math.md §2.5-§2.7), and the rest of a step whose steps 3-5 ran batched.
 
 A base class of :class:`.sogp.SparseOnlineGP`, split from it: these methods change the buffers
 ``_B``, ``_A``, ``_Cp``, ``_Qp`` in place; the class there owns them, predicts and
 dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.  ``C`` and ``Q`` are stored
-packed (their upper triangles, :mod:`.packed`) in buffers sized for ``_alloc`` basis vectors;
-all the buffers are views of one slab per expert (:meth:`SOGPSteps._bind`, :mod:`.jit_slab`).
+packed (their upper triangles, :mod:`.engine.packed`) in buffers sized for ``_alloc`` basis
+vectors; all the buffers are views of one slab per expert (:meth:`SOGPSteps._bind`,
+:mod:`.engine.jit_slab`).  The arithmetic is the engine's compiled kernels (:mod:`.engine`).
 """
 
 from __future__ import annotations
@@ -294,6 +296,47 @@ class SOGPSteps:
                                 np.array([1.0 / q_star, -inv_den]))
         _jit.packed_add_lowrank(self._Qp, self._alloc, j, cols[:1], np.array([-1.0 / q_star]))
         self.n = j
+
+    # -- the rest of a step whose steps 3-5 ran batched (:mod:`.sogp_batch`) -------------------
+
+    @property
+    def buffers(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(B, A, C, Q)``: this expert's buffers as views of its slab (``C`` and ``Q``
+        packed), as the compiled kernels take them (:mod:`.engine.experts`)."""
+        return self._B, self._A, self._Cp, self._Qp
+
+    def finish_kept(self, y: FloatArray, terms: tuple[FloatArray, FloatArray, FloatArray, float],
+                    e_hat: FloatArray, gamma: float, margin: float) -> None:
+        """Learning ``y`` after a batched novelty test found the point not novel
+        (:data:`.engine.jit.KEPT`, ``Q k = e_hat``, residual ``gamma``, test margin
+        ``margin``): the projection update (step 4a), the clean-up, the prior mean moved.
+        Unlike :meth:`update`, ``Q`` is not re-inverted: step 4a leaves it unchanged."""
+        self.novelty_margin = margin
+        self.n_points += 1
+        k, ck, mean, latent = terms
+        y_ext, mean = self.targets(y, mean, k)
+        s0 = self.noise
+        self._sparse_update(ck, e_hat, gamma, -1.0 / (s0 + latent),
+                            (y_ext - mean) / (s0 + latent))
+        self._clean_up()
+        self._shift_mean(y)
+
+    def finish_fused(self, y: FloatArray, diag: FloatArray, dq: FloatArray, dq_min: float,
+                     dq_argmax: int, clean: bool, gamma: float, margin: float) -> None:
+        """Learning ``y`` after a batched fused step (:data:`.engine.jit.FUSED`; its returned
+        ``diag(C) + diag(Q)``, ``diag(Q)`` with its minimum and first argmax, whether the
+        clean-up keeps every basis vector, the residual ``gamma`` and the test margin): the
+        diagonals kept, the clean-up where one is due, ``Q`` re-inverted after a
+        near-dependent basis vector, the prior mean moved."""
+        self.novelty_margin = margin
+        self.n_points += 1
+        self._dg, self._dq = diag, dq
+        self._dq_min, self._dq_argmax = dq_min, dq_argmax
+        if not (clean and self.n == self.capacity):
+            self._clean_up()
+        if gamma < NEAR_DEPENDENT * self.kernel.k_star and self.n > 1:
+            self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+        self._shift_mean(y)
 
     def _grow(self, need: int) -> None:
         alloc = self._alloc
