@@ -4,7 +4,6 @@ or one more pair another), its state digest is the checkpoints' own, and bad arg
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -12,6 +11,7 @@ from pathlib import Path
 from types import ModuleType
 
 import numpy as np
+from script_testing import load_script
 
 from roger_daemon.daemon.checkpoint import array_digest
 from roger_daemon.learner import Roger
@@ -20,11 +20,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_digests.py"
 
 
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("learner_digests", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("learner_digests", SCRIPT)
 
 
 def test_the_digests_are_those_of_what_was_learned() -> None:

@@ -51,11 +51,9 @@ from roger_daemon.learner.roger_terms import Experts, ModelTerms
 from roger_daemon.learner.scaling import as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
-    SCHEMA_VERSION,
     Seed,
     generator_from_state,
-    generator_state,
-    pack_meta,
+    model_meta,
     spawn_generators,
     unpack_meta,
 )
@@ -325,17 +323,9 @@ class Roger:
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata; see :mod:`.state`.  No object arrays."""
         out = roger_arrays(self._store, self._history, self.terms)
-        out["meta"] = pack_meta({
-            "schema": SCHEMA_VERSION,
-            "kind": self.kind,
-            "d_x": self.d_x,
-            "d_y": self.d_y,
-            "params": self.params.to_mapping(),
-            "n_learned": self.n_learned,
-            "next_expert_id": self._store.next_id,
-            "rng_learn": generator_state(self._learn_rng),
-            "rng_predict": generator_state(self._predict_rng),
-        })
+        out["meta"] = model_meta(self.kind, self.d_x, self.d_y, self.params.to_mapping(),
+                                 (self._learn_rng, self._predict_rng),
+                                 n_learned=self.n_learned, next_expert_id=self._store.next_id)
         return out
 
     @classmethod

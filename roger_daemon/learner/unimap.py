@@ -21,12 +21,10 @@ from roger_daemon.learner.roger_terms import new_expert
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
-    SCHEMA_VERSION,
     Seed,
     generator_from_state,
-    generator_state,
+    model_meta,
     pack_experts,
-    pack_meta,
     spawn_generators,
     unpack_experts,
     unpack_meta,
@@ -150,15 +148,8 @@ class UnimapGP:
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata (no pickle)."""
         out = pack_experts([self._gp], self._scaling.d_model, self.d_y)
-        out["meta"] = pack_meta({
-            "schema": SCHEMA_VERSION,
-            "kind": self.kind,
-            "d_x": self.d_x,
-            "d_y": self.d_y,
-            "params": self.params.to_mapping(),
-            "rng_learn": generator_state(self._learn_rng),
-            "rng_predict": generator_state(self._predict_rng),
-        })
+        out["meta"] = model_meta(self.kind, self.d_x, self.d_y, self.params.to_mapping(),
+                                 (self._learn_rng, self._predict_rng))
         return out
 
     @classmethod
