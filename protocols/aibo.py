@@ -1,7 +1,9 @@
 """The AIBO task's vector layouts (paper section IV): 23-D perception, 9-D action.
 
 Index names, the "not seen" encoding and the action-indicator encoding. Units, ranges and
-conventions are documented in ``protocols/AIBO.md`` and implemented by ``simulator/``.
+conventions are documented in ``protocols/AIBO.md`` and implemented by ``simulator/``. The
+daemon's robot profile ``configs/robots/aibo.toml`` holds the same names and ranges as data
+(``roger_daemon.profiles``; a test checks that the two agree bit for bit).
 """
 
 from __future__ import annotations
@@ -26,7 +28,6 @@ __all__ = [
     "decode_indicator",
     "encode_indicator",
     "is_seen",
-    "range_scaling",
 ]
 
 #: The six colour classes the vision reports, in vector order.
@@ -84,14 +85,6 @@ ACTION_RANGES: tuple[tuple[float, float], ...] = (
 STATE_FREE_DIMS = (PERCEPTION_NAMES.index("tail_pan"), PERCEPTION_NAMES.index("tail_tilt"))
 
 assert len(PERCEPTION_RANGES) == DIMS.x and len(ACTION_RANGES) == DIMS.y
-
-
-def range_scaling(ranges: tuple[tuple[float, float], ...]
-                  ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """``(offset, scale)`` mapping each ``[low, high]`` onto ``[-1, 1]``: centre, half-width."""
-    offset = tuple(0.5 * (lo + hi) for lo, hi in ranges)
-    scale = tuple(0.5 * (hi - lo) for lo, hi in ranges)
-    return offset, scale
 
 
 #: Action indicator values (``y[8]``): what the controller emits.

@@ -33,6 +33,12 @@ __all__ = [
 ]
 
 
+#: the process's umask, read once at import (os.umask can only be read by setting it, which
+#: is not safe while other threads create files)
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
 def fsync_dir(directory: str | Path) -> None:
     """``fsync`` a directory, so that names created or renamed in it are durable."""
     fd = os.open(directory, os.O_RDONLY)
@@ -54,7 +60,10 @@ def atomic_write(path: str | Path, *, overwrite: bool = True) -> Iterator[IO[byt
     fd, name = tempfile.mkstemp(prefix=f".{dst.name}.", suffix=".tmp", dir=dst.parent)
     tmp = Path(name)
     try:
-        with os.fdopen(fd, "wb") as f:
+        # mkstemp makes the file 0600; the result gets the mode open() would give it
+        # (0666 less the umask), as every other file a user's command writes
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        with os.fdopen(fd, "w+b") as f:  # readable too: h5py and pyarrow may seek and read
             yield f
             f.flush()
             os.fsync(f.fileno())

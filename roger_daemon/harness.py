@@ -4,8 +4,8 @@
 - :func:`write_config`: a daemon TOML file for that endpoint (multicast scouting off);
 - :class:`DaemonProcess`: ``python -m roger_daemon daemon --config ...`` with its stderr in a
   file, waiting for the "ready" log line;
-- :class:`Client`: a Zenoh peer connected to the daemon that sends perception/action/control
-  and collects predictions and status with their receive times.
+- :class:`Client`: :class:`roger_daemon.client.RobotClient` (the robot-side client) with the
+  short method names the tests use.
 """
 
 from __future__ import annotations
@@ -16,19 +16,17 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from protocols import Action, Control, Perception, Prediction, Status, decode, encode, keys
 from protocols.aibo import DIMS as AIBO_DIMS
 from protocols.messages import Dims
+from roger_daemon.client import Received, RobotClient
 
 __all__ = ["Client", "DaemonProcess", "Received", "free_port", "interruptible_child",
            "write_config"]
@@ -159,132 +157,26 @@ class DaemonProcess:
         self._log.close()
 
 
-@dataclass(frozen=True)
-class Received:
-    """A decoded message and the client's ``time.monotonic_ns()`` at receipt."""
-
-    msg: Any
-    recv_ns: int
-
-
-class Client:
-    """A Zenoh session that plays robot + demonstrator for one robot and listens to the daemon."""
+class Client(RobotClient):
+    """:class:`~roger_daemon.client.RobotClient` with the short names the tests and benchmarks
+    use (``perception``, ``action``, ``control``, ``put``)."""
 
     def __init__(self, connect: str, *, robot: str = "aibo", dims: Dims = AIBO_DIMS,
                  mode: str = "peer", daemon_id: str = "roger") -> None:
-        import zenoh
-
-        from roger_daemon.zenoh_session import ZenohSettings, open_session
-
-        self.zenoh = zenoh
-        self.session = open_session(ZenohSettings(
-            mode=mode, connect=(connect,), listen=None if mode == "client" else ()))
-        self.robot, self.dims, self.daemon_id = robot, dims, daemon_id
-        self.predictions: list[Received] = []
-        self.statuses: list[Received] = []
-        self.errors: list[str] = []
-        self._cond = threading.Condition()
-        self.session.declare_subscriber(keys.prediction(robot), self._on("prediction"))
-        self.session.declare_subscriber(keys.status(robot), self._on("status"))
-        # BLOCK: a test or benchmark feed must not lose its own messages (the daemon's
-        # outputs use DROP); on loopback the daemon always drains, so put() never waits long.
-        self._cc = zenoh.CongestionControl.BLOCK
-        self._pubs = {
-            kind: self.session.declare_publisher(
-                keys.key(robot, kind), congestion_control=self._cc,
-                priority=zenoh.Priority.REAL_TIME, express=True,
-            )
-            for kind in ("perception", "action", "control")
-        }
-
-    def _on(self, kind: str) -> Any:
-        sink = self.predictions if kind == "prediction" else self.statuses
-
-        def callback(sample: Any) -> None:
-            now = time.monotonic_ns()
-            try:
-                msg = decode(kind, sample.payload.to_bytes(), dims=self.dims, robot=self.robot)
-            except Exception as exc:  # a test asserts that this list stays empty
-                self.errors.append(f"{kind}: {exc}")
-                return
-            with self._cond:
-                sink.append(Received(msg, now))
-                self._cond.notify_all()
-
-        return callback
-
-    # --- sending -----------------------------------------------------------------------------
+        super().__init__(connect, robot=robot, dims=dims, mode=mode, daemon_id=daemon_id)
 
     def put(self, kind: str, payload: bytes, robot: str | None = None) -> None:
         """Publish a payload of ``kind`` for this robot (or another ``robot``)."""
-        if robot is None or robot == self.robot:
-            self._pubs[kind].put(payload)
-        else:
-            self.session.put(keys.key(robot, kind), payload, congestion_control=self._cc)
+        self.send_raw(kind, payload, robot)
 
     def perception(self, tick: int, x: np.ndarray) -> int:
         """Publish perception(tick); return the send time (monotonic ns)."""
-        t = time.monotonic_ns()
-        self.put("perception", encode(Perception(self.robot, tick, tick / 30.0, x=x)))
-        return t
+        return self.send_perception(tick, x)
 
     def action(self, tick: int, y: np.ndarray, label: str = "") -> None:
         """Publish an action for ``tick``."""
-        self.put("action", encode(Action(self.robot, tick, tick / 30.0, y=y, label=label)))
+        self.send_action(tick, y, label)
 
     def control(self, op: str, mode: str = "") -> None:
         """Publish a control message (``op`` ``mode`` or ``reset``)."""
-        self.put("control", encode(Control(self.robot, 0, 0.0, op=op, mode=mode)))
-
-    # --- waiting -----------------------------------------------------------------------------
-
-    def wait_daemon(self, timeout: float = 60.0) -> None:
-        """Wait until the daemon's liveliness token is visible (link and declarations up)."""
-        end = time.monotonic() + timeout
-        key = keys.daemon_liveliness(self.daemon_id)
-        while time.monotonic() < end:
-            replies = self.session.liveliness().get(key, timeout=1.0)
-            if any(r.ok is not None for r in replies):
-                time.sleep(0.2)  # let our own subscriptions reach the daemon too
-                return
-            time.sleep(0.1)
-        raise TimeoutError(f"daemon token {key} not seen within {timeout} s")
-
-    def wait_prediction(self, tick: int, timeout: float = 60.0) -> Received:
-        """Wait for the prediction of ``tick`` (raise ``TimeoutError`` after ``timeout`` s)."""
-        end = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                for r in reversed(self.predictions):
-                    if r.msg.tick == tick:
-                        return r
-                left = end - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(f"no prediction for tick {tick} within {timeout} s")
-                self._cond.wait(left)
-
-    def wait_status(self, predicate: Any = None, timeout: float = 60.0) -> Status:
-        """The first status received from now on that satisfies ``predicate``."""
-        end = time.monotonic() + timeout
-        with self._cond:
-            seen = len(self.statuses)
-            while True:
-                for r in self.statuses[seen:]:
-                    if predicate is None or predicate(r.msg):
-                        st: Status = r.msg
-                        return st
-                seen = len(self.statuses)
-                left = end - time.monotonic()
-                if left <= 0:
-                    last = self.statuses[-1].msg.to_map() if self.statuses else None
-                    raise TimeoutError(f"no matching status within {timeout} s; last: {last}")
-                self._cond.wait(left)
-
-    def predictions_since(self, t_ns: int) -> list[Prediction]:
-        """The predictions received at or after ``t_ns`` (``time.monotonic_ns``)."""
-        with self._cond:
-            return [r.msg for r in self.predictions if r.recv_ns >= t_ns]
-
-    def close(self) -> None:
-        """Close the Zenoh session."""
-        self.session.close()
+        self.send_control(op, mode)

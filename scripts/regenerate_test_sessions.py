@@ -163,7 +163,7 @@ def record(spec: Spec, out: Path) -> dict[str, Any]:
             procs.append(hcc)
             sim = _spawn(["sim", "--clock", "lockstep", "--vision", "fast", "--listen", sim_ep,
                           "--connect", d_ep, "--locations", str(spec.location), "--seed",
-                          str(spec.seed), "--time-limit", str(spec.time_limit),
+                          str(spec.seed), "--episode-duration", str(spec.time_limit),
                           "--results", "sim-results.json", "--wait-peers", "2"], work, sim_log)
             procs.append(sim)
             if sim.wait(300) != 0:

@@ -11,9 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import pybullet as p
-
 from protocols.aibo import COLOURS
+from simulator.bullet import p
 from simulator.config import SimConfig
 
 __all__ = [

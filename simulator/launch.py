@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from roger_daemon.console import UsageError
+from roger_daemon.tools.common import port
 from simulator.supervise import Supervisor
 
 __all__ = ["Plan", "configure", "plan", "run"]
@@ -63,6 +64,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="launch file (TOML), e.g. configs/up-demonstration.toml")
     parser.add_argument("--dry-run", action="store_true",
                         help="print the command lines and the queue sizing, start nothing")
+    for name, default in (("daemon", 7447), ("sim", 7450), ("view", 8765)):
+        parser.add_argument(f"--{name}-port", type=port, default=None, metavar="PORT",
+                            help=f"override the file's ports.{name} (its default {default}; "
+                                 "0: a free one), e.g. to run two sessions side by side")
 
 
 @dataclass
@@ -183,7 +188,7 @@ def plan(data: dict[str, Any], base: Path) -> Plan:
     p.argv["sim"] = [*exe, "sim", "--clock", clock, "--listen", sim_ep,
                      "--connect", p.daemon_ep, "--locations", locations,
                      "--episodes-per-location", str(episodes),
-                     "--time-limit", repr(time_limit), "--wait-peers", "2",
+                     "--episode-duration", repr(time_limit), "--wait-peers", "2",
                      *(["--truth"] if viewing or _get(sim, "sim", "truth", bool, False) else []),
                      *_strings(sim, "sim", "args")]
     return p
@@ -211,6 +216,13 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot read the launch file {args.file}: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise UsageError(f"{args.file} is not valid TOML: {exc}") from None
+    ports = dict(data.get("ports", {})) if isinstance(data.get("ports", {}), dict) else {}
+    for name in ("daemon", "sim", "view"):
+        given = getattr(args, f"{name}_port", None)
+        if given is not None:
+            ports[name] = given
+    if ports:
+        data = {**data, "ports": ports}
     p = plan(data, Path.cwd())
     for w in p.warnings:
         log.warning("%s", w)

@@ -41,7 +41,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-episodes", type=int, default=0, help="cap (0: no cap)")
     parser.add_argument("--seed", type=int, default=0,
                         help="seed of the start poses' noise and of the vision (default 0)")
-    parser.add_argument("--time-limit", type=float, default=None, help="seconds of sim time (150)")
+    parser.add_argument("--episode-duration", "--time-limit", dest="time_limit", type=float,
+                        default=None, metavar="S",
+                        help="an episode's limit in seconds of sim time (150; --time-limit: "
+                             "the deprecated spelling)")
     parser.add_argument(
         "--command-timeout",
         type=float,

@@ -33,7 +33,8 @@ class Supervisor:
         self.signalled = self.stop_reason = signal.Signals(signum).name
 
     def run(self) -> int:
-        """Run the session to its end; 0 when every process stopped cleanly, else 1."""
+        """Run the session to its end; 0 when every process stopped cleanly (130 when that
+        was after Ctrl-C), else 1."""
         self.p.workdir.mkdir(parents=True, exist_ok=True)
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
@@ -51,7 +52,8 @@ class Supervisor:
             log.error("not every process stopped cleanly: %s (logs in %s)", bad, self.p.workdir)
             return 1
         log.info("stopped cleanly (%s); logs in %s", self.stop_reason or "done", self.p.workdir)
-        return 0
+        # Ctrl-C: 130, as every command interrupted in a terminal (docs/cli.md)
+        return 130 if self.signalled == "SIGINT" else 0
 
     def _start(self, name: str) -> None:
         from simulator.experiment.procs import child_env

@@ -29,9 +29,9 @@ import math
 from typing import Any
 
 import numpy as np
-import pybullet as p
 
 from protocols.aibo import COLOURS, NOT_SEEN
+from simulator.bullet import p
 from simulator.config import CameraConfig, VisionNoiseConfig
 from simulator.linalg3 import dot3, norm3, rows_dot3
 from simulator.world import World

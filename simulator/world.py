@@ -21,9 +21,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
 
 from protocols.aibo import decode_indicator
+from simulator.bullet import p
 from simulator.config import SimConfig
 from simulator.field import (
     CAMERA_LINK,

@@ -147,9 +147,10 @@ def record_session(
     the daemon write a real checkpoint (into ``checkpoint_dir``, default
     ``<directory>/checkpoints``; a checkpoint already there is what the daemon resumes from),
     and its model is kept in :attr:`DaemonSession.checkpoints`. The learner is the paper's
-    (``preset = "paper"``), seed ``seed``. ``close=False`` leaves the recorder open, as a
-    killed daemon does (what was flushed is on disk). ``recover``: start as ``roger daemon``
-    does (``start_robots``: start-up self-recovery from the logs already in ``directory``).
+    (``preset = "paper"``, with its ``nu0 = 24``), seed ``seed``. ``close=False`` leaves the
+    recorder open, as a killed daemon does (what was flushed is on disk). ``recover``: start
+    as ``roger daemon`` does (``start_robots``: start-up self-recovery from the logs already
+    in ``directory``).
     ``workers``: the model learns and predicts in a learner worker process
     (``roger_daemon.daemon.learners.ProcessLearners``, ``[daemon] workers = "process"``).
     """
@@ -158,7 +159,8 @@ def record_session(
     ckdir = Path(checkpoint_dir) if checkpoint_dir is not None else Path(directory) / "checkpoints"
     cfg = parse_config({
         "daemon": {"clock": "lockstep", "seed": seed, **(daemon or {})},
-        "learner": {"preset": "paper"},
+        # the paper's nu0 = 24 (the default is x_dim + 1 since issue 56: 2 for this 1-D stream)
+        "learner": {"preset": "paper", "nu0": 24.0},
         "robots": [{"id": robot, "x_dim": dims.x, "y_dim": dims.y}],
         "checkpoint": {"dir": str(ckdir), "every_updates": 0, "every_s": 0, "wal": False,
                        "on_shutdown": False},

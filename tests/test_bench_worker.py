@@ -43,7 +43,7 @@ def test_bench_worker_reports_cpu_per_robot_tick_as_json() -> None:
 @pytest.mark.parametrize("args, message", [
     (["--robots", "0"], "--robots must be an integer >= 1, got 0"),
     (["--rate", "-1"], "--rate must be a number >= 0 (0: back to back), got -1.0"),
-    (["--seconds", "0"], "--seconds must be a number > 0, got 0.0"),
+    (["--seconds", "0"], "--duration must be a number > 0, got 0.0"),  # the old spelling
 ])
 def test_bench_worker_refuses_bad_arguments(args: list[str], message: str) -> None:
     out = subprocess.run([sys.executable, "-m", "roger_daemon", "bench", "worker", *args],

@@ -128,7 +128,9 @@ def test_config_example_prints_the_shipped_file(capsys: pytest.CaptureFixture[st
 
 @pytest.mark.parametrize(("argv", "message"), [
     (["bench", "fleet", "--robots", "0"], "--robots must be an integer >= 1, got 0"),
-    (["bench", "fleet", "--seconds", "-1"], "--seconds must be a number > 0, got -1.0"),
+    (["bench", "fleet", "--seconds", "-1"], "--duration must be a number > 0, got -1.0"),
+    (["bench", "fleet", "--duration", "-1"], "--duration must be a number > 0, got -1.0"),
+    (["bench", "soak", "--duration", "0"], "--duration must be a number > 0, got 0.0"),
     (["bench", "soak", "--minutes", "0"], "--minutes must be a number > 0, got 0.0"),
     (["bench", "soak", "--interval", "0"], "--interval must be a number > 0, got 0.0"),
 ])
@@ -139,3 +141,27 @@ def test_benchmark_ranges_are_usage_errors_naming_the_value(
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
+
+
+def test_one_word_for_a_duration_and_out_is_a_directory() -> None:
+    """Issue 56: ``--duration`` / ``--episode-duration`` in seconds (the old ``--seconds``,
+    ``--minutes``, ``--time-limit`` only as deprecated aliases, said so in --help), and every
+    ``--out`` of a roger command is a directory."""
+    old = {"--seconds", "--minutes", "--time-limit"}
+    for path, a in all_actions():
+        opts = a.option_strings
+        if old & set(opts):
+            assert opts[0] not in old or "deprecated" in (a.help or ""), f"{path} {opts}"
+            assert "deprecated" in (a.help or ""), f"{path} {opts}: say so in --help"
+        if "--out" in opts:
+            assert a.metavar == "DIR", f"{path} --out is a {a.metavar}, not a directory"
+
+
+def test_the_log_file_is_positional_everywhere() -> None:
+    """log info|recover|export, replay and view take the log as their first argument."""
+    parser = build_parser(COMMANDS, "roger", "*")
+    for argv in (["log", "info", "F.mcap"], ["log", "recover", "F.mcap"],
+                 ["log", "export", "F.mcap"], ["replay", "F.mcap"], ["view", "F.mcap"]):
+        values = vars(parser.parse_args(argv)).values()
+        flat = [w for v in values for w in (v if isinstance(v, list) else [v])]
+        assert "F.mcap" in {str(v) for v in flat}, argv

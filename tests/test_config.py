@@ -65,7 +65,8 @@ def test_presets_and_the_aibo_profile() -> None:
     assert default.profile == "aibo"
     p = default.params
     assert p.replace(x_offset=None, x_scale=None, y_offset=None, y_scale=None,
-                     input_weights=None) == RogerParams.preset("default")
+                     input_weights=None) == RogerParams.preset("default").for_dims(23)
+    assert p.nu0 == 24.0  # derived from x_dim (23 + 1): the value it always had
     sc = AffineScaling(p, 23, 9)
     lo, hi = (np.array(r) for r in zip(*PERCEPTION_RANGES, strict=True))
     kept = [i for i in range(23) if i not in (21, 22)]  # the tail inputs are dropped
@@ -79,7 +80,7 @@ def test_presets_and_the_aibo_profile() -> None:
     np.testing.assert_allclose(sc.var_out(1.0), ((yhi - ylo) / 2) ** 2, rtol=1e-12)
     # the paper preset: the paper's numbers on raw data (no profile), unless asked for
     paper = parse_config({"learner": {"preset": "paper"}}).robots[0]
-    assert paper.profile == "none" and paper.params == RogerParams()
+    assert paper.profile == "none" and paper.params == RogerParams().for_dims(23)
     both = parse_config({"learner": {"preset": "paper"},
                          "robots": [{"id": "aibo", "profile": "aibo"}]}).robots[0]
     assert both.params.theta_w == 0.1 and both.params.x_scale == p.x_scale
@@ -123,9 +124,14 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ({"learner": {"gp_prior_mean": "data"}},
      "learner.gp_prior_mean must be one of 'zero', 'expert', got 'data'"),
     ({"robots": [{"id": "a", "profile": "arm"}]},
-     'robots[0].profile must be one of "aibo", "none", got "arm"'),
+     "robots[0].profile: no shipped robot profile 'arm'; shipped: aibo"),
+    ({"robots": [{"id": "a", "profile": "missing/arm.toml"}]},
+     "robots[0].profile: cannot read robot profile missing/arm.toml"),
     ({"robots": [{"id": "a", "x_dim": 2, "profile": "aibo"}]},
-     "robots[0].profile must be \"none\" for a robot whose dimensions are not the AIBO's"),
+     'robots[0].profile must be "none" or a profile of 2 perception and 9 action names for a '
+     "robot with x_dim, y_dim = 2, 9 (profile 'aibo' has 23, 9)"),
+    ({"robots": [{"id": "a", "x_dim": 2, "x_ranges": [[0, 1], [1, 1]]}]},
+     "robots[0].x_ranges must be an array of 2 [low, high] pairs of numbers with high > low"),
     ({"robots": [{"id": "a", "x_dim": 2, "input_weights": [0.0, 0.0]}]},
      "robots[0].input_weights must be an array of 2 numbers >= 0, not all 0, got [0.0, 0.0]"),
     ({"robots": []}, "robots must be a non-empty array of tables ([[robots]]), got []"),

@@ -144,7 +144,7 @@ def test_bad_input_is_counted_and_leaves_the_model_unchanged(
             np.testing.assert_array_equal(a.model[k], b.model[k])
         # still alive and serving
         client.perception(12, STREAM.x[12])
-        assert client.wait_prediction(12).msg.updates == 12
+        assert client.wait_prediction(12).updates == 12
         assert d.proc.poll() is None
         assert "rejected message" in d.log()
     finally:
@@ -202,7 +202,7 @@ def test_sigterm_checkpoints_and_restart_resumes_identical_model(
         assert st.info["checkpoint_digest"] == saved.meta["model_digest"]
         # it continues: the next perception is answered by the resumed model
         client.perception(25, STREAM.x[25])
-        assert client.wait_prediction(25).msg.updates == 25
+        assert client.wait_prediction(25).updates == 25
     finally:
         client.close()
     code, _ = d2.terminate()

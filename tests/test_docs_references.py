@@ -7,9 +7,9 @@
   (in a ``docs/*.md`` file, in the file itself).
 * Every "pitfall N" is a numbered note of ``docs/learner-math.md`` §7, in a file that names
   that document.
-* Every repository path a ``docs/*.md`` page names (``roger_daemon/.../x.py``, ``scripts/...``,
-  ``tests/...``, ``configs/...``) is a file or folder of the repository: a moved module takes its
-  references along.
+* Every code path a ``docs/*.md`` page names (``roger_daemon/.../x.py``, ``scripts/...``,
+  ``tests/...``; not ``configs/``, where the docs' examples name the user's own files) is a file
+  or folder of the repository: a moved module takes its references along.
 """
 
 from __future__ import annotations
@@ -168,7 +168,7 @@ def test_pitfalls_are_learner_math_notes(path: Path) -> None:
     assert not missing, f"{LEARNER_MATH} §7 has no pitfall {sorted(missing)}"
 
 
-REPO_PATH = re.compile(r"\b((?:roger_daemon|simulator|protocols|scripts|tests|configs)"
+REPO_PATH = re.compile(r"\b((?:roger_daemon|simulator|protocols|scripts|tests)"
                        r"/[\w./*-]*[\w*])")  # a ``*`` is a glob; ``<name>`` ends the path
 DOCS = [p for p in FILES if _rel(p).startswith("docs/") and p.suffix == ".md"]
 

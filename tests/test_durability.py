@@ -77,7 +77,7 @@ def _answer(d: Daemon, t: int) -> int | None:
     while it lives: a slow daemon under load is waited for, never re-sent to)."""
     while True:
         try:
-            return int(d.client.wait_prediction(t, timeout=1.0).msg.updates)
+            return int(d.client.wait_prediction(t, timeout=1.0).updates)
         except TimeoutError:
             if not d.alive:
                 return None

@@ -53,7 +53,8 @@ def test_quick_presets_and_overrides() -> None:
     params = learner_params(plan)
     assert params.lambda0 == 0.01 and params.alpha == 2.0 and params.beta == 300
     paper = learner_params(plan_from_args(_args("--preset", "paper")))
-    assert paper == RogerParams()  # the paper's literal numbers, every lever off
+    # the paper's literal numbers, every lever off (nu0 = 24: the value for its 23 inputs)
+    assert paper == RogerParams().for_dims(23) and paper.nu0 == 24.0
 
 
 def test_bad_arguments_are_refused() -> None:

@@ -117,7 +117,7 @@ def test_replay_with_other_params_from_a_config_mismatches(
     rep = json.loads(capsys.readouterr().out)
     assert rep["params"]["theta_n"] == 0.3 and rep["seed"] == 7
     # the session was recorded with the paper's parameters (the "paper" preset)
-    paper = '[learner]\npreset = "paper"\n'
+    paper = '[learner]\npreset = "paper"\nnu0 = 24.0\n'  # the session's (default: x_dim + 1)
     cfg.write_text(f"[daemon]\nseed = 7\n{paper}[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
     assert roger(["replay", str(busy.paths[0]), "--config", str(cfg), "--check"]) == 0
     cfg.write_text(f"[daemon]\nseed = 8\n{paper}[[robots]]\nid = \"sim\"\nx_dim = 1\ny_dim = 1\n")
@@ -220,10 +220,10 @@ def test_log_tail_gives_the_pairs_after_the_checkpoint(crash) -> None:  # type: 
 
 def test_checkpoint_plus_tail_equals_the_uninterrupted_model(crash) -> None:  # type: ignore[no-untyped-def]
     """The resumed model equals a model that learned the same logged pairs without a crash."""
-    from roger_daemon.learner import Roger
+    from roger_daemon.learner import Roger, RogerParams
 
     a, model = crash["a"], crash["caught_up"]
-    ref = Roger(d_x=1, d_y=1, seed=7)
+    ref = Roger(d_x=1, d_y=1, params=RogerParams(nu0=24.0), seed=7)  # the session's nu0
     for _, x, y, _ in a.pairs[: model.n_learned]:
         ref.learn_one(x, y)
     def same(m1: object, m2: object) -> None:

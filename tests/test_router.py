@@ -78,7 +78,7 @@ def _through_router(tmp_path: Path, router_cfg: str, routers: list[Router]) -> N
             client.wait_daemon()
             for t in range(5):
                 client.perception(t, STREAM.x[t])
-                pred = client.wait_prediction(t).msg
+                pred = client.wait_prediction(t)
                 assert pred.updates == t
                 client.action(t, STREAM.y[t], "seek")
             st = client.wait_status(lambda s: s.updates == 5)

@@ -507,7 +507,7 @@ def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
 
     with _fed_daemon(tmp_path, 12, worker_processes=processes) as (cfg, daemon, client):
         client.perception(12, STREAM.x[12])
-        acked = client.wait_prediction(12, timeout=DEADLINE_S).msg.updates
+        acked = client.wait_prediction(12, timeout=DEADLINE_S).updates
         assert acked == 12
         st = client.wait_status(lambda s: s.info.get("workers") == "process",
                                 timeout=DEADLINE_S)

@@ -49,8 +49,9 @@ TARGETS = {"latency_p99_ms": 10.0, "period_jitter_p99_ms": 5.0}
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger bench daemon``."""
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--seconds", type=float, default=10.0,
-                        help="measured seconds of the lockstep and realtime phases (default 10)")
+    parser.add_argument("--duration", "--seconds", dest="seconds", type=float, default=10.0,
+                        metavar="S", help="measured seconds of the lockstep and realtime phases "
+                                          "(default 10; --seconds: the deprecated spelling)")
     parser.add_argument("--rate", type=float, default=30.0, help="feed and prediction rate (Hz)")
     parser.add_argument("--saturate-seconds", type=float, default=5.0,
                         help="length of the saturation phase (0 skips it; default 5)")
@@ -110,7 +111,7 @@ def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
             i = tick % len(stream.x)
             sent = c.perception(tick, stream.x[i])
             try:
-                got = c.wait_prediction(tick, timeout=1.0)
+                got = c.wait_received(tick, timeout=1.0)
                 if time.monotonic() - t0 >= 1.0:
                     lat.append((got.recv_ns - sent) / 1e6)
             except TimeoutError:
@@ -129,7 +130,7 @@ def _lockstep(workdir: Path, args: argparse.Namespace, stream: Any) -> dict[str,
             i = tick % len(stream.x)
             sent = c.perception(tick, stream.x[i])
             try:
-                got = c.wait_prediction(tick, timeout=1.0)
+                got = c.wait_received(tick, timeout=1.0)
                 lat_predict.append((got.recv_ns - sent) / 1e6)
             except TimeoutError:
                 lost += 1

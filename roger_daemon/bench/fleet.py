@@ -80,8 +80,9 @@ TARGETS = {"dropped": 0, "updates_per_s_min": 29.5, "predictions_per_s_min": 29.
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger bench fleet``."""
     parser.add_argument("--robots", type=int, default=8, help="simulated robots (default 8)")
-    parser.add_argument("--seconds", type=float, default=30.0,
-                        help="measured seconds of each phase (default 30)")
+    parser.add_argument("--duration", "--seconds", dest="seconds", type=float, default=30.0,
+                        metavar="S", help="measured seconds of each phase (default 30; "
+                                          "--seconds: the deprecated spelling)")
     parser.add_argument("--rate", type=float, default=30.0, help="feed rate per robot (Hz)")
     parser.add_argument("--warmup", type=float, default=2.0,
                         help="unmeasured seconds at the start of each phase (default 2)")
@@ -321,7 +322,7 @@ def _print_table(result: dict[str, Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the phases; print a table or one JSON object."""
     require(args.robots >= 1, "--robots", "an integer >= 1", args.robots)
-    require(args.seconds > 0, "--seconds", "a number > 0", args.seconds)
+    require(args.seconds > 0, "--duration", "a number > 0", args.seconds)
     require(args.rate > 0, "--rate", "a number > 0", args.rate)
     stream = feed_stream(args.stream)
     machine = machine_record()

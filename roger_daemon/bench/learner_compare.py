@@ -64,7 +64,8 @@ def compare(stream: BenchStream, rev: str, seed: int) -> dict[str, Any]:
     ref_pkg, sha = load_reference(rev)
     points, d_x = stream.x.shape
     d_y = stream.y.shape[1]
-    ref_params = ref_pkg.RogerParams.from_mapping(stream.params.to_mapping())
+    # nu0 resolved for the stream (older revisions have no d_x + 1 default)
+    ref_params = ref_pkg.RogerParams.from_mapping(stream.params.for_dims(d_x).to_mapping())
     warm_up()
     _warm_up_reference(ref_pkg)
     for model in (ref_pkg.Roger(d_x, d_y, ref_params, seed=seed),

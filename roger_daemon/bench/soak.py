@@ -42,7 +42,10 @@ TARGET_GROWTH_PCT = 5.0
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger bench soak``."""
-    parser.add_argument("--minutes", type=float, default=60.0, help="length (default 60)")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="length in seconds (default 3600)")
+    parser.add_argument("--minutes", type=float, default=None, metavar="MIN",
+                        help="deprecated: the length in minutes (use --duration S)")
     parser.add_argument("--warmup-minutes", type=float, default=None,
                         help="growth is measured from here (default 10, or a third of the run "
                              "if shorter than 30 minutes)")
@@ -154,7 +157,13 @@ def _soak(workdir: Path, args: argparse.Namespace) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the soak; print a table or one JSON object."""
-    require(args.minutes > 0, "--minutes", "a number > 0", args.minutes)
+    if args.minutes is not None:  # the deprecated spelling, in minutes
+        require(args.duration is None, "--minutes", "not given with --duration", args.minutes)
+        require(args.minutes > 0, "--minutes", "a number > 0", args.minutes)
+        args.duration = args.minutes * 60.0
+    args.duration = 3600.0 if args.duration is None else args.duration
+    require(args.duration > 0, "--duration", "a number > 0", args.duration)
+    args.minutes = args.duration / 60.0
     require(args.robots >= 1, "--robots", "an integer >= 1", args.robots)
     require(args.interval > 0, "--interval", "a number > 0", args.interval)
     warm = args.warmup_minutes

@@ -44,8 +44,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="models the worker serves in turn (default 1)")
     parser.add_argument("--rate", type=float, default=30.0,
                         help="ticks per second (default 30; 0: back to back)")
-    parser.add_argument("--seconds", type=float, default=20.0,
-                        help="measured time (default 20)")
+    parser.add_argument("--duration", "--seconds", dest="seconds", type=float, default=20.0,
+                        metavar="S", help="measured seconds (default 20; --seconds: the "
+                                          "deprecated spelling)")
     parser.add_argument("--warmup", type=int, default=400,
                         help="pairs each robot learns before the measurement (default 400)")
     parser.add_argument("--stream", choices=FLEET_STREAMS, default="aibo",
@@ -147,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the benchmark; print a table or one JSON object."""
     require(args.robots >= 1, "--robots", "an integer >= 1", args.robots)
     require(args.rate >= 0, "--rate", "a number >= 0 (0: back to back)", args.rate)
-    require(args.seconds > 0, "--seconds", "a number > 0", args.seconds)
+    require(args.seconds > 0, "--duration", "a number > 0", args.seconds)
     require(args.warmup >= 0, "--warmup", "an integer >= 0", args.warmup)
     machine = machine_record()
     if not args.json:

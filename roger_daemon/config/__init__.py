@@ -13,11 +13,14 @@ TOML key ``learner.<name>``.
 
 ``learner.preset`` names a row of :data:`roger_daemon.learner.params.PRESETS` (``"default"``
 unless given; ``"paper"`` is the paper's literal numbers with every lever off); the other
-``[learner]`` keys override it.  Each robot's ``profile`` sets its input/output scaling and
-input weights: ``"aibo"`` (the default for a 23-D/9-D robot unless the preset is ``"paper"``)
-maps every documented sensor and command range of ``protocols/AIBO.md`` onto [-1, 1] and drops
-the state-free tail inputs; ``"none"`` leaves the data as it is.  A robot's own ``x_offset``,
-``x_scale``, ``y_offset``, ``y_scale`` and ``input_weights`` override its profile's.
+``[learner]`` keys override it.  Each robot's ``profile`` (:mod:`roger_daemon.profiles`: a
+shipped name, a path to a profile file, or ``"none"``) names its dimensions and sets its
+input/output scaling and input weights: ``"aibo"`` (``configs/robots/aibo.toml``; the default
+for a 23-D/9-D robot unless the preset is ``"paper"``) maps every documented sensor and command
+range of ``protocols/AIBO.md`` onto [-1, 1] and drops the state-free tail inputs; ``"none"``
+leaves the data as it is.  A robot's own ``x_ranges`` / ``y_ranges`` (declared ranges, mapped
+onto [-1, 1]), then ``x_offset``, ``x_scale``, ``y_offset``, ``y_scale`` and ``input_weights``
+override its profile's.
 """
 
 from __future__ import annotations
@@ -25,8 +28,8 @@ from __future__ import annotations
 from roger_daemon.config.parse import apply_overrides, load_config, parse_config
 from roger_daemon.config.settings import (
     CLOCKS,
+    DEFAULT_PROFILE,
     MODELS,
-    PROFILES,
     WORKERS,
     CheckpointConfig,
     ConfigError,
@@ -40,7 +43,7 @@ __all__ = [
     "CLOCKS",
     "WORKERS",
     "MODELS",
-    "PROFILES",
+    "DEFAULT_PROFILE",
     "CheckpointConfig",
     "ConfigError",
     "DaemonConfig",

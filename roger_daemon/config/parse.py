@@ -13,13 +13,12 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from protocols.aibo import DIMS as AIBO_DIMS
-from protocols.messages import MODES
+from protocols.messages import MODES, Dims
 from roger_daemon.config.settings import (
     CLOCKS,
     DEFAULT_PRESET,
+    DEFAULT_PROFILE,
     MODELS,
-    PROFILES,
     WORKERS,
     ZENOH_MODES,
     CheckpointConfig,
@@ -30,6 +29,7 @@ from roger_daemon.config.settings import (
     ZenohSettings,
 )
 from roger_daemon.config.table import Table, bad, show
+from roger_daemon.profiles import ProfileError, RobotProfile, load_profile, shipped_profiles
 
 __all__ = ["apply_overrides", "load_config", "parse_config"]
 
@@ -57,31 +57,68 @@ def _learner_mapping(learner_table: Mapping[str, Any]) -> tuple[str, dict[str, A
     return preset, {**PRESETS[preset], **table}
 
 
-def _profile_mapping(profile: str, x_dim: int, y_dim: int, key: str) -> dict[str, Any]:
-    """The scaling and input weights of a robot profile (``"aibo"``: ``protocols/AIBO.md``)."""
-    if profile == "none":
-        return {}
-    from protocols.aibo import ACTION_RANGES, PERCEPTION_RANGES, STATE_FREE_DIMS, range_scaling
+def _robot_profile(robot: Table, preset: str) -> tuple[str, RobotProfile | None, Dims]:
+    """``(profile reference, profile, dims)`` of a ``[[robots]]`` table.
 
-    if (x_dim, y_dim) != (AIBO_DIMS.x, AIBO_DIMS.y):
-        raise bad(key, f'"none" for a robot whose dimensions are not the AIBO\'s '
-                   f"({AIBO_DIMS.x}, {AIBO_DIMS.y}); x_dim, y_dim = {x_dim}, {y_dim}", profile)
-    x_offset, x_scale = range_scaling(PERCEPTION_RANGES)
-    y_offset, y_scale = range_scaling(ACTION_RANGES)
-    weights = [0.0 if i in STATE_FREE_DIMS else 1.0 for i in range(x_dim)]
-    return {"x_offset": list(x_offset), "x_scale": list(x_scale), "y_offset": list(y_offset),
-            "y_scale": list(y_scale), "input_weights": weights}
+    ``profile`` is a shipped profile's name (``configs/robots/<name>.toml``), a path to a
+    profile file, or ``"none"``. Without it a robot gets :data:`DEFAULT_PROFILE` if its
+    dimensions are that profile's and the preset is not ``"paper"`` (the AIBO's, as always).
+    ``x_dim``/``y_dim`` default to the profile's (the default profile's without one).
+    """
+    spec = robot.raw("profile", None)
+    if spec is not None and (not isinstance(spec, str) or not spec):
+        raise bad(robot.key("profile"), '"none", a shipped profile (' + ", ".join(
+            show(n) for n in shipped_profiles()) + ") or a path to a profile .toml file", spec)
+    try:
+        profile = load_profile(spec if spec not in (None, "none") else DEFAULT_PROFILE)
+    except ProfileError as exc:
+        raise ConfigError(robot.key("profile"), f"{robot.key('profile')}: {exc}") from None
+    dims = Dims(robot.integer("x_dim", profile.dims.x, lo=1),
+                robot.integer("y_dim", profile.dims.y, lo=1))
+    if spec is None:
+        keep = dims == profile.dims and preset != "paper"
+        return (DEFAULT_PROFILE if keep else "none"), (profile if keep else None), dims
+    if spec == "none":
+        return "none", None, dims
+    if dims != profile.dims:
+        raise bad(robot.key("profile"), f'"none" or a profile of {dims.x} perception and '
+                  f"{dims.y} action names for a robot with x_dim, y_dim = {dims.x}, {dims.y} "
+                  f"(profile {profile.name!r} has {profile.dims.x}, {profile.dims.y})", spec)
+    return spec, profile, dims
+
+
+def _declared_ranges(robot: Table, dims: Dims) -> dict[str, Any]:
+    """The scaling of a robot's own ``x_ranges`` / ``y_ranges`` (``[[low, high], ...]``)."""
+    from roger_daemon.learner.params import ParameterError, range_scaling
+
+    out: dict[str, Any] = {}
+    for axis, n in (("x", dims.x), ("y", dims.y)):
+        name = f"{axis}_ranges"
+        value = robot.raw(name, None)
+        if value is None:
+            continue
+        expected = f"an array of {n} [low, high] pairs of numbers with high > low"
+        if not isinstance(value, list) or len(value) != n:
+            raise bad(robot.key(name), expected, value)
+        try:
+            offset, scale = range_scaling(value, name)
+        except ParameterError:
+            raise bad(robot.key(name), expected, value) from None
+        out[f"{axis}_offset"], out[f"{axis}_scale"] = list(offset), list(scale)
+    return out
 
 
 def _robot_params(
-    learner_table: Mapping[str, Any], robot: Table, x_dim: int, y_dim: int, idx: str
-) -> tuple[str, Any]:
+    learner_table: Mapping[str, Any], robot: Table, idx: str
+) -> tuple[str, RobotProfile | None, Dims, Any]:
     from roger_daemon.learner import ParameterError, RogerParams
 
     preset, mapping = _learner_mapping(learner_table)
-    aibo = (x_dim, y_dim) == (AIBO_DIMS.x, AIBO_DIMS.y) and preset != "paper"
-    profile = robot.choice("profile", "aibo" if aibo else "none", PROFILES)
-    mapping.update(_profile_mapping(profile, x_dim, y_dim, robot.key("profile")))
+    spec, profile, dims = _robot_profile(robot, preset)
+    x_dim, y_dim = dims.x, dims.y
+    if profile is not None:
+        mapping.update(profile.scaling())
+    mapping.update(_declared_ranges(robot, dims))
     scaling_keys: dict[str, str] = {}
     for name, length in (("x_offset", x_dim), ("x_scale", x_dim),
                          ("y_offset", y_dim), ("y_scale", y_dim), ("input_weights", x_dim)):
@@ -106,7 +143,9 @@ def _robot_params(
         if name in scaling_keys:
             raise ConfigError(scaling_keys[name], f"{idx}.{exc}") from None
         raise _learner_error(exc, "learner") from None
-    return profile, params
+    # nu0 = x_dim + 1 unless set: the value the models use, recorded as such (metadata,
+    # checkpoints), so that a config and the model it made agree (24 for the AIBO's 23)
+    return spec, profile, dims, params.for_dims(x_dim)
 
 
 def _check_zenoh_file(path: Path) -> None:
@@ -179,13 +218,12 @@ def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[Rob
         rid = r.ident("id")
         if any(o.id == rid for o in robots):
             raise bad(r.key("id"), "unique among robots", rid)
-        x_dim = r.integer("x_dim", AIBO_DIMS.x, lo=1)
-        y_dim = r.integer("y_dim", AIBO_DIMS.y, lo=1)
         model = r.choice("model", "roger", MODELS)
         rseed = r.integer("seed", seed, lo=0)
-        profile, params = _robot_params(learner_table, r, x_dim, y_dim, f"robots[{i}]")
+        spec, profile, dims, params = _robot_params(learner_table, r, f"robots[{i}]")
         r.done()
-        robots.append(RobotConfig(rid, x_dim, y_dim, model, rseed, profile, params))
+        robots.append(RobotConfig(rid, dims.x, dims.y, model, rseed, spec, params,
+                                  robot_profile=profile))
     return robots
 
 
@@ -223,7 +261,9 @@ def _zenoh_section(z: Table) -> ZenohSettings:
 def _checkpoint_section(c: Table) -> CheckpointConfig:
     """The ``[checkpoint]`` table."""
     ckpt = CheckpointConfig(
-        dir=c.path("dir", CheckpointConfig.dir) or CheckpointConfig.dir,
+        # absolute (from the working directory at start): status, `roger control checkpoint`
+        # and the logs name files any reader can open (issue 56)
+        dir=(c.path("dir", CheckpointConfig.dir) or CheckpointConfig.dir).absolute(),
         every_updates=c.integer("every_updates", CheckpointConfig.every_updates, lo=0),
         every_s=c.number("every_s", CheckpointConfig.every_s, lo=0.0, lo_open=False),
         keep=c.integer("keep", CheckpointConfig.keep, lo=1),
@@ -248,7 +288,7 @@ def _recording_section(rec: Table) -> RecordingConfig:
     """The ``[recording]`` table."""
     recording = RecordingConfig(
         enabled=rec.boolean("enabled", True),
-        dir=rec.path("dir", RecordingConfig.dir) or RecordingConfig.dir,
+        dir=(rec.path("dir", RecordingConfig.dir) or RecordingConfig.dir).absolute(),
         max_bytes=rec.integer("max_bytes", 0, lo=0),
         max_age_days=rec.number("max_age_days", 0.0, lo=0.0, lo_open=False),
     )

@@ -17,7 +17,7 @@ __all__ = [
     "CLOCKS",
     "DEFAULT_PRESET",
     "MODELS",
-    "PROFILES",
+    "DEFAULT_PROFILE",
     "WORKERS",
     "ZENOH_MODES",
     "CheckpointConfig",
@@ -31,7 +31,8 @@ __all__ = [
 CLOCKS = ("realtime", "lockstep")
 WORKERS = ("auto", "process", "inline")
 MODELS = ("roger", "unimap")
-PROFILES = ("aibo", "none")
+#: the profile of a robot that names none (if its dimensions are that profile's)
+DEFAULT_PROFILE = "aibo"
 DEFAULT_PRESET = "default"
 ZENOH_MODES = ("peer", "client")
 
@@ -56,10 +57,13 @@ class RobotConfig:
     y_dim: int = AIBO_DIMS.y
     model: str = "roger"
     seed: int = 0
-    #: ``"aibo"`` (documented ranges -> [-1, 1], tail inputs dropped) or ``"none"``.
+    #: the robot profile's reference as configured: a shipped name (``"aibo"``: documented
+    #: ranges -> [-1, 1], tail inputs dropped), a path to a profile file, or ``"none"``
     profile: str = "none"
     #: The learner parameters for this robot: ``[learner]`` merged with the robot's scaling.
     params: Any = None
+    #: the loaded profile (names, ranges; ``roger_daemon.profiles``), ``None`` for ``"none"``
+    robot_profile: Any = None
 
 
 @dataclass(frozen=True)

@@ -111,6 +111,9 @@ def open_recorders(
             decisions=True,  # the service attaches each robot's DecisionLog
             start_model_digest=array_digest(dict(rt.model.state_dict())),
             extra={"daemon": cfg.id, "clock": cfg.clock, "rate_hz": repr(cfg.rate_hz),
+                   # the robot's profile (names, ranges): exported datasets and logs name fields
+                   **({"robot_profile": json.dumps(robot.robot_profile.to_mapping())}
+                      if robot.robot_profile is not None else {}),
                    "schema_version": str(SCHEMA_VERSION),
                    "recovered_pairs": str(where.recovered_pairs),
                    "recovered_from": ",".join(where.recovered_from)},

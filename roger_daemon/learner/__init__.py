@@ -7,6 +7,10 @@ in its on-disk cache (:mod:`.engine.jit_compile`).  It imports nothing else of
 
     from roger_daemon.learner import RogerParams, Roger, UnimapGP, Prediction, ExpertPrediction
     from roger_daemon.learner import ParameterError, load_model, PRESETS
+    from roger_daemon.learner import ReferenceRoger  # Algorithms 1 and 2 in plain numpy
+
+``Roger`` runs on compiled kernels (numba); ``ReferenceRoger`` (:mod:`.reference`) is the same
+model in plain numpy and scipy, the oracle the fast one is tested against.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.load import load_model
 from roger_daemon.learner.params import PRESETS, ParameterError, RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
+from roger_daemon.learner.reference import ReferenceRoger
 from roger_daemon.learner.resampling import fearnhead_resample
 from roger_daemon.learner.roger import Roger
 from roger_daemon.learner.sogp import SparseOnlineGP
@@ -28,6 +33,7 @@ __all__ = [
     "ParameterError",
     "Prediction",
     "RBFKernel",
+    "ReferenceRoger",
     "Roger",
     "RogerParams",
     "SparseOnlineGP",

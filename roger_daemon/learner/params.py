@@ -2,16 +2,20 @@
 
 The defaults are the paper's (Grollman & Jenkins, IROS 2010, section IV.A and Table I):
 alpha = 0.5, mu0 = 0, kappa0 = 0.1, Lambda0 = 1 (read as the identity, docs/learner-math.md),
-nu0 = 24, theta_w = 0.1, theta_n = 0.1, beta = 300, P = 10.  The remaining fields are the
-implementation choices the paper leaves open and the levers beyond the paper (issue 13), each
-with a documented default; with every lever at its default (``RogerParams()``, the ``"paper"``
-preset) the model is exactly the paper's Algorithm 1.  :data:`PRESETS` names whole settings
+nu0 = 24 (= d_x + 1 for the paper's 23-D input: the default ``nu0 = None`` is ``d_x + 1`` for
+the data's own d_x, :meth:`RogerParams.for_dims`), theta_w = 0.1, theta_n = 0.1, beta = 300,
+P = 10.  The remaining fields are the implementation choices the paper leaves open and the
+levers beyond the paper (issue 13), each with a documented default; with every lever at its
+default (``RogerParams()``, the ``"paper"`` preset) the model is exactly the paper's
+Algorithm 1.  :data:`PRESETS` names whole settings
 (``RogerParams.preset("default")``).
 
 Every value is checked in ``__post_init__``; a bad one raises :class:`ParameterError`, whose
 message names the parameter, its valid range and the value given.  Checks that need the data
 dimensions (``nu0 > d_x - 1``, lengths of the affine scalings) run in
 :meth:`RogerParams.check_dims`, which the models call on construction.
+:func:`range_scaling` turns declared ranges of the inputs and outputs into the fixed scaling
+(``RogerParams.preset("default", x_ranges=..., y_ranges=...)``).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,6 +37,7 @@ __all__ = [
     "PRESETS",
     "ParameterError",
     "RogerParams",
+    "range_scaling",
 ]
 
 KERNEL_DIM_SCALINGS = ("textbook", "grollman")
@@ -65,6 +70,31 @@ PRESETS: Mapping[str, Mapping[str, Any]] = {
 
 class ParameterError(ValueError):
     """A hyperparameter is outside its valid range (message: name, range, value given)."""
+
+
+#: ``(low, high)`` of each dimension
+Ranges = Sequence[Sequence[float]]
+
+
+def range_scaling(ranges: Ranges, name: str = "ranges"
+                  ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``(offset, scale)`` mapping each ``[low, high]`` onto ``[-1, 1]``: centre, half-width.
+
+    >>> range_scaling([(-1.0, 1.0), (0.0, 4.0)])
+    ((0.0, 2.0), (1.0, 2.0))
+    """
+    out: list[tuple[float, float]] = []
+    for r in ranges:
+        pair = tuple(r) if not isinstance(r, str | bytes) and hasattr(r, "__iter__") else ()
+        if (len(pair) != 2 or not all(_is_real(v) and math.isfinite(float(v)) for v in pair)
+                or float(pair[1]) <= float(pair[0])):
+            raise ParameterError(
+                f"{name} must be a sequence of (low, high) pairs of finite floats with "
+                f"high > low, got {r!r}")
+        out.append((float(pair[0]), float(pair[1])))
+    if not out:
+        raise ParameterError(f"{name} must not be empty")
+    return (tuple(0.5 * (lo + hi) for lo, hi in out), tuple(0.5 * (hi - lo) for lo, hi in out))
 
 
 def _is_real(value: object) -> bool:
@@ -136,8 +166,11 @@ class RogerParams:
         Pseudo-count of the gate-centre prior (NIW ``kappa0``).
     lambda0 : float, default 1.0
         Inverse-Wishart *scale* matrix of the gates, ``lambda0 * I`` (docs/learner-math.md §3).
-    nu0 : float, default 24.0
+    nu0 : float or None, default None
         Inverse-Wishart degrees of freedom; must exceed ``d_x - 1`` (checked per model).
+        ``None``: ``d_x + 1``, the paper's choice (24 for its 23-D input) for any input size;
+        the models resolve it on construction (:meth:`for_dims`), so their ``params.nu0`` is a
+        number.
     theta_w : float, default 0.1
         RBF kernel width (see ``kernel_dim_scaling``).
     theta_n : float, default 0.1
@@ -213,7 +246,7 @@ class RogerParams:
     mu0: float = 0.0
     kappa0: float = 0.1
     lambda0: float = 1.0
-    nu0: float = 24.0
+    nu0: float | None = None
     theta_w: float = 0.1
     theta_n: float = 0.1
     beta: int = 300
@@ -239,7 +272,8 @@ class RogerParams:
         s(self, "mu0", _real("mu0", self.mu0))
         s(self, "kappa0", _real("kappa0", self.kappa0, low=0.0))
         s(self, "lambda0", _real("lambda0", self.lambda0, low=0.0))
-        s(self, "nu0", _real("nu0", self.nu0, low=0.0))
+        if self.nu0 is not None:
+            s(self, "nu0", _real("nu0", self.nu0, low=0.0))
         s(self, "theta_w", _real("theta_w", self.theta_w, low=0.0))
         s(self, "theta_n", _real("theta_n", self.theta_n, low=0.0))
         s(self, "beta", _integer("beta", self.beta, low=1))
@@ -277,6 +311,18 @@ class RogerParams:
             return d_x
         return sum(1 for w in self.input_weights if w != 0.0)
 
+    def nu0_for(self, d_x: int) -> float:
+        """``nu0`` for ``d_x`` inputs: the value given, else ``d_x + 1`` (the paper's 24 for 23).
+
+        >>> RogerParams().nu0_for(23), RogerParams().nu0_for(30), RogerParams(nu0=40).nu0_for(3)
+        (24.0, 31.0, 40.0)
+        """
+        return float(d_x + 1) if self.nu0 is None else self.nu0
+
+    def for_dims(self, d_x: int) -> RogerParams:
+        """These params with ``nu0`` resolved for ``d_x`` inputs (:meth:`nu0_for`)."""
+        return self if self.nu0 is not None else dataclasses.replace(self, nu0=self.nu0_for(d_x))
+
     def check_dims(self, d_x: int, d_y: int) -> None:
         """Checks that depend on the data dimensions (run by the models on construction)."""
         for name, want in (("x_offset", d_x), ("x_scale", d_x), ("y_offset", d_y),
@@ -286,7 +332,7 @@ class RogerParams:
                 raise ParameterError(
                     f"{name} must be None or have length {want}, got length {len(value)}")
         d_m = self.model_dims(d_x)
-        if self.nu0 <= d_m - 1:
+        if self.nu0_for(d_x) <= d_m - 1:
             kept = "" if d_m == d_x else f" (input dimensions kept by input_weights: {d_m})"
             raise ParameterError(
                 f"nu0 must be a float > d_x - 1 = {d_m - 1} for d_x = {d_m}{kept}, "
@@ -320,18 +366,31 @@ class RogerParams:
         return cls(**kwargs)
 
     @classmethod
-    def preset(cls, name: str, **changes: Any) -> RogerParams:
+    def preset(cls, name: str, *, x_ranges: Ranges | None = None,
+               y_ranges: Ranges | None = None, **changes: Any) -> RogerParams:
         """The named setting of :data:`PRESETS` (``"paper"`` or ``"default"``), then ``changes``.
+
+        ``x_ranges`` / ``y_ranges``: the ``(low, high)`` range of every input / output; each is
+        mapped onto [-1, 1] (:func:`range_scaling`), the scaled units the ``"default"``
+        preset's numbers are for. ``changes`` (``x_scale=...`` too) override both.
 
         >>> RogerParams.preset("paper") == RogerParams()
         True
         >>> RogerParams.preset("default", theta_w=3.0).theta_w
         3.0
+        >>> p = RogerParams.preset("default", x_ranges=[(0, 10)], y_ranges=[(-2, 2), (0, 1)])
+        >>> p.x_offset, p.x_scale, p.y_offset, p.y_scale
+        ((5.0,), (5.0,), (0.0, 0.5), (2.0, 0.5))
         """
         if name not in PRESETS:
             names = ", ".join(map(repr, PRESETS))
             raise ParameterError(f"preset must be one of {names}, got {name!r}")
-        return cls.from_mapping({**PRESETS[name], **changes})
+        scaling: dict[str, Any] = {}
+        for axis, ranges in (("x", x_ranges), ("y", y_ranges)):
+            if ranges is not None:
+                offset, scale = range_scaling(ranges, f"{axis}_ranges")
+                scaling[f"{axis}_offset"], scaling[f"{axis}_scale"] = offset, scale
+        return cls.from_mapping({**PRESETS[name], **scaling, **changes})
 
     def replace(self, **changes: Any) -> RogerParams:
         """A copy with some fields changed (validated again)."""

@@ -18,9 +18,9 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner.model_args import Seed
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.roger import Roger
-from roger_daemon.learner.state import Seed
 
 __all__ = ["fit_partition"]
 

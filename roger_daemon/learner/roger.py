@@ -41,6 +41,7 @@ import numpy.typing as npt
 
 from roger_daemon.learner.engine.store import ExpertStore
 from roger_daemon.learner.history import SegmentationHistory
+from roger_daemon.learner.model_args import Seed, resolve_model_args, spawn_generators
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
@@ -51,10 +52,8 @@ from roger_daemon.learner.roger_terms import Experts, ModelTerms
 from roger_daemon.learner.scaling import as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
-    Seed,
     generator_from_state,
     model_meta,
-    spawn_generators,
     unpack_meta,
 )
 
@@ -62,25 +61,6 @@ __all__ = ["Roger"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-
-
-def check_dims(d_x: object, d_y: object) -> tuple[int, int]:
-    """Validate the data dimensions (positive integers)."""
-    for name, v in (("d_x", d_x), ("d_y", d_y)):
-        if isinstance(v, bool) or not isinstance(v, int | np.integer) or int(v) < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-    return int(d_x), int(d_y)  # type: ignore[call-overload]
-
-
-def resolve_model_args(d_x: object, d_y: object, params: RogerParams | None
-                       ) -> tuple[int, int, RogerParams]:
-    """Validated ``(d_x, d_y, params)`` of a model constructor (paper defaults for ``None``)."""
-    dx, dy = check_dims(d_x, d_y)
-    resolved = RogerParams() if params is None else params
-    if not isinstance(resolved, RogerParams):
-        raise TypeError(f"params must be a RogerParams, got {type(params).__name__}")
-    resolved.check_dims(dx, dy)
-    return dx, dy, resolved
 
 
 class Roger:

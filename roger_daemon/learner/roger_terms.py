@@ -73,6 +73,6 @@ class ModelTerms:
 
     def new_gates(self) -> GatePool:
         """An empty pool of this model's NIW gates (the prior ``mu0``, ``kappa0``,
-        ``lambda0 I``, ``nu0``)."""
+        ``lambda0 I``, ``nu0``: ``d_x + 1`` unless set, :meth:`.RogerParams.nu0_for`)."""
         p = self.params
-        return GatePool(self.d_model, p.mu0, p.kappa0, p.lambda0, p.nu0)
+        return GatePool(self.d_model, p.mu0, p.kappa0, p.lambda0, p.nu0_for(self.d_x))

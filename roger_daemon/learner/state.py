@@ -50,7 +50,6 @@ __all__ = [
     "model_meta",
     "pack_experts",
     "pack_meta",
-    "spawn_generators",
     "unpack_experts",
     "unpack_meta",
 ]
@@ -59,23 +58,6 @@ SCHEMA_VERSION = 5
 # 1: before the GP prior mean; 2: the full history; 3: no exceptions; 4: K_B stored (all
 # migrated on load)
 READABLE_SCHEMAS = (1, 2, 3, 4, 5)
-
-Seed = int | np.random.Generator | None
-
-
-def spawn_generators(seed: Seed) -> tuple[np.random.Generator, np.random.Generator]:
-    """Two independent streams from one seed: (learning, prediction).
-
-    Predictions draw only from the second stream, so they never perturb learning.
-    """
-    if isinstance(seed, np.random.Generator):
-        learn, predict = seed.spawn(2)
-        return learn, predict
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer)):
-        raise TypeError(f"seed must be an int, a numpy Generator or None, got {seed!r}")
-    children = np.random.SeedSequence(seed).spawn(2)
-    return np.random.default_rng(children[0]), np.random.default_rng(children[1])
-
 
 def _jsonable(value: Any) -> Any:
     if isinstance(value, np.ndarray):

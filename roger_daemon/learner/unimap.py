@@ -14,18 +14,16 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.kernel import RBFKernel
+from roger_daemon.learner.model_args import Seed, resolve_model_args, spawn_generators
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
-from roger_daemon.learner.roger import resolve_model_args
 from roger_daemon.learner.roger_terms import new_expert
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
-    Seed,
     generator_from_state,
     model_meta,
     pack_experts,
-    spawn_generators,
     unpack_experts,
     unpack_meta,
 )

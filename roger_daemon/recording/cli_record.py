@@ -35,7 +35,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--key", default=keyexpr.everything(), help="key expression to record (default roger/**)"
     )
-    parser.add_argument("--out", required=True, type=Path, help="directory for the MCAP files")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR",
+                        help="directory for the MCAP files")
     parser.add_argument(
         "--robot",
         help="robot id for the file name (default: from --key roger/<robot>/..., else 'all')",
@@ -53,7 +54,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Record until SIGINT/SIGTERM (or ``--duration``); return 0."""
+    """Record until SIGINT/SIGTERM (or ``--duration``); 0, or 130 after Ctrl-C."""
     import zenoh
 
     from roger_daemon.recording import zenoh_net
@@ -68,10 +69,10 @@ def run(args: argparse.Namespace) -> int:
         m = _ROBOT_KEY.match(args.key)
         robot = m.group(1) if m and "*" not in m.group(1) else "all"
     keyexpr.validate_robot_id(robot)
-    stop = {"flag": False}
+    stop = {"flag": False, "signum": 0}
 
     def _on_signal(signum: int, frame: FrameType | None) -> None:
-        stop["flag"] = True
+        stop["flag"], stop["signum"] = True, signum
 
     old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     meta = session_metadata(
@@ -118,7 +119,9 @@ def run(args: argparse.Namespace) -> int:
         log.warning("recorded no message on %s", args.key)
     print(f"recorded {st.messages} messages in {st.parts} file(s): "
           + ", ".join(str(p) for p in rec.paths), file=sys.stderr, flush=True)
-    return 0
+    # Ctrl-C: 130, as every command interrupted in a terminal (docs/cli.md, exit statuses);
+    # SIGTERM (a supervisor's stop): 0 after the clean close
+    return 130 if stop["signum"] == signal.SIGINT else 0
 
 
 def _drain(sub: object, rec: SessionRecorder, limit: int = 2000) -> int:

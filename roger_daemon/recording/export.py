@@ -1,10 +1,12 @@
-"""``roger log export FILE --json OUT``: the session as JSON messages, for Foxglove.
+"""``roger log export FILE --format json --out OUT.mcap``: the session as JSON, for Foxglove.
 
-The output is an MCAP file whose channels have message encoding ``json`` and the same
-``jsonschema`` schemas as the msgpack log (Foxglove opens json + jsonschema natively; msgpack is
-not in its list). Topics, log time, publish time, sequence and the metadata records are kept.
-Binary values (none in the ROGER messages) become base64 strings; a payload that is not msgpack
-is skipped and counted.
+The output is an MCAP file whose channels have message encoding ``json`` and the
+``jsonschema`` schemas of the msgpack log (Foxglove opens json + jsonschema natively; msgpack
+is not in its list). Topics, log time, publish time, sequence and the metadata records are
+kept. Every message with vectors also gets them by name, ``named`` (``{"x": {"ball_x": ...}}``,
+:mod:`roger_daemon.recording.named`; its schema says so). Binary values (none in the ROGER
+messages) become base64 strings; a payload that is not msgpack is skipped and counted.
+The msgpack log is left as it is: replay reads its bytes, never a re-encoding.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ from mcap.well_known import MessageEncoding
 from mcap.writer import CompressionType, Writer
 
 from roger_daemon.atomic import atomic_write
-from roger_daemon.recording.mcapio import LogReader
+from roger_daemon.recording.mcapio import LogReader, read_metadata
+from roger_daemon.recording.metadata import SessionInfo
+from roger_daemon.recording.named import kind_of, named_fields, with_named_schema
 
 __all__ = ["ExportReport", "export_json", "to_json_value"]
 
@@ -63,6 +67,7 @@ def export_json(path: str | Path, out: str | Path) -> ExportReport:
     if dst.resolve() == src.resolve():
         raise ValueError("output must differ from input")
     rep = ExportReport(source=str(src), output=str(dst))
+    profile = SessionInfo.from_metadata(read_metadata(src)).profile()
     reader = LogReader(src)
     schema_map: dict[int, int] = {}
     channel_map: dict[int, int] = {}
@@ -87,6 +92,10 @@ def export_json(path: str | Path, out: str | Path) -> ExportReport:
                 except Exception:
                     rep.skipped[ch.topic] = rep.skipped.get(ch.topic, 0) + 1
                     continue
+                kind = kind_of(ch.topic)
+                named = named_fields(kind, value, profile)
+                if named is not None:
+                    value["named"] = named
                 cid = channel_map.get(ch.id)
                 if cid is None:
                     sid = 0
@@ -94,8 +103,8 @@ def export_json(path: str | Path, out: str | Path) -> ExportReport:
                     if s is not None and s.encoding == "jsonschema":
                         if s.id not in schema_map:
                             schema_map[s.id] = w.register_schema(
-                                name=s.name, encoding="jsonschema", data=s.data
-                            )
+                                name=s.name, encoding="jsonschema",
+                                data=with_named_schema(s.data, kind, profile))
                         sid = schema_map[s.id]
                     cid = w.register_channel(
                         topic=ch.topic,

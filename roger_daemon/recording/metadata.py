@@ -250,6 +250,27 @@ class SessionInfo:
         """The log holds the daemon's decision records (format version 2 or later)."""
         return self.format_version >= 2
 
+    def profile(self) -> Any:
+        """The robot profile of the log (:mod:`roger_daemon.profiles`): the one its metadata
+        records (``robot_profile``), else the shipped profile of its dims, else generic names.
+        """
+        from roger_daemon.profiles import (
+            ProfileError,
+            RobotProfile,
+            generic_profile,
+            profile_for_dims,
+        )
+
+        text = self.raw.get("robot_profile", "")
+        if text:
+            try:
+                return RobotProfile.from_mapping(json.loads(text))
+            except (ValueError, ProfileError):
+                pass  # an unreadable record: the log's dims still name the fields
+        if self.dims is None:
+            return generic_profile(Dims(0, 0))
+        return profile_for_dims(self.dims)
+
     @property
     def fresh(self) -> bool:
         """The session started from a fresh model (no checkpoint)."""

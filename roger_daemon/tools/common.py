@@ -143,7 +143,7 @@ class Listener:
     """A subscriber on ``key_expr`` feeding a bounded queue; overflow is counted."""
 
     def __init__(self, session: Any, key_expr: str, capacity: int = 4096,
-                 *, liveliness: bool = False) -> None:
+                 *, liveliness: bool = False, history: bool = False) -> None:
         self._q: queue.Queue[Sample] = queue.Queue(maxsize=capacity)
         self._lock = threading.Lock()
         self.overflow = 0
@@ -156,8 +156,11 @@ class Listener:
                 with self._lock:
                     self.overflow += 1
 
-        src = session.liveliness() if liveliness else session
-        self._sub = src.declare_subscriber(key_expr, on_sample)
+        if liveliness:  # history: the tokens alive now are delivered at once
+            self._sub = session.liveliness().declare_subscriber(key_expr, on_sample,
+                                                                history=history)
+        else:
+            self._sub = session.declare_subscriber(key_expr, on_sample)
 
     def get(self, timeout: float) -> Sample | None:
         """The next sample, or ``None`` after ``timeout`` seconds."""

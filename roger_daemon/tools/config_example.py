@@ -27,6 +27,20 @@ EXAMPLES: dict[str, tuple[str, str]] = {
     "systemd": ("systemd/roger-daemon.service", "a systemd unit for roger daemon"),
     "systemd-router": ("systemd/roger-router.service", "a systemd unit for roger router"),
     "up": ("up-demonstration.toml", "a launch file for roger up (a demonstration session)"),
+    "held-out-poses": ("held-out-poses.toml",
+                       "start poses the demonstrations never used (experiment --start-poses)"),
+    "robot-aibo": ("robots/aibo.toml", "a robot profile: the AIBO's names and ranges "
+                                       "([[robots]] profile; copy it for your own robot)"),
+    "secure-router": ("zenoh/secure/router.json5",
+                      "a router with user/password authentication and an ACL by role"),
+    "secure-daemon": ("zenoh/secure/daemon.json5", "the daemon as an authenticated client"),
+    "secure-daemon-toml": ("zenoh/secure/daemon.toml",
+                           "the daemon's TOML config for the secure router"),
+    "secure-robot": ("zenoh/secure/robot.json5", "a robot as an authenticated client"),
+    "secure-operator": ("zenoh/secure/operator.json5",
+                        "an operator tool (status, control) as an authenticated client"),
+    "secure-credentials": ("zenoh/secure/credentials.example.txt",
+                           "the router's credentials file (example; set your own passwords)"),
 }
 
 

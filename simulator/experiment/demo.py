@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from roger_daemon.atomic import write_json
+from roger_daemon.tools.common import port
 from simulator.experiment.goal_scoring import DEFAULT_TIME_LIMIT
 
 __all__ = ["MERGED_MEANING", "OUTCOME_MEANING", "configure", "run"]
@@ -58,7 +59,7 @@ MERGED_MEANING = ("each group of experts (those sharing a majority label) refitt
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger demo``."""
-    parser.add_argument("--out", type=Path, default=Path("runs/demo"),
+    parser.add_argument("--out", type=Path, default=Path("runs/demo"), metavar="DIR",
                         help="output directory (default runs/demo); what an earlier demo "
                              "wrote there is replaced, anything else is kept")
     parser.add_argument("--force", action="store_true",
@@ -69,9 +70,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="demonstration start locations (default 0,1,3,6)")
     parser.add_argument("--test-location", type=int, default=0,
                         help="start location of the learned controller's episode (default 0)")
-    parser.add_argument("--time-limit", type=float, default=DEFAULT_TIME_LIMIT,
+    parser.add_argument("--episode-duration", "--time-limit", dest="time_limit", type=float,
+                        default=DEFAULT_TIME_LIMIT, metavar="S",
                         help=f"simulated seconds per episode (default {DEFAULT_TIME_LIMIT:g}, "
-                             "the goal-scoring experiment's; the paper's is 150)")
+                             "the goal-scoring experiment's; the paper's is 150; --time-limit: "
+                             "the deprecated spelling)")
+    parser.add_argument("--daemon-port", type=port, default=0, metavar="PORT",
+                        help="loopback port of the demo's daemon, e.g. 7447 to watch it with "
+                             "roger status (default 0: a free one, printed)")
+    parser.add_argument("--sim-port", type=port, default=0, metavar="PORT",
+                        help="loopback port of the demo's simulator (default 0: a free one)")
     parser.add_argument("--vision", choices=("rendered", "fast"), default="rendered",
                         help="the simulator's vision: rendered segmentation (default) or the "
                              "fast analytic projection")
@@ -139,7 +147,7 @@ class _Demo:
         from simulator.experiment.procs import CHILDREN, child_env, free_port
 
         out = self.out
-        port = free_port()
+        port = self.args.daemon_port or free_port()
         cfg = write_config(out / f"{name}.toml", port=port, workdir=out, daemon=daemon,
                            checkpoint={"every_updates": 0, "every_s": 0.0, **checkpoint},
                            recording=recording)
@@ -209,7 +217,7 @@ class _Demo:
 
         args = self.args
         workdir.mkdir(parents=True, exist_ok=True)
-        sim_port = free_port()
+        sim_port = args.sim_port or free_port()
         group = ProcessGroup(workdir)
         try:
             group.start("controller", roger_argv(
@@ -219,7 +227,7 @@ class _Demo:
             group.start("sim", roger_argv(
                 "sim", "--clock", "lockstep", "--listen", f"tcp/127.0.0.1:{sim_port}",
                 "--connect", daemon_ep, "--locations", ",".join(map(str, locations)),
-                "--seed", str(seed), "--time-limit", repr(float(args.time_limit)),
+                "--seed", str(seed), "--episode-duration", repr(float(args.time_limit)),
                 "--vision", args.vision, "--results", str(workdir / "sim.json"),
                 "--wait-peers", "2", "--wait-subscribers", "60"))
             n = len(locations)

@@ -109,7 +109,7 @@ class Plan:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger experiment goal-scoring``."""
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--quick", action="store_true",
                         help="small version for CI: 2 locations, 1 attempt, 150 points per "
                         "subtask, 20 s episodes, fast vision (each can still be overridden)")
@@ -122,9 +122,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="evaluation attempts per location and controller (default 3)")
     parser.add_argument("--per-subtask", type=int, default=None,
                         help="downsample to at most this many points per subtask (default 1000)")
-    parser.add_argument("--time-limit", type=float, default=None,
+    parser.add_argument("--episode-duration", "--time-limit", dest="time_limit", type=float,
+                        default=None, metavar="S",
                         help=f"simulated seconds per episode (default {DEFAULT_TIME_LIMIT:g}; the "
-                        "paper's was 150)")
+                        "paper's was 150; --time-limit: the deprecated spelling)")
     parser.add_argument("--vision", choices=("rendered", "fast"), default=None,
                         help=f"simulator vision (default {DEFAULT_VISION})")
     parser.add_argument("--controllers", default=",".join(CONTROLLERS),

@@ -119,7 +119,7 @@ def _sim_argv(job: EpisodeJob, listen: int, connect: int | None, peers: int) -> 
         "--locations", ",".join(str(loc) for loc in job.locations),
         "--episodes-per-location", str(job.attempts),
         "--seed", str(job.seed),
-        "--time-limit", repr(float(job.time_limit)),
+        "--episode-duration", repr(float(job.time_limit)),
         "--vision", job.vision,
         "--results", str(job.workdir / "sim.json"),
         "--wait-peers", str(peers),

@@ -3,9 +3,18 @@
 Live: subscribes to ``roger/<robot>/*`` over Zenoh (as the operator tools do), converts every
 message with :class:`simulator.view.scene.Converter` and serves the result on Foxglove's
 WebSocket protocol (``foxglove-sdk``; open ``ws://127.0.0.1:8765`` in the Foxglove app), and
-with ``--record OUT.mcap`` writes the same channels to an MCAP file as well. Offline: ``--log
-FILE.mcap --out OUT.mcap`` converts a recorded session (the daemon's or ``roger record``'s) into
-the same channels with the recorded log times, so a recorded session looks like a live one.
+with ``--record OUT.mcap`` writes the same channels to an MCAP file as well. Offline: ``roger
+view LOG.mcap [--out DIR]`` converts a recorded session (the daemon's or ``roger record``'s)
+into the same channels with the recorded log times and its ``roger.session`` metadata, so a
+recorded session looks like a live one (``DIR/<LOG's name>.foxglove.mcap``; beside the log
+without ``--out``; never over an existing file without ``--force``; ``--log FILE`` is the
+deprecated spelling of the positional LOG).
+
+Clients: the server speaks Foxglove's WebSocket protocol as ``foxglove-sdk`` 0.30 serves it,
+subprotocol ``foxglove.sdk.v1`` (the Foxglove app, desktop or web, of 2025 on). A client that
+asks only for the older ``foxglove.websocket.v1`` (Foxglove Studio 1.x, Lichtblick, the
+``foxglove-websocket`` Python client) is refused with HTTP 400: record with ``--record`` or
+convert the log and open the MCAP file instead (``docs/live-view.md``).
 
 The view is a separate, optional process: the daemon and the simulator never import
 ``foxglove`` (install it with ``pip install -e '.[live]'``). The scene needs the simulator's
@@ -18,6 +27,7 @@ import argparse
 import json
 import logging
 import signal
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -45,8 +55,15 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
 }
 
 
+#: the WebSocket subprotocol the server accepts (foxglove-sdk 0.30); docs/live-view.md
+SUBPROTOCOL = "foxglove.sdk.v1"
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger view``."""
+    parser.add_argument("log_file", nargs="?", type=Path, default=None, metavar="LOG",
+                        help="offline: convert this recorded session (MCAP) into Foxglove "
+                             "channels instead of going live")
     parser.add_argument("--robot", default="aibo", help="robot id to show (default aibo)")
     parser.add_argument("--host", default="127.0.0.1",
                         help="address of the WebSocket server (default 127.0.0.1, this host only)")
@@ -55,10 +72,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", type=Path, default=None, metavar="OUT",
                         help="also write the live channels to this MCAP file")
     parser.add_argument("--log", type=Path, default=None, metavar="FILE",
-                        help="offline: convert this recorded session (MCAP) instead of going "
-                             "live; needs --out")
-    parser.add_argument("--out", type=Path, default=None, metavar="OUT",
-                        help="offline: the Foxglove MCAP to write from --log")
+                        help="deprecated spelling of the positional LOG")
+    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
+                        help="offline: directory for LOG's Foxglove MCAP, "
+                             "<LOG's name>.foxglove.mcap (default: beside LOG; --out FILE.mcap, "
+                             "the old form, is deprecated but still works)")
+    parser.add_argument("--force", action="store_true",
+                        help="offline: overwrite an existing output file")
     parser.add_argument("--duration", type=seconds, default=0.0, metavar="S",
                         help="live: stop after S seconds (default: until Ctrl-C)")
     add_connection_args(parser, timeout=5.0)
@@ -117,46 +137,75 @@ def _decoded(key: str, payload: bytes) -> tuple[str, dict[str, Any]] | None:
 
 
 def convert_log(src: Path, out: Path, robot: str | None = None) -> dict[str, int]:
-    """Convert a recorded session to Foxglove channels in ``out``; messages per topic."""
+    """Convert a recorded session to Foxglove channels in ``out`` (written atomically, with
+    the log's metadata records); messages per topic."""
     from mcap.reader import make_reader
 
+    from roger_daemon.atomic import atomic_write
     from simulator.view.scene import Converter
 
     sinks = Sinks()
     conv = Converter()
     counts: dict[str, int] = {}
-    writer = sinks.fg.open_mcap(str(out), allow_overwrite=True, context=sinks.context)
-    try:
-        with src.open("rb") as fh:
-            for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
-                got = _decoded(channel.topic, message.data)
-                if got is None or (robot and got[1]["robot"] != robot):
-                    continue
-                pairs = conv.convert(got[0], got[1], message.log_time)
-                sinks.log(pairs, message.log_time)
-                for topic, _ in pairs:
-                    counts[topic] = counts.get(topic, 0) + 1
-    finally:
-        writer.close()
+    with atomic_write(out) as f:
+        writer = sinks.fg.open_mcap(f, context=sinks.context)
+        try:
+            with src.open("rb") as fh:
+                reader = make_reader(fh)
+                for rec in reader.iter_metadata():  # roger.session: config, params, versions
+                    writer.write_metadata(rec.name, dict(rec.metadata))
+            with src.open("rb") as fh:
+                for _schema, channel, message in make_reader(fh).iter_messages(
+                        log_time_order=True):
+                    got = _decoded(channel.topic, message.data)
+                    if got is None or (robot and got[1]["robot"] != robot):
+                        continue
+                    pairs = conv.convert(got[0], got[1], message.log_time)
+                    sinks.log(pairs, message.log_time)
+                    for topic, _ in pairs:
+                        counts[topic] = counts.get(topic, 0) + 1
+        finally:
+            writer.close()
     return counts
 
 
+def _offline(args: argparse.Namespace) -> int:
+    """Convert the log (positional, or the deprecated ``--log``) into ``--out DIR``."""
+    from roger_daemon.recording.mcapio import not_an_mcap_file
+    from roger_daemon.recording.outputs import output_file
+
+    if args.log is not None:
+        print("roger view: warning: --log FILE is deprecated; give the log as the first "
+              "argument: roger view FILE", file=sys.stderr)
+    src: Path = args.log_file or args.log
+    why = not_an_mcap_file(src)
+    if why:
+        raise UsageError(f"LOG: {why}")
+    out = output_file("view", args.out, src.with_name(src.stem + ".foxglove.mcap"))
+    if out.exists() and not args.force:
+        raise UsageError(f"--out: {out} exists; pass --force to overwrite it")
+    if out.resolve() == src.resolve():
+        raise UsageError(f"--out: {out} is the log itself")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    counts = convert_log(src, out, args.robot)
+    print(f"wrote {out}: " + ", ".join(f"{t} {n}" for t, n in sorted(counts.items())))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
-    """Live until Ctrl-C (or ``--duration``), or convert ``--log`` to ``--out``."""
-    if args.log is not None or args.out is not None:
-        if args.log is None or args.out is None:
-            raise UsageError("offline conversion needs both --log FILE and --out OUT")
-        if not args.log.is_file():
-            raise UsageError(f"--log: no such file: {args.log}")
-        counts = convert_log(args.log, args.out, args.robot)
-        print(f"wrote {args.out}: " + ", ".join(f"{t} {n}" for t, n in sorted(counts.items())))
-        return 0
+    """Live until Ctrl-C (or ``--duration``), or convert a log."""
+    if args.log_file is not None and args.log is not None:
+        raise UsageError("give the log once: roger view LOG (--log is its deprecated spelling)")
+    if args.log_file is not None or args.log is not None:
+        return _offline(args)
+    if args.out is not None:
+        raise UsageError("--out is for a log's conversion: roger view LOG --out DIR")
     return _live(args)
 
 
 def _live(args: argparse.Namespace) -> int:
     from protocols import keys
-    from roger_daemon.tools.common import Listener, open_from_args
+    from roger_daemon.tools.common import Listener, open_from_args, settings_from_args
     from simulator.view.scene import Converter
 
     try:
@@ -169,6 +218,9 @@ def _live(args: argparse.Namespace) -> int:
                                        port=args.port, context=sinks.context)
     except Exception as exc:  # the SDK raises its own error for a busy port or a bad host
         raise UsageError(f"cannot serve the WebSocket on {args.host}:{args.port}: {exc}") from None
+    if args.record is not None and args.record.exists() and not args.force:
+        server.stop()
+        raise UsageError(f"--record: {args.record} exists; pass --force to overwrite it")
     writer = (sinks.fg.open_mcap(str(args.record), allow_overwrite=True, context=sinks.context)
               if args.record else None)
     session = open_from_args(args)
@@ -180,11 +232,19 @@ def _live(args: argparse.Namespace) -> int:
     start = time.monotonic()
     stop: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
+    heard = False
     try:
         while not stop and (not args.duration or time.monotonic() - start < args.duration):
             s = listener.get(0.2)
             if s is None:
+                if not heard and args.timeout and time.monotonic() - start >= args.timeout:
+                    heard = True  # warn once
+                    log.warning("nothing received on %s/%s/* within %g s from %s: is a "
+                                "daemon or simulator running there (roger list)?", keys.ROOT,
+                                args.robot, args.timeout,
+                                ", ".join(settings_from_args(args).connect or ("(file)",)))
                 continue
+            heard = True
             got = _decoded(s.key, s.payload)
             if got is not None:
                 ns = time.time_ns()
@@ -195,4 +255,4 @@ def _live(args: argparse.Namespace) -> int:
         if writer is not None:
             writer.close()
         server.stop()
-    return 0
+    return 0  # SIGTERM is a supervisor's stop (roger up): 0; Ctrl-C raises and exits 130

@@ -4,7 +4,9 @@
 ``--log ... --out``) into plain dicts: JSON channels with ``json``, protobuf channels with the
 schema the file carries (its FileDescriptorSet, through ``google.protobuf``). :func:`render_scene`
 draws the last field entity, the robot's and the ball's paths and their last poses from the
-``foxglove.SceneUpdate`` messages alone, so the picture shows what the 3D panel shows::
+``foxglove.SceneUpdate`` messages, so the picture shows what the 3D panel shows; the paths are
+cut where an episode starts (``episode N: start`` on ``/roger/events``), so that the robot's
+jump back to a start pose is not drawn as a line across the field::
 
     python -m simulator.view.render SESSION.foxglove.mcap --out docs/figures/live_scene.png
 """
@@ -14,10 +16,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
-__all__ = ["read_messages", "render_scene"]
+__all__ = ["episode_paths", "read_messages", "render_scene"]
+
+#: an episode's start on /roger/events (simulator.view.scene: "episode N: start ...")
+_START = re.compile(r"^episode \S+: start\b")
 
 
 def _protobuf_class(schema: Any) -> Any:
@@ -70,19 +76,19 @@ def _rgb(c: dict[str, Any]) -> tuple[float, float, float]:
     return float(c.get("r", 0.0)), float(c.get("g", 0.0)), float(c.get("b", 0.0))
 
 
-def render_scene(path: Path, out: Path, title: str = "") -> dict[str, int]:
-    """Draw the ``/scene`` channel of ``path`` into ``out`` (PNG); counts of what was drawn."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle, Rectangle
-    from matplotlib.transforms import Affine2D
-
+def _tracks(path: Path) -> tuple[dict[str, Any] | None, list[tuple[float, float, float]],
+                                 list[tuple[float, float]], list[tuple[int, int]]]:
+    """The last field entity, the robot's poses, the ball's positions, and where (in both)
+    each episode starts."""
     field: dict[str, Any] | None = None
     robot: list[tuple[float, float, float]] = []
     ball: list[tuple[float, float]] = []
-    for _, _, upd in read_messages(path, {"/scene"}):
+    cuts: list[tuple[int, int]] = []  # (robot poses, ball positions) where an episode starts
+    for topic, _, upd in read_messages(path, {"/scene", "/roger/events"}):
+        if topic == "/roger/events":
+            if _START.match(str(upd.get("message", ""))):
+                cuts.append((len(robot), len(ball)))
+            continue
         for ent in upd.get("entities", []):
             if ent.get("id") == "field":
                 field = ent
@@ -92,6 +98,19 @@ def render_scene(path: Path, out: Path, title: str = "") -> dict[str, int]:
             elif ent.get("id") == "ball" and ent.get("spheres"):
                 x, y, _ = _xyz(ent["spheres"][0]["pose"])
                 ball.append((x, y))
+    return field, robot, ball, cuts
+
+
+def render_scene(path: Path, out: Path, title: str = "") -> dict[str, int]:
+    """Draw the ``/scene`` channel of ``path`` into ``out`` (PNG); counts of what was drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle, Rectangle
+    from matplotlib.transforms import Affine2D
+
+    field, robot, ball, cuts = _tracks(path)
     if field is None:
         raise ValueError(f"{path}: no field entity on /scene (is it a roger view file?)")
     fig, ax = plt.subplots(figsize=(7.5, 5.2), dpi=110)
@@ -103,13 +122,16 @@ def render_scene(path: Path, out: Path, title: str = "") -> dict[str, int]:
         x, y, _ = _xyz(cyl["pose"])
         ax.add_patch(Circle((x, y), float(cyl["size"].get("x", 0.1)),
                             color=_rgb(cyl["color"]), ec="k", lw=0.5))
+    for i, part in enumerate(_pieces([(x, y) for x, y in ball], [c[1] for c in cuts])):
+        ax.plot(*zip(*part, strict=True), color=(1.0, 0.5, 0.0), lw=1.5,
+                label="ball" if i == 0 else None)
     if ball:
-        bx, by = zip(*ball, strict=True)
-        ax.plot(bx, by, color=(1.0, 0.5, 0.0), lw=1.5, label="ball")
         ax.add_patch(Circle(ball[-1], 0.06, color=(1.0, 0.5, 0.0), ec="k", lw=0.5))
+    paths = _pieces([(x, y) for x, y, _ in robot], [c[0] for c in cuts])
+    for i, part in enumerate(paths):
+        ax.plot(*zip(*part, strict=True), color="white", lw=1.5,
+                label="robot" if i == 0 else None)
     if robot:
-        rx, ry, _ = zip(*robot, strict=True)
-        ax.plot(rx, ry, color="white", lw=1.5, label="robot")
         x, y, yaw = robot[-1]
         body = Rectangle((x - 0.14, y - 0.075), 0.28, 0.15, color=(0.85, 0.85, 0.85), ec="k",
                          transform=Affine2D().rotate_around(x, y, yaw) + ax.transData)
@@ -126,6 +148,24 @@ def render_scene(path: Path, out: Path, title: str = "") -> dict[str, int]:
     fig.savefig(out)
     plt.close(fig)
     return {"robot_poses": len(robot), "ball_positions": len(ball)}
+
+
+def episode_paths(path: Path) -> dict[str, list[list[tuple[float, float]]]]:
+    """The robot's and the ball's paths on ``/scene``, one per episode: what is drawn."""
+    _, robot, ball, cuts = _tracks(path)
+    return {"robot": _pieces([(x, y) for x, y, _ in robot], [c[0] for c in cuts]),
+            "ball": _pieces(ball, [c[1] for c in cuts])}
+
+
+def _pieces(points: list[tuple[float, float]], cuts: list[int]
+            ) -> list[list[tuple[float, float]]]:
+    """``points`` cut before each index of ``cuts`` (empty pieces left out).
+
+    >>> _pieces([(0, 0), (1, 1), (5, 5), (6, 6)], [0, 2])
+    [[(0, 0), (1, 1)], [(5, 5), (6, 6)]]
+    """
+    bounds = sorted({0, *cuts, len(points)})
+    return [points[a:b] for a, b in zip(bounds, bounds[1:], strict=False) if b > a]
 
 
 def main(argv: list[str] | None = None) -> int:

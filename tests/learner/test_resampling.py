@@ -7,9 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from roger_daemon.learner import reference_resampling as plain
 from roger_daemon.learner.resampling import fearnhead_resample, fearnhead_threshold
-
-from .resampling_numpy import libm_exp, numpy_resample, sum_in_order
 
 log_weight = st.one_of(st.floats(-50.0, 50.0), st.just(-np.inf))
 
@@ -58,22 +57,43 @@ def test_resampling_properties(lw: list[float], p: int, seed: int) -> None:
 @given(lw=st.lists(st.floats(-40.0, 5.0), min_size=2, max_size=60), p=st.integers(1, 15),
        seed=st.integers(0, 2**16), ties=st.booleans())
 @settings(max_examples=400, deadline=None)
-def test_the_compiled_resampler_gives_the_numpy_codes_bits(lw: list[float], p: int, seed: int,
+def test_the_compiled_resampler_gives_the_plain_codes_bits(lw: list[float], p: int, seed: int,
                                                           ties: bool) -> None:
-    """Same survivors, same log weights to the last bit, same draws as the numpy code the
-    kernels replaced, with the C library's exp and log (tests/learner/resampling_numpy.py);
-    ties (rounded weights) included."""
+    """Same survivors, same log weights to the last bit, same draws as the plain Python and
+    numpy resampler of the reference learner, with the C library's exp and log
+    (:mod:`roger_daemon.learner.reference_resampling`); ties (rounded weights) included."""
     arr = np.round(np.array(lw), 0) if ties else np.array(lw)
     if arr.size <= p:
         return
     rng_a, rng_b = np.random.default_rng(seed), np.random.default_rng(seed)
     idx, out = fearnhead_resample(arr, p, rng_a)
-    ref_idx, ref_out, inv_c = numpy_resample(arr, p, rng_b)
+    ref_idx, ref_out = plain.fearnhead_resample(arr, p, rng_b)
     assert idx.tolist() == ref_idx.tolist()
     assert out.tobytes() == ref_out.tobytes()
     assert rng_a.bit_generator.state == rng_b.bit_generator.state
-    w = libm_exp(arr - arr.max())
-    assert fearnhead_threshold(w / sum_in_order(w), p)[0] == inv_c
+    w, _ = plain.normalised_weights(arr)
+    assert fearnhead_threshold(w, p) == plain.fearnhead_threshold(w, p)
+
+
+@given(lw=st.lists(st.one_of(st.floats(-3000.0, 5.0), st.just(-np.inf)), min_size=1,
+                   max_size=40),
+       p=st.integers(1, 12), seed=st.integers(0, 2**16))
+@settings(max_examples=300, deadline=None)
+def test_the_plain_resampler_matches_on_every_path(lw: list[float], p: int, seed: int) -> None:
+    """Dropped ``-inf`` putatives, ``M <= P``, and weights that underflow ``exp`` (the
+    recursive path of docs/learner-math.md §5 step 5): the same bits and draws as well."""
+    arr = np.array(lw)
+    rng_a, rng_b = np.random.default_rng(seed), np.random.default_rng(seed)
+    if not np.isfinite(arr).any():
+        for resample, rng in ((fearnhead_resample, rng_a), (plain.fearnhead_resample, rng_b)):
+            with pytest.raises(ValueError, match="no putative has a finite log weight"):
+                resample(arr, p, rng)
+        return
+    idx, out = fearnhead_resample(arr, p, rng_a)
+    ref_idx, ref_out = plain.fearnhead_resample(arr, p, rng_b)
+    assert idx.tolist() == ref_idx.tolist()
+    assert out.tobytes() == ref_out.tobytes()
+    assert rng_a.bit_generator.state == rng_b.bit_generator.state
 
 
 @given(lw=st.lists(st.floats(-40.0, 5.0), min_size=1, max_size=60), p=st.integers(1, 15))

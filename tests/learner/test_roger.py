@@ -395,7 +395,9 @@ def test_params_mapping_round_trip_and_unknown_key() -> None:
     assert json.loads(json.dumps(mapping)) == mapping
     assert RogerParams.from_mapping(mapping) == params
     assert RogerParams.from_mapping({}) == RogerParams()
-    assert RogerParams().alpha == 0.5 and RogerParams().nu0 == 24.0 and RogerParams().beta == 300
+    assert RogerParams().alpha == 0.5 and RogerParams().beta == 300
+    # nu0: the paper's 24 for its 23-D input, d_x + 1 for any other (issue 56)
+    assert RogerParams().nu0 is None and Roger(23, 9).params.nu0 == 24.0
     with pytest.raises(ParameterError, match="unknown parameter.*'P'"):
         RogerParams.from_mapping({"P": 10})
     with pytest.raises(AttributeError):
@@ -424,3 +426,18 @@ def test_opt_in_pruning_only_drops_negligible_putatives(
     for gp in exact.distinct_experts():
         for xi, yi in zip(x[:20], y[:20], strict=True):
             assert gp.log_likelihood(xi, yi) <= exact.terms.gp_bound
+
+
+def test_nu0_follows_d_x_unless_set() -> None:
+    """`Roger(d_x=30)` used to fail (nu0 = 24 <= 29); nu0 is d_x + 1 unless given."""
+    model = Roger(30, 2, RogerParams.preset("default"), seed=0)
+    assert model.params.nu0 == 31.0
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        model.learn_one(rng.normal(size=30), rng.normal(size=2))
+    pred = model.predict_one(rng.normal(size=30))
+    assert model.n_learned == 30 and np.all(np.isfinite(pred.mean))
+    assert Roger(30, 2, RogerParams(nu0=40.0)).params.nu0 == 40.0
+    assert Roger(23, 9, RogerParams()).params == RogerParams(nu0=24.0)  # the AIBO's, unchanged
+    with pytest.raises(ParameterError, match="nu0 must be a float > d_x - 1 = 29"):
+        Roger(30, 2, RogerParams(nu0=24.0))

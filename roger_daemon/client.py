@@ -1,0 +1,274 @@
+"""The robot's side of ROGER: send perceptions and actions, receive predictions.
+
+:class:`RobotClient` is what a robot (or a simulator, a teleoperation rig, a test) runs to
+talk to a ``roger daemon`` over Zenoh, so that nobody writes Zenoh and msgpack by hand from
+``protocols/README.md``::
+
+    from roger_daemon.client import RobotClient
+
+    with RobotClient("tcp/127.0.0.1:7447", robot="arm", dims=(6, 2)) as robot:
+        robot.wait_daemon()
+        robot.send_action(0, y, label="reach")      # a demonstration: action(t) ...
+        pred = robot.predict(0, x)                   # ... and perception(t); the answer
+        pred.mean, pred.var                          # mean and variance per action entry
+        [(e.expert, e.p, e.mean) for e in pred.multimap]   # every expert of the MAP particle
+
+The daemon pairs perception(t) with action(t) by ``tick`` and learns each pair once
+(``protocols/README.md``); it answers every perception (lockstep) or the newest one at its
+rate (realtime) with a :class:`~protocols.Prediction`: the chosen expert's mean and variance,
+``expert``, the ``multimap`` (each expert's gate probability, mean, variance, size, majority
+label) and ``updates`` (pairs learned, durable). A perception without an action asks only for
+a prediction. ``docs/your-robot.md`` walks through a robot of one's own;
+``docs/examples/your_robot.py`` runs one against a real daemon.
+
+Messages are published with congestion control BLOCK, so a robot never loses its own
+messages on the way to a daemon that drains them (the daemon's outputs use DROP). Every
+callback only decodes and appends under a lock; waiting happens in the caller's thread.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from protocols import Action, Control, Perception, Prediction, Status, decode, encode, keys
+from protocols.messages import Dims
+
+__all__ = ["Received", "RobotClient"]
+
+FloatArray = npt.NDArray[np.float64]
+_ACTION_FIELDS = {f.name for f in dataclasses.fields(Action)}
+
+
+@dataclass(frozen=True)
+class Received:
+    """A decoded message and the client's ``time.monotonic_ns()`` at receipt."""
+
+    msg: Any
+    recv_ns: int
+
+
+class RobotClient:
+    """One robot's connection to a ROGER daemon (module docstring). A context manager.
+
+    Parameters
+    ----------
+    connect
+        Zenoh endpoint(s) of the daemon or router, e.g. ``"tcp/127.0.0.1:7447"``.
+    robot
+        The robot id (the daemon's ``[[robots]] id``): keys ``roger/<robot>/...``.
+    dims
+        ``(perception size, action size)`` as the daemon is configured for this robot;
+        incoming predictions are checked against it. Default: the AIBO's ``(23, 9)``.
+    rate_hz
+        The robot's rate: a message's ``t`` is ``tick / rate_hz`` unless given.
+    mode
+        ``"peer"`` (default) or ``"client"`` (of a Zenoh router).
+    daemon_id
+        :meth:`wait_daemon` waits for this daemon's liveliness token; ``None``: any daemon.
+    zenoh_config
+        A Zenoh JSON5 file (authentication, TLS; ``configs/zenoh/secure/robot.json5``).
+    """
+
+    def __init__(self, connect: str | Sequence[str] = "tcp/127.0.0.1:7447", *,
+                 robot: str = "aibo", dims: Dims | tuple[int, int] = (23, 9),
+                 rate_hz: float = 30.0, mode: str = "peer", daemon_id: str | None = None,
+                 zenoh_config: str | None = None) -> None:
+        import zenoh
+
+        from roger_daemon.zenoh_session import ZenohSettings, open_session
+
+        endpoints = (connect,) if isinstance(connect, str) else tuple(connect)
+        self.robot = keys.validate_robot_id(robot)
+        self.dims = dims if isinstance(dims, Dims) else Dims(int(dims[0]), int(dims[1]))
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
+        self.rate_hz, self.daemon_id = float(rate_hz), daemon_id
+        self.session = open_session(ZenohSettings(
+            config_file=None if zenoh_config is None else Path(zenoh_config), mode=mode,
+            connect=endpoints, listen=None if mode == "client" else ()))
+        #: every prediction / status received, in order (with receive times)
+        self.predictions: list[Received] = []
+        self.statuses: list[Received] = []
+        #: payloads on this robot's keys that did not decode (a test asserts it stays empty)
+        self.errors: list[str] = []
+        self._cond = threading.Condition()
+        self._closed = False
+        self._subs = [self.session.declare_subscriber(keys.prediction(self.robot),
+                                                      self._on("prediction")),
+                      self.session.declare_subscriber(keys.status(self.robot),
+                                                      self._on("status"))]
+        self._cc = zenoh.CongestionControl.BLOCK
+        self._pubs = {
+            kind: self.session.declare_publisher(
+                keys.key(self.robot, kind), congestion_control=self._cc,
+                priority=zenoh.Priority.REAL_TIME, express=True)
+            for kind in ("perception", "action", "control")
+        }
+
+    # --- context manager ----------------------------------------------------------------------
+
+    def __enter__(self) -> RobotClient:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the Zenoh session (idempotent)."""
+        if not self._closed:
+            self._closed = True
+            self.session.close()
+
+    def _on(self, kind: str) -> Callable[[Any], None]:
+        sink = self.predictions if kind == "prediction" else self.statuses
+
+        def callback(sample: Any) -> None:
+            now = time.monotonic_ns()
+            try:
+                msg = decode(kind, sample.payload.to_bytes(), dims=self.dims, robot=self.robot)
+            except Exception as exc:  # a malformed message is counted, never raised here
+                self.errors.append(f"{kind}: {exc}")
+                return
+            with self._cond:
+                sink.append(Received(msg, now))
+                self._cond.notify_all()
+
+        return callback
+
+    # --- sending ------------------------------------------------------------------------------
+
+    def _t(self, tick: int, t: float | None) -> float:
+        return tick / self.rate_hz if t is None else float(t)
+
+    def send_raw(self, kind: str, payload: bytes, robot: str | None = None) -> None:
+        """Publish an encoded payload of ``kind`` for this robot (or another ``robot``)."""
+        if robot is None or robot == self.robot:
+            self._pubs[kind].put(payload)
+        else:
+            self.session.put(keys.key(robot, kind), payload, congestion_control=self._cc)
+
+    def send_perception(self, tick: int, x: Iterable[float] | FloatArray,
+                        t: float | None = None) -> int:
+        """Publish perception(``tick``); return the send time (``time.monotonic_ns``)."""
+        sent = time.monotonic_ns()
+        self.send_raw("perception", encode(Perception(self.robot, int(tick), self._t(tick, t),
+                                                      x=np.asarray(x, dtype=np.float64))))
+        return sent
+
+    def send_action(self, tick: int, y: Iterable[float] | FloatArray, label: str = "",
+                    t: float | None = None, source: str = "") -> None:
+        """Publish the demonstrated action of ``tick`` (the training target for perception
+        ``tick``), with its subtask ``label`` (kept as data, never learned from) and who gave
+        it, ``source`` (``"teacher"`` or ``"robot"``, where the protocol carries it)."""
+        extra: dict[str, Any] = {}
+        if source:
+            if "source" not in _ACTION_FIELDS:
+                raise ValueError("this protocol version's action message has no source field")
+            extra["source"] = source
+        self.send_raw("action", encode(Action(self.robot, int(tick), self._t(tick, t),
+                                              y=np.asarray(y, dtype=np.float64), label=label,
+                                              **extra)))
+
+    def send_control(self, op: str, mode: str = "") -> None:
+        """Publish a control request: ``op`` ``"mode"`` (with ``mode``), ``"reset"`` or
+        ``"checkpoint"``; :meth:`set_mode` and friends wait for the confirmation."""
+        self.send_raw("control", encode(Control(self.robot, 0, 0.0, op=op, mode=mode)))
+
+    def _confirmed(self, op: str, mode: str, timeout: float) -> Status:
+        msg = Control(self.robot, 0, 0.0, op=op, mode=mode)
+        self.send_raw("control", encode(msg))
+        return self.wait_status(
+            lambda st: st.info.get("control_stamp_ns") == msg.stamp_ns, timeout=timeout)
+
+    def set_mode(self, mode: str, timeout: float = 10.0) -> Status:
+        """Switch the daemon's mode for this robot (``"learn"``, ``"predict"``,
+        ``"learn+predict"``, ``"pause"``); return the status that confirms it."""
+        return self._confirmed("mode", mode, timeout)
+
+    def reset(self, timeout: float = 10.0) -> Status:
+        """Replace this robot's model by a fresh one; return the confirming status."""
+        return self._confirmed("reset", "", timeout)
+
+    def checkpoint(self, timeout: float = 10.0) -> Status:
+        """Ask for a checkpoint; the confirming status's ``info`` names the file."""
+        return self._confirmed("checkpoint", "", timeout)
+
+    # --- receiving ----------------------------------------------------------------------------
+
+    def wait_daemon(self, timeout: float = 60.0) -> None:
+        """Wait until the daemon's liveliness token is visible (link and declarations up);
+        ``TimeoutError`` after ``timeout`` seconds."""
+        end = time.monotonic() + timeout
+        key = (keys.daemon_liveliness(self.daemon_id) if self.daemon_id
+               else keys.daemon_liveliness_all())
+        while time.monotonic() < end:
+            replies = self.session.liveliness().get(key, timeout=1.0)
+            if any(r.ok is not None for r in replies):
+                time.sleep(0.2)  # let our own subscriptions reach the daemon too
+                return
+            time.sleep(0.1)
+        raise TimeoutError(f"no daemon token {key} within {timeout} s")
+
+    def wait_received(self, tick: int, timeout: float = 60.0) -> Received:
+        """The prediction of ``tick`` with its receive time (``TimeoutError`` after
+        ``timeout`` seconds)."""
+        end = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                for r in reversed(self.predictions):
+                    if r.msg.tick == tick:
+                        return r
+                left = end - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"no prediction for tick {tick} within {timeout} s")
+                self._cond.wait(left)
+
+    def wait_prediction(self, tick: int, timeout: float = 60.0) -> Prediction:
+        """The prediction of ``tick`` (``TimeoutError`` after ``timeout`` seconds)."""
+        pred: Prediction = self.wait_received(tick, timeout).msg
+        return pred
+
+    def predict(self, tick: int, x: Iterable[float] | FloatArray, timeout: float = 10.0,
+                t: float | None = None) -> Prediction:
+        """Send perception(``tick``) and wait for its prediction."""
+        self.send_perception(tick, x, t)
+        return self.wait_prediction(tick, timeout)
+
+    def latest_prediction(self) -> Prediction | None:
+        """The newest prediction received, if any."""
+        with self._cond:
+            return self.predictions[-1].msg if self.predictions else None
+
+    def wait_status(self, predicate: Callable[[Status], bool] | None = None,
+                    timeout: float = 60.0) -> Status:
+        """The first status received from now on that satisfies ``predicate``."""
+        end = time.monotonic() + timeout
+        with self._cond:
+            seen = len(self.statuses)
+            while True:
+                for r in self.statuses[seen:]:
+                    if predicate is None or predicate(r.msg):
+                        st: Status = r.msg
+                        return st
+                seen = len(self.statuses)
+                left = end - time.monotonic()
+                if left <= 0:
+                    last = self.statuses[-1].msg.to_map() if self.statuses else None
+                    raise TimeoutError(f"no matching status within {timeout} s; last: {last}")
+                self._cond.wait(left)
+
+    def predictions_since(self, t_ns: int) -> list[Prediction]:
+        """The predictions received at or after ``t_ns`` (``time.monotonic_ns``)."""
+        with self._cond:
+            return [r.msg for r in self.predictions if r.recv_ns >= t_ns]
