@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit_target import pin
+from roger_daemon.learner.engine.jit_target import pin
 
 pin()  # before numba compiles anything: the learner's kernels keep their one target
 

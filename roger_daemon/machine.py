@@ -34,7 +34,7 @@ __all__ = ["busy_cpu_s", "cpu_time_split", "cpu_times", "cross_core_ns", "descri
 _PROBE_ELEMENTS = 1 << 23  # 64 MB of float64: larger than the caches of the machines we use
 _PROBE_LOOP = 200_000
 _CPU_TIMES_START = "_cpu_times_start"  # kept in the record between machine_record and finish
-_KERNELS = "roger_daemon.learner.jit_compile"  # loaded with the learner's first kernel
+_KERNELS = "roger_daemon.learner.engine.jit_compile"  # loaded with the learner's first kernel
 
 
 def _cpu_model() -> str:
@@ -172,7 +172,7 @@ def finish(record: dict[str, Any]) -> dict[str, Any]:
     if split is not None:
         record["cpu_time"] = split
     if _KERNELS in sys.modules:  # the learner ran here: what its kernels were compiled for
-        from roger_daemon.learner.jit_target import compiled_for
+        from roger_daemon.learner.engine.jit_target import compiled_for
 
         kernels = compiled_for()
         if kernels is not None:  # docs/reproducibility.md

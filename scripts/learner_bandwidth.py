@@ -1,8 +1,8 @@
 """How far the learner step is from the memory bandwidth bound (issue 11, docs/fleet.md).
 
 Counts the passes over the experts' ``beta x beta`` symmetric matrices (``C`` and ``Q``, stored
-packed: their upper triangles, :mod:`roger_daemon.learner.packed`) that one ROGER step makes on
-the benchmark stream (``roger bench learner``: paper parameters), measures how fast this
+packed: their upper triangles, :mod:`roger_daemon.learner.engine.packed`) that one ROGER step
+makes on the benchmark stream (``roger bench learner``: paper parameters), measures how fast this
 machine streams such a matrix when the experts do not fit in the core's cache (cycling over as
 many distinct matrices as the step touches) and when one matrix stays cached, and prints the
 time those passes alone take per step.
@@ -22,7 +22,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import learned_model, print_report
-from roger_daemon.learner import jit, packed
+from roger_daemon.learner.engine import jit, packed
 
 
 def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
@@ -30,8 +30,8 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
 
     The learner runs on one thread, where it evaluates the experts several per call
     (``jit.evaluate_experts``, each counted as one ``expert_terms`` pass) and updates each
-    one from Python (on several threads it batches both, :mod:`roger_daemon.learner.jit_batch`):
-    the same passes.  A full
+    one from Python (on several threads it batches both,
+    :mod:`roger_daemon.learner.engine.jit_batch`): the same passes.  A full
     expert's ``jit.learn_full_expert`` counts as its ``Q k`` pass and, when it made one, its
     fused step; ``jit.growth_step`` (an expert that is not full: its ``Q k`` and novelty
     test, then a rank-1 update) and ``jit.novelty_step`` as its ``Q k`` pass."""
@@ -39,7 +39,7 @@ def count_passes(points: int) -> tuple[dict[str, float], float, int, int]:
     warm = points // 4
     model, stream = learned_model(warm)
     calls: Counter[str] = Counter()
-    jit._load()
+    jit.load()
     kinds = ("evaluate_experts", "expert_terms", "projection", "novelty_step", "growth_step",
              "fused_step", "learn_full_expert")
     originals = {name: getattr(jit, name) for name in kinds}

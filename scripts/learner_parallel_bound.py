@@ -5,9 +5,9 @@ A ROGER step at the paper's parameters evaluates every distinct expert version (
 ``C k``, ``k^T C k``: one pass over its packed ``C``) and then updates the chosen versions
 (``Q k``, then the rank-3 update of ``C`` and rank-2 update of ``Q``: a read-and-write pass
 over each).  This script runs exactly those passes, with the learner's own compiled kernels
-(:func:`~roger_daemon.learner.jit_kernels.expert_terms`,
-:func:`~roger_daemon.learner.jit_kernels.sym_matvec`,
-:func:`~roger_daemon.learner.jit_kernels.rank_update_cq`), inside one compiled call per step,
+(:func:`~roger_daemon.learner.engine.jit_kernels.expert_terms`,
+:func:`~roger_daemon.learner.engine.jit_kernels.sym_matvec`,
+:func:`~roger_daemon.learner.engine.jit_fused.rank_update_cq`), inside one compiled call per step,
 first on one thread and then split over ``--threads`` threads (numba ``prange``: the
 evaluations in parallel, then the updates in parallel), over as many ``beta x beta`` versions
 as the benchmark stream has, whose basis vectors have its perception's dimension (23; until
@@ -41,8 +41,8 @@ from scipy.linalg import blas
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import print_report
-from roger_daemon.learner import jit_kernels, packed
-from roger_daemon.learner.jit_compile import compiled
+from roger_daemon.learner.engine import jit_fused, jit_kernels, packed
+from roger_daemon.learner.engine.jit_compile import compiled
 from roger_daemon.learner.synthetic import BENCH_D_X
 from roger_daemon.machine import finish, machine_record
 
@@ -76,7 +76,7 @@ def exact_step_passes(bases: FloatArray, cs: FloatArray, qs: FloatArray, coefs: 
         uq[1] = ks[v]
         cc = np.array([scale, -scale, scale])
         cq = np.array([scale, -scale])
-        jit_kernels.rank_update_cq(cs[v], qs[v], n, n, -1, uc, cc, uq, cq, np.empty(n))
+        jit_fused.rank_update_cq(cs[v], qs[v], n, n, -1, uc, cc, uq, cq, np.empty(n))
     return float(kck.sum())
 
 

@@ -35,7 +35,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from roger_daemon.bench.learner import learned_model, print_report
-from roger_daemon.learner import jit, packed, roger_step, sogp
+from roger_daemon.learner import roger_step, sogp
+from roger_daemon.learner.engine import jit, packed
 
 
 def low_rank(delta: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -49,9 +50,10 @@ def versions(points: int) -> tuple[dict[int, list[Any]], np.ndarray]:
     """The live SOGP versions grouped by expert id, after ``points`` points; a query x."""
     model, stream = learned_model(points)
     groups: dict[int, list[Any]] = defaultdict(list)
-    for slot, gp in enumerate(model._gps):
-        if gp is not None and gp.n > 1:
-            groups[int(model._ids[slot])].append(gp)
+    store = model.store
+    for slot in store.live().tolist():
+        if store.expert(slot).n > 1:
+            groups[int(store.ids[slot])].append(store.expert(slot))
     return groups, stream.x[points]
 
 
@@ -75,9 +77,9 @@ class Genealogy:
         if i < first:
             return
         groups: dict[int, list[tuple[int, ...]]] = defaultdict(list)
-        for slot, gp in enumerate(model._gps):
-            if gp is not None:
-                groups[int(model._ids[slot])].append(self.updates.get(id(gp), ()))
+        store = model.store
+        for slot in store.live().tolist():
+            groups[int(store.ids[slot])].append(self.updates.get(id(store.expert(slot)), ()))
         for hist in groups.values():
             common = 0
             while all(len(h) > common for h in hist) and len({h[common] for h in hist}) == 1:

@@ -3,9 +3,9 @@ docs/performance.md, *The host's slow spells*).
 
 The benchmark's step (``roger bench learner``: the synthetic stream at the paper's
 parameters) is timed in two parts: the experts' compiled kernels (the evaluation and the
-update: :func:`~roger_daemon.learner.jit_batch.terms_batch`,
-:func:`~roger_daemon.learner.jit_batch.learn_batch`,
-:func:`~roger_daemon.learner.jit_batch.copy_batch` and their one-expert-at-a-time forms)
+update: :func:`~roger_daemon.learner.engine.jit_batch.terms_batch`,
+:func:`~roger_daemon.learner.engine.jit_batch.learn_batch`,
+:func:`~roger_daemon.learner.engine.jit_batch.copy_batch` and their one-expert-at-a-time forms)
 and everything else (Python, numpy and the small compiled calls of the gates, resampling and
 bookkeeping).  Each sample restores the model learned to ``--warm-points`` pairs (the
 benchmark's timed window starts at 2,500), learns the next ``--steps`` pairs on every core,
@@ -32,7 +32,7 @@ from typing import Any
 
 from roger_daemon.bench.learner import learned_model, load_stream
 from roger_daemon.learner import Roger
-from roger_daemon.learner import jit as lazy_jit
+from roger_daemon.learner.engine import jit as lazy_jit
 from roger_daemon.learner.synthetic import BENCH_SEED
 from roger_daemon.machine import cross_core_ns, finish, machine_record, speed_probe
 
@@ -42,8 +42,8 @@ EXPERT_KERNELS = ("terms_batch", "learn_batch", "copy_batch", "evaluate_experts"
 
 
 class KernelClock:
-    """Wraps :data:`EXPERT_KERNELS` in :mod:`roger_daemon.learner.jit` (this process only) and
-    adds up the nanoseconds spent in them."""
+    """Wraps :data:`EXPERT_KERNELS` in :mod:`roger_daemon.learner.engine.jit` (this process only)
+    and adds up the nanoseconds spent in them."""
 
     def __init__(self) -> None:
         lazy_jit.warm_up()

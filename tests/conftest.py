@@ -16,11 +16,11 @@ pin_blas_threads(1)
 @pytest.fixture(autouse=True)
 def _restore_learner_threads() -> Iterator[None]:
     """A test that sets the learner's thread count (``jit.set_threads``) gets it reset after."""
-    from roger_daemon.learner import jit
+    from roger_daemon.learner.engine import jit, jit_threads
 
-    before = jit._threads
+    before = jit_threads._threads
     yield
-    if jit._threads != before:
+    if jit_threads._threads != before:
         jit.set_threads(before)
 
 
@@ -30,6 +30,6 @@ def _learner_kernels_compiled() -> None:
     test process does; it took ~45 s on a 2-core AMD EPYC from a clean clone): the daemons,
     workers and commands the tests start then load them instead of compiling them inside
     their start-up deadlines."""
-    from roger_daemon.learner import jit
+    from roger_daemon.learner.engine import jit
 
     jit.warm_up()

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from roger_daemon.learner.jit_warm import WARMERS, shares
+from roger_daemon.learner.engine.jit_warm import WARMERS, shares
 
 ROOT = Path(__file__).resolve().parents[1]
 
 _MISSES = """
 import json
-import roger_daemon.learner.jit as jit
+import roger_daemon.learner.engine.jit as jit
 jit.warm_up()
 kernels = [getattr(jit, name) for name in jit.KERNELS]
 print(json.dumps({"misses": sum(sum(k.stats.cache_misses.values()) for k in kernels),
@@ -84,7 +84,7 @@ def test_without_a_cache_directory_it_says_so_and_exits_1(
     (as root the directory cannot be made unwritable, so the kernel is stood in for)."""
     import argparse
 
-    from roger_daemon.learner import jit_batch
+    from roger_daemon.learner.engine import jit_batch
     from roger_daemon.tools import compile_kernels
 
     class Uncached:

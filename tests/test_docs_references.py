@@ -7,6 +7,9 @@
   (in a ``docs/*.md`` file, in the file itself).
 * Every "pitfall N" is a numbered note of ``docs/learner-math.md`` §7, in a file that names
   that document.
+* Every code path a ``docs/*.md`` page names (``roger_daemon/.../x.py``, ``scripts/...``,
+  ``tests/...``; not ``configs/``, where the docs' examples name the user's own files) is a file
+  or folder of the repository: a moved module takes its references along.
 """
 
 from __future__ import annotations
@@ -163,3 +166,29 @@ def test_pitfalls_are_learner_math_notes(path: Path) -> None:
         n for a, b in found for n in range(int(a), int(b or a) + 1) if n not in known
     }
     assert not missing, f"{LEARNER_MATH} §7 has no pitfall {sorted(missing)}"
+
+
+REPO_PATH = re.compile(r"\b((?:roger_daemon|simulator|protocols|scripts|tests)"
+                       r"/[\w./*-]*[\w*])")  # a ``*`` is a glob; ``<name>`` ends the path
+DOCS = [p for p in FILES if _rel(p).startswith("docs/") and p.suffix == ".md"]
+
+
+def test_the_path_check_sees_a_missing_file() -> None:
+    found = REPO_PATH.findall("see `roger_daemon/learner/engine/jit_nothing.py`, scripts/x.py, "
+                              "tests/learner/test_jit*.py, tests/data/sessions/<s>.mcap.")
+    assert found == ["roger_daemon/learner/engine/jit_nothing.py", "scripts/x.py",
+                     "tests/learner/test_jit*.py", "tests/data/sessions"]
+    assert [_exists(f) for f in found] == [False, False, True, True]
+
+
+def _exists(name: str) -> bool:
+    """A file or folder of the repository, or a glob that matches one."""
+    return any(ROOT.glob(name)) if "*" in name else (ROOT / name).exists()
+
+
+@pytest.mark.parametrize("path", DOCS, ids=_rel)
+def test_repository_paths_in_docs_exist(path: Path) -> None:
+    missing = sorted({f"{_rel(path)}: {name}" for name in
+                      REPO_PATH.findall(path.read_text(encoding="utf-8")) if not _exists(name)})
+    assert missing == [], "a document names a path that is not in the repository"
+

@@ -4,28 +4,18 @@ finds the slow bursts and what overlapped them."""
 from __future__ import annotations
 
 import importlib
-import importlib.util
-import sys
 from pathlib import Path
-from types import ModuleType
+
+from script_testing import load_script
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 MS = 1_000_000
 
 
-def _load(name: str, path: Path) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_every_span_the_trace_wraps_exists() -> None:
     """A renamed function would silently drop out of the trace: each path must resolve (a
     worker's ``__main__`` is ``roger_daemon.daemon.worker``)."""
-    spans = _load("fleet_spans", SCRIPTS / "fleet_trace" / "fleet_spans.py")
+    spans = load_script("fleet_spans", SCRIPTS / "fleet_trace" / "fleet_spans.py")
     assert spans.DAEMON and spans.WORKER
     for module, path, _label in (*spans.DAEMON, *spans.WORKER):
         owner = importlib.import_module("roger_daemon.daemon.worker" if module == "__main__"
@@ -36,7 +26,7 @@ def test_every_span_the_trace_wraps_exists() -> None:
 
 
 def test_the_analysis_finds_slow_bursts_and_what_overlapped_them() -> None:
-    trace = _load("fleet_trace_script", SCRIPTS / "fleet_trace.py")
+    trace = load_script("fleet_trace_script", SCRIPTS / "fleet_trace.py")
     events = []
     for tick in range(20):  # two robots; ticks 0-1 are the warm-up tenth
         t0 = tick * 33 * MS

@@ -71,7 +71,7 @@ def test_the_split_is_the_share_of_each_kind_of_time() -> None:
 
 def test_the_record_names_what_the_learners_kernels_were_compiled_for() -> None:
     """Absent where no kernel ran (numba not loaded); else LLVM's CPU name, the one target of
-    roger_daemon/learner/jit_target.py where it applies, and the user's with the host's
+    roger_daemon/learner/engine/jit_target.py where it applies, and the user's with the host's
     features otherwise."""
     import subprocess
     import sys
@@ -79,7 +79,7 @@ def test_the_record_names_what_the_learners_kernels_were_compiled_for() -> None:
     probe = ("import json, numpy as np\n"
              "from roger_daemon.machine import finish, machine_record\n"
              "before = finish(machine_record(probe=False))\n"
-             "from roger_daemon.learner import jit, jit_target\n"
+             "from roger_daemon.learner.engine import jit, jit_target\n"
              "jit.kernel_vector(np.zeros((2, 3)), np.zeros(3), 1.0, 2)\n"
              "after = finish(machine_record(probe=False))\n"
              "print(json.dumps([before.get('kernels_cpu'), after['kernels_cpu'],"

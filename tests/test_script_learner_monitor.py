@@ -5,22 +5,19 @@ record; bad arguments exit 2."""
 from __future__ import annotations
 
 import doctest
-import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
 
+from script_testing import load_script
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_monitor.py"
 
 
 def _module() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("learner_monitor", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("learner_monitor", SCRIPT)
 
 
 def test_the_examples_in_the_docstrings_hold() -> None:

@@ -6,7 +6,6 @@ its compiled step does the passes it claims, on one thread and on two: every ver
 from __future__ import annotations
 
 import functools
-import importlib.util
 import json
 import subprocess
 import sys
@@ -16,6 +15,7 @@ from types import ModuleType
 import numba
 import numpy as np
 import pytest
+from script_testing import load_script
 
 from roger_daemon.learner.synthetic import BENCH_D_X
 
@@ -24,17 +24,12 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_parallel_bou
 
 @functools.cache  # one module, so its kernel is compiled (or loaded from the cache) once
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("learner_parallel_bound", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # importable by name: numba's cache refers to it
-    spec.loader.exec_module(module)
-    return module
+    return load_script("learner_parallel_bound", SCRIPT)
 
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_step_reads_every_version_and_writes_the_updated_ones(threads: int) -> None:
-    from roger_daemon.learner import jit
+    from roger_daemon.learner.engine import jit
 
     script = _script()
     beta, versions = 12, 5
@@ -61,7 +56,7 @@ def test_floor_and_openblas_comparison_touch_what_they_claim() -> None:
     """The bytes-only floor reads every version's ``C`` and the updated ``Q`` (their sums) and
     leaves the matrices as they were; OpenBLAS's ``dspmv`` on the learner's packed buffer is
     the learner's ``C k``, up to rounding."""
-    from roger_daemon.learner import packed
+    from roger_daemon.learner.engine import packed
 
     script = _script()
     beta, versions = 12, 5

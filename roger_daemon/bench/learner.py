@@ -28,7 +28,7 @@ import numpy as np
 
 from roger_daemon.console import UsageError
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
-from roger_daemon.learner.jit import set_threads, threads, warm_up
+from roger_daemon.learner.engine.jit import set_threads, threads, warm_up
 from roger_daemon.learner.params import ParameterError
 from roger_daemon.learner.synthetic import BENCH_SEED, subtask_stream
 from roger_daemon.machine import describe, finish, machine_record

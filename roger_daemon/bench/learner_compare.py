@@ -20,10 +20,10 @@ import numpy as np
 from roger_daemon.bench.learner import NOTE, BenchStream, _ms
 from roger_daemon.bench.reference import load_reference
 from roger_daemon.learner import Roger
-from roger_daemon.learner.jit import compiled_signatures, threads, warm_up
+from roger_daemon.learner.engine.jit import compiled_signatures, threads, warm_up
 from roger_daemon.machine import describe, finish, machine_record
 
-__all__ = ["compare", "compare_table"]
+__all__ = ["compare", "compare_table", "reference_kernels"]
 
 
 def _summary(samples: list[int]) -> dict[str, float]:
@@ -31,14 +31,24 @@ def _summary(samples: list[int]) -> dict[str, float]:
             "update_p50_ms": _ms(samples, 50), "update_p99_ms": _ms(samples, 99)}
 
 
+def reference_kernels(ref_pkg: ModuleType) -> ModuleType | None:
+    """The reference learner's kernel facade: ``engine.jit`` (since issue 58), ``jit`` before;
+    ``None`` for a revision from before the compiled kernels."""
+    for where in ("engine.jit", "jit"):
+        try:
+            return importlib.import_module(f"{ref_pkg.__name__}.{where}")
+        except ModuleNotFoundError:
+            continue
+    return None
+
+
 def _warm_up_reference(ref_pkg: ModuleType) -> None:
     """Compile (or load from numba's cache) the reference's kernels before timing: a kernel
     first used mid-run (the fused step, once experts are full) would otherwise put its
     compilation, seconds for a revision not seen before, into the reference's time.  A
     reference with batched kernels runs them on this learner's threads (``--threads``)."""
-    try:
-        ref_jit = importlib.import_module(f"{ref_pkg.__name__}.jit")
-    except ImportError:  # a revision from before the compiled kernels
+    ref_jit = reference_kernels(ref_pkg)
+    if ref_jit is None:  # a revision from before the compiled kernels
         return
     same_threads = getattr(ref_jit, "set_threads", None)
     if callable(same_threads):  # a revision with batched kernels: on this learner's threads

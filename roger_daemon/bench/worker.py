@@ -112,7 +112,7 @@ def serve_ticks(workers: list[Any], stream: FeedStream, ticks: range,
 def _measure(args: argparse.Namespace) -> dict[str, Any]:
     from roger_daemon.blas import pin_blas_threads
     from roger_daemon.daemon.memory import limit_heap_growth
-    from roger_daemon.learner.jit import set_threads
+    from roger_daemon.learner.engine.jit import set_threads
 
     pin_blas_threads(1)
     set_threads(1)

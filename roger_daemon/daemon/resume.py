@@ -68,7 +68,7 @@ def load_robot(
     from roger_daemon.learner import load_model
 
     if cfg.learner_workers == "inline":  # the loop learns: its compiled kernels now, not in
-        from roger_daemon.learner.jit import warm_up  # the robot's first live update
+        from roger_daemon.learner.engine.jit import warm_up  # the robot's first live update
 
         warm_up()
     # With learner workers each worker warms up its own (worker.py); the loop's process then

@@ -224,7 +224,7 @@ class _Worker:
         from roger_daemon.daemon.main import make_model
         from roger_daemon.daemon.robot import RobotRuntime
         from roger_daemon.learner import RogerParams, load_model
-        from roger_daemon.learner.jit import compiled_signatures, threads, warm_up
+        from roger_daemon.learner.engine.jit import compiled_signatures, threads, warm_up
 
         warm_up()  # the compiled kernels now, not inside this robot's first steps
         robot = RobotConfig(id=str(req["robot"]), x_dim=int(req["x_dim"]),
@@ -296,12 +296,12 @@ def main(argv: list[str] | None = None) -> int:
         hold_collections,
     )
     from roger_daemon.daemon.memory import limit_heap_growth
-    from roger_daemon.learner.jit import set_threads
+    from roger_daemon.learner.engine.jit import set_threads
 
     parser = argparse.ArgumentParser(prog="python -m roger_daemon.daemon.worker")
     parser.add_argument("--nice", type=int, default=0, choices=range(20), metavar="0..19")
     parser.add_argument("--threads", type=int, default=1, metavar="N",
-                        help="the learner's threads, >= 1 (roger_daemon.learner.jit)")
+                        help="the learner's threads, >= 1 (roger_daemon.learner.engine.jit)")
     args = parser.parse_args(argv)
     if args.threads < 1:
         parser.error(f"--threads must be an integer >= 1, got {args.threads}")

@@ -1,6 +1,9 @@
 """The ROGER learner: sparse online GP experts, NIW gates, CRP particle filter.
 
-No I/O here.  The public API (``docs/learner-api.md``)::
+The paper's classes on top of an engine of compiled kernels (:mod:`.engine`: numba, with
+numpy and scipy); it reads and writes no file of its own, but numba keeps the compiled kernels
+in its on-disk cache (:mod:`.engine.jit_compile`).  It imports nothing else of
+``roger_daemon``.  The public API (``docs/learner-api.md``)::
 
     from roger_daemon.learner import RogerParams, Roger, UnimapGP, Prediction, ExpertPrediction
     from roger_daemon.learner import ParameterError, load_model, PRESETS

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine import jit
 
 __all__ = ["WINDOW", "SegmentationHistory"]
 

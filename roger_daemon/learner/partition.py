@@ -4,7 +4,7 @@ The paper groups the learned experts by the subtask that generated most of their
 lets a transitioner pick within a group (section IV.A). :func:`fit_partition` builds the
 model in which each group is *one* expert: a ROGER model with a single particle, where point
 ``i`` joins the expert of ``groups[i]`` (a new expert for a group's first point) through the
-same step as Algorithm 1 (:func:`.roger_step.instantiate`: SOGP and NIW gate updated exactly
+same step as Algorithm 1 (:meth:`.Roger.learn_assigned`: SOGP and NIW gate updated exactly
 as when the particle filter chooses that expert). The result is an ordinary :class:`.Roger`
 (``state_dict``, predictions, ``assignments``), so the daemon serves it like any other model.
 docs/learner-math.md §8 and docs/goal-scoring.md ("merged groups") say what it is for.
@@ -21,8 +21,6 @@ import numpy.typing as npt
 from roger_daemon.learner.model_args import Seed
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.roger import Roger
-from roger_daemon.learner.roger_step import instantiate, putatives
-from roger_daemon.learner.scaling import as_vector
 
 __all__ = ["fit_partition"]
 
@@ -49,15 +47,6 @@ def fit_partition(x: npt.ArrayLike, y: npt.ArrayLike, groups: Sequence[Hashable]
                   seed=seed)
     expert_of: dict[Hashable, int] = {}
     for xi, yi, group in zip(xa, ya, groups, strict=True):
-        xs = model._scaling.x_in(as_vector("x", xi, model.d_x))
-        ys = model._scaling.y_in(as_vector("y", yi, model.d_y))
-        _, flat_part, flat_slots, offsets, terms = putatives(model, xs, ys)
-        want = expert_of.get(group)
-        # the putative that puts the point in its group's expert (-1: a new expert)
-        target = -1 if want is None else int(
-            next(s for s in model.particle_slots(0).tolist() if model._ids[s] == want))
-        j = int(np.flatnonzero(flat_slots == target)[0])
-        instantiate(model, np.array([j]), np.zeros(1), flat_part, flat_slots, offsets, xs, ys,
-                    terms)
-        expert_of[group] = int(model._history.last_ids()[0])
+        # the putative that puts the point into its group's expert (None: a new expert)
+        expert_of[group] = model.learn_assigned(xi, yi, expert_of.get(group))
     return model

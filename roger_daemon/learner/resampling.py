@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit as _jit
+from roger_daemon.learner.engine import jit as _jit
 
 __all__ = ["fearnhead_resample", "fearnhead_threshold"]
 

@@ -13,44 +13,49 @@ Algorithm 1 (``learn_one``), docs/learner-math.md §4:
 2. resample the putatives to ``P`` survivors;
 3. only then incorporate ``(x, y)`` into the chosen expert of each survivor.
 
-Performance design (pitfalls 13-15): experts live in integer *slots* shared by all particles
-that contain them (a particle is a run of slots in one flat int array); a slot is copied only
-when a survivor updates an expert that another survivor keeps unchanged (copy-on-write), and
-survivors that choose the same slot share one updated copy.  Per step each *unique* expert is
-evaluated once (all gates in one batched product, then each GP once, whatever the number of
-particles that share it), and the chosen experts are updated together
-(:func:`.sogp.update_many`), so the cost is bounded by (unique experts) x ``beta^2``, never
-by the data seen.  An opt-in bound (``prune_log_margin``) skips the GP of experts whose
-putatives cannot carry weight.  The segmentation history costs O(P) per step: survivors'
-ancestor index and chosen expert id, traced back by :meth:`Roger.assignments`, collapsed to
-one id per point once the particles' lineages meet (:mod:`.history`).
+Performance design (pitfalls 13-15 of docs/learner-math.md §7): experts live in integer *slots*
+shared by all particles that contain them (a particle is a run of slots in one flat int array,
+:class:`.engine.store.ExpertStore`); a slot is copied only when a survivor updates an expert
+that another survivor keeps unchanged (copy-on-write), and survivors that choose the same slot
+share one updated copy.  Per step each *unique* expert is evaluated once (all gates in one
+batched product, then each GP once, whatever the number of particles that share it), and the
+chosen experts are updated together (:func:`.sogp_batch.update_evaluated`), so the cost is
+bounded by (unique experts) x ``beta^2``, never by the data seen.  An opt-in bound
+(``prune_log_margin``) skips the GP of experts whose putatives cannot carry weight.  The
+segmentation history costs O(P) per step: survivors' ancestor index and chosen expert id,
+traced back by :meth:`Roger.assignments`, collapsed to one id per point once the particles'
+lineages meet (:mod:`.history`).
 
-The step itself is in :mod:`.roger_step`, the predictions in :mod:`.roger_predict`.
+The step itself is in :mod:`.roger_step`, the predictions in :mod:`.roger_predict`, the
+model's fixed terms in :mod:`.roger_terms`; the compiled kernels and the store of experts they
+work on are the engine's (:mod:`.engine`).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.buffers import BufferPool
-from roger_daemon.learner.gate import GatePool
+from roger_daemon.learner.engine.store import ExpertStore
 from roger_daemon.learner.history import SegmentationHistory
-from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.model_args import Seed, resolve_model_args, spawn_generators
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
 from roger_daemon.learner.resampling import fearnhead_resample
-from roger_daemon.learner.roger_predict import map_slots, predict, predict_table
-from roger_daemon.learner.roger_state import load_roger_state, roger_state_dict
-from roger_daemon.learner.roger_step import SlotTerms, instantiate, putatives
-from roger_daemon.learner.scaling import AffineScaling, as_vector
-from roger_daemon.learner.sogp import LATENT_FLOOR, SparseOnlineGP, likelihood_dims
-from roger_daemon.learner.state import unpack_meta
+from roger_daemon.learner.roger_predict import predict, predict_table
+from roger_daemon.learner.roger_state import load_roger_arrays, roger_arrays
+from roger_daemon.learner.roger_step import Putatives, instantiate, putatives
+from roger_daemon.learner.roger_terms import Experts, ModelTerms
+from roger_daemon.learner.scaling import as_vector
+from roger_daemon.learner.sogp import SparseOnlineGP
+from roger_daemon.learner.state import (
+    generator_from_state,
+    model_meta,
+    unpack_meta,
+)
 
 __all__ = ["Roger"]
 
@@ -98,62 +103,28 @@ class Roger:
                  seed: Seed = None) -> None:
         self.d_x, self.d_y, self.params = resolve_model_args(d_x, d_y, params)
         self._learn_rng, self._predict_rng = spawn_generators(seed)
-        self._setup()
-
-    # -- construction ------------------------------------------------------------------------
-
-    def _setup(self) -> None:
-        p = self.params
-        self._scaling = AffineScaling(p, self.d_x, self.d_y)
-        self._dm = self._scaling.d_model  # input dimensions after input_weights
-        self.kernel = RBFKernel(p.theta_w, self._dm, p.kernel_dim_scaling)
-        self._gates = GatePool(self._dm, p.mu0, p.kappa0, p.lambda0, p.nu0_for(self.d_x))
-        cap = self._gates.capacity
-        self._gps: list[SparseOnlineGP | None] = [None] * cap
-        self._ids = np.full(cap, -1, dtype=np.int64)
-        self._npts = np.zeros(cap, dtype=np.int64)
-        self._ref = np.zeros(cap, dtype=np.int64)
-        self._free: list[int] = list(range(cap - 1, -1, -1))  # pop() yields the lowest slot
-        # dropped experts' slabs (.jit_slab), reused by copy-on-write copies (not state): those
-        # of at most as many experts as there are particles
-        self._pool = BufferPool(limit=p.particles)
-        # the particles, flat: particle p holds the expert slots _slots[_starts[p]:_starts[p + 1]]
-        # (one array for all, so a step's bookkeeping is one compiled call: :mod:`.jit_layout`)
-        self._slots = np.zeros(0, dtype=np.int64)
-        self._starts = np.zeros(2, dtype=np.int64)
-        self._logw = np.zeros(1)
-        self._history = SegmentationHistory(p.particles)
+        #: the model's parameters, scaling, kernel and the constants of its putatives
+        self.terms = ModelTerms.of(self.d_x, self.d_y, self.params)
+        self.kernel = self.terms.kernel
+        self._store: Experts = ExpertStore(self.terms.new_gates(), self.terms.new_expert,
+                                           pool_limit=self.params.particles)
+        self._history = SegmentationHistory(self.params.particles)
         self.n_learned = 0
         # how close the last learn_one's discrete decisions were to flipping (diagnostic, not
         # state): resampling in normalised weight, novelty in units of k* (docs/reproducibility.md)
         self._margins: tuple[Any, float] | None = None  # (resampling margin or its thunk, novelty)
         self._margins_read: dict[str, float] = {}
-        self._next_id = 0
-        self._log_alpha = math.log(p.alpha)
-        self._empty_var = self.kernel.k_star + p.theta_n  # empty expert: y ~ N(0, (k*+s0^2) I)
-        dims = self._ll_dims = likelihood_dims(self.d_y, p.likelihood_normaliser)
-        # upper bound of any expert's log N(y; mu, s^2 I): s^2 >= s0^2 (+ latent floor)
-        self._gp_bound = -0.5 * dims * math.log(2.0 * math.pi * (p.theta_n + LATENT_FLOOR))
 
-    def _new_gp(self) -> SparseOnlineGP:
-        p = self.params
-        return SparseOnlineGP(self._dm, self.d_y, self.kernel, p.theta_n, p.beta,
-                              p.novelty_threshold, p.likelihood_normaliser,
-                              prior_mean=p.gp_prior_mean == "expert")
+    @property
+    def store(self) -> Experts:
+        """The experts of every particle, in slots (:class:`.engine.store.ExpertStore`): for
+        inspection, tests and diagnostics; learning goes through :meth:`learn_one`."""
+        return self._store
 
-    def _alloc_slot(self) -> int:
-        if not self._free:
-            old = len(self._gps)
-            new = 2 * old
-            self._gates.grow(new)
-            self._gps.extend([None] * (new - old))
-            for name in ("_ids", "_npts", "_ref"):
-                arr = getattr(self, name)
-                buf = np.full(new, -1 if name == "_ids" else 0, dtype=np.int64)
-                buf[:old] = arr
-                setattr(self, name, buf)
-            self._free = list(range(new - 1, old - 1, -1))
-        return self._free.pop()
+    @property
+    def history(self) -> SegmentationHistory:
+        """Each step's (ancestor, chosen expert) of every survivor (:mod:`.history`)."""
+        return self._history
 
     # -- Algorithm 1: learning -------------------------------------------------------------------
 
@@ -163,17 +134,51 @@ class Roger:
         Raises ``ValueError`` (model unchanged) if ``x`` or ``y`` has the wrong shape or is not
         finite.
         """
-        xs = self._scaling.x_in(as_vector("x", x, self.d_x))
-        ys = self._scaling.y_in(as_vector("y", y, self.d_y))
-        lw, flat_part, flat_slots, offsets, terms = self._putatives(xs, ys)
+        xs, ys = self._in_model_units(x, y)
+        # every putative's weight from predictive quantities only (Algorithm 1, inner loops)
+        put = putatives(self._store, self.terms, self._history, xs, ys)
         # resample to P (Fearnhead), then incorporate the point (Algorithm 1, last two lines)
         resampled: dict[str, Any] = {}
-        keep, new_logw = fearnhead_resample(lw, self.params.particles, self._learn_rng,
-                                            resampled, lazy=True)
-        novelty = instantiate(self, keep, new_logw, flat_part, flat_slots, offsets, xs, ys,
-                              terms)
+        keep, new_logw = fearnhead_resample(put.log_weights, self.params.particles,
+                                            self._learn_rng, resampled, lazy=True)
+        novelty = self._incorporate(put, keep, new_logw, xs, ys)
         self._margins = (resampled["margin"], novelty)
         self._margins_read = {}
+
+    def learn_assigned(self, x: npt.ArrayLike, y: npt.ArrayLike, expert_id: int | None) -> int:
+        """Algorithm 1's last step with the choice given, not sampled (a model of one
+        particle: :func:`.partition.fit_partition`): the pair joins expert ``expert_id`` of the
+        particle, or a new expert (``None``), exactly as when resampling chose that putative.
+        Returns the expert's id."""
+        if self.n_particles != 1:
+            raise ValueError(f"learn_assigned needs a model of one particle, "
+                             f"not {self.n_particles}")
+        xs, ys = self._in_model_units(x, y)
+        put = putatives(self._store, self.terms, self._history, xs, ys)
+        target = -1 if expert_id is None else next(
+            (s for s in self._store.particle(0).tolist() if self._store.ids[s] == expert_id),
+            None)
+        if target is None:
+            raise ValueError(f"the particle has no expert {expert_id}")
+        j = int(np.flatnonzero(put.slot == target)[0])
+        self._incorporate(put, np.array([j]), np.zeros(1), xs, ys)
+        return int(self._history.last_ids()[0])
+
+    def _in_model_units(self, x: npt.ArrayLike, y: npt.ArrayLike
+                        ) -> tuple[FloatArray, FloatArray]:
+        scaling = self.terms.scaling
+        return (scaling.x_in(as_vector("x", x, self.d_x)),
+                scaling.y_in(as_vector("y", y, self.d_y)))
+
+    def _incorporate(self, put: Putatives, keep: IntArray, new_logw: FloatArray,
+                     xs: FloatArray, ys: FloatArray) -> float:
+        """The survivors ``keep`` of the putatives become the particles, each chosen expert
+        updated once (:func:`.roger_step.instantiate`), the choices recorded; returns the
+        smallest novelty margin of the updated experts."""
+        ids, novelty = instantiate(self._store, put, keep, new_logw, xs, ys)
+        self._history.append(put.parent[keep], ids)
+        self.n_learned += 1
+        return novelty
 
     @property
     def last_margins(self) -> dict[str, float]:
@@ -186,15 +191,10 @@ class Roger:
                                   "novelty": novelty}
         return self._margins_read
 
-    def _putatives(self, xs: FloatArray, ys: FloatArray
-                   ) -> tuple[FloatArray, IntArray, IntArray, IntArray, SlotTerms]:
-        """Log weights of all putatives, touching no expert (:func:`.roger_step.putatives`)."""
-        return putatives(self, xs, ys)
-
     # -- Algorithm 2: prediction (:mod:`.roger_predict`) ------------------------------------------
 
-    def _map_slots(self) -> IntArray:
-        return map_slots(self)
+    def _rng(self, rng: np.random.Generator | None) -> np.random.Generator:
+        return self._predict_rng if rng is None else rng
 
     def predict_one(self, x: npt.ArrayLike, *, rng: np.random.Generator | None = None
                     ) -> Prediction:
@@ -204,13 +204,13 @@ class Roger:
         (``expert_choice="argmax"``) or a draw (``"sample"``, from the model's prediction
         stream, or from ``rng`` if given).  Before any learning: the prior, ``expert_id = -1``.
         """
-        pred, _ = predict(self, x, one=True, multimap=False, rng=rng)
+        pred, _ = predict(self._store, self.terms, x, self._rng(rng), one=True, multimap=False)
         assert pred is not None
         return pred
 
     def predict_multimap(self, x: npt.ArrayLike) -> list[ExpertPrediction]:
         """Every expert of the MAP particle: gate probability (summing to 1), mean, variance."""
-        _, mm = predict(self, x, one=False, multimap=True)
+        _, mm = predict(self._store, self.terms, x, self._predict_rng, one=False, multimap=True)
         assert mm is not None
         return mm
 
@@ -219,7 +219,7 @@ class Roger:
         """``(predict_one(x), predict_multimap(x))`` in one pass: the gates and every expert's
         GP evaluated once (one call per control tick); the same floats and draws as the two
         calls."""
-        pred, mm = predict(self, x, one=True, multimap=True, rng=rng)
+        pred, mm = predict(self._store, self.terms, x, self._rng(rng), one=True, multimap=True)
         assert pred is not None and mm is not None
         return pred, mm
 
@@ -228,12 +228,14 @@ class Roger:
         """``predict_with_multimap(x)`` with the multimap as a table of arrays (one row per
         expert, the same floats and draws), without an object per expert: what a daemon
         builds its reply from."""
-        pred, table = predict_table(self, x, rng=rng)
+        pred, table = predict_table(self._store, self.terms, x, self._rng(rng))
         assert pred is not None
         return pred, table
 
-
     # -- segmentation and introspection --------------------------------------------------------
+
+    def _map_slots(self) -> IntArray:
+        return self._store.particle(self._store.map_particle())
 
     @property
     def n_experts(self) -> int:
@@ -243,34 +245,30 @@ class Roger:
     @property
     def n_particles(self) -> int:
         """Particles currently carried (``P`` once there are enough putatives)."""
-        return self._starts.size - 1
+        return self._store.n_particles
 
     def particle_slots(self, p: int) -> IntArray:
         """The expert slots of particle ``p``, in order (a copy)."""
-        return self._slots[self._starts[p]: self._starts[p + 1]].copy()
+        return self._store.particle(p)
 
     @property
     def n_unique_experts(self) -> int:
         """Distinct expert versions held by all particles together (memory in use)."""
-        return int(np.count_nonzero(self._ref))
+        return int(np.count_nonzero(self._store.ref))
 
     def particle_log_weights(self) -> FloatArray:
         """Normalised log weights of the particles."""
-        return self._logw.copy()
+        return self._store.log_weights.copy()
 
     def expert_sizes(self) -> dict[int, int]:
         """``{expert_id: points assigned}`` in the MAP particle."""
-        slots = self._map_slots().tolist()
-        return {int(self._ids[s]): int(self._npts[s]) for s in slots}
+        store = self._store
+        return {int(store.ids[s]): int(store.counts[s]) for s in self._map_slots().tolist()}
 
     def basis_sizes(self) -> dict[int, int]:
         """``{expert_id: basis vectors}`` in the MAP particle (each <= ``beta``)."""
-        out = {}
-        for s in self._map_slots().tolist():
-            gp = self._gps[s]
-            assert gp is not None
-            out[int(self._ids[s])] = gp.n
-        return out
+        store = self._store
+        return {int(store.ids[s]): store.expert(s).n for s in self._map_slots().tolist()}
 
     def assignments(self) -> IntArray:
         """The MAP particle's expert id for every learned point, in order.
@@ -281,7 +279,7 @@ class Roger:
         """
         if self.n_learned == 0:
             return np.zeros(0, dtype=np.int64)
-        return self._history.assignments(int(np.argmax(self._logw)))
+        return self._history.assignments(self._store.map_particle())
 
     def unsettled_points(self) -> IntArray:
         """The learned points whose expert further learning may still change, ascending: those
@@ -294,18 +292,21 @@ class Roger:
         labels experts incrementally, :mod:`roger_daemon.labels`)."""
         if self.n_learned == 0:
             return self.assignments()[np.asarray(points, dtype=np.int64)]
-        return self._history.assignments_at(int(np.argmax(self._logw)), points)
+        return self._history.assignments_at(self._store.map_particle(), points)
 
     def distinct_experts(self) -> list[SparseOnlineGP]:
         """The distinct SOGPs held by the particles (for inspection and tests)."""
-        return [g for g, r in zip(self._gps, self._ref.tolist(), strict=True)
-                if r > 0 and g is not None]
+        return self._store.distinct()
 
     # -- state ----------------------------------------------------------------------------------
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata; see :mod:`.state`.  No object arrays."""
-        return roger_state_dict(self)
+        out = roger_arrays(self._store, self._history, self.terms)
+        out["meta"] = model_meta(self.kind, self.d_x, self.d_y, self.params.to_mapping(),
+                                 (self._learn_rng, self._predict_rng),
+                                 n_learned=self.n_learned, next_expert_id=self._store.next_id)
+        return out
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, np.ndarray]) -> Roger:
@@ -321,4 +322,10 @@ class Roger:
         return model
 
     def _load(self, state: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        load_roger_state(self, state, meta)
+        """Set this freshly built model to the saved ``state`` (:func:`.roger_state
+        .load_roger_arrays`) and ``meta``'s generators and counters."""
+        self._learn_rng = generator_from_state(meta["rng_learn"])
+        self._predict_rng = generator_from_state(meta["rng_predict"])
+        self._history = load_roger_arrays(self._store, self.terms, state,
+                                          int(meta["next_expert_id"]))
+        self.n_learned = int(meta["n_learned"])

@@ -1,99 +1,89 @@
-"""ROGER's predictions (paper Algorithm 2, docs/learner-math.md §6), on a :class:`.Roger`.
+"""ROGER's predictions (paper Algorithm 2, docs/learner-math.md §6).
 
 The MAP particle's experts compete through their gates, ``p(k | x) ∝ n_k t_k(x)``;
 :func:`predict` evaluates the gates once and the GPs it needs once, and returns the chosen
-expert's prediction, the whole multimap, or both (one call per control tick).  Split from
-:mod:`.roger`, whose private state these functions read.
+expert's prediction, the whole multimap, or both (one call per control tick).  They read a
+model's store of experts (:class:`.engine.store.ExpertStore`) and its fixed terms
+(:class:`.roger_terms.ModelTerms`), which :class:`.roger.Roger` hands them.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
+from roger_daemon.learner.roger_terms import Experts, ModelTerms
 from roger_daemon.learner.scaling import as_vector
 from roger_daemon.learner.sogp_batch import predict_many
 
-if TYPE_CHECKING:
-    from roger_daemon.learner.roger import Roger
-
-__all__ = ["gate_probs", "map_slots", "predict", "predict_table"]
+__all__ = ["gate_probs", "predict", "predict_table"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 
-def map_slots(model: Roger) -> IntArray:
-    """Slots of the MAP particle (highest weight after the last resampling, §6)."""
-    return model.particle_slots(int(model._logw.argmax()))
-
-
-def gate_probs(model: Roger, slots: IntArray, xs: FloatArray) -> FloatArray:
+def gate_probs(store: Experts, terms: ModelTerms, slots: IntArray, xs: FloatArray
+               ) -> FloatArray:
     """``p(k | x) ∝ n_k t_k(x)`` over ``slots`` (+ ``alpha t_0(x)`` if the empty expert
     takes part), normalised (paper Algorithm 2, docs/learner-math.md §6)."""
-    by_slot = np.empty(model._npts.size)
-    model._gates.crp_log_terms(slots, xs, model._npts, by_slot)
+    by_slot = np.empty(store.counts.size)
+    store.gates.crp_log_terms(slots, xs, store.counts, by_slot)
     lg = by_slot[slots]
-    npts = model._npts[slots]
-    support = model.params.min_support
+    npts = store.counts[slots]
+    support = terms.params.min_support
     if support > 1:  # too small to compete, unless no expert has the support
         small = npts < support
         if not small.all():
             lg[small] = -np.inf
-    if model.params.predict_empty_expert:
-        lg = np.append(lg, model._log_alpha + model._gates.prior_log_predictive(xs))
+    if terms.params.predict_empty_expert:
+        lg = np.append(lg, terms.log_alpha + store.gates.prior_log_predictive(xs))
     w = np.exp(lg - lg.max())  # the methods: numpy's reductions without their wrappers
     out: FloatArray = w / w.sum()
     return out
 
 
-def _prior(model: Roger, gate_prob: float) -> Prediction:
-    s = model._scaling
-    return Prediction(mean=s.mean_out(np.zeros(model.d_y)), var=s.var_out(model._empty_var),
+def _prior(terms: ModelTerms, gate_prob: float) -> Prediction:
+    s = terms.scaling
+    return Prediction(mean=s.mean_out(np.zeros(terms.d_y)), var=s.var_out(terms.empty_var),
                       expert_id=-1, gate_prob=gate_prob)
 
 
-def _choose(model: Roger, probs: FloatArray, rng: np.random.Generator | None) -> int:
-    """Index of the expert ``predict_one`` answers with (argmax, or one draw)."""
-    if model.params.expert_choice == "argmax":
+def _choose(terms: ModelTerms, probs: FloatArray, rng: np.random.Generator) -> int:
+    """Index of the expert ``predict_one`` answers with (argmax, or one draw from ``rng``)."""
+    if terms.params.expert_choice == "argmax":
         return int(probs.argmax())
-    gen = model._predict_rng if rng is None else rng
-    return min(int(np.searchsorted(np.cumsum(probs), gen.random(), side="right")),
+    return min(int(np.searchsorted(np.cumsum(probs), rng.random(), side="right")),
                probs.size - 1)
 
 
-def _expert(model: Roger, slot: int, xs: FloatArray, prob: float) -> ExpertPrediction:
-    gp = model._gps[slot]
-    assert gp is not None
-    mean, var = gp.predict(xs)
-    sc = model._scaling
-    return ExpertPrediction(expert_id=int(model._ids[slot]), gate_prob=prob,
+def _expert(store: Experts, terms: ModelTerms, slot: int, xs: FloatArray, prob: float
+            ) -> ExpertPrediction:
+    mean, var = store.expert(slot).predict(xs)
+    sc = terms.scaling
+    return ExpertPrediction(expert_id=int(store.ids[slot]), gate_prob=prob,
                             mean=sc.mean_out(mean), var=sc.var_out(var),
-                            n_points=int(model._npts[slot]))
+                            n_points=int(store.counts[slot]))
 
 
-def _branches(model: Roger, slots: IntArray, xs: FloatArray, probs: FloatArray
-              ) -> MultimapTable:
+def _branches(store: Experts, terms: ModelTerms, slots: IntArray, xs: FloatArray,
+              probs: FloatArray) -> MultimapTable:
     """The multimap's rows over ``slots`` (+ the empty expert's if it takes part): the GPs
     evaluated several per compiled call (:func:`.sogp_batch.predict_many`), the scaling back
     to output units done once for all of them (the same floats as each expert's own
     :func:`_expert`: it is elementwise)."""
     sl = slots.tolist()
-    gps = [model._gps[s] for s in sl]
-    means = np.empty((len(sl), model.d_y))
+    means = np.empty((len(sl), terms.d_y))
     variance = np.empty(len(sl))  # predictive, model units (observation noise included)
-    predict_many(gps, xs, means, variance)
-    sc = model._scaling
+    predict_many(store.experts(sl), xs, means, variance)
+    sc = terms.scaling
     means = sc.mean_out(means)
     var = sc.var_out(variance[:, None])  # type: ignore[arg-type]  # a column: one per expert
-    ids = model._ids[sl].tolist()
-    npts = model._npts[sl].tolist()
+    ids = store.ids[sl].tolist()
+    npts = store.counts[sl].tolist()
     gate = probs.tolist()
-    if model.params.predict_empty_expert:  # its row last, its gate probability last
-        prior = _prior(model, gate[-1])
+    if terms.params.predict_empty_expert:  # its row last, its gate probability last
+        prior = _prior(terms, gate[-1])
         means = np.vstack([means, prior.mean])
         var = np.vstack([var, prior.var])
         ids.append(-1)
@@ -101,27 +91,26 @@ def _branches(model: Roger, slots: IntArray, xs: FloatArray, probs: FloatArray
     return MultimapTable(ids, gate, means, var, npts)
 
 
-def predict_table(model: Roger, x: npt.ArrayLike, *, one: bool = True,
-                  rng: np.random.Generator | None = None
-                  ) -> tuple[Prediction | None, MultimapTable]:
-    """``predict_one``'s answer for ``x`` (if ``one``) and the whole multimap as a table:
-    the gates evaluated once, every expert's GP once; the chosen expert's answer is its row.
-    Identical, float for float and draw for draw, to calling ``predict_one`` then
-    ``predict_multimap``."""
-    xs = model._scaling.x_in(as_vector("x", x, model.d_x))
-    slots = map_slots(model)
+def predict_table(store: Experts, terms: ModelTerms, x: npt.ArrayLike, rng: np.random.Generator,
+                  *, one: bool = True) -> tuple[Prediction | None, MultimapTable]:
+    """``predict_one``'s answer for ``x`` (if ``one``; a draw from ``rng`` with
+    ``expert_choice="sample"``) and the whole multimap as a table: the gates evaluated once,
+    every expert's GP once; the chosen expert's answer is its row.  Identical, float for float
+    and draw for draw, to calling ``predict_one`` then ``predict_multimap``."""
+    xs = terms.scaling.x_in(as_vector("x", x, terms.d_x))
+    slots = store.particle(store.map_particle())
     if slots.size == 0:
-        prior = _prior(model, 1.0)
+        prior = _prior(terms, 1.0)
         table = MultimapTable([-1], [1.0], prior.mean[None, :], prior.var[None, :], [0]) \
-            if model.params.predict_empty_expert else MultimapTable.empty(model.d_y)
+            if terms.params.predict_empty_expert else MultimapTable.empty(terms.d_y)
         return (prior if one else None), table
-    probs = gate_probs(model, slots, xs)
-    table = _branches(model, slots, xs, probs)
-    return (table.prediction(_choose(model, probs, rng)) if one else None), table
+    probs = gate_probs(store, terms, slots, xs)
+    table = _branches(store, terms, slots, xs, probs)
+    return (table.prediction(_choose(terms, probs, rng)) if one else None), table
 
 
-def predict(model: Roger, x: npt.ArrayLike, *, one: bool, multimap: bool,
-            rng: np.random.Generator | None = None
+def predict(store: Experts, terms: ModelTerms, x: npt.ArrayLike, rng: np.random.Generator, *,
+            one: bool, multimap: bool
             ) -> tuple[Prediction | None, list[ExpertPrediction] | None]:
     """``(predict_one, predict_multimap)`` answers for ``x``, each only if asked for.
 
@@ -130,18 +119,18 @@ def predict(model: Roger, x: npt.ArrayLike, *, one: bool, multimap: bool,
     and draw for draw, to calling ``predict_one`` then ``predict_multimap``.
     """
     if multimap:
-        pred, table = predict_table(model, x, one=one, rng=rng)
+        pred, table = predict_table(store, terms, x, rng, one=one)
         return pred, table.experts()
-    xs = model._scaling.x_in(as_vector("x", x, model.d_x))
-    slots = map_slots(model)
+    xs = terms.scaling.x_in(as_vector("x", x, terms.d_x))
+    slots = store.particle(store.map_particle())
     if slots.size == 0:
-        return (_prior(model, 1.0) if one else None), None
+        return (_prior(terms, 1.0) if one else None), None
     if not one:
         return None, None
-    probs = gate_probs(model, slots, xs)
-    k = _choose(model, probs, rng)
+    probs = gate_probs(store, terms, slots, xs)
+    k = _choose(terms, probs, rng)
     if k == slots.size:  # the empty expert
-        return _prior(model, float(probs[k])), None
-    e = _expert(model, int(slots[k]), xs, float(probs[k]))
+        return _prior(terms, float(probs[k])), None
+    e = _expert(store, terms, int(slots[k]), xs, float(probs[k]))
     return Prediction(mean=e.mean, var=e.var, expert_id=e.expert_id,
                       gate_prob=e.gate_prob), None

@@ -10,7 +10,7 @@ share the covariance coefficients ``C`` and the inverse Gram matrix ``Q``
 Learning one pair is Csató's thesis eq. 2.46 with the KL projection of App. G (docs/learner-math.md
 §2.5); capacity ``beta`` is enforced by a ``while n > beta`` loop of KL-optimal deletions
 (thesis App. G(g), §2.7), followed by the geometric clean-up.  Every update is a symmetric
-low-rank term and ``C`` and ``Q`` are stored as their upper triangles (:mod:`.packed`), so
+low-rank term and ``C`` and ``Q`` are stored as their upper triangles (:mod:`.engine.packed`), so
 they are exactly symmetric (Csató's ``(C + C^T)/2`` is not needed).
 
 Prior mean (``prior_mean=True``, issue 13): the GP models ``y - m`` where ``m`` is the running
@@ -22,16 +22,15 @@ the new ``m`` (docs/learner-math.md).  The variance does not involve the targets
 unchanged; deletion scores use the centred columns only.
 
 Hot path: with continuous data nearly every point is novel, so a full expert does "add a basis
-vector, then delete one" at every step.  That pair is fused into one rank-3 update of ``C`` and
-one rank-2 update of ``Q``, done in place in one compiled pass over each buffer
-(:mod:`.sogp_fused`, :mod:`.jit`; one expert after another by :func:`update_many`).  ``C`` and
-``Q`` are symmetric and stored packed, upper triangle only (:mod:`.packed`): every pass streams
-half the bytes.  Buffers grow by 1.5x as an expert does, up to ``beta`` rows.  Cost per step:
-O(n d_x + n^2 + n d_y).
+vector, then delete one" at every step, fused into one rank-3 update of ``C`` and one rank-2
+update of ``Q`` in one compiled pass over each (:mod:`.engine.jit_fused`; several experts per
+call by :mod:`.sogp_batch`).  ``C`` and ``Q`` are stored packed, upper triangle only
+(:mod:`.engine.packed`): every pass streams half the bytes.  Buffers grow by 1.5x as an expert
+does, up to ``beta`` rows.  Cost per step: O(n d_x + n^2 + n d_y).
 
-Modules: this one holds the state, prediction and the update's dispatch; the matrix steps
-(updates, deletion, clean-up, re-inversion of ``Q``) are :mod:`.sogp_steps`, the batched update
-of several experts :mod:`.sogp_batch`, the compiled loops :mod:`.jit`.
+Modules: this one holds the state, prediction and the update's steps in order; the matrix
+steps themselves (updates, deletion, clean-up, re-inversion of ``Q``) are :mod:`.sogp_steps`,
+on the engine's compiled kernels (:mod:`.engine`).
 """
 
 from __future__ import annotations
@@ -43,17 +42,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit as _jit
-from roger_daemon.learner import packed as _packed
-from roger_daemon.learner.buffers import BufferPool, PendingCopy
+from roger_daemon.learner.engine import jit as _jit
+from roger_daemon.learner.engine import packed as _packed
+from roger_daemon.learner.engine.buffers import BufferPool, PendingCopy
 from roger_daemon.learner.kernel import RBFKernel
-from roger_daemon.learner.sogp_batch import update_many
-from roger_daemon.learner.sogp_fused import fused_add_delete as _fused_add_delete
 from roger_daemon.learner.sogp_steps import LATENT_FLOOR, SOGPSteps
 from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
 
-__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "likelihood_dims",
-           "update_many"]
+__all__ = ["LATENT_FLOOR", "SparseOnlineGP", "gaussian_log_likelihood", "likelihood_dims"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -189,10 +185,10 @@ class SparseOnlineGP(SOGPSteps):
             empty = np.zeros(0)
             return empty, empty, self._m.copy(), self.kernel.k_star
         # one compiled call: kernel, C k, k^T C k, k^T A (one pass over C, no BLAS)
-        return self._terms_from(_jit.expert_terms(self._B, self._Cp, self._A, x,
+        return self.terms_from(_jit.expert_terms(self._B, self._Cp, self._A, x,
                                                   self.kernel.gamma, n, self._alloc))
 
-    def _terms_from(self, packed: FloatArray
+    def terms_from(self, packed: FloatArray
                     ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
         """:meth:`terms` from the compiled ``[k, C k, k^T C k, k^T A]`` of this expert (one
         call, :func:`.jit_kernels.expert_terms`, or several experts' at once:
@@ -204,31 +200,6 @@ class SparseOnlineGP(SOGPSteps):
         if not self.prior_mean:
             return k, ck, mean, latent
         return k, ck, mean[: self.d_y] + self._m, latent
-
-    def _targets(self, y: FloatArray, mean: FloatArray, k: FloatArray
-                 ) -> tuple[FloatArray, FloatArray]:
-        """``(y, mean)`` extended by the ``a1`` column (target 1, prediction ``a1^T k``).
-
-        ``y - mean`` is then the residual of every column of ``A``: with a prior mean the
-        columns model ``y - m`` and predict ``mean - m``, whose difference is ``y - mean``.
-        """
-        if not self.prior_mean:
-            return y, mean
-        d = self.d_y
-        ext = np.empty((2, d + 1))  # [y, 1] and [mean, a1^T k] (cheaper than two np.append)
-        ext[0, :d] = y
-        ext[0, d] = 1.0
-        ext[1, :d] = mean
-        ext[1, d] = _jit.dot_column(k, self._A, d, self.n)  # a1^T k, no BLAS
-        return ext[0], ext[1]
-
-    def _shift_mean(self, y: FloatArray) -> None:
-        """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
-        if not self.prior_mean:
-            return
-        # dm = (y - m) / n_points; m + dm; A[:, :d] -= a1 dm^T: numpy's floats, one call, the
-        # new mean written over the old one in the slab
-        _jit.shift_mean(self._A, self._m, y, self.n, self.n_points, self._m)
 
     def predict(self, x: FloatArray) -> tuple[FloatArray, float]:
         """Predictive mean (d_y,) and variance of y (scalar, shared by the outputs)."""
@@ -247,53 +218,69 @@ class SparseOnlineGP(SOGPSteps):
                terms: tuple[FloatArray, FloatArray, FloatArray, float] | None = None) -> None:
         """Learn one pair (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5).
 
-        ``terms`` may pass :meth:`terms` ``(x)`` computed earlier for this very state.
+        ``terms`` may pass :meth:`terms` ``(x)`` computed earlier for this very state.  Step 1
+        (the first point), step 2 (Csató's scalars), then: an expert with room for another
+        basis vector takes steps 3, 4 and step 6's test in one compiled call
+        (:func:`.engine.jit_small.growth_step`); a full one (or one whose ``Q`` drifted, or
+        whose buffers must grow first) the novelty test (step 3), then the projection update
+        (4a), the fused add-then-delete at capacity (4b + 5) or the full update (4b), the
+        deletions and the clean-up (5, 6).
         """
         self.n_points += 1
-        n = self.n
-        kstar = self.kernel.k_star
-        s0 = self.noise
         self._forget_diagonals()  # the fused path below recomputes them
-        if n == 0:  # first point, §2.5
-            self._B[0] = x
-            if self.prior_mean:  # targets [y - m, 1]
-                self._A[0, : self.d_y] = (y - self._m) / (kstar + s0)
-                self._A[0, self.d_y] = 1.0 / (kstar + s0)
-            else:
-                self._A[0] = y / (kstar + s0)
-            self._Cp[0] = -1.0 / (kstar + s0)  # C[0, 0]: the packed buffer starts with it
-            self._Qp[0] = 1.0 / kstar
-            self.n = 1
-            self._shift_mean(y)
+        if self.n == 0:
+            self._first_point(x, y)
             return
         k, ck, mean, latent = terms if terms is not None else self.terms(x)
-        y, mean = self._targets(y, mean, k)
+        y, mean = self.targets(y, mean, k)
         # step 2: Gaussian-likelihood scalars (Csató's K2 = r and K1 = q)
-        r = -1.0 / (s0 + latent)
-        q = (y - mean) / (s0 + latent)
-        if not self._fusable():  # steps 3, 4 and step 6's test in one compiled call
-            outcome, gamma, clean = _jit.growth_step(
-                self._B, self._A, self._Cp, self._Qp, self._alloc, n, x, k, ck, q, r,
-                *self._novelty_constants(), self.cleanup_floor())
-            if outcome in (_jit.ADDED, _jit.PROJECTED):  # else nothing changed: below
-                self.record_novelty_margin(gamma)
-                if outcome == _jit.ADDED:
-                    self.n = n + 1
-                # step 5 too past beta (buffers for beta + 1 without the fused step)
-                if not clean or (self.capacity is not None and self.n > self.capacity):
-                    self._clean_up()
-                self._after_update(gamma, y)
-                return
+        r = -1.0 / (self.noise + latent)
+        q = (y - mean) / (self.noise + latent)
+        if not self.fusable() and self._grew(x, k, ck, q, r, y):
+            return
         e_hat, gamma, novel = self.novelty(k)  # step 3 (Q re-inverted first if it drifted)
         if not novel:
             self._sparse_update(ck, e_hat, gamma, r, q)  # step 4a
-        elif self._fusable():
+        elif self.fusable():
             # steps 4b + 5 fused: add x, then delete the KL-optimal BV, in one pass per matrix
-            _fused_add_delete(self, x, y, ck, mean, latent, e_hat, gamma)
+            self._fused_add_delete(x, ck, e_hat, gamma, r, q)
         else:
             self._full_update(x, ck, e_hat, gamma, r, q)  # step 4b
         self._clean_up()  # steps 5 and 6
         self._after_update(gamma, y)
+
+    def _first_point(self, x: FloatArray, y: FloatArray) -> None:
+        """Step 1 (§2.5): the first point is the first basis vector."""
+        kstar, s0 = self.kernel.k_star, self.noise
+        self._B[0] = x
+        if self.prior_mean:  # targets [y - m, 1]
+            self._A[0, : self.d_y] = (y - self._m) / (kstar + s0)
+            self._A[0, self.d_y] = 1.0 / (kstar + s0)
+        else:
+            self._A[0] = y / (kstar + s0)
+        self._Cp[0] = -1.0 / (kstar + s0)  # C[0, 0]: the packed buffer starts with it
+        self._Qp[0] = 1.0 / kstar
+        self.n = 1
+        self._shift_mean(y)
+
+    def _grew(self, x: FloatArray, k: FloatArray, ck: FloatArray, q: FloatArray, r: float,
+              y: FloatArray) -> bool:
+        """Steps 3, 4 and step 6's test of an expert that is not full, in one compiled call
+        (:func:`.engine.jit_small.growth_step`), then the rest of the step; ``False`` (nothing
+        changed) where ``Q`` drifted or the buffers must grow first."""
+        outcome, gamma, clean = _jit.growth_step(
+            self._B, self._A, self._Cp, self._Qp, self._alloc, self.n, x, k, ck, q, r,
+            *self.novelty_constants(), self.cleanup_floor())
+        if outcome not in (_jit.ADDED, _jit.PROJECTED):
+            return False
+        self.record_novelty_margin(gamma)
+        if outcome == _jit.ADDED:
+            self.n += 1
+        # step 5 too past beta (buffers for beta + 1 without the fused step)
+        if not clean or (self.capacity is not None and self.n > self.capacity):
+            self._clean_up()
+        self._after_update(gamma, y)
+        return True
 
     def _after_update(self, gamma: float, y: FloatArray) -> None:
         """The end of :meth:`update`: ``Q`` re-inverted after a near-dependent basis vector
@@ -318,8 +305,8 @@ class SparseOnlineGP(SOGPSteps):
         out.n = self.n
         out.n_points = self.n_points
         # the whole slab: one memcpy (the padding is never read)
-        slab = (self._slab.copy() if pool is None
-                else pool.copy_of(self._slab, pending, self.home))
+        slab = (self.slab.copy() if pool is None
+                else pool.copy_of(self.slab, pending, self.home))
         out._bind(slab, self._alloc)
         out._dg = None if self._dg is None else self._dg.copy()
         out._dq = None if self._dq is None else self._dq.copy()
@@ -340,7 +327,7 @@ class SparseOnlineGP(SOGPSteps):
     def release(self, pool: BufferPool) -> None:
         """Give this expert's slab to ``pool`` for later copies (the model has dropped it: it
         must not be used afterwards), with its home (:meth:`.buffers.BufferPool.give`)."""
-        pool.give(self._slab, self.home)
+        pool.give(self.slab, self.home)
 
     def load(self, B: FloatArray, A: FloatArray, C: FloatArray, Q: FloatArray,
              n_points: int, alloc: int | None = None, diag_cache: FloatArray | None = None,

@@ -1,65 +1,33 @@
 """Several experts at once: one ROGER step's evaluation and its chosen experts' updates.
 
 :func:`evaluate_many` is :meth:`.sogp.SparseOnlineGP.terms` of every expert a step evaluates
-(and, with the noise added, :func:`predict_many` a prediction's);
-:func:`update_many` is :meth:`.sogp.SparseOnlineGP.update` for each expert it updates, where
-the experts on the hot path (full: ``n = beta`` basis vectors in buffers for ``beta``) take
-the fused add-then-delete step (:mod:`.sogp_fused`).  Both run the experts' compiled kernels
-several per call, on one thread (:mod:`.jit_evaluate`) or spread over the cores
-(:mod:`.jit_batch`; docs/performance.md, *Both cores in one step*); each expert's floats are
-those of a call of its own.  Split from :mod:`.sogp`
-(which re-exports :func:`update_many`).
-"""
+(and, with the noise added, :func:`predict_many` a prediction's); :func:`update_many` is
+:meth:`.sogp.SparseOnlineGP.update` for each expert it updates, where the experts on the hot
+path (full: ``n = beta`` basis vectors in buffers for ``beta``) take the fused add-then-delete
+step (:mod:`.engine.jit_fused`).  The engine runs the experts' compiled kernels several per
+call, on one thread or spread over the cores (:mod:`.engine.experts`; docs/performance.md,
+*Both cores in one step*); each expert's floats are those of a call of its own."""
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from itertools import accumulate
-from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit as _jit
-from roger_daemon.learner.sogp_fused import output_weights
-from roger_daemon.learner.sogp_steps import LATENT_FLOOR as _LATENT_FLOOR
-from roger_daemon.learner.sogp_steps import NEAR_DEPENDENT as _NEAR_DEPENDENT
+from roger_daemon.learner.engine import jit as _jit
+from roger_daemon.learner.engine.experts import evaluate_slabs, learn_full_slabs
+from roger_daemon.learner.engine.jit_slab import output_weights
+from roger_daemon.learner.sogp import SparseOnlineGP
+from roger_daemon.learner.sogp_steps import LATENT_FLOOR
 
-if TYPE_CHECKING:
-    from roger_daemon.learner.buffers import PendingCopy
-    from roger_daemon.learner.sogp import SparseOnlineGP
-
-__all__ = ["Evaluation", "copy_many", "evaluate_many", "predict_many", "update_evaluated",
-           "update_many"]
+__all__ = ["Evaluation", "evaluate_many", "predict_many", "update_evaluated", "update_many"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 Terms = tuple[FloatArray, FloatArray, FloatArray, float]
-
-
-def copy_many(pending: Sequence[PendingCopy]) -> None:
-    """``np.copyto(dst, src)`` for each pair (a step's copy-on-write copies,
-    :meth:`.sogp.SparseOnlineGP.copy` with ``pending``): several per compiled call
-    (:func:`.jit_batch.copy_batch`) when :func:`.jit.batch_worth` says so, each by the thread
-    it names (its source's home)."""
-    if not _jit.batch_worth(sum(src.size for src, _, _ in pending)):
-        for src, dst, _ in pending:
-            np.copyto(dst, src)
-        return
-    srcs = [src for src, _, _ in pending]
-    dsts = [dst for _, dst, _ in pending]
-    groups = _jit.threads()
-    owners = _jit.balanced_owners(
-        np.array([home for _, _, home in pending], dtype=np.int64),
-        np.array([src.size for src in srcs], dtype=np.int64), groups, False)
-    with _jit.BATCH_LOCK:
-        for lo in range(0, len(pending), _jit.WIDTH):
-            hi = min(lo + _jit.WIDTH, len(pending))
-            _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo,
-                            owners[lo:hi], groups)
 
 
 @dataclass(slots=True)
@@ -83,7 +51,7 @@ class Evaluation:
         if got is None:
             gp = self.gps[j]
             start = int(self.offsets[j])
-            got = gp._terms_from(self.packed[start: start + 2 * gp.n + 1 + gp.a_cols])
+            got = gp.terms_from(self.packed[start: start + 2 * gp.n + 1 + gp.a_cols])
             self.built[j] = got
         return got
 
@@ -95,48 +63,16 @@ def evaluate_many(gps: Sequence[SparseOnlineGP], x: FloatArray) -> Evaluation:
     experts are large enough for the threads, spread over them
     (:func:`.jit_batch.terms_batch`); the same floats as each expert's own ``terms``."""
     m = len(gps)
-    ns = [gp.n for gp in gps]
-    if m == 0 or 0 in ns:  # an expert without basis vectors answers with its prior
+    if m == 0 or any(gp.n == 0 for gp in gps):  # an expert without basis vectors: its prior
         each = [gp.terms(x) for gp in gps]
         return Evaluation(gps, np.array([t[2] for t in each]),
                           np.array([t[3] for t in each], dtype=np.float64), np.empty(0),
                           np.zeros(m, dtype=np.int64), list(each))
     first = gps[0]
-    cols = 1 + first.a_cols  # every expert of one model has as many output columns
-    sizes = [2 * n + cols for n in ns]  # each expert's terms, one after the other in ``packed``
-    bounds = np.fromiter(accumulate(sizes, initial=0), dtype=np.int64, count=m + 1)
-    offsets = bounds[:m]  # where each expert's terms start in ``packed``
-    packed = np.empty(int(bounds[m]))
-    means = np.empty((m, first.d_y))
-    latent = np.empty(m)
     kernel = first.kernel
-    batched = _jit.batch_worth(sum(n * (n + 1) for n in ns) // 2)  # packed entries in all
-    ns_arr = np.array(ns, dtype=np.int64)
-    slabs = [gp._slab for gp in gps]  # each expert's buffers in one array (.jit_slab)
-    width = _jit.EVALUATION_WIDTH
-    owners, groups = _owners(gps, ns_arr * (ns_arr + 1) // 2) if batched else (None, 0)
-    with _jit.BATCH_LOCK if batched else contextlib.nullcontext():
-        for lo in range(0, m, width):
-            hi = min(lo + width, m)
-            args = (_jit.padded(slabs, lo, width), hi - lo, ns_arr[lo:hi], x, kernel.gamma,
-                    kernel.k_star, _LATENT_FLOOR, first.prior_mean, packed, offsets[lo:hi],
-                    means[lo:hi], latent[lo:hi])
-            if owners is None:
-                _jit.evaluate_experts(*args)
-            else:
-                _jit.terms_batch(*args, owners[lo:hi], groups)
-    return Evaluation(gps, means, latent, packed, offsets, [None] * m)
-
-
-def _owners(gps: Sequence[SparseOnlineGP], work: IntArray) -> tuple[IntArray, int]:
-    """Each expert's thread for a batched kernel (:func:`.jit_batch.balanced_owners`: its home
-    where the threads' loads allow), kept as its new home; and the number of threads."""
-    groups = _jit.threads()
-    owners = _jit.balanced_owners(np.array([gp.home for gp in gps], dtype=np.int64), work,
-                                  groups, True)
-    for gp, owner in zip(gps, owners.tolist(), strict=True):
-        gp.home = owner
-    return owners, groups
+    got = evaluate_slabs(gps, x, kernel.gamma, kernel.k_star, LATENT_FLOOR, first.prior_mean,
+                         first.a_cols, first.d_y)
+    return Evaluation(gps, got.means, got.latent, got.packed, got.offsets, [None] * m)
 
 
 def predict_many(gps: Sequence[SparseOnlineGP], x: FloatArray, means: FloatArray,
@@ -159,7 +95,7 @@ def update_many(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray,
     Equivalent to ``gp.update(x, y, t)`` for each (except that a non-novel point never
     re-inverts ``Q``: a projection update leaves ``Q`` unchanged).  The experts on the hot path
     (full, contiguous, the same ``n``, no drift in ``diag(Q)``) take ``Q k``, the novelty
-    test and the fused add-then-delete step (:mod:`.sogp_fused`) in compiled calls of up to
+    test and the fused add-then-delete step (:mod:`.engine.jit_fused`) in compiled calls of up to
     :data:`.jit.WIDTH` experts each (:func:`.jit_batch.learn_batch`); a non-novel point then
     gets its projection update here, and an expert whose ``Q`` drifted learns on its own.
     """
@@ -207,7 +143,7 @@ def _hot_path(gps: Sequence[SparseOnlineGP]) -> tuple[list[int], list[int]]:
     alone: list[int] = []
     n = -1
     for j, gp in enumerate(gps):
-        if gp._fusable() and (n < 0 or gp.n == n) and not gp.q_drifted():
+        if gp.fusable() and (n < 0 or gp.n == n) and not gp.q_drifted():
             full.append(j)
             n = gp.n
         else:
@@ -233,7 +169,9 @@ def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, ter
     :func:`.jit_batch.learn_batch`, ``WIDTH`` at a time, on several threads
     (:func:`.jit.threads`) when there is enough work (:func:`.jit.batch_worth`); else its
     body's kernels one expert at a time (faster there: docs/performance.md); the same
-    floats."""
+    floats (:func:`.engine.experts.learn_full_slabs`).  Then each expert finishes the step
+    (:meth:`.sogp.SparseOnlineGP.finish_kept`, :meth:`~.sogp.SparseOnlineGP.finish_fused`); one
+    whose ``Q`` drifted learns on its own."""
     first = gps[0]
     m, n = len(gps), first.n
     denom = first.noise + latent
@@ -242,70 +180,14 @@ def _learn_full(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, ter
         qs = np.empty((m, first.a_cols))  # and K1
         for j, gp in enumerate(gps):
             at = int(starts[j])
-            y_ext, mean = gp._targets(y, means[j], terms[at: at + n])
+            y_ext, mean = gp.targets(y, means[j], terms[at: at + n])
             qs[j] = (y_ext - mean) / denom[j]
     else:
         qs = (y - means) / denom[:, None]
-    rule = np.array([*first._novelty_constants(), first.cleanup_floor()])
+    rule = np.array([*first.novelty_constants(), first.cleanup_floor()])
     cw = output_weights(first.a_cols, first.d_y)
-    rows = np.empty((3, m, n))  # Q k, and the diagonals a fused step writes
-    out = _Outcomes(np.empty(m, dtype=np.int64), np.empty(m), rows[0], rows[1], rows[2],
-                    np.empty(m), np.empty(m, dtype=np.int64), np.empty(m),
-                    np.empty(m, dtype=np.bool_))
-    dgs = np.array([gp._diag_cq() for gp in gps])
-    if _jit.batch_worth(m * n * (n + 1) // 2):
-        _learn_batched(gps, x, terms, starts, dgs, qs, rs, cw, rule, out)
-    else:
-        for j, (gp, at) in enumerate(zip(gps, starts.tolist(), strict=True)):
-            (out.outcome[j], out.gamma[j], out.dq_min[j], out.dq_argmax[j], out.margin[j],
-             out.clean[j]) = _jit.learn_full_expert(
-                gp._B, gp._A, gp._Cp, gp._Qp, x, terms[at: at + n], terms[at + n: at + 2 * n],
-                dgs[j], qs[j], rs[j], cw, rule, out.e_hat[j], out.diag[j], out.dq[j])
-    _finish(gps, x, y, out, terms_of)
-
-
-class _Outcomes(NamedTuple):
-    """The full experts' steps 3-5 (:func:`.jit_batch.learn_batch`), one entry or row each:
-    the outcome (:data:`.jit.FUSED`, :data:`.jit.KEPT` or :data:`.jit.DRIFTED`), ``gamma``,
-    ``Q k``, after a fused step the diagonals it returns with ``diag(Q)``'s minimum and
-    first argmax, the novelty test's margin, and whether the clean-up keeps every basis
-    vector."""
-
-    outcome: IntArray
-    gamma: FloatArray
-    e_hat: FloatArray
-    diag: FloatArray
-    dq: FloatArray
-    dq_min: FloatArray
-    dq_argmax: IntArray
-    margin: FloatArray
-    clean: npt.NDArray[np.bool_]
-
-
-def _learn_batched(gps: Sequence[SparseOnlineGP], x: FloatArray, terms: FloatArray,
-                   starts: IntArray, dgs: FloatArray, qs: FloatArray, rs: FloatArray,
-                   cw: FloatArray, rule: FloatArray, out: _Outcomes) -> None:
-    """:func:`_learn_full`'s kernels by :func:`.jit_batch.learn_batch` calls."""
-    slabs = [gp._slab for gp in gps]  # each expert's buffers in one array (.jit_slab)
-    owners, groups = _owners(gps, np.ones(len(gps), dtype=np.int64))
-    with _jit.BATCH_LOCK:
-        for lo in range(0, len(gps), _jit.WIDTH):
-            hi = min(lo + _jit.WIDTH, len(gps))
-            _jit.learn_batch(_jit.padded(slabs, lo), hi - lo, x,
-                             terms, starts[lo:hi], dgs[lo:hi], qs[lo:hi], rs[lo:hi], cw, rule,
-                             out.e_hat[lo:hi], out.gamma[lo:hi], out.outcome[lo:hi],
-                             out.diag[lo:hi], out.dq[lo:hi], out.dq_min[lo:hi],
-                             out.dq_argmax[lo:hi], out.margin[lo:hi], out.clean[lo:hi],
-                             owners[lo:hi], groups)
-
-
-def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _Outcomes,
-            terms_of: Callable[[int], Terms]) -> None:
-    """After the kernels: each expert's novelty margin and point count; a non-novel point's
-    projection update (step 4a); the fused step's diagonals kept; the clean-up (step 6) where
-    ``diag(Q)``'s largest entry says one is due; ``Q`` re-inverted after a near-dependent
-    basis vector; the prior mean moved.  An expert whose ``Q`` drifted learns on its own."""
-    kstar = gps[0].kernel.k_star
+    dgs = np.array([gp.diag_cq() for gp in gps])
+    out = learn_full_slabs(gps, x, terms, starts, dgs, qs, rs, cw, rule)
     margins, clean = out.margin.tolist(), out.clean.tolist()
     gammas = out.gamma.tolist()
     dq_mins, dq_argmaxes = out.dq_min.tolist(), out.dq_argmax.tolist()
@@ -313,22 +195,8 @@ def _finish(gps: Sequence[SparseOnlineGP], x: FloatArray, y: FloatArray, out: _O
     for j, (gp, outcome) in enumerate(zip(gps, out.outcome.tolist(), strict=True)):
         if outcome == _jit.DRIFTED:  # Q re-inverted and the point learned on its own
             gp.update(x, y, terms_of(j))
-            continue
-        gp.novelty_margin = margins[j]
-        gp.n_points += 1
-        if outcome == _jit.KEPT:  # step 4a for the non-novel few
-            k, ck, mean, latent = terms_of(j)
-            y_ext, mean = gp._targets(y, mean, k)
-            s0 = gp.noise
-            gp._sparse_update(ck, out.e_hat[j], gammas[j], -1.0 / (s0 + latent),
-                              (y_ext - mean) / (s0 + latent))
-            gp._clean_up()
+        elif outcome == _jit.KEPT:  # step 4a for the non-novel few
+            gp.finish_kept(y, terms_of(j), out.e_hat[j], gammas[j], margins[j])
         else:
-            gp._dg, gp._dq = diags[j], dqs[j]
-            gp._dq_min, gp._dq_argmax = dq_mins[j], dq_argmaxes[j]
-            if not (clean[j] and gp.n == gp.capacity):
-                gp._clean_up()
-            if gammas[j] < _NEAR_DEPENDENT * kstar and gp.n > 1:
-                gp.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
-        if gp.prior_mean:
-            gp._shift_mean(y)
+            gp.finish_fused(y, diags[j], dqs[j], dq_mins[j], dq_argmaxes[j], clean[j],
+                            gammas[j], margins[j])

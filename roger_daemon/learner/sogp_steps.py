@@ -1,11 +1,13 @@
-"""The sparse online GP's matrix steps: projection and full updates, deletion, clean-up, and
-the re-inversion of ``Q`` (Csató thesis eq. 2.46, App. G; docs/learner-math.md §2.5-§2.7).
+"""The sparse online GP's matrix steps: projection and full updates, deletion, clean-up, the
+re-inversion of ``Q``, the prior mean's shift (Csató thesis eq. 2.46, App. G;
+docs/learner-math.md §2.5-§2.7), and the rest of a step whose steps 3-5 ran batched.
 
 A base class of :class:`.sogp.SparseOnlineGP`, split from it: these methods change the buffers
 ``_B``, ``_A``, ``_Cp``, ``_Qp`` in place; the class there owns them, predicts and
 dispatches :meth:`~.sogp.SparseOnlineGP.update` to these steps.  ``C`` and ``Q`` are stored
-packed (their upper triangles, :mod:`.packed`) in buffers sized for ``_alloc`` basis vectors;
-all the buffers are views of one slab per expert (:meth:`SOGPSteps._bind`, :mod:`.jit_slab`).
+packed (their upper triangles, :mod:`.engine.packed`) in buffers sized for ``_alloc`` basis
+vectors; all the buffers are views of one slab per expert (:meth:`SOGPSteps._bind`,
+:mod:`.engine.jit_slab`).  The arithmetic is the engine's compiled kernels (:mod:`.engine`).
 """
 
 from __future__ import annotations
@@ -15,9 +17,9 @@ import numpy.typing as npt
 from scipy.linalg.lapack import dpotrf as _dpotrf
 from scipy.linalg.lapack import dpotri as _dpotri
 
-from roger_daemon.learner import jit as _jit
-from roger_daemon.learner import packed as _packed
-from roger_daemon.learner.jit_slab import slab_offsets
+from roger_daemon.learner.engine import jit as _jit
+from roger_daemon.learner.engine import jit_slab
+from roger_daemon.learner.engine import packed as _packed
 from roger_daemon.learner.kernel import RBFKernel
 
 __all__ = ["GAMMA_FLOOR", "LATENT_FLOOR", "NEAR_DEPENDENT", "SOGPSteps"]
@@ -39,7 +41,7 @@ class SOGPSteps:
     """The in-place matrix steps of a sparse online GP (state: :class:`.sogp.SparseOnlineGP`)."""
 
     __slots__ = ("d_x", "d_y", "kernel", "noise", "capacity", "novelty_threshold", "normaliser",
-                 "fused", "n", "n_points", "_alloc", "_slab", "_B", "_A", "_Cp", "_Qp", "_dg",
+                 "fused", "n", "n_points", "_alloc", "slab", "_B", "_A", "_Cp", "_Qp", "_dg",
                  "_dq", "_dq_min", "_dq_argmax", "q_refreshes", "prior_mean", "_m",
                  "novelty_margin", "home")
     kernel: RBFKernel
@@ -50,11 +52,13 @@ class SOGPSteps:
     d_y: int
     prior_mean: bool
     n: int
+    n_points: int
+    noise: float
     q_refreshes: int
     novelty_margin: float
     home: int  # the batched kernels' thread whose cache holds it (-1: none yet)
     _alloc: int
-    _slab: FloatArray  # every buffer below is a view of it (:meth:`_bind`)
+    slab: FloatArray  # every buffer below is a view of it (:meth:`_bind`)
     _B: FloatArray
     _A: FloatArray
     _Cp: FloatArray
@@ -70,6 +74,31 @@ class SOGPSteps:
         """Columns of the coefficient buffer: ``d_y``, plus ``a1`` with a prior mean."""
         return self.d_y + 1 if self.prior_mean else self.d_y
 
+    def targets(self, y: FloatArray, mean: FloatArray, k: FloatArray
+                ) -> tuple[FloatArray, FloatArray]:
+        """``(y, mean)`` extended by the ``a1`` column (target 1, prediction ``a1^T k``).
+
+        ``y - mean`` is then the residual of every column of ``A``: with a prior mean the
+        columns model ``y - m`` and predict ``mean - m``, whose difference is ``y - mean``.
+        """
+        if not self.prior_mean:
+            return y, mean
+        d = self.d_y
+        ext = np.empty((2, d + 1))  # [y, 1] and [mean, a1^T k] (cheaper than two np.append)
+        ext[0, :d] = y
+        ext[0, d] = 1.0
+        ext[1, :d] = mean
+        ext[1, d] = _jit.dot_column(k, self._A, d, self.n)  # a1^T k, no BLAS
+        return ext[0], ext[1]
+
+    def _shift_mean(self, y: FloatArray) -> None:
+        """After learning ``y``: move ``m`` to the new running mean, ``A <- A - a1 dm^T``."""
+        if not self.prior_mean:
+            return
+        # dm = (y - m) / n_points; m + dm; A[:, :d] -= a1 dm^T: numpy's floats, one call, the
+        # new mean written over the old one in the slab
+        _jit.shift_mean(self._A, self._m, y, self.n, self.n_points, self._m)
+
     def novelty(self, k: FloatArray) -> tuple[FloatArray, float, bool]:
         """Step 3 (docs/learner-math.md §2.5): ``(Q k, gamma, novel)`` with the projection
         residual ``gamma = k* - k^T Q k`` of the kernel vector ``k``, after re-inverting ``Q``
@@ -78,11 +107,11 @@ class SOGPSteps:
         :attr:`novelty_margin`."""
         # projection, the test and Q's diagonal checked for drift in one call
         e_hat, gamma, drifted, novel = _jit.novelty_step(
-            self._Qp, k, self.n, self._alloc, *self._novelty_constants())
+            self._Qp, k, self.n, self._alloc, *self.novelty_constants())
         if drifted:
             self.refresh_inverse_gram()
             e_hat, kqk = _jit.projection(self._Qp, k, self.n, self._alloc)
-            gamma, _, novel = _jit.novelty_test(kqk, *self._novelty_constants())
+            gamma, _, novel = _jit.novelty_test(kqk, *self.novelty_constants())
         self.record_novelty_margin(gamma)
         return e_hat, gamma, novel
 
@@ -97,7 +126,7 @@ class SOGPSteps:
         :func:`.jit_kernels.keeps_basis_vectors`): the novelty threshold times 1e-3."""
         return self.novelty_threshold * 1e-3
 
-    def _novelty_constants(self) -> tuple[float, float, float, float]:
+    def novelty_constants(self) -> tuple[float, float, float, float]:
         """``(k*, threshold, floor, drift_tol)``: :func:`.jit_kernels.novelty_test`'s
         arguments besides ``k^T Q k``."""
         return self.kernel.k_star, self.novelty_threshold, GAMMA_FLOOR, _Q_DRIFT_TOL
@@ -160,7 +189,7 @@ class SOGPSteps:
             return self._dq
         return _packed.diagonal(self._Qp, self._alloc, self.n)
 
-    def _diag_cq(self) -> FloatArray:
+    def diag_cq(self) -> FloatArray:
         """``diag(C) + diag(Q)`` (cached by the fused hot path, else read off the matrices)."""
         if self._dg is not None:
             return self._dg
@@ -168,7 +197,7 @@ class SOGPSteps:
         return (_packed.diagonal(self._Cp, self._alloc, n)
                 + _packed.diagonal(self._Qp, self._alloc, n))
 
-    def _fusable(self) -> bool:
+    def fusable(self) -> bool:
         """Full, in buffers sized for exactly ``beta``: the fused add-then-delete hot path
         applies."""
         return (self.fused and self.capacity is not None and self.n == self.capacity
@@ -197,25 +226,32 @@ class SOGPSteps:
 
     def _full_update(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray,
                      gamma: float, r: float, q: FloatArray) -> None:
-        """Step 4b: x becomes basis vector n (thesis eq. 2.46; Q by eq. 3.5)."""
+        """Step 4b: x becomes basis vector n, the buffers grown first if they are full
+        (:func:`.engine.jit_small.add_basis_vector`, thesis eq. 2.46; Q by eq. 3.5)."""
         n = self.n
         self._forget_diagonals()
         self._grow(n + 1)
-        self._B[n] = x
-        s = np.empty(n + 1)
-        s[:n] = ck
-        s[n] = 1.0
-        self._A[n] = 0.0
-        self._A[: n + 1] += np.outer(s, q)
-        e = np.empty(n + 1)
-        e[:n] = e_hat
-        e[n] = -1.0
-        column = _packed.row_offsets(self._alloc)[: n + 1] + (n - np.arange(n + 1))
-        for buf in (self._Cp, self._Qp):
-            buf[column] = 0.0  # row and column n (stale padding after a deletion)
-        _jit.packed_add_lowrank(self._Cp, self._alloc, n + 1, s[None], np.array([r]))
-        _jit.packed_add_lowrank(self._Qp, self._alloc, n + 1, e[None], np.array([1.0 / gamma]))
+        _jit.add_basis_vector(self._B, self._A, self._Cp, self._Qp, self._alloc, n, x, ck,
+                              e_hat, q, r, gamma)
         self.n = n + 1
+
+    def _fused_add_delete(self, x: FloatArray, ck: FloatArray, e_hat: FloatArray,
+                          gamma: float, r: float, q: FloatArray) -> None:
+        """Steps 4b and 5 fused at capacity (docs/learner-math.md §2.5 step 4b, §2.7): the
+        full update to ``n + 1`` basis vectors, then one KL-optimal deletion, in place, as one
+        rank-3 update of ``C`` and one rank-2 update of ``Q`` in one compiled call
+        (:func:`.engine.jit_fused.fused_step`, whose docstring derives it).
+
+        With ``s = [Ck; 1]`` and ``e = [Q k; -1]`` the (n+1)-BV state would be
+        ``C1 = C (+) 0 + r s s^T``, ``Q1 = Q (+) 0 + e e^T / gamma``, ``A1 = A (+) 0 + s q^T``;
+        deleting BV ``i`` needs only column ``i`` and the diagonals of ``C1`` and ``Q1``, O(n)
+        from ``C``, ``Q``, ``s`` and ``e``; the new BV takes the place of ``i``.  Equal to
+        :meth:`_full_update` then :meth:`delete` up to round-off (tested); ``n_points`` is not
+        touched.  ``r``, ``q``: Csató's ``K2`` and ``K1`` (with a prior mean, ``q`` has the
+        ``a1`` column too)."""
+        self._dg, self._dq, self._dq_min, self._dq_argmax = _jit.fused_step(
+            self._B, self._A, self._Cp, self._Qp, self.diag_cq(), x, ck, e_hat,
+            jit_slab.output_weights(self.a_cols, self.d_y), q, r, gamma)
 
     def _deletion_choice(self) -> int:
         """argmin_i |A_i|^2 / (Q_ii + C_ii)  (Csató ogpbvmin.m, summed over outputs)."""
@@ -261,6 +297,47 @@ class SOGPSteps:
         _jit.packed_add_lowrank(self._Qp, self._alloc, j, cols[:1], np.array([-1.0 / q_star]))
         self.n = j
 
+    # -- the rest of a step whose steps 3-5 ran batched (:mod:`.sogp_batch`) -------------------
+
+    @property
+    def buffers(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(B, A, C, Q)``: this expert's buffers as views of its slab (``C`` and ``Q``
+        packed), as the compiled kernels take them (:mod:`.engine.experts`)."""
+        return self._B, self._A, self._Cp, self._Qp
+
+    def finish_kept(self, y: FloatArray, terms: tuple[FloatArray, FloatArray, FloatArray, float],
+                    e_hat: FloatArray, gamma: float, margin: float) -> None:
+        """Learning ``y`` after a batched novelty test found the point not novel
+        (:data:`.engine.jit.KEPT`, ``Q k = e_hat``, residual ``gamma``, test margin
+        ``margin``): the projection update (step 4a), the clean-up, the prior mean moved.
+        Unlike :meth:`update`, ``Q`` is not re-inverted: step 4a leaves it unchanged."""
+        self.novelty_margin = margin
+        self.n_points += 1
+        k, ck, mean, latent = terms
+        y_ext, mean = self.targets(y, mean, k)
+        s0 = self.noise
+        self._sparse_update(ck, e_hat, gamma, -1.0 / (s0 + latent),
+                            (y_ext - mean) / (s0 + latent))
+        self._clean_up()
+        self._shift_mean(y)
+
+    def finish_fused(self, y: FloatArray, diag: FloatArray, dq: FloatArray, dq_min: float,
+                     dq_argmax: int, clean: bool, gamma: float, margin: float) -> None:
+        """Learning ``y`` after a batched fused step (:data:`.engine.jit.FUSED`; its returned
+        ``diag(C) + diag(Q)``, ``diag(Q)`` with its minimum and first argmax, whether the
+        clean-up keeps every basis vector, the residual ``gamma`` and the test margin): the
+        diagonals kept, the clean-up where one is due, ``Q`` re-inverted after a
+        near-dependent basis vector, the prior mean moved."""
+        self.novelty_margin = margin
+        self.n_points += 1
+        self._dg, self._dq = diag, dq
+        self._dq_min, self._dq_argmax = dq_min, dq_argmax
+        if not (clean and self.n == self.capacity):
+            self._clean_up()
+        if gamma < NEAR_DEPENDENT * self.kernel.k_star and self.n > 1:
+            self.refresh_inverse_gram()  # a 1/gamma-sized rank-1 term just entered Q
+        self._shift_mean(y)
+
     def _grow(self, need: int) -> None:
         alloc = self._alloc
         if need <= alloc:
@@ -269,25 +346,20 @@ class SOGPSteps:
         if self.capacity is not None:
             new = min(new, self.capacity)
         new = max(new, need)
-        old = self._slab
+        old = self.slab
         self._bind(self._new_slab(new), new)
-        _jit.grow_slab(old, self._slab, self.n)  # every part moved, C and Q row by row
+        _jit.grow_slab(old, self.slab, self.n)  # every part moved, C and Q row by row
 
     def _new_slab(self, alloc: int) -> FloatArray:
-        """A zeroed slab for ``alloc`` basis vectors (:mod:`.jit_slab`)."""
-        return np.zeros(slab_offsets(alloc, self.d_x, self.a_cols, self.d_y)[5])
+        """A zeroed slab for ``alloc`` basis vectors (:func:`.engine.jit_slab.new_slab`)."""
+        return jit_slab.new_slab(alloc, self.d_x, self.a_cols, self.d_y)
 
     def _bind(self, slab: FloatArray, alloc: int) -> None:
-        """Take ``slab``, laid out for ``alloc`` basis vectors (:func:`.jit_slab.slab_offsets`),
-        as this expert's buffers: ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` become views of
-        it, its header is written (the batched kernels take the slab, :mod:`.jit_batch`)."""
-        c, q, b, a, m, end = slab_offsets(alloc, self.d_x, self.a_cols, self.d_y)
-        size = _packed.packed_size(alloc)
-        slab[:4] = alloc, self.a_cols, self.d_x, self.d_y  # the header (.jit_slab)
-        self._slab = slab
+        """Take ``slab``, laid out for ``alloc`` basis vectors, as this expert's buffers:
+        ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` become views of it, its header is written
+        (:func:`.engine.jit_slab.bind`; the batched kernels take the slab,
+        :mod:`.engine.jit_batch`)."""
+        self.slab = slab
         self._alloc = alloc
-        self._Cp = slab[c: c + size]
-        self._Qp = slab[q: q + size]
-        self._B = slab[b: b + alloc * self.d_x].reshape(alloc, self.d_x)
-        self._A = slab[a: a + alloc * self.a_cols].reshape(alloc, self.a_cols)
-        self._m = slab[m:end]
+        self._Cp, self._Qp, self._B, self._A, self._m = jit_slab.bind(
+            slab, alloc, self.d_x, self.a_cols, self.d_y)

@@ -47,6 +47,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "generator_from_state",
     "generator_state",
+    "model_meta",
     "pack_experts",
     "pack_meta",
     "unpack_experts",
@@ -96,6 +97,17 @@ def generator_from_state(state: Mapping[str, Any]) -> np.random.Generator:
 def pack_meta(meta: Mapping[str, Any]) -> npt.NDArray[np.str_]:
     """Metadata as a 0-d unicode array (JSON)."""
     return np.array(json.dumps(dict(meta), sort_keys=True))
+
+
+def model_meta(kind: str, d_x: int, d_y: int, params: Mapping[str, Any],
+               rngs: tuple[np.random.Generator, np.random.Generator],
+               **counters: int) -> npt.NDArray[np.str_]:
+    """A model's ``"meta"`` entry (:func:`pack_meta`): the schema, ``kind``, the dimensions,
+    the parameters (``RogerParams.to_mapping``), the learning and prediction generators'
+    states, and the model's ``counters``."""
+    return pack_meta({"schema": SCHEMA_VERSION, "kind": kind, "d_x": d_x, "d_y": d_y,
+                      "params": dict(params), "rng_learn": generator_state(rngs[0]),
+                      "rng_predict": generator_state(rngs[1]), **counters})
 
 
 def unpack_meta(state: Mapping[str, np.ndarray], kind: str | None = None) -> dict[str, Any]:

@@ -17,14 +17,13 @@ from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.model_args import Seed, resolve_model_args, spawn_generators
 from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
+from roger_daemon.learner.roger_terms import new_expert
 from roger_daemon.learner.scaling import AffineScaling, as_vector
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.state import (
-    SCHEMA_VERSION,
     generator_from_state,
-    generator_state,
+    model_meta,
     pack_experts,
-    pack_meta,
     unpack_experts,
     unpack_meta,
 )
@@ -68,10 +67,7 @@ class UnimapGP:
         self._gp = self._new_gp()
 
     def _new_gp(self) -> SparseOnlineGP:
-        p = self.params
-        return SparseOnlineGP(self._scaling.d_model, self.d_y, self.kernel, p.theta_n, p.beta,
-                              p.novelty_threshold, p.likelihood_normaliser,
-                              prior_mean=p.gp_prior_mean == "expert")
+        return new_expert(self.params, self._scaling.d_model, self.d_y, self.kernel)
 
     @property
     def n_learned(self) -> int:
@@ -150,15 +146,8 @@ class UnimapGP:
     def state_dict(self) -> dict[str, np.ndarray]:
         """Flat named arrays plus JSON metadata (no pickle)."""
         out = pack_experts([self._gp], self._scaling.d_model, self.d_y)
-        out["meta"] = pack_meta({
-            "schema": SCHEMA_VERSION,
-            "kind": self.kind,
-            "d_x": self.d_x,
-            "d_y": self.d_y,
-            "params": self.params.to_mapping(),
-            "rng_learn": generator_state(self._learn_rng),
-            "rng_predict": generator_state(self._predict_rng),
-        })
+        out["meta"] = model_meta(self.kind, self.d_x, self.d_y, self.params.to_mapping(),
+                                 (self._learn_rng, self._predict_rng))
         return out
 
     @classmethod

@@ -3,8 +3,8 @@
 The first process that learns after an install, an upgrade or a change to a kernel's source
 compiles the kernels (about a minute on a 2-core machine) unless they are in numba's cache.
 This fills the cache ahead of time, in ``--processes`` processes at once, each compiling a
-share of the kernel families (:mod:`roger_daemon.learner.jit_warm`); with a warm cache it only
-checks it.  ``make test`` and ``make demo`` run it first; after an upgrade of a service, run
+share of the kernel families (:mod:`roger_daemon.learner.engine.jit_warm`); with a warm cache
+it only checks it.  ``make test`` and ``make demo`` run it first; after an upgrade of a service, run
 it as the service's user with its ``NUMBA_CACHE_DIR`` (the systemd unit's) before the restart.
 """
 
@@ -38,15 +38,15 @@ def _share(text: str) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     """Compile every kernel family in ``--processes`` child processes (or, with the internal
     ``--share I/N``, this process's share); exit 1 if a child failed."""
-    from roger_daemon.learner.jit_warm import WARMERS, warm
+    from roger_daemon.learner.engine.jit_warm import WARMERS, warm
 
     if args.share is not None:
         warm(*_share(args.share))
         return 0
     require(args.processes is None or args.processes >= 1, "--processes", "an integer >= 1",
             args.processes)
-    from roger_daemon.learner import jit_batch
-    from roger_daemon.learner.jit_compile import cache_dir
+    from roger_daemon.learner.engine import jit_batch
+    from roger_daemon.learner.engine.jit_compile import cache_dir
 
     where = cache_dir(jit_batch.terms_batch)
     if where is None:

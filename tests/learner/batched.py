@@ -4,7 +4,8 @@ batched fused step runs."""
 
 from __future__ import annotations
 
-from roger_daemon.learner import Roger, RogerParams, jit
+from roger_daemon.learner import Roger, RogerParams
+from roger_daemon.learner.engine import jit
 from roger_daemon.learner.synthetic import subtask_stream
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from roger_daemon.cli import main
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine import jit
 from roger_daemon.learner.synthetic import subtask_stream
 
 MODULES = ["kernel", "sogp", "gate", "resampling", "roger", "unimap", "params", "synthetic",
@@ -68,6 +68,7 @@ def test_bench_aibo_stream_is_shipped_and_learned_with_the_daemon_defaults(
 
 def test_bench_compare_runs_a_git_revision_beside_this_learner(
         capsys: pytest.CaptureFixture[str]) -> None:
+    from roger_daemon.bench.learner_compare import reference_kernels
     from roger_daemon.bench.reference import RevisionError, load_reference
 
     try:
@@ -88,8 +89,8 @@ def test_bench_compare_runs_a_git_revision_beside_this_learner(
     assert main(["bench", "learner", "--stream", "aibo", "--points", "4", "--compare", "HEAD",
                  "--threads", "1", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["learner_threads"] == 1
-    ref_jit = sys.modules[f"{load_reference('HEAD')[0].__name__}.jit"]
-    assert ref_jit.threads() == 1
+    ref_jit = reference_kernels(load_reference("HEAD")[0])
+    assert ref_jit is not None and ref_jit.threads() == 1
 
 
 def test_fleet_and_soak_feed_the_aibo_demonstrations_by_default() -> None:
@@ -116,7 +117,6 @@ def test_bandwidth_script_counts_the_compiled_passes_of_a_step() -> None:
     """scripts/learner_bandwidth.py (docs/fleet.md) wraps the compiled kernels by name: if
     they are renamed the counts go to zero, which this catches."""
     import subprocess
-    import sys
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[2] / "scripts" / "learner_bandwidth.py"

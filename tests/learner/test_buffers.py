@@ -1,4 +1,4 @@
-"""Reused matrix buffers for copy-on-write copies (:mod:`roger_daemon.learner.buffers`)."""
+"""Reused matrix buffers for copy-on-write copies (:mod:`roger_daemon.learner.engine.buffers`)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from roger_daemon.learner import Roger, RogerParams
-from roger_daemon.learner.buffers import BufferPool
+from roger_daemon.learner.engine.buffers import BufferPool
 from roger_daemon.learner.synthetic import subtask_stream
 
 
@@ -32,14 +32,14 @@ def test_reusing_dropped_experts_buffers_changes_no_float() -> None:
     s = subtask_stream(200)
     with_pool = Roger(23, 9, RogerParams(beta=20), seed=5)
     without = Roger(23, 9, RogerParams(beta=20), seed=5)
-    without._pool = BufferPool(limit=0)
+    without.store.pool = BufferPool(limit=0)
     reused = 0
     for x, y in zip(s.x, s.y, strict=True):
-        before = len(with_pool._pool)
+        before = len(with_pool.store.pool)
         with_pool.learn_one(x, y)
         without.learn_one(x, y)
-        reused += before > len(with_pool._pool)
-    assert reused > 0 and len(without._pool) == 0
+        reused += before > len(with_pool.store.pool)
+    assert reused > 0 and len(without.store.pool) == 0
     np.testing.assert_array_equal(with_pool.assignments(), without.assignments())
     np.testing.assert_array_equal(with_pool.particle_log_weights(),
                                   without.particle_log_weights())

@@ -10,8 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import multivariate_t
 
-from roger_daemon.learner.gate import GatePool, NIWGate, niw_update
-from roger_daemon.learner.jit_scalar import student_t_normaliser
+from roger_daemon.learner.engine.gates import GatePool
+from roger_daemon.learner.engine.jit_scalar import student_t_normaliser
+from roger_daemon.learner.gate import NIWGate, niw_update
 
 
 def test_prior_predictive_matches_scipy_and_paper_values() -> None:
@@ -133,7 +134,7 @@ def test_the_compiled_student_t_constants_are_pythons_to_round_off() -> None:
     """One formula (jit_scalar.student_t_normaliser), run by Python for the prior and compiled
     for the gates' updates: numba's ``lgamma`` is not CPython's, so the log normaliser agrees
     to round-off; the other two constants are bit for bit."""
-    from roger_daemon.learner import jit_particles
+    from roger_daemon.learner.engine import jit_particles
 
     rng = np.random.default_rng(5)
     for d in (1, 3, 23):
@@ -154,7 +155,7 @@ def test_the_update_recomputes_the_constants_of_the_gates_it_updates() -> None:
     """After updates (and the every-32 recomputation), each updated slot's cached Student-t
     constants are the compiled formula's for its kappa, nu and log|Lambda|, bit for bit; the
     others keep the prior's (Python's)."""
-    from roger_daemon.learner import jit_particles
+    from roger_daemon.learner.engine import jit_particles
 
     d = 3
     rng = np.random.default_rng(6)
@@ -176,32 +177,32 @@ def test_the_update_recomputes_the_constants_of_the_gates_it_updates() -> None:
 
 @pytest.mark.parametrize("d", [1, 3, 23])
 def test_the_compiled_precision_is_the_inverse_and_log_determinant(d: int) -> None:
-    """:func:`.jit_kernels.cholesky_inverse_logdet` (the gates' every-32 recomputation, no
+    """:func:`.jit_cholesky.cholesky_inverse_logdet` (the gates' every-32 recomputation, no
     LAPACK) against numpy's inverse and ``slogdet``: equal to round-off, ``prec`` exactly
     symmetric; a matrix that is not positive definite leaves ``prec`` as it was and gives
     NaN."""
-    from roger_daemon.learner import jit_kernels
+    from roger_daemon.learner.engine import jit_cholesky
 
     rng = np.random.default_rng(d)
     m = rng.normal(size=(d, d + 4))
     lam = m @ m.T + 0.1 * np.eye(d)
     prec = np.empty((d, d))
-    logdet = jit_kernels.cholesky_inverse_logdet(lam, d, 0.0, prec)
+    logdet = jit_cholesky.cholesky_inverse_logdet(lam, d, 0.0, prec)
     np.testing.assert_allclose(prec, np.linalg.inv(lam), rtol=1e-10, atol=1e-12)
     assert logdet == pytest.approx(np.linalg.slogdet(lam)[1], rel=1e-12, abs=1e-12)
     assert np.array_equal(prec, prec.T)
     before = prec.copy()
     singular = lam.copy()
     singular[-1, -1] = -1.0  # a negative last pivot
-    assert np.isnan(jit_kernels.cholesky_inverse_logdet(singular, d, 0.0, prec))
+    assert np.isnan(jit_cholesky.cholesky_inverse_logdet(singular, d, 0.0, prec))
     assert np.array_equal(prec, before)
 
 
 def test_every_32nd_update_recomputes_the_precision_from_lambda() -> None:
     """At a gate's 32nd input its precision and ``log|Lambda|`` are
-    :func:`.jit_kernels.cholesky_inverse_logdet`'s of its ``Lambda``, bit for bit (before it,
+    :func:`.jit_cholesky.cholesky_inverse_logdet`'s of its ``Lambda``, bit for bit (before it,
     the Sherman-Morrison ones, which differ in the last bits)."""
-    from roger_daemon.learner import jit_kernels
+    from roger_daemon.learner.engine import jit_cholesky
 
     d = 4
     rng = np.random.default_rng(11)
@@ -211,7 +212,7 @@ def test_every_32nd_update_recomputes_the_precision_from_lambda() -> None:
     for i in range(1, 33):
         pool.update_many(slots, rng.normal(size=d))
         fresh = np.empty((d, d))
-        logdet = jit_kernels.cholesky_inverse_logdet(pool.lam[0], d, 0.0, fresh)
+        logdet = jit_cholesky.cholesky_inverse_logdet(pool.lam[0], d, 0.0, fresh)
         if i == 31:
             assert not np.array_equal(pool.prec[0], fresh)
     assert pool.count[0] == 32

@@ -1,5 +1,6 @@
 """An expert that is not full learns by one compiled call (:func:`.jit_small.growth_step`):
-the same floats, bit for bit, as the numpy and kernel calls it replaced."""
+the same floats, bit for bit, as the numpy and kernel calls it replaced (step 4b's among
+them, :func:`.jit_small.add_basis_vector`, as numpy calls)."""
 
 from __future__ import annotations
 
@@ -9,24 +10,46 @@ from typing import Any
 import numpy as np
 import pytest
 
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine import jit, packed
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
+
+
+def _full_update_numpy(gp: SparseOnlineGP, x: np.ndarray, ck: np.ndarray, e_hat: np.ndarray,
+                       gamma: float, r: float, q: np.ndarray) -> None:
+    """Step 4b as numpy calls, the code before :func:`.jit_small.add_basis_vector`: ``x``
+    becomes basis vector ``n`` (the buffers grown first), ``A += s q^T``, ``C += r s s^T``,
+    ``Q += e e^T / gamma`` with ``s = [C k; 1]``, ``e = [Q k; -1]``."""
+    n = gp.n
+    gp._forget_diagonals()
+    gp._grow(n + 1)
+    gp._B[n] = x
+    s = np.append(ck, 1.0)
+    gp._A[n] = 0.0
+    gp._A[: n + 1] += np.outer(s, q)
+    e = np.append(e_hat, -1.0)
+    column = packed.row_offsets(gp.alloc)[: n + 1] + (n - np.arange(n + 1))
+    for buf in (gp._Cp, gp._Qp):
+        buf[column] = 0.0  # row and column n (stale padding after a deletion)
+    jit.packed_add_lowrank(gp._Cp, gp.alloc, n + 1, s[None], np.array([r]))
+    jit.packed_add_lowrank(gp._Qp, gp.alloc, n + 1, e[None], np.array([1.0 / gamma]))
+    gp.n = n + 1
 
 
 def _update_by_separate_calls(gp: SparseOnlineGP, x: np.ndarray, y: np.ndarray) -> None:
     """The oracle: :meth:`.sogp.SparseOnlineGP.update` of an expert with ``n >= 1`` basis
     vectors that is not full, as it was before ``growth_step``: the novelty test (``Q``
-    re-inverted if it drifted), the projection or full update, the clean-up, the end."""
+    re-inverted if it drifted), the projection or full update (numpy's), the clean-up, the
+    end."""
     gp.n_points += 1
     gp._forget_diagonals()
     k, ck, mean, latent = gp.terms(x)
-    y, mean = gp._targets(y, mean, k)
+    y, mean = gp.targets(y, mean, k)
     r = -1.0 / (gp.noise + latent)
     q = (y - mean) / (gp.noise + latent)
     e_hat, gamma, novel = gp.novelty(k)
     if novel:
-        gp._full_update(x, ck, e_hat, gamma, r, q)
+        _full_update_numpy(gp, x, ck, e_hat, gamma, r, q)
     else:
         gp._sparse_update(ck, e_hat, gamma, r, q)
     gp._clean_up()

@@ -202,7 +202,7 @@ def test_saving_reads_only_so_threads_may_save_one_model_at_once() -> None:
     s = subtask_stream(150)
     model = Roger(23, 9, RogerParams(beta=20), seed=2)
     learn(model, s.x, s.y)
-    hist = model._history
+    hist = model.history
     assert hist.n_rows > 1  # a window that saving settles
     before = (hist.n_settled, hist.n_rows, model.assignments().tolist())
     want = array_digest(model.state_dict())

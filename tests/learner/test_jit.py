@@ -1,4 +1,4 @@
-"""The compiled inner loops (roger_daemon/learner/jit.py) against numpy oracles."""
+"""The compiled inner loops (roger_daemon/learner/engine/jit.py) against numpy oracles."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from roger_daemon.learner import jit_kernels as jit
-from roger_daemon.learner import packed
+from roger_daemon.learner.engine import jit_cholesky, jit_fused, jit_threads, packed
+from roger_daemon.learner.engine import jit_kernels as jit
 from roger_daemon.learner.kernel import RBFKernel
 
 
@@ -155,7 +155,7 @@ def test_rank_update_cq_is_zeroing_then_two_low_rank_terms(i: int) -> None:
     want_q += (uq.T * cq) @ uq
     cbuf, qbuf = packed.pack(c0, n), packed.pack(q0, n)
     dq = np.full(n, np.nan)
-    jit.rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
+    jit_fused.rank_update_cq(cbuf, qbuf, n, n, i, uc, cc, uq, cq, dq)
     np.testing.assert_allclose(packed.unpack(cbuf, n, n), want_c, rtol=1e-13, atol=1e-13)
     np.testing.assert_allclose(packed.unpack(qbuf, n, n), want_q, rtol=1e-13, atol=1e-13)
     # the diagonal it reports is the one stored, bit for bit
@@ -168,13 +168,13 @@ def test_cholesky_inverse_matches_numpy_and_is_symmetric(n: int) -> None:
     gram = np.zeros((n + 2, n + 2))
     gram[:n, :n] = _spd(n, rng, cond=1e6)
     out = np.full((n + 2, n + 2), 7.0)
-    assert jit.cholesky_inverse(gram, n, 0.0, out)
+    assert jit_cholesky.cholesky_inverse(gram, n, 0.0, out)
     want = np.linalg.inv(gram[:n, :n])
     np.testing.assert_allclose(out[:n, :n], want, rtol=1e-8, atol=1e-8 * np.abs(want).max())
     np.testing.assert_array_equal(out[:n, :n], out[:n, :n].T)
     assert np.all(out[n:, :] == 7.0) and np.all(out[:, n:] == 7.0)  # padding untouched
     # with jitter: the inverse of K + jitter I
-    assert jit.cholesky_inverse(gram, n, 0.5, out)
+    assert jit_cholesky.cholesky_inverse(gram, n, 0.5, out)
     np.testing.assert_allclose(out[:n, :n], np.linalg.inv(gram[:n, :n] + 0.5 * np.eye(n)),
                                rtol=1e-10, atol=1e-12)
 
@@ -222,7 +222,7 @@ def test_cholesky_inverse_gives_the_textbook_loops_bits(n: int) -> None:
     gram = _spd(n, rng, cond=1e4)
     for jitter in (0.0, 0.25):
         out = np.empty((n, n))
-        logdet = jit.cholesky_inverse_logdet(gram, n, jitter, out)
+        logdet = jit_cholesky.cholesky_inverse_logdet(gram, n, jitter, out)
         want_logdet, want = _textbook_cholesky_inverse(gram, n, jitter)
         assert logdet == want_logdet
         assert out.tobytes() == want.tobytes()
@@ -231,9 +231,9 @@ def test_cholesky_inverse_gives_the_textbook_loops_bits(n: int) -> None:
 def test_cholesky_inverse_refuses_a_matrix_that_is_not_positive_definite() -> None:
     gram = np.array([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and -1
     out = np.zeros((2, 2))
-    assert not jit.cholesky_inverse(gram, 2, 0.0, out)
+    assert not jit_cholesky.cholesky_inverse(gram, 2, 0.0, out)
     assert np.all(out == 0.0)
-    assert jit.cholesky_inverse(gram, 2, 1.5, out)  # + 1.5 I is SPD
+    assert jit_cholesky.cholesky_inverse(gram, 2, 1.5, out)  # + 1.5 I is SPD
 
 
 def test_kernels_still_compile_where_no_cache_directory_is_writable() -> None:
@@ -242,7 +242,7 @@ def test_kernels_still_compile_where_no_cache_directory_is_writable() -> None:
     code = ("import numba.core.caching as c\n"
             "c.CacheImpl._locator_classes = []\n"
             "import numpy as np\n"
-            "from roger_daemon.learner import jit_kernels as k\n"
+            "from roger_daemon.learner.engine import jit_kernels as k\n"
             "assert type(k.kernel_vector._cache).__name__ == 'NullCache'\n"
             "print(k.kernel_vector(np.zeros((2, 1)), np.ones(1), 0.5, 2).tolist())\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -252,7 +252,7 @@ def test_kernels_still_compile_where_no_cache_directory_is_writable() -> None:
 
 def test_trace_lineages_matches_the_python_pointer_chase() -> None:
     """Oracle: each lineage walked back in plain Python over random ancestor tables."""
-    from roger_daemon.learner.jit import trace_lineages
+    from roger_daemon.learner.engine.jit import trace_lineages
 
     rng = np.random.default_rng(7)
     for n, width in ((1, 1), (5, 3), (200, 30)):
@@ -287,12 +287,16 @@ def test_fused_step_keeps_the_basis_and_the_diagonal_cache_consistent() -> None:
     np.testing.assert_allclose(gp._dg, diag, rtol=1e-8, atol=1e-10 * np.abs(diag).max())
 
 
-def test_the_lazy_loader_binds_exactly_the_kernels_of_the_nine_modules() -> None:
-    """``jit.KERNELS`` (what ``roger_daemon.learner.jit`` serves and ``warm_up`` compiles) is
-    the union of the kernel modules' exports, and each name resolves to that module's kernel."""
-    from roger_daemon.learner import jit as lazy
-    from roger_daemon.learner import (
+def test_the_lazy_loader_binds_exactly_the_kernels_of_the_kernel_modules() -> None:
+    """``jit.KERNELS`` (what ``roger_daemon.learner.engine.jit`` serves and ``warm_up``
+    compiles) is the union of the kernel modules' exports, and each name resolves to that
+    module's kernel; every engine module that compiles a kernel is one of them."""
+    from pathlib import Path
+
+    from roger_daemon.learner.engine import jit as lazy
+    from roger_daemon.learner.engine import (
         jit_batch,
+        jit_cholesky,
         jit_evaluate,
         jit_fused,
         jit_layout,
@@ -302,8 +306,12 @@ def test_the_lazy_loader_binds_exactly_the_kernels_of_the_nine_modules() -> None
         jit_weights,
     )
 
-    modules = (jit, jit_fused, jit_batch, jit_particles, jit_layout, jit_resampling, jit_small,
-               jit_evaluate, jit_weights)
+    modules = (jit, jit_cholesky, jit_fused, jit_batch, jit_particles, jit_layout,
+               jit_resampling, jit_small, jit_evaluate, jit_weights)
+    folder = Path(lazy.__file__).parent
+    compiling = {p.stem for p in folder.glob("*.py")
+                 if "@_compiled(" in p.read_text() or "@compiled(" in p.read_text()}
+    assert compiling == {m.__name__.rsplit(".", 1)[1] for m in modules}
     exports = [set(m.__all__) for m in modules]
     assert set(lazy.KERNELS) == set().union(*exports)
     assert sum(map(len, exports)) == len(set().union(*exports))  # no name in two modules
@@ -320,12 +328,11 @@ def test_warm_up_compiles_every_signature_a_learner_step_uses(
     daemon's first full learning step or in a timed benchmark), on one thread (the kernels
     called one expert at a time) and on two (batched)."""
     from roger_daemon.learner import Roger, RogerParams
-    from roger_daemon.learner import jit as lazy_jit
-    from roger_daemon.learner.jit import compiled_signatures, set_threads, warm_up
+    from roger_daemon.learner.engine.jit import compiled_signatures, set_threads, warm_up
     from roger_daemon.learner.synthetic import subtask_stream
 
     set_threads(threads)
-    monkeypatch.setattr(lazy_jit, "BATCH_MIN_ENTRIES", 0)  # these experts are small
+    monkeypatch.setattr(jit_threads, "BATCH_MIN_ENTRIES", 0)  # these experts are small
     warm_up()
     before = compiled_signatures("roger_daemon.learner")
     s = subtask_stream(150)
@@ -342,7 +349,7 @@ def test_learning_from_read_only_arrays_compiles_nothing_after_warm_up() -> None
     each kernel it reached would compile again mid-step; ``as_vector`` hands the learner a
     writable copy instead (with a prior mean, so that the targets' dot product runs too)."""
     from roger_daemon.learner import Roger, RogerParams
-    from roger_daemon.learner.jit import compiled_signatures, warm_up
+    from roger_daemon.learner.engine.jit import compiled_signatures, warm_up
     from roger_daemon.learner.synthetic import subtask_stream
 
     warm_up()
@@ -375,8 +382,8 @@ def test_min_argmax_is_numpys_min_and_first_argmax(values: list[float]) -> None:
 def test_the_projection_update_is_numpys_bit_for_bit(n: int) -> None:
     """Oracle: the numpy projection update it replaced (``s = ck + e``, ``A += outer(s, q) *
     eta``, ``C += (r eta) s s^T`` by the packed low-rank kernel): the same floats exactly."""
-    from roger_daemon.learner import jit_kernels, jit_small
-    from roger_daemon.learner.packed import packed_size
+    from roger_daemon.learner.engine import jit_kernels, jit_small
+    from roger_daemon.learner.engine.packed import packed_size
 
     rng = np.random.default_rng(n)
     alloc = n + 3
@@ -395,7 +402,7 @@ def test_the_projection_update_is_numpys_bit_for_bit(n: int) -> None:
 def test_the_prior_mean_shift_is_numpys_bit_for_bit(n: int) -> None:
     """Oracle: ``dm = (y - m) / n_points``, ``m + dm``, ``A[:n, :d] -= A[:n, d:d+1] * dm``
     in numpy: the same floats exactly, rows past ``n`` and the ``a1`` column untouched."""
-    from roger_daemon.learner import jit_small
+    from roger_daemon.learner.engine import jit_small
 
     rng = np.random.default_rng(10 + n)
     d = 3
@@ -413,8 +420,8 @@ def test_the_prior_mean_shift_is_numpys_bit_for_bit(n: int) -> None:
 def test_the_novelty_step_is_the_projection_test_and_drift_check(drift: bool) -> None:
     """Oracle: ``projection`` then ``novelty_test``, ``drifted`` or'ed with ``min diag(Q) k* <
     1 - tol`` (``SOGPSteps.q_drifted``): the same floats and decisions."""
-    from roger_daemon.learner import jit_kernels, jit_small
-    from roger_daemon.learner.packed import diagonal, pack
+    from roger_daemon.learner.engine import jit_kernels, jit_small
+    from roger_daemon.learner.engine.packed import diagonal, pack
 
     rng = np.random.default_rng(4)
     n, alloc, kstar = 9, 12, 1.0
@@ -433,15 +440,15 @@ def test_the_novelty_step_is_the_projection_test_and_drift_check(drift: bool) ->
 def test_the_reinversion_is_the_gram_cholesky_and_packing_it_replaced() -> None:
     """Oracle: ``gram_matrix``, ``cholesky_inverse`` and ``packed.pack_into``, as the separate
     calls made them: the same floats; a failed factorisation leaves ``Q`` untouched."""
-    from roger_daemon.learner import jit_kernels, jit_small
-    from roger_daemon.learner.packed import pack_into, packed_size
+    from roger_daemon.learner.engine import jit_kernels, jit_small
+    from roger_daemon.learner.engine.packed import pack_into, packed_size
 
     rng = np.random.default_rng(6)
     n, alloc, gamma = 11, 14, 0.7
     basis = rng.normal(size=(alloc, 4))
     want, got = np.zeros(packed_size(alloc)), np.zeros(packed_size(alloc))
     inverse = np.empty((n, n))
-    assert jit_kernels.cholesky_inverse(jit_kernels.gram_matrix(basis, gamma, n), n, 0.0,
+    assert jit_cholesky.cholesky_inverse(jit_kernels.gram_matrix(basis, gamma, n), n, 0.0,
                                         inverse)
     pack_into(want, alloc, inverse, n)
     assert jit_small.refresh_inverse(basis, gamma, n, 0.0, got, alloc)
@@ -459,7 +466,7 @@ def test_the_batched_prediction_is_each_experts_own_bit_for_bit(prior_mean: bool
     compiled call per ``EVALUATION_WIDTH`` experts) gives the same means and variances, to the
     bit, for more experts than one call takes, of different sizes, an input far from every
     basis vector, and an expert with no basis vector (its prior)."""
-    from roger_daemon.learner.jit import EVALUATION_WIDTH
+    from roger_daemon.learner.engine.jit import EVALUATION_WIDTH
     from roger_daemon.learner.sogp import SparseOnlineGP
     from roger_daemon.learner.sogp_batch import predict_many
 
@@ -495,7 +502,7 @@ def test_dot_column_sums_in_index_order(n: int) -> None:
     """Oracle: the same products and additions in Python floats, one after the other (IEEE
     operations: the same bits); a column of a wider matrix, and a vector as a one-column
     view (the empty expert's ``|y|^2``)."""
-    from roger_daemon.learner import jit_small
+    from roger_daemon.learner.engine import jit_small
 
     rng = np.random.default_rng(n)
     k, coef = rng.normal(size=n + 2), rng.normal(size=(n + 2, 3))

@@ -1,4 +1,4 @@
-"""Several experts per compiled call, over the cores (roger_daemon/learner/jit_batch.py).
+"""Several experts per compiled call, over the cores (roger_daemon/learner/engine/jit_batch.py).
 
 The batched kernels run each expert's own kernels, one expert per iteration of a parallel
 loop, so the floats must not depend on the number of threads: these tests compare one thread
@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine import jit, jit_threads
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.sogp_batch import evaluate_many, update_evaluated, update_many
@@ -103,7 +103,7 @@ def test_update_many_takes_every_outcome_like_one_expert_at_a_time(threads: int)
     jit.set_threads(threads)
     experts = [_expert(60, seed) for seed in range(4)]
     experts[2] = experts[1].copy()
-    assert all(gp._fusable() for gp in experts)
+    assert all(gp.fusable() for gp in experts)
     x = experts[1].B[3].copy()  # a basis vector of experts 1 and 2: gamma = 0, not novel
     drifted = experts[2]
     drifted._Qp *= 1.5  # k^T Q k = 1.5: gamma < -tol k*
@@ -173,7 +173,7 @@ def test_experts_are_batched_on_several_threads_with_enough_work(
         monkeypatch: pytest.MonkeyPatch) -> None:
     import numba
 
-    monkeypatch.setattr(jit, "BATCH_MIN_ENTRIES", 100)
+    monkeypatch.setattr(jit_threads, "BATCH_MIN_ENTRIES", 100)
     jit.set_threads(2)
     several = numba.config.NUMBA_NUM_THREADS >= 2
     assert jit.batch_worth(100) is several
@@ -196,12 +196,12 @@ def test_the_default_is_one_thread_on_numbas_workqueue_layer(
     import numba
 
     monkeypatch.setattr(numba, "threading_layer", lambda: "workqueue")
-    monkeypatch.setattr(jit, "_workqueue", False)
+    monkeypatch.setattr(jit_threads, "_workqueue", False)
     jit.set_threads(None)
-    jit._check_threading_layer()
+    jit.check_threading_layer()
     assert jit.threads() == 1
     jit.set_threads(2)
-    jit._check_threading_layer()
+    jit.check_threading_layer()
     assert jit.threads() == min(2, numba.config.NUMBA_NUM_THREADS)
 
 
@@ -217,7 +217,7 @@ def test_the_layer_check_waits_for_numbas_first_parallel_call(
     monkeypatch.setattr(numba, "threading_layer", not_yet)
     jit.set_threads(None)
     before = jit.threads()
-    jit._check_threading_layer()
+    jit.check_threading_layer()
     assert jit.threads() == before
 
 
@@ -239,8 +239,7 @@ def test_set_threads_caps_at_numbas_thread_count() -> None:
 def test_copy_many_fills_every_pending_copy(threads: int) -> None:
     """Copies deferred by ``BufferPool.copy_of(..., pending)`` (a kept buffer and new ones,
     more than one batch of ``WIDTH``) are filled by ``copy_many``, on one thread or two."""
-    from roger_daemon.learner.buffers import BufferPool, PendingCopy
-    from roger_daemon.learner.sogp_batch import copy_many
+    from roger_daemon.learner.engine.buffers import BufferPool, PendingCopy, copy_many
 
     jit.set_threads(threads)
     rng = np.random.default_rng(2)

@@ -1,5 +1,5 @@
-"""numba's on-disk cache tied to every kernel module (roger_daemon/learner/jit_compile.py), and
-the kernel value that skips libm where it underflows (jit_kernels.rbf)."""
+"""numba's on-disk cache tied to every kernel module (roger_daemon/learner/engine/jit_compile.py),
+and the kernel value that skips libm where it underflows (jit_kernels.rbf)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from roger_daemon.learner import jit_kernels
-from roger_daemon.learner.jit_compile import (
+from roger_daemon.learner.engine import jit_kernels
+from roger_daemon.learner.engine.jit_compile import (
     FINGERPRINT_FILE,
     drop_stale_entries,
     source_fingerprint,
@@ -63,7 +63,7 @@ def test_importing_the_kernels_records_their_fingerprint_in_the_cache(tmp_path: 
     """A real process with its own cache directory: after the kernels load, the fingerprint
     of this checkout's kernel modules is there beside their entries."""
     code = ("import numpy as np\n"
-            "from roger_daemon.learner import jit_kernels as k\n"
+            "from roger_daemon.learner.engine import jit_kernels as k\n"
             "k.kernel_vector(np.zeros((2, 1)), np.ones(1), 0.5, 2)\n"
             "print(k.kernel_vector._cache.cache_path)\n")
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}

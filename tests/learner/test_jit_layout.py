@@ -1,5 +1,5 @@
-"""The particles' flat layout kernels (roger_daemon/learner/jit_layout.py) against the list-of-
-arrays code they replaced (each particle its own array, numpy per particle), as oracles."""
+"""The particles' flat layout kernels (roger_daemon/learner/engine/jit_layout.py) against the
+list-of-arrays code they replaced (each particle its own array, numpy per particle), as oracles."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.learner import jit_layout
+from roger_daemon.learner.engine import jit_layout
 
 CAP = 12
 

@@ -1,4 +1,4 @@
-"""Which thread takes which expert (roger_daemon/learner/jit_batch.py, ``balanced_owners``).
+"""Which thread takes which expert (roger_daemon/learner/engine/jit_batch.py, ``balanced_owners``).
 
 Each expert keeps the thread that took it last (its home) so that its matrices stay in that
 core's caches (docs/performance.md, *The slow spells are the two cores far apart*). Which
@@ -15,7 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.learner import Roger, RogerParams, jit
+from roger_daemon.learner import Roger, RogerParams
+from roger_daemon.learner.engine import jit
 from roger_daemon.learner.synthetic import subtask_stream
 
 from .batched import learn_stream

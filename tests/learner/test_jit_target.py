@@ -1,4 +1,4 @@
-"""The CPU the learner's kernels are compiled for (roger_daemon/learner/jit_target.py): one
+"""The CPU the learner's kernels are compiled for (roger_daemon/learner/engine/jit_target.py): one
 model on every x86-64 host that can run it, numba's default elsewhere or when the user chose."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from roger_daemon.learner.jit_target import TARGET_CPU, TARGET_FEATURES, kernel_target
+from roger_daemon.learner.engine.jit_target import TARGET_CPU, TARGET_FEATURES, kernel_target
 
 _ALL = dict.fromkeys(TARGET_FEATURES, True)
 
@@ -21,7 +21,7 @@ _PROBE = """
 import json, sys
 import numpy as np
 {before}
-from roger_daemon.learner import jit, jit_target
+from roger_daemon.learner.engine import jit, jit_target
 jit.kernel_vector(np.zeros((2, 3)), np.zeros(3), 1.0, 2)
 from numba.core import registry
 print(json.dumps({{"cpu": registry.cpu_target.target_context.codegen().magic_tuple()[1],

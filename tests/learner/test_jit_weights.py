@@ -1,4 +1,4 @@
-"""The putatives' compiled log weights (roger_daemon/learner/jit_weights.py), the gates' CRP
+"""The putatives' compiled log weights (roger_daemon/learner/engine/jit_weights.py), the gates' CRP
 terms and the resampler's log-sum-exp, bit for bit against plain Python (the C library's
 ``math.log``, ``math.exp``, sums in index order); and the learned state the same whichever
 SIMD loops numpy picks (docs/reproducibility.md, *numpy's SIMD loops*)."""
@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine import jit
 
 finite = st.floats(-30.0, 30.0, allow_nan=False)
 positive = st.floats(1e-6, 50.0)
@@ -72,7 +72,7 @@ def test_putative_log_weights_add_each_putatives_gp_factor() -> None:
 
 
 def test_the_crp_terms_are_the_gates_density_plus_libm_log_of_the_count() -> None:
-    from roger_daemon.learner.gate import GatePool
+    from roger_daemon.learner.engine.gates import GatePool
 
     rng = np.random.default_rng(4)
     pool = GatePool(3, 0.0, 0.1, 1.0, 6.0)

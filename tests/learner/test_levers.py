@@ -21,7 +21,9 @@ from scipy.stats import multivariate_t
 from roger_daemon.learner import ParameterError, Roger, RogerParams, UnimapGP, load_model
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import PRESETS
-from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
+from roger_daemon.learner.roger_step import putatives
+from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood
+from roger_daemon.learner.sogp_batch import update_many
 from roger_daemon.learner.synthetic import sqrt_multimap, subtask_stream
 
 from .states import with_schema
@@ -145,14 +147,13 @@ def reference_log_weights(model: Roger, xs: np.ndarray, ys: np.ndarray) -> list[
                              df=p.nu0 - len(xs) + 1)
     for j, w in enumerate(model.particle_log_weights()):
         row = []
-        slot_of = {int(model._ids[s]): s for s in model.particle_slots(j).tolist()}
+        slot_of = {int(model.store.ids[s]): s for s in model.particle_slots(j).tolist()}
         for idx in sd["particle_experts"][offsets[j]:offsets[j + 1]]:
             eid = int(sd["expert_id"][idx])
             n_k = float(sd["expert_count"][idx])
             s = slot_of[eid]
-            df, loc, shape = model._gates.predictive(s)
-            g = model._gps[s]
-            assert g is not None
+            df, loc, shape = model.store.gates.predictive(s)
+            g = model.store.expert(s)
             mean, var = g.predict(xs)
             crp = n_k + (p.sticky_kappa if eid == prev[j] else 0.0)
             row.append(w + math.log(crp) + multivariate_t(loc, shape, df=df).logpdf(xs)
@@ -171,7 +172,8 @@ def test_putative_weights_are_the_sticky_crp_formula(kappa: float) -> None:
     learn(model, s.x[:-1], s.y[:-1])
     assert model.n_experts >= 2
     xs, ys = s.x[-1], s.y[-1]
-    lw, flat_part, _, offsets, _ = model._putatives(xs, ys)
+    put = putatives(model.store, model.terms, model.history, xs, ys)
+    lw, flat_part = put.log_weights, put.parent
     ref = reference_log_weights(model, xs, ys)
     for j, row in enumerate(ref):
         mine = lw[flat_part == j]
@@ -369,7 +371,7 @@ def test_the_recomputed_gram_matrix_has_the_floats_of_the_kernel_vectors() -> No
     """``K_B`` is not kept: a re-inversion recomputes it, and each entry must be the very float
     of the kernel vector computed when that basis vector entered (``expert_terms``, as a
     kept ``K_B`` held), so that recomputing changes no result."""
-    from roger_daemon.learner import jit
+    from roger_daemon.learner.engine import jit
 
     rng = np.random.default_rng(5)
     for n, d, width in ((1, 1, 0.5), (7, 3, 0.3), (40, 23, 0.1), (60, 9, 2.0)):

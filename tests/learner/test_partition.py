@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -54,3 +56,19 @@ def test_bad_shapes_are_refused() -> None:
         fit_partition(x, y, groups[:-1], params=PARAMS)
     with pytest.raises(ValueError, match="x \\(n, d_x\\)"):
         fit_partition(x[:, 0], y, groups, params=PARAMS)
+
+
+def test_learn_assigned_needs_one_particle_and_an_expert_it_has() -> None:
+    x, y, groups = _data(6)
+    model = fit_partition(x, y, groups, params=PARAMS, seed=0)
+    n, sizes = model.n_learned, model.expert_sizes()
+    with pytest.raises(ValueError, match="the particle has no expert 99"):
+        model.learn_assigned(x[0], y[0], 99)
+    assert (model.n_learned, model.expert_sizes()) == (n, sizes)  # unchanged
+    assert model.learn_assigned(x[0], y[0], 0) == 0 and model.expert_sizes()[0] == sizes[0] + 1
+    two = Roger(x.shape[1], y.shape[1], replace(PARAMS, particles=2), seed=0)
+    for xi, yi in zip(x, y, strict=True):
+        two.learn_one(xi, yi)
+    assert two.n_particles == 2
+    with pytest.raises(ValueError, match="needs a model of one particle, not 2"):
+        two.learn_assigned(x[0], y[0], None)

@@ -102,7 +102,7 @@ def test_threshold_taus_are_the_numpy_formulas_bits(lw: list[float], p: int) -> 
     """The one computation of ``R_L / (P - L)`` (read by the threshold and by the decision
     margin) gives the numpy formula's floats to the last bit, for as many ``L`` as there are
     weights and survivors."""
-    from roger_daemon.learner import jit
+    from roger_daemon.learner.engine import jit
 
     w = np.exp(np.array(lw) - max(lw))
     ws = np.ascontiguousarray(np.sort(w / w.sum())[::-1])

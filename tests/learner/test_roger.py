@@ -18,6 +18,7 @@ from roger_daemon.learner import (
     UnimapGP,
     load_model,
 )
+from roger_daemon.learner.roger_step import putatives
 from roger_daemon.learner.synthetic import sqrt_multimap, subtask_stream
 
 GRID = np.linspace(0.25, 1.0, 16)
@@ -115,11 +116,11 @@ def test_multimap_branches_are_each_experts_own_prediction(
     learn(model, x, y)
     for q in (x[5], x[40], x[-1] + 0.3):
         branches = model.predict_multimap(q)
-        xs = model._scaling.x_in(np.asarray(q, dtype=np.float64))
-        slots = roger_predict.map_slots(model).tolist()
+        xs = model.terms.scaling.x_in(np.asarray(q, dtype=np.float64))
+        slots = model.particle_slots(model.store.map_particle()).tolist()
         assert len(branches) == len(slots) > 1
         for b, slot in zip(branches, slots, strict=True):
-            own = roger_predict._expert(model, slot, xs, b.gate_prob)
+            own = roger_predict._expert(model.store, model.terms, slot, xs, b.gate_prob)
             assert (b.expert_id, b.n_points) == (own.expert_id, own.n_points)
             np.testing.assert_array_equal(b.mean, own.mean)
             np.testing.assert_array_equal(b.var, own.var)
@@ -310,7 +311,7 @@ def check_bounded(model: Roger) -> None:
     assert all(g.alloc <= p.beta for g in gps)  # buffers too
     assert model.n_unique_experts == len(gps)
     # every particle's experts are in the pool; the pool holds nothing else
-    assert model.n_unique_experts <= model._slots.size
+    assert model.n_unique_experts <= model.store.slots.size
 
 
 def test_memory_bounded_fast_variant() -> None:
@@ -414,8 +415,8 @@ def test_opt_in_pruning_only_drops_negligible_putatives(
     pruned = Roger.from_state_dict({**state, "meta": np.array(json.dumps(meta))})
     dropped = 0
     for xi, yi in zip(x[250:], y[250:], strict=True):
-        lw_exact = exact._putatives(xi, yi)[0]
-        lw_pruned = pruned._putatives(xi, yi)[0]
+        lw_exact = putatives(exact.store, exact.terms, exact.history, xi, yi).log_weights
+        lw_pruned = putatives(pruned.store, pruned.terms, pruned.history, xi, yi).log_weights
         kept = np.isfinite(lw_pruned)
         np.testing.assert_array_equal(lw_pruned[kept], lw_exact[kept])
         assert np.all(lw_exact[~kept] < lw_exact.max() - 30.0)
@@ -424,7 +425,7 @@ def test_opt_in_pruning_only_drops_negligible_putatives(
     # the bound behind it: no expert's log-likelihood exceeds -(d_y/2) log(2 pi theta_n)
     for gp in exact.distinct_experts():
         for xi, yi in zip(x[:20], y[:20], strict=True):
-            assert gp.log_likelihood(xi, yi) <= exact._gp_bound
+            assert gp.log_likelihood(xi, yi) <= exact.terms.gp_bound
 
 
 def test_nu0_follows_d_x_unless_set() -> None:

@@ -1,4 +1,4 @@
-"""One buffer per expert (roger_daemon/learner/jit_slab.py): the views an expert takes of its
+"""One buffer per expert (roger_daemon/learner/engine/jit_slab.py): the views an expert takes of its
 slab and the views the compiled kernels take are the same memory, and the slab carries the
 whole expert through a copy, a growth, a restore and the buffer pool."""
 
@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.learner import jit
-from roger_daemon.learner.buffers import BufferPool
-from roger_daemon.learner.jit_slab import ALIGN, HEADER, slab_offsets
+from roger_daemon.learner.engine import jit
+from roger_daemon.learner.engine.buffers import BufferPool
+from roger_daemon.learner.engine.jit_slab import ALIGN, HEADER, slab_offsets
 from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.sogp import SparseOnlineGP
 
@@ -58,12 +58,12 @@ def test_the_kernels_views_are_the_experts_own(points: int, prior: bool) -> None
     the expert's ``_Cp``, ``_Qp``, ``_B``, ``_A`` and ``_m`` are, with their shapes."""
     jit.warm_up()
     gp = _expert(3, 2, 12, points, prior_mean=prior, seed=points)
-    got = jit.slab_views(gp._slab)
+    got = jit.slab_views(gp.slab)
     for mine, theirs in zip((gp._Cp, gp._Qp, gp._B, gp._A, gp._m), got, strict=True):
         assert theirs.shape == mine.shape
-        assert _start(theirs, gp._slab) == _start(mine, gp._slab)
+        assert _start(theirs, gp.slab) == _start(mine, gp.slab)
         np.testing.assert_array_equal(theirs, mine)
-    assert tuple(gp._slab[:4]) == (gp.alloc, gp.a_cols, 3, 2)
+    assert tuple(gp.slab[:4]) == (gp.alloc, gp.a_cols, 3, 2)
 
 
 def test_a_copy_a_growth_and_a_restore_carry_the_whole_expert() -> None:
@@ -78,24 +78,24 @@ def test_a_copy_a_growth_and_a_restore_carry_the_whole_expert() -> None:
     donor.release(pool)
     pending: list[tuple[np.ndarray, np.ndarray]] = []
     pooled = gp.copy(pool, pending)
-    assert pooled._slab is donor._slab and len(pending) == 1
+    assert pooled.slab is donor.slab and len(pending) == 1
     np.copyto(pending[0][1], pending[0][0])
     plain = gp.copy()
     restored = SparseOnlineGP(3, 2, gp.kernel, 0.1, 12, 1e-6, prior_mean=True)
     restored.load(gp.B, gp._A[: gp.n], gp.C, gp.Q, gp.n_points, alloc=gp.alloc,
                   mean=gp.mean_offset)
     for other in (pooled, plain, restored):
-        assert not np.shares_memory(other._slab, gp._slab)
+        assert not np.shares_memory(other.slab, gp.slab)
         assert other.predict(x)[0].tolist() == gp.predict(x)[0].tolist()
         assert other.predict(x)[1] == gp.predict(x)[1]
     grown = gp.copy()
     before = (grown.B.copy(), grown._A[: grown.n].copy(), grown.C, grown.Q, grown.mean_offset)
     grown._grow(grown.n + 1)  # the 9th basis vector's room: buffers for 12
-    assert grown.alloc == 12 and tuple(grown._slab[:4]) == (12, 3, 3, 2)
+    assert grown.alloc == 12 and tuple(grown.slab[:4]) == (12, 3, 3, 2)
     after = (grown.B, grown._A[: grown.n], grown.C, grown.Q, grown.mean_offset)
     for old, new in zip(before, after, strict=True):
         np.testing.assert_array_equal(new, old)
-    got = jit.slab_views(grown._slab)
+    got = jit.slab_views(grown.slab)
     np.testing.assert_array_equal(got[2][: grown.n], before[0])
     np.testing.assert_array_equal(got[4], before[4])
 
@@ -116,8 +116,8 @@ def test_a_deep_copy_of_a_model_learns_as_the_model_does() -> None:
     twin = copy.deepcopy(model)
     before = array_digest(model.state_dict())
     for gp in twin.distinct_experts():
-        views = jit.slab_views(gp._slab)
-        assert all(np.shares_memory(view, gp._slab) for view in (gp._Cp, gp._B, gp._m))
+        views = jit.slab_views(gp.slab)
+        assert all(np.shares_memory(view, gp.slab) for view in (gp._Cp, gp._B, gp._m))
         np.testing.assert_array_equal(views[2], gp._B)
     for i in range(80, 120):
         twin.learn_one(s.x[i], s.y[i])

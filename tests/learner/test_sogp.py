@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from roger_daemon.learner.kernel import RBFKernel
-from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood, update_many
+from roger_daemon.learner.sogp import SparseOnlineGP, gaussian_log_likelihood
+from roger_daemon.learner.sogp_batch import update_many
 
 
 def exact_gp(xtr: np.ndarray, ytr: np.ndarray, xte: np.ndarray, width: float, noise: float,

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit_compile import compiled
+from roger_daemon.learner.engine.jit_compile import compiled
 
 __all__ = ["fearnhead_split", "log_sum_exp", "sorted_threshold", "stratified_pass",
            "threshold_taus"]

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit_compile import compiled
+from roger_daemon.learner.engine.jit_compile import compiled
 
 __all__ = ["putative_layout", "survivor_counts", "survivor_particles"]
 

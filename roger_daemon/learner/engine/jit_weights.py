@@ -18,7 +18,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit_compile import compiled
+from roger_daemon.learner.engine.jit_compile import compiled
 
 __all__ = ["gaussian_log_density", "putative_log_weights", "slot_log_likelihoods"]
 

@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit_slab
-from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_kernels import expert_terms
+from roger_daemon.learner.engine import jit_slab
+from roger_daemon.learner.engine.jit_compile import compiled as _compiled
+from roger_daemon.learner.engine.jit_kernels import expert_terms
 
 __all__ = ["evaluate_expert", "evaluate_experts", "evaluate_slab", "slab_views"]
 

@@ -19,7 +19,9 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner import jit
+from roger_daemon.learner.engine.jit_constants import EVALUATION_WIDTH, padded
+from roger_daemon.learner.engine.jit_slab import bind, new_slab, output_weights
+from roger_daemon.learner.engine.jit_threads import use_threads
 
 __all__ = ["WARMERS", "shares", "warm"]
 
@@ -29,37 +31,30 @@ _BASIS = np.zeros((N, 1))
 _SYM = np.array([1.0, 0.0, 1.0])  # the identity, packed (:mod:`.packed`)
 
 
-def _slab(cov: FloatArray, inv: FloatArray, coef: FloatArray, prior_mean: bool) -> FloatArray:
+def _slab(cov: FloatArray, inv: FloatArray, coef: FloatArray) -> FloatArray:
     """The slab (:mod:`.jit_slab`) of a tiny expert with ``N`` basis vectors at 0 and the
-    packed ``C``, ``Q`` and ``A`` given, as the batched kernels take them."""
-    from roger_daemon.learner.kernel import RBFKernel
-    from roger_daemon.learner.sogp import SparseOnlineGP
-
-    gp = SparseOnlineGP(1, 1, RBFKernel(1.0, 1), 0.1, N, prior_mean=prior_mean)
-    gp.load(_BASIS, coef, np.eye(N), np.eye(N), N)
-    gp._Cp[:], gp._Qp[:] = cov, inv
-    return gp._slab
-
-
-def _weights() -> FloatArray:
-    weights = np.ones(1)
-    weights.setflags(write=False)  # as sogp_fused passes them: read-only, its own signature
-    return weights
+    packed ``C``, ``Q`` and the ``A`` given (its columns: ``d_y = 1``, plus ``a1`` with two),
+    as the batched kernels take them."""
+    slab = new_slab(N, 1, coef.shape[1], 1)
+    c, q, _, a, _ = bind(slab, N, 1, coef.shape[1], 1)
+    c[:], q[:], a[:] = cov, inv, coef
+    return slab
 
 
 def _warm_learning() -> None:
     """``Q k``, the novelty test and the fused add-then-delete step, one expert or batched."""
-    from roger_daemon.learner import jit_batch as bk
-    from roger_daemon.learner import jit_fused as fk
-    from roger_daemon.learner import jit_kernels as k
+    from roger_daemon.learner.engine import jit_batch as bk
+    from roger_daemon.learner.engine import jit_fused as fk
+    from roger_daemon.learner.engine import jit_kernels as k
 
-    basis, sym, weights = _BASIS, _SYM, _weights()
+    basis, sym = _BASIS, _SYM
+    weights = output_weights(1, 1)  # as the learner passes them: read-only, its own signature
     vn, one = np.ones(N), np.ones(1)
-    k.rank_update_cq(sym.copy(), sym.copy(), N, N, 0, np.zeros((3, N)), np.zeros(3),
+    fk.rank_update_cq(sym.copy(), sym.copy(), N, N, 0, np.zeros((3, N)), np.zeros(3),
                      np.zeros((2, N)), np.zeros(2), np.empty(N))
     fk.fused_step(basis.copy(), np.zeros((N, 1)), -sym.copy(), sym.copy(), 2 * vn,
                   np.zeros(1), -0.1 * vn, 0.5 * vn, weights, one, -0.5, 0.5)
-    jit.use_threads()
+    use_threads()
     coef = np.zeros((N, 1))
     rows = np.ones((1, N))
     k.projection(sym, np.zeros(N), N, N)
@@ -71,7 +66,7 @@ def _warm_learning() -> None:
                          -0.1 * vn, 2 * vn, np.ones(1), -0.5, weights, rule, np.empty(N),
                          np.empty(N), np.empty(N))
     terms = np.concatenate([0.5 * vn, -0.1 * vn])  # [k, C k], as an evaluation packs them
-    bk.learn_batch(jit.padded([_slab(-sym, sym, coef, False)], 0), 1, np.zeros(1), terms,
+    bk.learn_batch(padded([_slab(-sym, sym, coef)], 0), 1, np.zeros(1), terms,
                    np.zeros(1, dtype=np.int64), 2 * rows, np.ones((1, 1)), np.array([-0.5]),
                    weights, rule,
                    np.empty((1, N)), np.empty(1), np.empty(1, dtype=np.int64), np.empty((1, N)),
@@ -81,22 +76,22 @@ def _warm_learning() -> None:
 
 def _warm_evaluation() -> None:
     """The experts evaluated at one input: one at a time, several per call, batched."""
-    from roger_daemon.learner import jit_batch as bk
-    from roger_daemon.learner import jit_evaluate as ek
-    from roger_daemon.learner import jit_kernels as k
+    from roger_daemon.learner.engine import jit_batch as bk
+    from roger_daemon.learner.engine import jit_evaluate as ek
+    from roger_daemon.learner.engine import jit_kernels as k
 
     basis, sym = _BASIS, _SYM
     k.kernel_vector(basis, np.zeros(1), 1.0, N)
     k.sym_matvec(sym, np.zeros(N), N, N)
     k.expert_terms(basis, sym, np.zeros((N, 1)), np.zeros(1), 1.0, N, N)
-    jit.use_threads()
-    width = jit.EVALUATION_WIDTH
+    use_threads()
+    width = EVALUATION_WIDTH
     ints = np.full(width, N, dtype=np.int64)
 
     def pad(array: FloatArray) -> tuple[FloatArray, ...]:
-        return jit.padded([array], 0, width)
+        return padded([array], 0, width)
 
-    slab = _slab(sym, sym, np.zeros((N, 2)), True)
+    slab = _slab(sym, sym, np.zeros((N, 2)))
     args = (pad(slab), 1, ints, np.zeros(1), 1.0, 1.0, 1e-12, True, np.zeros(2 * N + 3),
             np.zeros(width, dtype=np.int64), np.empty((1, 1)), np.empty(1))
     ek.evaluate_experts(*args)
@@ -105,7 +100,7 @@ def _warm_evaluation() -> None:
 
 def _warm_resampling() -> None:
     """The optimal-threshold resampler (paper [15]) and its decision margin."""
-    from roger_daemon.learner import jit_resampling as rk
+    from roger_daemon.learner.engine import jit_resampling as rk
 
     w, order, _, inv_c, n_top, lse = rk.fearnhead_split(np.log([1.0, 0.5, 0.25]), 2)
     rk.stratified_pass(w, order, n_top, 2, inv_c, 0.5 * inv_c, np.zeros(3), lse, 0.0)
@@ -115,20 +110,21 @@ def _warm_resampling() -> None:
 
 def _warm_the_rest() -> None:
     """Copies, the packed helpers, the small experts' kernels, the gates and the lineages."""
-    from roger_daemon.learner import jit_batch as bk
-    from roger_daemon.learner import jit_kernels as k
-    from roger_daemon.learner import jit_layout as lk
-    from roger_daemon.learner import jit_particles as gk
-    from roger_daemon.learner import jit_small as sk
-    from roger_daemon.learner import jit_weights as wk
+    from roger_daemon.learner.engine import jit_batch as bk
+    from roger_daemon.learner.engine import jit_cholesky as chk
+    from roger_daemon.learner.engine import jit_kernels as k
+    from roger_daemon.learner.engine import jit_layout as lk
+    from roger_daemon.learner.engine import jit_particles as gk
+    from roger_daemon.learner.engine import jit_small as sk
+    from roger_daemon.learner.engine import jit_weights as wk
 
     basis, sym = _BASIS, _SYM
     mat, vn = np.eye(N), np.ones(N)
     k.sym_row(sym, N, N, 1)
     k.min_argmax(np.ones(N))
     k.packed_add_lowrank(sym.copy(), N, N, np.zeros((1, N)), np.zeros(1))
-    k.cholesky_inverse(mat, N, 0.0, np.empty((N, N)))
-    k.cholesky_inverse_logdet(mat, N, 0.0, np.empty((N, N)))
+    chk.cholesky_inverse(mat, N, 0.0, np.empty((N, N)))
+    chk.cholesky_inverse_logdet(mat, N, 0.0, np.empty((N, N)))
     k.gram_matrix(basis, 1.0, N)
     sk.sparse_update(np.zeros((N, 2)), sym.copy(), N, N, vn, vn, np.zeros(2), -0.5, 0.5)
     sk.shift_mean(np.zeros((N, 2)), np.zeros(1), np.zeros(1), N, 1, np.empty(1))
@@ -138,7 +134,9 @@ def _warm_the_rest() -> None:
     sk.growth_step(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
                    np.zeros(basis.shape[1]), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0,
                    1e-3, 1e-12, 1e-6, 1e-9)
-    grown = _slab(sym, sym, np.zeros((N, 1)), False)
+    sk.add_basis_vector(basis.copy(), np.zeros((N, 2)), sym.copy(), sym.copy(), N, 1,
+                        np.zeros(1), np.zeros(1), np.zeros(1), np.zeros(2), -0.5, 1.0)
+    grown = _slab(sym, sym, np.zeros((N, 1)))
     sk.grow_slab(grown, grown.copy(), N)
     slots = np.zeros(1, dtype=np.int64)
     vec, cube = np.ones(1), np.ones((1, 1, 1))
@@ -161,8 +159,8 @@ def _warm_the_rest() -> None:
     lk.putative_layout(one, two, np.zeros(1), np.zeros(1), 0.0)
     lk.survivor_counts(one, two, one, one, 1)
     lk.survivor_particles(one, two, one, one, one, one, one, 0, one, one)
-    jit.use_threads()
-    bk.copy_batch(jit.padded([sym], 0), jit.padded([sym.copy()], 0), 1,
+    use_threads()
+    bk.copy_batch(padded([sym], 0), padded([sym.copy()], 0), 1,
                   np.zeros(1, dtype=np.int64), 1)
     bk.balanced_owners(np.array([-1, 0]), np.array([1, 2]), 2, True)
 

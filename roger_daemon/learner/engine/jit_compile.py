@@ -19,7 +19,7 @@ from typing import Any, TypeVar, cast
 
 from numba import njit
 
-from roger_daemon.learner.jit_target import pin
+from roger_daemon.learner.engine.jit_target import pin
 
 pin()  # before the first kernel is decorated: one CPU model's code on every host (.jit_target)
 

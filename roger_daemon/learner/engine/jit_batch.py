@@ -30,11 +30,11 @@ import numpy as np
 import numpy.typing as npt
 from numba import prange
 
-from roger_daemon.learner.jit import DRIFTED, FUSED, KEPT
-from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_evaluate import evaluate_slab, slab_views
-from roger_daemon.learner.jit_fused import fused_step
-from roger_daemon.learner.jit_kernels import (
+from roger_daemon.learner.engine.jit_compile import compiled as _compiled
+from roger_daemon.learner.engine.jit_constants import DRIFTED, FUSED, KEPT
+from roger_daemon.learner.engine.jit_evaluate import evaluate_slab, slab_views
+from roger_daemon.learner.engine.jit_fused import fused_step
+from roger_daemon.learner.engine.jit_kernels import (
     keeps_basis_vectors,
     novelty_margin,
     novelty_test,
@@ -136,7 +136,7 @@ def learn_batch(slabs: tuple[FloatArray, ...], count: int, x: FloatArray, terms:
 def copy_batch(srcs: tuple[FloatArray, ...], dsts: tuple[FloatArray, ...], count: int,
                owners: IntArray, groups: int) -> None:
     """``dsts[e][:] = srcs[e]`` for the first ``count`` pairs: a step's copy-on-write copies
-    (:func:`.sogp_batch.copy_many`); by iteration ``owners[e]`` of ``groups``."""
+    (:func:`.buffers.copy_many`); by iteration ``owners[e]`` of ``groups``."""
     for g in prange(groups):
         for e in range(count):
             if owners[e] == g:

@@ -18,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit import ADDED, DRIFTED, NEEDS_ROOM, PROJECTED
-from roger_daemon.learner.jit_compile import compiled as _compiled
-from roger_daemon.learner.jit_evaluate import slab_views
-from roger_daemon.learner.jit_kernels import (
-    cholesky_inverse,
+from roger_daemon.learner.engine.jit_cholesky import cholesky_inverse
+from roger_daemon.learner.engine.jit_compile import compiled as _compiled
+from roger_daemon.learner.engine.jit_constants import ADDED, DRIFTED, NEEDS_ROOM, PROJECTED
+from roger_daemon.learner.engine.jit_evaluate import slab_views
+from roger_daemon.learner.engine.jit_kernels import (
     gram_matrix,
     keeps_basis_vectors,
     min_argmax,
@@ -31,8 +31,8 @@ from roger_daemon.learner.jit_kernels import (
     projection,
 )
 
-__all__ = ["dot_column", "grow_slab", "growth_step", "novelty_step", "refresh_inverse",
-           "shift_mean", "sparse_update"]
+__all__ = ["add_basis_vector", "dot_column", "grow_slab", "growth_step", "novelty_step",
+           "refresh_inverse", "shift_mean", "sparse_update"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -116,6 +116,38 @@ def refresh_inverse(basis: FloatArray, gamma: float, n: int, jitter: float, qbuf
 
 
 @_compiled(nogil=True)
+def add_basis_vector(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
+                     alloc: int, n: int, x: FloatArray, ck: FloatArray, e_hat: FloatArray,
+                     q: FloatArray, r: float, gamma: float) -> None:
+    """Step 4b (Csató thesis eq. 2.46; ``Q`` by eq. 3.5; docs/learner-math.md §2.5): ``x``
+    becomes basis vector ``n`` of an expert whose buffers hold at least ``n + 1``, in place.
+    With ``s = [C k, 1]`` and ``e = [Q k, -1]``: ``A += s q^T`` (row ``n`` first zeroed),
+    ``C += r s s^T``, ``Q += e e^T / gamma``, row and column ``n`` of the packed ``C`` and ``Q``
+    first zeroed (stale after a deletion).  The one implementation of the step: an expert
+    that is not full takes it inside :func:`growth_step`, one whose buffers had to grow first
+    from :meth:`.sogp_steps.SOGPSteps._full_update`.  No ``fastmath``: numpy's outer product,
+    then the sum, bit for bit."""
+    basis[n, :] = x
+    s = np.empty(n + 1)  # [C k, 1] and [Q k, -1]
+    e = np.empty(n + 1)
+    s[:n] = ck
+    s[n] = 1.0
+    e[:n] = e_hat
+    e[n] = -1.0
+    coef[n, :] = 0.0
+    for i in range(n + 1):  # A += s q^T: numpy's outer product, then the sum
+        for j in range(q.shape[0]):
+            coef[i, j] += s[i] * q[j]
+    off = 0
+    for a in range(n + 1):  # column n of the upper triangles
+        cbuf[off + n - a] = 0.0
+        qbuf[off + n - a] = 0.0
+        off += alloc - a
+    packed_add_lowrank(cbuf, alloc, n + 1, s.reshape((1, n + 1)), np.array([r]))
+    packed_add_lowrank(qbuf, alloc, n + 1, e.reshape((1, n + 1)), np.array([1.0 / gamma]))
+
+
+@_compiled(nogil=True)
 def growth_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: FloatArray,
                 alloc: int, n: int, x: FloatArray, k: FloatArray, ck: FloatArray,
                 q: FloatArray, r: float, kstar: float, threshold: float, floor: float,
@@ -125,8 +157,7 @@ def growth_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Flo
     did in numpy and kernel calls, the same floats.  In: the kernel vector ``k``, ``C k``,
     Csató's ``K1`` (``q``) and ``K2`` (``r``).  :func:`novelty_step`; not novel: the
     projection update (:func:`sparse_update`); novel, with room in the buffers: ``x`` becomes
-    basis vector ``n`` (thesis eq. 2.46; ``Q`` by eq. 3.5), row and column ``n`` of ``C`` and
-    ``Q`` first zeroed (stale after a deletion).  Returns ``(outcome, gamma, clean)``: the
+    basis vector ``n`` (:func:`add_basis_vector`).  Returns ``(outcome, gamma, clean)``: the
     outcome :data:`.jit.ADDED`, :data:`.jit.PROJECTED`, :data:`.jit.DRIFTED` or
     :data:`.jit.NEEDS_ROOM` (both: nothing changed), and whether the geometric clean-up keeps
     every basis vector (:func:`.jit_kernels.keeps_basis_vectors` of the largest ``Q_ii``,
@@ -141,24 +172,7 @@ def growth_step(basis: FloatArray, coef: FloatArray, cbuf: FloatArray, qbuf: Flo
     elif n == alloc:
         return NEEDS_ROOM, gamma, False
     else:
-        basis[n, :] = x
-        s = np.empty(n + 1)  # [C k, 1] and [Q k, -1]
-        e = np.empty(n + 1)
-        s[:n] = ck
-        s[n] = 1.0
-        e[:n] = e_hat
-        e[n] = -1.0
-        coef[n, :] = 0.0
-        for i in range(n + 1):  # A += s q^T: numpy's outer product, then the sum
-            for j in range(q.shape[0]):
-                coef[i, j] += s[i] * q[j]
-        off = 0
-        for a in range(n + 1):  # column n of the upper triangles
-            cbuf[off + n - a] = 0.0
-            qbuf[off + n - a] = 0.0
-            off += alloc - a
-        packed_add_lowrank(cbuf, alloc, n + 1, s.reshape((1, n + 1)), np.array([r]))
-        packed_add_lowrank(qbuf, alloc, n + 1, e.reshape((1, n + 1)), np.array([1.0 / gamma]))
+        add_basis_vector(basis, coef, cbuf, qbuf, alloc, n, x, ck, e_hat, q, r, gamma)
         n += 1
         outcome = ADDED
     if n <= 1:

@@ -20,9 +20,9 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit_compile import compiled
-from roger_daemon.learner.jit_kernels import cholesky_inverse_logdet
-from roger_daemon.learner.jit_scalar import student_t_normaliser
+from roger_daemon.learner.engine.jit_cholesky import cholesky_inverse_logdet
+from roger_daemon.learner.engine.jit_compile import compiled
+from roger_daemon.learner.engine.jit_scalar import student_t_normaliser
 
 #: :func:`.jit_scalar.student_t_normaliser` compiled: the gates' Student-t constants after an
 #: update (:func:`gate_update`) or a recomputation (:meth:`.gate.GatePool.update_many`)

@@ -17,18 +17,13 @@ them streams half the bytes of a full matrix.
 * :func:`sym_matvec`: ``S v`` of a packed matrix (:func:`sym_matvec_into`), and
   :func:`sym_row`, one row of it; :func:`projection`: ``Q k`` and ``k^T Q k`` for the novelty
   test, whose rule is :func:`novelty_test`;
-* :func:`rank_update_cq`: the fused hot path's rank-3 update of ``C`` and rank-2 update of
-  ``Q``, one pass over each buffer, with row and column ``i`` zeroed first;
-  :func:`packed_add_lowrank`: the other steps' low-rank updates;
-* :func:`.jit_fused.fused_step` (with :func:`.jit_fused.fused_delete_index`): the whole fused
-  add-then-delete step of one full expert (:mod:`.sogp_fused`), ending in
-  :func:`rank_update_cq`, in a module of its own;
+* :func:`packed_add_lowrank`: the low-rank updates of the steps other than the fused one;
 * :func:`gram_matrix`: ``K_B`` recomputed from the basis for a re-inversion of ``Q``;
-* :func:`cholesky_inverse`: ``K^{-1}`` of an SPD matrix (Cholesky, then the inverse from the
-  factor): the gates' refresh, and the re-inversion of ``Q`` up to :data:`.jit.SMALL` basis
-  vectors (LAPACK above, faster there);
-* the gates' and the segmentation history's kernels are in :mod:`.jit_particles`; several
-  experts' kernels per call, over the cores, in :mod:`.jit_batch`.
+* :func:`min_argmax`: numpy's ``min`` and first ``argmax`` of a vector, NaN rules included;
+* the fused add-then-delete step is in :mod:`.jit_fused`, the compiled Cholesky inverse in
+  :mod:`.jit_cholesky`, the gates' and the segmentation history's kernels in
+  :mod:`.jit_particles`; several experts' kernels per call, over the cores, in
+  :mod:`.jit_batch`.
 
 Reductions may be reassociated (``fastmath={"reassoc", "contract"}``: no NaN/inf assumptions), so
 the floats differ from numpy's in the last bits, like another BLAS kernel's; the compiled code
@@ -43,12 +38,11 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.jit_compile import compiled as _compiled
+from roger_daemon.learner.engine.jit_compile import compiled as _compiled
 
-__all__ = ["cholesky_inverse", "cholesky_inverse_logdet", "expert_terms", "gram_matrix",
-           "keeps_basis_vectors", "kernel_vector", "min_argmax", "novelty_margin", "novelty_test",
-           "packed_add_lowrank", "projection", "rank_update_cq", "sym_matvec", "sym_matvec_into",
-           "sym_row"]
+__all__ = ["expert_terms", "gram_matrix", "keeps_basis_vectors", "kernel_vector", "min_argmax",
+           "novelty_margin", "novelty_test", "packed_add_lowrank", "projection", "sym_matvec",
+           "sym_matvec_into", "sym_row"]
 
 FloatArray = npt.NDArray[np.float64]
 _FM = {"reassoc", "contract"}
@@ -354,175 +348,6 @@ def expert_terms(basis: FloatArray, cov: FloatArray, coef: FloatArray, x: FloatA
             for c in range(cols):
                 out[base + c] += ki * coef[i, c]
     return out
-
-
-@_compiled(fastmath={"contract"}, nogil=True)
-def rank_update_cq(cbuf: FloatArray, qbuf: FloatArray, n: int, alloc: int, i: int,
-                   uc: FloatArray, cc: FloatArray, uq: FloatArray, cq: FloatArray,
-                   dq: FloatArray) -> None:
-    """Zero row and column ``i`` (none if ``i < 0``), then ``C += uc^T diag(cc) uc`` and
-    ``Q += uq^T diag(cq) uq`` on the live ``n x n`` blocks of the packed ``C`` and ``Q``, in
-    place, one pass over each upper triangle; ``dq[:n]`` receives the new ``diag(Q)`` as
-    stored (the novelty test's drift check and the clean-up read it, docs/performance.md).
-
-    ``uc`` is (3, n), ``uq`` (2, n): the fused add-then-delete step's columns as rows.
-    """
-    if i >= 0:
-        off = 0
-        for a in range(i):
-            cbuf[off + i - a] = 0.0
-            qbuf[off + i - a] = 0.0
-            off += alloc - a
-        for a in range(n - i):
-            cbuf[off + a] = 0.0
-            qbuf[off + a] = 0.0
-    # Q first: the caller has just read it for Q k, so it is still in the core's cache
-    q0, q1 = uq[0], uq[1]
-    off = 0
-    for a in range(n):
-        row = qbuf[off: off + n - a]
-        t0, t1 = q0[a:n], q1[a:n]
-        w0 = cq[0] * q0[a]
-        w1 = cq[1] * q1[a]
-        for b in range(n - a):
-            row[b] += w0 * t0[b] + w1 * t1[b]
-        dq[a] = row[0]
-        off += alloc - a
-    c0, c1, c2 = uc[0], uc[1], uc[2]
-    off = 0
-    for a in range(n):
-        row = cbuf[off: off + n - a]
-        t0, t1, t2 = c0[a:n], c1[a:n], c2[a:n]
-        v0 = cc[0] * c0[a]
-        v1 = cc[1] * c1[a]
-        v2 = cc[2] * c2[a]
-        for b in range(n - a):
-            row[b] += v0 * t0[b] + v1 * t1[b] + v2 * t2[b]
-        off += alloc - a
-
-
-@_compiled(nogil=True)
-def _cholesky_lower(gram: FloatArray, n: int, jitter: float, low: FloatArray) -> float:
-    """``low`` (zeros, n x n) becomes ``L`` with ``L L^T = K + jitter I``; returns
-    ``log|K + jitter I|``, NaN at a pivot that is not positive.  Rows ``r..r+3`` of a column
-    side by side (:func:`cholesky_inverse_logdet`)."""
-    logdet = 0.0
-    for j in range(n):
-        s = gram[j, j] + jitter
-        for p in range(j):
-            s -= low[j, p] * low[j, p]
-        if not s > 0.0:
-            return math.nan
-        d = math.sqrt(s)
-        low[j, j] = d
-        logdet += 2.0 * math.log(d)
-        r = j + 1
-        while r + 3 < n:
-            t0, t1, t2, t3 = gram[r, j], gram[r + 1, j], gram[r + 2, j], gram[r + 3, j]
-            for p in range(j):
-                lj = low[j, p]
-                t0 -= low[r, p] * lj
-                t1 -= low[r + 1, p] * lj
-                t2 -= low[r + 2, p] * lj
-                t3 -= low[r + 3, p] * lj
-            low[r, j], low[r + 1, j] = t0 / d, t1 / d
-            low[r + 2, j], low[r + 3, j] = t2 / d, t3 / d
-            r += 4
-        for rest in range(r, n):
-            t = gram[rest, j]
-            for p in range(j):
-                t -= low[rest, p] * low[j, p]
-            low[rest, j] = t / d
-    return logdet
-
-
-@_compiled(nogil=True)
-def _lower_inverse_transposed(low: FloatArray, n: int, wt: FloatArray) -> None:
-    """``wt[j, r] = W[r, j]`` for ``W = L^{-1}`` (lower triangular; ``wt`` zeros): row ``r``
-    of ``W`` from those before it, ``W[r, j] = -sum_{p=j}^{r-1} L[r, p] W[p, j] / L[r, r]``,
-    four entries of the row side by side (the sum of ``j + k`` starts at ``p = j + k``)."""
-    for r in range(n):
-        lr = low[r, r]
-        wt[r, r] = 1.0 / lr
-        j = 0
-        while j + 3 < r:
-            t0 = 0.0 - low[r, j] * wt[j, j]
-            t0 -= low[r, j + 1] * wt[j, j + 1]
-            t1 = 0.0 - low[r, j + 1] * wt[j + 1, j + 1]
-            t0 -= low[r, j + 2] * wt[j, j + 2]
-            t1 -= low[r, j + 2] * wt[j + 1, j + 2]
-            t2 = 0.0 - low[r, j + 2] * wt[j + 2, j + 2]
-            t3 = 0.0
-            for p in range(j + 3, r):
-                lp = low[r, p]
-                t0 -= lp * wt[j, p]
-                t1 -= lp * wt[j + 1, p]
-                t2 -= lp * wt[j + 2, p]
-                t3 -= lp * wt[j + 3, p]
-            wt[j, r], wt[j + 1, r] = t0 / lr, t1 / lr
-            wt[j + 2, r], wt[j + 3, r] = t2 / lr, t3 / lr
-            j += 4
-        for rest in range(j, r):
-            t = 0.0
-            for p in range(rest, r):
-                t -= low[r, p] * wt[rest, p]
-            wt[rest, r] = t / lr
-
-
-@_compiled(nogil=True)
-def _transposed_gram(wt: FloatArray, n: int, out: FloatArray) -> None:
-    """``out[:n, :n] = W^T W`` from ``wt = W^T`` (``W`` lower triangular): entry ``(a, b)``,
-    ``b <= a``, sums ``W[p, a] W[p, b]`` over ``p >= a``, four entries of a row side by side;
-    exactly symmetric."""
-    for a in range(n):
-        b = 0
-        while b + 3 <= a:
-            s0 = s1 = s2 = s3 = 0.0
-            for p in range(a, n):
-                wa = wt[a, p]
-                s0 += wa * wt[b, p]
-                s1 += wa * wt[b + 1, p]
-                s2 += wa * wt[b + 2, p]
-                s3 += wa * wt[b + 3, p]
-            out[a, b] = out[b, a] = s0
-            out[a, b + 1] = out[b + 1, a] = s1
-            out[a, b + 2] = out[b + 2, a] = s2
-            out[a, b + 3] = out[b + 3, a] = s3
-            b += 4
-        for rest in range(b, a + 1):
-            t = 0.0
-            for p in range(a, n):
-                t += wt[a, p] * wt[rest, p]
-            out[a, rest] = out[rest, a] = t
-
-
-@_compiled(nogil=True)
-def cholesky_inverse_logdet(gram: FloatArray, n: int, jitter: float, out: FloatArray) -> float:
-    """``out[:n, :n] = (K + jitter I)^{-1}`` for the SPD ``K = gram[:n, :n]``, and
-    ``log|K + jitter I|`` returned; NaN (``out`` untouched) if the Cholesky factorisation
-    fails.  Plain loops (no BLAS or LAPACK); the result is exactly symmetric.
-
-    Every sum runs in index order, one multiplication and one subtraction (or addition) per
-    term, no reassociation: the floats of the textbook triple loops (``L``, then ``W =
-    L^{-1}``, then ``W^T W``), kept as the oracle of tests/learner/test_jit.py.  Four
-    independent sums go side by side, so the CPU overlaps four chains of dependent additions
-    instead of waiting on one: 2.3x as fast at n = 300, the same bits (docs/performance.md,
-    *A faster compiled re-inversion*)."""
-    low = np.zeros((n, n))
-    logdet = _cholesky_lower(gram, n, jitter, low)
-    if logdet != logdet:
-        return math.nan
-    wt = np.zeros((n, n))
-    _lower_inverse_transposed(low, n, wt)
-    _transposed_gram(wt, n, out)
-    return logdet
-
-
-@_compiled(nogil=True)
-def cholesky_inverse(gram: FloatArray, n: int, jitter: float, out: FloatArray) -> bool:
-    """``out[:n, :n] = (K + jitter I)^{-1}`` for the SPD ``K = gram[:n, :n]``; False (``out``
-    untouched) if the Cholesky factorisation fails (:func:`cholesky_inverse_logdet`)."""
-    return not math.isnan(cholesky_inverse_logdet(gram, n, jitter, out))
 
 
 @_compiled(nogil=True)

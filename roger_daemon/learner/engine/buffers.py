@@ -20,11 +20,14 @@ apart, writing a slab the other core last held costs more (a step's copies 18.0 
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["BufferPool", "PendingCopy"]
+from roger_daemon.learner.engine import jit as _jit
+
+__all__ = ["BufferPool", "PendingCopy", "copy_many"]
 
 FloatArray = npt.NDArray[np.float64]
 #: a copy deferred by :meth:`BufferPool.copy_of`: its source, its buffer and the thread that
@@ -82,7 +85,7 @@ class BufferPool:
         ``home``: the thread that will make the copy (:meth:`take`).  With ``pending``, the
         buffer is returned unfilled and ``(src, buffer, home)`` appended: the
         caller makes every pending copy before the buffer is read (several copies at once:
-        :func:`.sogp_batch.copy_many`)."""
+        :func:`copy_many`)."""
         buf = self.take(src.size, home)
         if pending is not None:
             buf = np.empty_like(src) if buf is None else buf
@@ -95,3 +98,25 @@ class BufferPool:
 
     def __len__(self) -> int:
         return sum(len(v) for v in self._free.values())
+
+
+def copy_many(pending: Sequence[PendingCopy]) -> None:
+    """``np.copyto(dst, src)`` for each pair (a step's copy-on-write copies,
+    :meth:`BufferPool.copy_of` with ``pending``): several per compiled call
+    (:func:`.jit_batch.copy_batch`) when :func:`.jit.batch_worth` says so, each by the thread
+    it names (its source's home)."""
+    if not _jit.batch_worth(sum(src.size for src, _, _ in pending)):
+        for src, dst, _ in pending:
+            np.copyto(dst, src)
+        return
+    srcs = [src for src, _, _ in pending]
+    dsts = [dst for _, dst, _ in pending]
+    groups = _jit.threads()
+    owners = _jit.balanced_owners(
+        np.array([home for _, _, home in pending], dtype=np.int64),
+        np.array([src.size for src in srcs], dtype=np.int64), groups, False)
+    with _jit.BATCH_LOCK:
+        for lo in range(0, len(pending), _jit.WIDTH):
+            hi = min(lo + _jit.WIDTH, len(pending))
+            _jit.copy_batch(_jit.padded(srcs, lo), _jit.padded(dsts, lo), hi - lo,
+                            owners[lo:hi], groups)

@@ -8,15 +8,22 @@ each on a 2-core AMD EPYC), and a step's two batched calls passed 4 x 32 + 4 x 1
 The header makes a slab self-describing: its first floats are the expert's ``alloc`` (basis
 vectors its buffers hold), ``a_cols`` (columns of ``A``), ``d_x`` and ``d_y``, integers held
 exactly as floats, so a kernel needs no shape but the slab.
-:func:`slab_offsets` is the layout's one owner: an expert (:meth:`.sogp_steps.SOGPSteps._bind`)
-takes its views and writes the header with it, and the kernels slice with it
-(:func:`.jit_evaluate.slab_views`).  Plain integer arithmetic, importable without numba; it
-lives among the kernel modules so that numba's cache is tied to it (:mod:`.jit_compile`).
+:func:`slab_offsets` is the layout's one owner: :func:`bind` writes the header and takes an
+expert's views with it, and the kernels slice with it (:func:`.jit_evaluate.slab_views`).
+Importable without numba; it lives among the kernel modules so that numba's cache is tied to
+it (:mod:`.jit_compile`).
 """
 
 from __future__ import annotations
 
-__all__ = ["ALIGN", "HEADER", "slab_offsets"]
+from functools import lru_cache
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["ALIGN", "HEADER", "bind", "new_slab", "output_weights", "slab_offsets"]
+
+FloatArray = npt.NDArray[np.float64]
 
 #: each part starts a multiple of this many floats (64 bytes) after the slab's start, as the
 #: separate buffers each started on their own allocation before
@@ -42,3 +49,32 @@ def slab_offsets(alloc: int, d_x: int, a_cols: int, d_y: int
     a = b + -(-(alloc * d_x) // ALIGN) * ALIGN
     m = a + -(-(alloc * a_cols) // ALIGN) * ALIGN
     return HEADER, q, b, a, m, m + d_y
+
+
+def new_slab(alloc: int, d_x: int, a_cols: int, d_y: int) -> FloatArray:
+    """A zeroed slab for ``alloc`` basis vectors (:func:`slab_offsets`), its header written."""
+    slab = np.zeros(slab_offsets(alloc, d_x, a_cols, d_y)[5])
+    slab[:4] = alloc, a_cols, d_x, d_y
+    return slab
+
+
+def bind(slab: FloatArray, alloc: int, d_x: int, a_cols: int, d_y: int
+         ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``slab``'s header written for ``alloc`` basis vectors and its parts as views ``(C, Q, B,
+    A, m)``: the packed ``C`` and ``Q``, ``B`` (alloc, d_x), ``A`` (alloc, a_cols) and ``m``
+    (d_y,), the same views as :func:`.jit_evaluate.slab_views` takes in the kernels."""
+    c, q, b, a, m, end = slab_offsets(alloc, d_x, a_cols, d_y)
+    size = alloc * (alloc + 1) // 2
+    slab[:4] = alloc, a_cols, d_x, d_y
+    return (slab[c: c + size], slab[q: q + size], slab[b: b + alloc * d_x].reshape(alloc, d_x),
+            slab[a: a + alloc * a_cols].reshape(alloc, a_cols), slab[m:end])
+
+
+@lru_cache(maxsize=8)
+def output_weights(a_cols: int, d_y: int) -> FloatArray:
+    """1 for the output columns of ``A``, 0 for a prior mean's ``a1`` column: the deletion
+    scores count the outputs only (read-only)."""
+    cw = np.ones(a_cols)
+    cw[d_y:] = 0.0
+    cw.setflags(write=False)
+    return cw
