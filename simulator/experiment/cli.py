@@ -17,6 +17,8 @@ __all__ = ["EXPERIMENTS", "configure", "run"]
 EXPERIMENTS: dict[str, tuple[str, str]] = {
     "goal-scoring": ("simulator.experiment.goal_scoring",
                      "the paper's section IV: demonstrate, learn, evaluate, report"),
+    "table": ("simulator.experiment.table",
+              "a goal-scoring results.json as a Markdown table (the README's)"),
     "dpa": ("simulator.experiment.dpa_node",
             "unimap baseline controller: each prediction's mean as the command"),
 }

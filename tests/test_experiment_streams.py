@@ -1,0 +1,87 @@
+"""``roger experiment goal-scoring --streams``: parsing, the summary over (stream, seed), the
+bundle round trip and ``roger experiment table``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from simulator.experiment.streams import CHOOSE, parse_streams, summarise
+from simulator.experiment.table import markdown
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_streams_parse_and_bad_lists_are_refused() -> None:
+    assert parse_streams("0-4") == (0, 1, 2, 3, 4)
+    assert parse_streams("3, 1") == (3, 1)
+    for bad in ("", "a", "0-x", "1,1", "-1"):
+        with pytest.raises(ValueError, match="--streams"):
+            parse_streams(bad)
+
+
+def _stream(hcc: float, roger: list[float], auto: list[float]) -> dict[str, Any]:
+    return {"hcc": {"success_rate": hcc}, "oracle": {"success_rate": hcc},
+            "dpa": {"success_rate": 0.0},
+            "roger_seeds": [{"success_rate": r, "ari": 0.5, "experts": 9,
+                             "groups": {"success_rate": hcc}} for r in roger],
+            "autonomous_seeds": [{"success_rate": a} for a in auto]}
+
+
+def test_summary_is_over_stream_and_seed_and_keeps_validation_apart() -> None:
+    per = {0: _stream(0.8, [0.8, 0.4], [0.4, 0.0]), 1: _stream(0.5, [0.5, 0.25], [0.5, 0.5]),
+           3: _stream(1.0, [0.1, 0.3], [0.2, 0.2])}
+    out = summarise(per)
+    s = out["summary"]["roger"]
+    assert s["all"]["n"] == 6
+    assert s["all"]["mean_ratio"] == pytest.approx(np.mean([1, .5, 1, .5, .1, .3]))
+    assert s["all"]["worst_ratio"] == pytest.approx(0.1)
+    assert s["choose_0_2"]["n"] == 4 and 3 not in CHOOSE
+    assert s["validation"]["mean_ratio"] == pytest.approx(0.2)
+    lo, hi = s["all"]["ci95"]
+    assert lo < s["all"]["mean_ratio"] < hi
+    assert out["ratio_autonomous_to_hcc"] == pytest.approx(np.mean([.5, 0, 1, 1, .2, .2]))
+    assert out["summary"]["groups"]["all"]["mean_ratio"] == pytest.approx(1.0)
+    table = markdown(out)
+    assert "| ROGER experts + HCC transitioner | 0.75 | 0.75 | 0.20 |" in table
+    assert "stream 3" in table
+
+
+def test_table_command_refuses_a_file_that_is_not_results(tmp_path: Path) -> None:
+    bad = tmp_path / "x.json"
+    bad.write_text("[1, 2]")
+    proc = subprocess.run([sys.executable, "-m", "roger_daemon", "experiment", "table",
+                           str(bad)], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 2
+    assert "not a goal-scoring results.json" in proc.stderr and "Traceback" not in proc.stderr
+    good = tmp_path / "r.json"
+    good.write_text(json.dumps(summarise({0: _stream(1.0, [0.5], [0.25])})))
+    proc = subprocess.run([sys.executable, "-m", "roger_daemon", "experiment", "table",
+                           str(good)], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 0 and "learned transitions" in proc.stdout
+
+
+@pytest.mark.integration
+def test_two_streams_run_end_to_end(tmp_path: Path) -> None:
+    """The protocol on two tiny streams (one location, short episodes): per-stream results,
+    the summary and the bundles, in real worker processes."""
+    out = tmp_path / "s"
+    proc = subprocess.run(
+        [sys.executable, "-m", "roger_daemon", "experiment", "goal-scoring", "--quick",
+         "--streams", "0,4", "--locations", "0", "--time-limit", "10", "--per-subtask", "60",
+         "--controllers", "hcc,roger,autonomous", "--jobs", "2", "--out", str(out)],
+        capture_output=True, text=True, cwd=ROOT, timeout=280)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    res = json.loads((out / "results.json").read_text())
+    assert set(res["streams"]) == {"0", "4"}
+    for s in ("0", "4"):
+        single = json.loads((out / f"stream-{s}" / "results.json").read_text())
+        assert single["seed"] == int(s) and single["autonomous"]["trials"] == 1
+        assert (out / f"stream-{s}" / "prepared.npz").exists()
+    assert res["summary"]["autonomous"]["validation"]["n"] <= 1
