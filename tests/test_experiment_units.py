@@ -32,7 +32,8 @@ def test_plan_defaults_are_the_papers_protocol() -> None:
     plan = plan_from_args(_args())
     assert plan.locations == tuple(range(13)) and plan.attempts == 3
     assert plan.per_subtask == 1000 and plan.time_limit == 60.0 and plan.vision == "fast"
-    assert plan.controllers == ("hcc", "roger", "dpa", "oracle", "groups") and plan.daemon_check
+    assert plan.controllers == ("hcc", "roger", "dpa", "oracle", "groups", "autonomous")
+    assert plan.daemon_check
     assert plan.shots == 10 and plan.learner_seeds == 3 and plan.rule == "mixture"
     assert not plan.in_process
     assert plan.seeds["master"] == 0 and plan.seeds["eval_sim"] != plan.seeds["demo_sim"]
