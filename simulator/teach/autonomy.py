@@ -73,7 +73,7 @@ class Autonomy:
         self.max_ticks = max_ticks
         self.stream = _Stream([], [], [], [])
         self._lock = threading.Lock()
-        self.fitted: dict[str, Any] = {"how": "online", "ticks": 0, "updates": 0}
+        self.fitted: dict[str, Any] = {"fit": "online", "ticks": 0, "updates": 0}
         self.refitting = False
 
     def observe(self, x: FloatArray, y: FloatArray, pred: Prediction | None, taught: bool,
@@ -133,4 +133,4 @@ class Autonomy:
             for t in range(n, len(self.stream.x)):
                 fitted.observe(self.stream.x[t], self.stream.y[t], -1, self.stream.start[t])
             self.fsm = fitted
-            self.fitted = {"how": "refitted on a checkpoint", "ticks": n, "updates": updates}
+            self.fitted = {"fit": "refitted on a checkpoint", "ticks": n, "updates": updates}
