@@ -19,6 +19,9 @@ EXPERIMENTS: dict[str, tuple[str, str]] = {
                      "the paper's section IV: demonstrate, learn, evaluate, report"),
     "table": ("simulator.experiment.table",
               "a goal-scoring results.json as a Markdown table (the README's)"),
+    "teach": ("simulator.teach.experiment",
+              "roger teach with a scripted teacher through the page's channel: pairs, "
+              "corrections, goals from the 13 start locations"),
     "dpa": ("simulator.experiment.dpa_node",
             "unimap baseline controller: each prediction's mean as the command"),
 }

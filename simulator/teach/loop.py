@@ -67,6 +67,7 @@ class TeacherInbox:
         self._cond = threading.Condition()
         self._latest: PageInput | None = None
         self.received = 0
+        self.timeouts = 0
         #: (key press -> receipt, key press -> executed) in ms, of commands carrying sent_ms
         self.to_received: deque[float] = deque(maxlen=5000)
         self.to_applied: deque[float] = deque(maxlen=5000)
@@ -88,19 +89,27 @@ class TeacherInbox:
             return None
         return c
 
-    def wait_tick(self, tick: int, timeout: float, stop: threading.Event) -> PageInput | None:
-        """The command answering ``tick`` (lockstep); ``None`` after ``timeout`` s."""
+    def wait_tick(self, tick: int, timeout: float, stop: threading.Event,
+                  pending: Callable[[], bool] = lambda: False) -> PageInput | None:
+        """The command answering ``tick`` (lockstep); ``None`` after ``timeout`` s, or at
+        once when ``pending()`` (a request such as a mode change is waiting)."""
         end = time.monotonic() + timeout
         with self._cond:
-            while not stop.is_set():
+            while not stop.is_set() and not pending():
                 c = self._latest
                 if c is not None and c.tick is not None and c.tick >= tick:
                     return c
                 left = end - time.monotonic()
                 if left <= 0:
+                    self.timeouts += 1
                     return None
                 self._cond.wait(min(left, 0.2))
         return None
+
+    def wake(self) -> None:
+        """Wake a :meth:`wait_tick` (a request arrived)."""
+        with self._cond:
+            self._cond.notify_all()
 
     def applied(self, cmd: PageInput) -> None:
         """``cmd`` is executed now (its first tick only)."""
@@ -146,6 +155,7 @@ class TeachLoop:
         """A mode change, reset or ball placement, carried out before the next tick."""
         with self._lock:
             self._requests.append(req)
+        self.inbox.wake()
 
     def snapshot(self) -> dict[str, Any]:
         """The newest tick's state (what the page shows)."""
@@ -183,6 +193,8 @@ class TeachLoop:
                                                      data=data)))
         log.info("episode %d location %d (%s): %s after %.1f s", self.episode, res.location,
                  self.mode, outcome, res.sim_time_s)
+        if self.on_tick is not None:
+            self.on_tick({"type": "episode", **record})
 
     def _place_ball(self, ball: tuple[float, float]) -> FloatArray:
         x, y, yaw = self.sim.world.robot_pose()
@@ -224,9 +236,10 @@ class TeachLoop:
 
     def _teacher(self, lockstep: bool) -> PageInput | None:
         if lockstep:
-            got = self.inbox.wait_tick(self.tick, self.s.teacher_timeout_s, self.stop)
-            if got is None and not self.stop.is_set():
-                self.counts["teacher_timeouts"] += 1
+            before = self.inbox.timeouts
+            got = self.inbox.wait_tick(self.tick, self.s.teacher_timeout_s, self.stop,
+                                       lambda: bool(self._requests))
+            self.counts["teacher_timeouts"] += self.inbox.timeouts - before
             return got
         return self.inbox.latest()
 

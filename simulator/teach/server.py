@@ -173,7 +173,7 @@ class PageServer:
         """Serve until ``stop`` is set; ``ready(url)`` once listening."""
         self._aio = asyncio.get_running_loop()
         async with serve(self._handler, self.host, self.port, process_request=self._http,
-                         max_size=2**16, ping_interval=None) as server:
+                         max_size=2**16, ping_interval=None, compression=None) as server:
             self._server = server
             self.port = int(server.sockets[0].getsockname()[1])
             self.allowed = {f"http://{h}:{self.port}" for h in ("127.0.0.1", "localhost",
