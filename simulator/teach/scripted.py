@@ -99,7 +99,8 @@ class ScriptedTeacher:
             self.hcc.reset()
             self._hold = 0
         y, _label = self.hcc.decide(np.asarray(m["x"], dtype=np.float64))
-        return np.clip(y, _LO, _HI)
+        clipped: np.ndarray = np.clip(y, _LO, _HI)
+        return clipped
 
     def demonstrate_tick(self, m: dict[str, Any]) -> None:
         """Demonstrate mode: the HCC's command drives."""
