@@ -23,4 +23,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 BENCHES: dict[str, tuple[str, str]] = {
     "sim": ("simulator.bench", "simulator lockstep ticks/s (rendered, fast) and HCC success"),
+    "teach": ("simulator.teach.bench",
+              "roger teach in a browser: key press -> simulator latency, page Hz, daemon Hz"),
 }

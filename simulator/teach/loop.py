@@ -140,6 +140,7 @@ class TeachLoop:
         self.counts: Counter[str] = Counter()
         self.outcomes: Counter[str] = Counter()
         self.episodes: deque[dict[str, Any]] = deque(maxlen=200)
+        self.tick_times: deque[float] = deque(maxlen=200)  # monotonic s of the newest ticks
         self._requests: deque[PageInput] = deque()
         self._lock = threading.Lock()
         self._snapshot: dict[str, Any] = {}
@@ -286,6 +287,7 @@ class TeachLoop:
         if self.after_step is not None:
             self.after_step()
         self.tick += 1
+        self.tick_times.append(time.monotonic())
         if self.tick % 300 == 0:
             self.client.trim_predictions(100)
         if outcome is not None:

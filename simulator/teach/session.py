@@ -222,10 +222,26 @@ class TeachSession:
                               "level": info.get("level", "?"),
                               "learn_ms_p99": info.get("learn_ms_p99", 0.0)}
         inbox = self.loop.inbox
-        snap["latency_ms"] = {"received_p99": _p99(inbox.to_received),
-                              "applied_p99": _p99(inbox.to_applied)}
+        snap["latency_ms"] = {"received_p50": _pct(inbox.to_received, 50),
+                              "received_p99": _pct(inbox.to_received, 99),
+                              "applied_p50": _pct(inbox.to_applied, 50),
+                              "applied_p99": _pct(inbox.to_applied, 99),
+                              "n": len(inbox.to_applied)}
+        snap["rates_hz"] = self._rates()
         snap["recording"] = self.recording
         return snap
+
+    def _rates(self) -> dict[str, float]:
+        """Predictions received from the daemon and the loop's ticks per second, over the last
+        two seconds."""
+        import time
+
+        recent = len(self.client.predictions_since(time.monotonic_ns() - 2_000_000_000))
+        assert self.loop is not None
+        ticks = list(self.loop.tick_times)  # a copy (the loop's thread appends)
+        t = time.monotonic()
+        return {"predictions": round(recent / 2.0, 1),
+                "ticks": round(sum(1 for v in ticks if t - v <= 2.0) / 2.0, 1)}
 
     # -- the camera image ----------------------------------------------------------------------
 
@@ -296,7 +312,7 @@ def jpeg_base64(rgb: np.ndarray) -> str:
     return "data:image/jpeg;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _p99(values: Any) -> float | None:
-    """The 99th percentile of ``values`` (ms, rounded), ``None`` when empty."""
+def _pct(values: Any, q: float) -> float | None:
+    """The ``q``-th percentile of ``values`` (ms, rounded), ``None`` when empty."""
     data = list(values)
-    return round(float(np.percentile(data, 99)), 2) if data else None
+    return round(float(np.percentile(data, q)), 2) if data else None

@@ -150,7 +150,8 @@ setInterval(() => {
   lastTimer = now;
   if (!teach.config) return;
   const { y, active } = command(dt);
-  if (active) send({ type: "command", y, active, sent_ms: performance.timeOrigin + now });
+  // (no sent_ms: the latency measured is the key press's, sent from the key event)
+  if (active) send({ type: "command", y, active });
 }, 50);
 
 // -- the session's state ---------------------------------------------------------------------
