@@ -45,6 +45,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chromium", default=os.environ.get("ROGER_CHROMIUM",
                                                              "/usr/bin/chromium"),
                         help="the browser (default /usr/bin/chromium)")
+    parser.add_argument("--screenshot", type=Path, metavar="PNG",
+                        help="also save a screenshot of the page at the end (docs/figures/"
+                             "teach.png is one)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -55,7 +58,7 @@ def _measure(url: str, args: argparse.Namespace) -> dict[str, Any]:
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=args.chromium, headless=True,
                                      args=["--no-sandbox"])
-        page = browser.new_page()
+        page = browser.new_page(viewport={"width": 1280, "height": 700})
         page.goto(url)
         page.wait_for_function("window.teach && window.teach.stats.states > 10",
                                timeout=60_000)
@@ -73,6 +76,11 @@ def _measure(url: str, args: argparse.Namespace) -> dict[str, Any]:
         states1, t1 = page.evaluate("window.teach.stats.states"), time.monotonic()
         time.sleep(0.5)
         state = page.evaluate("window.teach.state")
+        if args.screenshot is not None:
+            page.keyboard.down("KeyW")  # the page while a key is held
+            time.sleep(0.6)
+            page.screenshot(path=str(args.screenshot))
+            page.keyboard.up("KeyW")
         browser.close()
     lat = state["latency_ms"]
     preds = [s["predictions"] for s in samples[2:]] or [0.0]

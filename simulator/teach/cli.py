@@ -96,6 +96,15 @@ def config_for_page(loop_settings: Any, kind: str) -> dict[str, Any]:
     }
 
 
+def _can_listen(host: str, port: int) -> None:
+    """Raise ``OSError`` if ``host:port`` cannot be listened on now (before anything starts)."""
+    import socket
+
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind((host, port))
+
+
 def _session_dir(out: Path) -> Path:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a directory")
@@ -143,6 +152,13 @@ def run(args: argparse.Namespace) -> int:
     from simulator.teach.loop import LoopSettings
     from simulator.teach.session import SessionSettings, TeachSession
 
+    host, port = args.http
+    try:
+        _can_listen(host, port)
+    except OSError as exc:
+        print(f"roger teach: --http {host}:{port}: cannot listen there ({exc.strerror or exc})",
+              file=sys.stderr)
+        return 2
     try:
         out = _session_dir(args.out)
     except (ValueError, OSError) as exc:
@@ -158,6 +174,9 @@ def run(args: argparse.Namespace) -> int:
         code = asyncio.run(_serve(session, args))
     except KeyboardInterrupt:  # Ctrl-C while starting
         code = 130
+    except (OSError, RuntimeError, TimeoutError) as exc:  # the daemon or the server failed
+        print(f"roger teach: {exc} (see {out / 'daemon.log'})", file=sys.stderr)
+        code = 1
     finally:
         summary = session.close()
         (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", "utf-8")

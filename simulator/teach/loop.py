@@ -310,7 +310,7 @@ class TeachLoop:
                 "tick": pred.tick, "mean": pred.mean.tolist(), "var": pred.var.tolist(),
                 "expert": pred.expert, "experts": len(pred.multimap), "updates": pred.updates},
             "fsm": {"state": expert, "how": how, **self.autonomy.fitted,
-                    "refitting": self.autonomy.refitting},
+                    "observed": self.autonomy.ticks(), "refitting": self.autonomy.refitting},
             "truth": {k: round(float(v), 4) for k, v in truth.items()},
             "counts": dict(self.counts), "outcomes": dict(self.outcomes),
         }
