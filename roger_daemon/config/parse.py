@@ -13,11 +13,13 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from protocols.aibo import DIMS as AIBO_DIMS
 from protocols.messages import MODES, Dims
 from roger_daemon.config.settings import (
     CLOCKS,
     DEFAULT_PRESET,
     DEFAULT_PROFILE,
+    FSM_MODEL,
     MODELS,
     WORKERS,
     ZENOH_MODES,
@@ -222,6 +224,9 @@ def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[Rob
         rseed = r.integer("seed", seed, lo=0)
         spec, profile, dims, params = _robot_params(learner_table, r, f"robots[{i}]")
         r.done()
+        if model == FSM_MODEL and (dims.x, dims.y) != (AIBO_DIMS.x, AIBO_DIMS.y):
+            raise bad(r.key("model"), f"a robot of the AIBO's dimensions for {FSM_MODEL!r} "
+                      "(the only memory layout shipped, docs/autonomy.md)", model)
         robots.append(RobotConfig(rid, dims.x, dims.y, model, rseed, spec, params,
                                   robot_profile=profile))
     return robots
