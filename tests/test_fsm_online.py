@@ -105,3 +105,23 @@ def test_a_plain_session_replayed_with_transitions_keeps_its_digests(tmp_path: P
     res = replay_session(s.paths[0], model_kind="roger+fsm")
     assert res.digests and all(d.match for d in res.digests)  # the experts' part
     assert isinstance(res.model, RogerFSM) and res.model.fsm.n_observed == 50
+
+
+def test_an_override_sets_the_model_of_every_robot() -> None:
+    from roger_daemon.config import load_config
+
+    cfg = load_config(None, ['robots.model="roger+fsm"'])
+    assert [r.model for r in cfg.robots] == ["roger+fsm"] and cfg.robots[0].id == "aibo"
+    with pytest.raises(ConfigError, match=r"robots\[0\].model must be one of"):
+        load_config(None, ["robots.model=fsm"])
+
+
+def test_up_plays_with_roger_play_and_no_hcc(tmp_path: Path) -> None:
+    from simulator.launch import plan
+
+    p = plan({"controller": {"role": "play"}, "ports": {"daemon": 17447, "sim": 17450}},
+             tmp_path)
+    ctl = p.argv["controller"]
+    assert ctl[ctl.index("-m") + 2: ctl.index("-m") + 5] == ["play", "--checkpoint",
+                                                            "checkpoints"]
+    assert "hcc" not in ctl and 'daemon.mode="predict"' in p.argv["daemon"]

@@ -302,7 +302,8 @@ def _recording_section(rec: Table) -> RecordingConfig:
 
 
 def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
-    """Apply ``SECTION.KEY=VALUE`` overrides (VALUE in TOML syntax; bare words are strings)."""
+    """Apply ``SECTION.KEY=VALUE`` overrides (VALUE in TOML syntax; bare words are strings).
+    ``robots.KEY=VALUE`` sets KEY in every ``[[robots]]`` table (the default robot's if none)."""
     out: dict[str, Any] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
     for item in overrides:
         if "=" not in item:
@@ -317,6 +318,13 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
             value = tomllib.loads(f"v = {text}")["v"]
         except tomllib.TOMLDecodeError:
             value = text
+        if parts[0] == "robots":
+            robots = out.get("robots", [{"id": "aibo"}])
+            if not isinstance(robots, list) or not all(isinstance(r, dict) for r in robots):
+                raise ConfigError(dotted, f"cannot override {dotted}: robots is not an array "
+                                  "of tables")
+            out["robots"] = [{**r, parts[1]: value} for r in robots]
+            continue
         section = out.setdefault(parts[0], {})
         if not isinstance(section, dict):
             raise ConfigError(dotted, f"cannot override {dotted}: {parts[0]} is not a table")
