@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 TEST_WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
-.PHONY: demo test test-all lint typecheck bench clean venv browser
+.PHONY: demo test test-all lint typecheck bench clean venv browser venv-peers
 
 venv: $(STAMP)
 
@@ -53,6 +53,20 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/roger bench learner
+
+# `roger experiment peers` (docs/peers.md): LeRobot's ACT and Diffusion Policy in their own venv.
+# LeRobot 0.4.4 (the last release for Python 3.11) needs torch >= 2.2.1, < 2.11 and torchvision;
+# torch 2.9.1 with torchvision 0.24.1 go in first (about 7 GB: PyPI's torch is a CUDA build, run
+# on the CPU here), then roger with the peers and test extras.
+PEERS_VENV := .venv-peers
+venv-peers: $(PEERS_VENV)/.installed
+
+$(PEERS_VENV)/.installed: pyproject.toml
+	test -x $(PEERS_VENV)/bin/python || $(PY) -m venv $(PEERS_VENV)
+	$(PEERS_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(PEERS_VENV)/bin/python -m pip install torch==2.9.1 torchvision==0.24.1
+	$(PEERS_VENV)/bin/python -m pip install -e '.[peers,test]'
+	touch $@
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache
