@@ -122,12 +122,13 @@ def test_teach_in_a_browser(teach: tuple[subprocess.Popen[str], str, Path]) -> N
         # autonomous: the robot acts on what it learned (walking on)
         page.click("#modes button[data-mode=autonomous]")
         _wait(page, "window.teach.state.mode === 'autonomous' && "
-                    "window.teach.state.source === 'robot'")
+                    "window.teach.state.fsm.how === 'learned transitions'")  # loaded
         a0 = _pose(page)
         time.sleep(1.5)
         st = _state(page)
         a1 = _pose(page)
-        assert st["fsm"]["how"] == "learned transitions" and st["counts"]["ticks_robot"] > 10
+        assert st["source"] == "robot" and st["fsm"]["how"] == "learned transitions"
+        assert st["fsm"]["fit"] == "loaded" and st["counts"]["ticks_robot"] > 10
         assert math.hypot(a1[0] - a0[0], a1[1] - a0[1]) > 0.05, (a0, a1)
 
         # correct: a held key replaces the robot's command; its pairs are corrections

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -104,21 +105,29 @@ def test_fit_fsm_learns_no_transition_on_robot_ticks() -> None:
     assert masked.n_observed == every.n_observed == 40
 
 
-def test_a_prediction_becomes_the_fsm_table_and_nothing_learned_holds_still() -> None:
-    from simulator.teach.autonomy import Autonomy, table_of
+def test_before_transitions_are_loaded_the_robot_holds_still() -> None:
+    from simulator.teach.autonomy import Autonomy
 
-    e = [ExpertOutput(expert=k, p=p, mean=np.full(9, k / 10), var=np.full(9, 0.1), n=k)
-         for k, p in ((2, 0.25), (5, 0.75))]
-    pred = Prediction("aibo", 1, 0.0, mean=np.zeros(9), var=np.ones(9), expert=5,
-                      multimap=tuple(e))
-    t = table_of(pred)
-    assert t.expert_ids == [2, 5] and t.gate_probs == [0.25, 0.75] and t.n_points == [2, 5]
-    assert t.means.shape == (2, 9) and t.means[1, 0] == 0.5
     x = np.zeros(23)
     x[18:23] = [-0.2, 0.1, 0.0, 0.0, 0.3]
-    y, expert, how = Autonomy().act(x, None)
-    assert expert == -1 and how.startswith("hold") and np.allclose(y[3:8], x[18:23])
-    assert not np.any(y[:3]) and y[8] == 0.0
+    pred = Prediction("aibo", 1, 0.0, mean=np.zeros(9), var=np.ones(9), expert=5,
+                      multimap=(ExpertOutput(expert=5, p=1.0, mean=np.full(9, 0.1),
+                                             var=np.full(9, 0.1), n=9),))
+    for p in (None, pred):
+        y, expert, how = Autonomy().act(x, p)
+        assert expert == -1 and how.startswith("hold") and np.allclose(y[3:8], x[18:23])
+        assert not np.any(y[:3]) and y[8] == 0.0
+
+
+def test_a_checkpoint_without_transitions_is_refused(tmp_path: Path) -> None:
+    from simulator.teach.autonomy import Autonomy
+
+    plain = tmp_path / "plain.npz"
+    np.savez(plain, w=np.zeros(3))
+    a = Autonomy()
+    with pytest.raises(ValueError, match="no learned transitions"):
+        a.load(plain, 0)
+    assert a.player is None and a.fitted["fit"] == "none yet"
 
 
 def test_the_page_files_and_config() -> None:

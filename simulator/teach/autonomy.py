@@ -1,21 +1,20 @@
 """The robot's own command in ``roger teach``: ROGER's experts chosen by learned transitions.
 
-:class:`Autonomy` keeps a :class:`~roger_daemon.fsm.LearnedFSM` over the daemon's experts
-(docs/autonomy.md): it learns online from every tick of the session (a teacher's tick
-teaches the transition into the expert most responsible for the teacher's command in the
-daemon's multimap, a robot's tick only advances the memories) and acts on the daemon's
-newest multimap. :meth:`Autonomy.refit` replaces it by one fitted on the whole stream so far
-against a checkpoint of the daemon's model (:func:`roger_daemon.fsm.fit_fsm`): the online
-one saw each tick against the model of that moment, whose experts have changed since.
-Nothing here reads a label or the hand-coded controller. Before anything was learned the
-robot holds still; a multimap with none of the learned successors acts on the paper's gate
-argmax (``LearnedFSM.choose``).
+The daemon runs the ``roger+fsm`` model (docs/autonomy.md, *Learned in the daemon*): every
+pair it learns also teaches its :class:`~roger_daemon.fsm.LearnedFSM`, the state being the
+expert its MAP particle gave the pair. :class:`Autonomy` plays those transitions as ``roger
+play`` does (:class:`~roger_daemon.fsm.player.Player`, loaded from a checkpoint of the
+daemon's model): each tick, the daemon's multimap for the perception goes in and the chosen
+expert's mean comes out. :meth:`Autonomy.load` is called on entering autonomous or correct
+mode and after each correction, so the robot acts on what it was just taught. Nothing here
+reads a label or the hand-coded controller. Until a checkpoint with transitions is loaded the
+robot holds still.
 """
 
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,25 +22,13 @@ import numpy.typing as npt
 
 from protocols import Prediction
 from protocols.aibo import DIMS
-from roger_daemon.fsm import LearnedFSM, aibo_memory, fit_fsm, responsible_expert
-from roger_daemon.learner.prediction import MultimapTable
 
-__all__ = ["Autonomy", "hold_command", "table_of"]
+__all__ = ["KIND", "Autonomy", "hold_command"]
 
 FloatArray = npt.NDArray[np.float64]
 #: What the page says drives the robot in autonomous and correct modes.
-KIND = "learned transitions over ROGER's experts (roger_daemon.fsm.LearnedFSM), no HCC"
-
-
-def table_of(pred: Prediction) -> MultimapTable:
-    """The daemon's multimap of one prediction as the learner's table (what the FSM reads)."""
-    mm = pred.multimap
-    if not mm:
-        return MultimapTable.empty(DIMS.y)
-    return MultimapTable([int(e.expert) for e in mm], [float(e.p) for e in mm],
-                         np.array([e.mean for e in mm], dtype=np.float64),
-                         np.array([e.var for e in mm], dtype=np.float64),
-                         [int(e.n) for e in mm])
+KIND = ("learned transitions over ROGER's experts (the daemon's roger+fsm model, played as "
+        "roger play does), no HCC")
 
 
 def hold_command(x: npt.ArrayLike) -> FloatArray:
@@ -51,86 +38,52 @@ def hold_command(x: npt.ArrayLike) -> FloatArray:
     return y
 
 
-@dataclass
-class _Stream:
-    """Every executed tick of the session: perception, command, taught, episode start."""
-
-    x: list[FloatArray]
-    y: list[FloatArray]
-    taught: list[bool]
-    start: list[bool]
-
-
 class Autonomy:
-    """Online learned transitions, refitted on request (module docstring). Thread-safe: the
-    loop calls :meth:`observe` and :meth:`act`, a background thread :meth:`refit`."""
+    """The learned transitions of the daemon's newest checkpoint, played (module docstring).
+    Thread-safe: the loop calls :meth:`act` and :meth:`commit`, a background thread
+    :meth:`load`."""
 
     kind = KIND
 
-    def __init__(self, max_ticks: int = 500_000) -> None:
-        self.spec = aibo_memory()
-        self.fsm = LearnedFSM(self.spec)
-        self.max_ticks = max_ticks
-        self.stream = _Stream([], [], [], [])
+    def __init__(self) -> None:
+        self.player: Any = None
         self._lock = threading.Lock()
-        self.fitted: dict[str, Any] = {"fit": "online", "ticks": 0, "updates": 0}
-        self.refitting = False
+        self.fitted: dict[str, Any] = {"fit": "none yet", "updates": 0, "checkpoint": ""}
+        self.loading = False
 
-    def observe(self, x: FloatArray, y: FloatArray, pred: Prediction | None, taught: bool,
-                start: bool) -> None:
-        """One executed tick: learn its transition if the teacher commanded it."""
-        state = -1
-        if taught and pred is not None and pred.multimap:
-            state = responsible_expert(table_of(pred), y)
+    def load(self, checkpoint: str | Path, updates: int, robot: str = "aibo") -> None:
+        """Play the transitions of ``checkpoint`` from now on (``ValueError``: it has none)."""
+        from roger_daemon.fsm.player import load_player
+
+        player = load_player(checkpoint, robot)
         with self._lock:
-            self.fsm.observe(x, y, state, start)
-            if len(self.stream.x) < self.max_ticks:
-                self.stream.x.append(np.array(x, dtype=np.float64))
-                self.stream.y.append(np.array(y, dtype=np.float64))
-                self.stream.taught.append(bool(taught))
-                self.stream.start.append(bool(start))
+            self.player = player
+            self.fitted = {"fit": "loaded", "updates": int(updates),
+                           "checkpoint": Path(checkpoint).name}
 
     def reset(self) -> None:
-        """A new episode for the acting side."""
+        """A new episode: the transitions back to their start state."""
         with self._lock:
-            self.fsm.reset()
+            if self.player is not None:
+                self.player.reset()
 
     def act(self, x: FloatArray, pred: Prediction | None) -> tuple[FloatArray, int, str]:
-        """(command, expert, how) for this tick; committed to the acting memories."""
+        """(command, learned state, how) for this tick; committed to the player's memories."""
+        hold = hold_command(x)
         with self._lock:
-            if pred is None or not pred.multimap:
-                y = hold_command(x)
-                self.fsm.commit(y)
-                return y, -1, "hold: nothing learned yet" if pred else "hold: no prediction"
-            y = self.fsm.act(x, table_of(pred))
+            if self.player is None:
+                return hold, -1, "hold: no transitions loaded yet"
+            if pred is None:
+                self.player.commit(hold)
+                return hold, self.player.state, "hold: no prediction"
+            y, how = self.player.command(x, pred.multimap, hold)
             if not np.all(np.isfinite(y)):
-                y = hold_command(x)
-                self.fsm.commit(y)
-            return y, self.fsm.state, "learned transitions"
+                y = hold
+                self.player.commit(y)
+            return y, int(self.player.state), "learned transitions" if how == "learned" else how
 
     def commit(self, y: FloatArray) -> None:
         """The command actually executed (the teacher's, in a correction)."""
         with self._lock:
-            self.fsm.commit(y)
-
-    def ticks(self) -> int:
-        """Ticks observed so far."""
-        return len(self.stream.x)
-
-    def refit(self, model: Any, updates: int) -> None:
-        """Fit the transitions anew over ``model``'s experts on the whole stream so far."""
-        with self._lock:
-            n = len(self.stream.x)
-            if n == 0:
-                return
-            x, y = np.array(self.stream.x[:n]), np.array(self.stream.y[:n])
-            taught = np.array(self.stream.taught[:n])
-            start = np.array(self.stream.start[:n])
-        fitted = fit_fsm(model, x, y, start, self.spec, learn=taught)
-        with self._lock:
-            # ticks observed meanwhile: taught against the daemon's multimap of their moment
-            # would need their predictions; they advance the memories only
-            for t in range(n, len(self.stream.x)):
-                fitted.observe(self.stream.x[t], self.stream.y[t], -1, self.stream.start[t])
-            self.fsm = fitted
-            self.fitted = {"fit": "refitted on a checkpoint", "ticks": n, "updates": updates}
+            if self.player is not None:
+                self.player.commit(y)

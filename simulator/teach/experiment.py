@@ -8,7 +8,7 @@ own WebSocket and teaches as a person would, through the same channel:
    the 13 start locations);
 2. ``--correct-minutes`` in correct mode (the robot drives, the teacher takes over where the
    robot's command disagrees with its own);
-3. autonomous mode: the learned transitions refitted on the daemon's model, then one episode
+3. autonomous mode: the daemon's newest learned transitions loaded, then one episode
    from each of the 13 start locations (``--locations``), goals counted.
 
 ``OUT/results.json``: the pairs learned, the corrections (the page's and the daemon's
@@ -107,8 +107,8 @@ def _teach(url: str, args: argparse.Namespace, locations: list[int]) -> dict[str
             teacher.teach("correct", round(args.correct_minutes * 60 * HZ))
             times["correct_s"] = time.monotonic() - t1
         t2 = time.monotonic()
-        fitted = teacher.wait_refit()
-        times["refit_s"] = time.monotonic() - t2
+        fitted = teacher.wait_transitions()
+        times["load_transitions_s"] = time.monotonic() - t2
         t3 = time.monotonic()
         episodes = teacher.evaluate(locations)
         times["evaluate_s"] = time.monotonic() - t3

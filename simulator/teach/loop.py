@@ -8,7 +8,8 @@ One thread owns the simulator (:class:`~simulator.episodes.SoccerSim`) and runs
 :class:`~roger_daemon.client.RobotClient`):
 
 1. perception(t) to the daemon; the newest prediction back (lockstep: the prediction of t);
-2. the robot's command: :class:`~simulator.teach.autonomy.Autonomy` on that multimap;
+2. the robot's command: :class:`~simulator.teach.autonomy.Autonomy` (the learned
+   transitions of the daemon's model) on that multimap;
 3. the teacher's command (lockstep: the one answering tick t): in **demonstrate** it drives
    and every pair is learned; in **autonomous** the robot drives and nothing is learned; in
    **correct** the robot drives unless the teacher holds a control key, and then the
@@ -133,6 +134,9 @@ class TeachLoop:
         self.on_tick = on_tick
         #: called in the loop's thread after every step (the camera image is rendered there)
         self.after_step: Callable[[], None] | None = None
+        #: called when the teacher releases the robot after a correction
+        self.on_correction_end: Callable[[], None] | None = None
+        self._correcting = False
         self.stop = threading.Event()
         self.mode = settings.mode
         self.tick = 0
@@ -280,7 +284,9 @@ class TeachLoop:
         self.autonomy.commit(y)  # the executed command drives the acting memories
         self._pub_cmd.put(encode(Command(self.robot, tick, t, y=y, source=source)))
         self.counts[f"ticks_{source}"] += 1
-        self.autonomy.observe(x, y, pred, learned, self._episode_start)
+        if self._correcting and not correction and self.on_correction_end is not None:
+            self.on_correction_end()
+        self._correcting = correction
         self._episode_start = False
         outcome = self.sim.step(y)
         self._publish(x, y, pred, teacher, source, robot_y, expert, how)
@@ -310,7 +316,7 @@ class TeachLoop:
                 "tick": pred.tick, "mean": pred.mean.tolist(), "var": pred.var.tolist(),
                 "expert": pred.expert, "experts": len(pred.multimap), "updates": pred.updates},
             "fsm": {"state": expert, "how": how, **self.autonomy.fitted,
-                    "observed": self.autonomy.ticks(), "refitting": self.autonomy.refitting},
+                    "loading": self.autonomy.loading},
             "truth": {k: round(float(v), 4) for k, v in truth.items()},
             "counts": dict(self.counts), "outcomes": dict(self.outcomes),
         }

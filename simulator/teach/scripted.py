@@ -145,17 +145,19 @@ class ScriptedTeacher:
 
         self.until(lambda m: seen[0] >= ticks, on_tick)
 
-    def wait_refit(self, timeout_s: float = 600.0) -> dict[str, Any]:
-        """After entering autonomous mode: the state once the transitions are refitted."""
+    def wait_transitions(self, timeout_s: float = 600.0) -> dict[str, Any]:
+        """Enter autonomous mode; the state once the newest transitions are loaded."""
         end = time.monotonic() + timeout_s
         self.send({"type": "mode", "mode": "autonomous"})
+        started = [False]
 
-        def fitted(m: dict[str, Any]) -> bool:
+        def loaded(m: dict[str, Any]) -> bool:
             fsm = m.get("fsm", {}) if m.get("type") == "state" else {}
-            return (bool(fsm) and fsm.get("fit") != "online" and not fsm.get("refitting")) \
+            started[0] = started[0] or bool(fsm.get("loading"))
+            return (started[0] and fsm.get("fit") == "loaded" and not fsm.get("loading")) \
                 or time.monotonic() > end
 
-        return self.until(fitted)
+        return self.until(loaded)
 
     def evaluate(self, locations: Sequence[int]) -> list[dict[str, Any]]:
         """One autonomous episode from each location; their records."""

@@ -1,4 +1,4 @@
-"""One ``roger teach`` session: the daemon, the simulator's loop, takes, checkpoints, refits.
+"""One ``roger teach`` session: the daemon, the simulator's loop, takes, checkpoints.
 
 :class:`TeachSession` starts ``roger daemon`` (a real subprocess on a free loopback port,
 recording the whole session to ``OUT/recordings``, checkpoints in ``OUT/checkpoints``),
@@ -6,8 +6,8 @@ connects a :class:`~roger_daemon.client.RobotClient`, builds the simulator and
 :class:`~simulator.teach.loop.TeachLoop` and runs the loop in its own thread. It carries out
 what the page asks besides commands (:meth:`TeachSession.handle`): modes, resets, the ball,
 takes (``roger record`` into ``OUT/takes``, started and stopped from the page), checkpoints,
-and on entering autonomous or correct mode a refit of the learned transitions against a fresh
-checkpoint of the daemon's model (in the background; the online transitions act meanwhile).
+and on entering autonomous or correct mode (and after each correction) the daemon's learned
+transitions loaded from a fresh checkpoint (in the background; the previous ones act meanwhile).
 :meth:`TeachSession.close` stops all of it; nothing it started is left running.
 """
 
@@ -69,6 +69,8 @@ class TeachSession:
         self._image_lock = threading.Lock()
         self._image = ""
         self.want_image = threading.Event()
+        self._load_lock = threading.Lock()
+        self._load_again = False
 
     # -- start and stop ------------------------------------------------------------------------
 
@@ -76,6 +78,7 @@ class TeachSession:
         """Start the daemon, connect, build the simulator and the loop, start the loop."""
         from dataclasses import replace
 
+        from roger_daemon.config.settings import FSM_MODEL
         from roger_daemon.harness import Client, DaemonProcess, write_config
         from simulator.config import SimConfig
         from simulator.episodes import SoccerSim
@@ -88,7 +91,7 @@ class TeachSession:
             daemon={"clock": self.s.loop.clock, "mode": "learn+predict", "seed": self.s.loop.seed,
                     "queue_size": 100_000},
             checkpoint={"on_shutdown": True}, recording={"enabled": True},
-            learner=dict(self.s.learner))
+            learner=dict(self.s.learner), robots=({"id": "aibo", "model": FSM_MODEL},))
         self.daemon = DaemonProcess(cfg, args=["--fresh"], log=self.out / "daemon.log",
                                     env=child_env())
         self.endpoint = f"tcp/127.0.0.1:{port}"
@@ -100,6 +103,7 @@ class TeachSession:
         self.sim = SoccerSim(sim_cfg)
         self.loop = TeachLoop(self.s.loop, self.sim, self.client, self.autonomy)
         self.loop.after_step = self._after_step
+        self.loop.on_correction_end = self.load_transitions
         self._thread = threading.Thread(target=self._run_loop, name="teach-loop", daemon=True)
         self._thread.start()
 
@@ -140,7 +144,7 @@ class TeachSession:
         if req.type in ("mode", "reset", "place_ball"):
             self.loop.request(req)
             if req.type == "mode" and req.mode in ("autonomous", "correct"):
-                self.start_refit()
+                self.load_transitions()
             return f"{req.type} requested"
         if req.type == "record":
             return self._start_take() if req.on else self._stop_take()
@@ -183,27 +187,36 @@ class TeachSession:
         """Whether a take is being recorded."""
         return self._take is not None and self._take.poll() is None
 
-    def start_refit(self) -> None:
-        """Refit the transitions on a new checkpoint, in the background (once at a time)."""
-        if self.autonomy.refitting or self.autonomy.ticks() == 0:
+    def load_transitions(self) -> None:
+        """Load the daemon's newest transitions, in the background (once at a time): a
+        checkpoint once its queue is empty, then :meth:`Autonomy.load`."""
+        if self.loop is None or not self.loop.counts["pairs_sent"]:
             return
-        self.autonomy.refitting = True
-        threading.Thread(target=self._refit, name="teach-refit", daemon=True).start()
+        with self._load_lock:
+            if self.autonomy.loading:
+                self._load_again = True  # after the running one: it may miss the newest pairs
+                return
+            self.autonomy.loading = True
+        threading.Thread(target=self._load_transitions, name="teach-transitions",
+                         daemon=True).start()
 
-    def _refit(self) -> None:
-        from roger_daemon.replay import load_checkpoint
-
-        try:
-            st = self.client.wait_status(lambda s: s.queue_depth == 0, 120)
-            st = self.client.checkpoint(60)
-            path = st.info.get("checkpoint")
-            model, _, _ = load_checkpoint(path)
-            self.autonomy.refit(model, int(st.updates))
-            log.info("transitions refitted on %d ticks against %s", self.autonomy.ticks(), path)
-        except Exception as exc:  # the online transitions keep acting
-            log.warning("refitting the transitions failed: %s", exc)
-        finally:
-            self.autonomy.refitting = False
+    def _load_transitions(self) -> None:
+        while True:
+            try:
+                st = self.client.wait_status(lambda s: s.queue_depth == 0, 120)
+                st = self._checkpoint_written(int(st.info.get("checkpoints_written", 0)))
+                self.autonomy.load(self.out / "checkpoints", int(st.info.get(
+                    "checkpoint_updates", st.updates)), self.client.robot)
+                self.autonomy.fitted["checkpoint"] = Path(str(st.info.get("checkpoint"))).name
+                log.info("playing the transitions of %s (%s pairs)",
+                         st.info.get("checkpoint"), st.info.get("checkpoint_updates"))
+            except (TimeoutError, ValueError, OSError) as exc:  # the previous ones act on
+                log.warning("loading the learned transitions failed: %s", exc)
+            with self._load_lock:
+                if not self._load_again:
+                    self.autonomy.loading = False
+                    return
+                self._load_again = False
 
     def snapshot(self) -> dict[str, Any]:
         """The loop's newest state with the daemon's newest status and the session's own."""
@@ -242,6 +255,12 @@ class TeachSession:
         t = time.monotonic()
         return {"predictions": round(recent / 2.0, 1),
                 "ticks": round(sum(1 for v in ticks if t - v <= 2.0) / 2.0, 1)}
+
+    def _checkpoint_written(self, written: int) -> Any:
+        """Ask for a checkpoint; the status once it is on disk (``written`` were before)."""
+        self.client.checkpoint(60)
+        return self.client.wait_status(
+            lambda s: int(s.info.get("checkpoints_written", 0)) > written, 60)
 
     # -- the camera image ----------------------------------------------------------------------
 

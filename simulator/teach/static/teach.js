@@ -190,7 +190,7 @@ function show(s) {
   $("s-updates").textContent = d.updates ?? (p ? p.updates : "–");
   $("s-taught").textContent = `${s.counts.pairs_sent || 0} / ${s.counts.corrections || 0}` +
     (d.corrections !== undefined ? ` (daemon: ${d.pairs_teacher} / ${d.corrections})` : "");
-  $("s-fsm").textContent = `${s.fsm.how}; ${s.fsm.refitting ? "refitting…" : (s.fsm.fit === "online" ? `online, ${s.fsm.observed} ticks observed` : `${s.fsm.fit} of ${s.fsm.ticks} ticks (${s.fsm.updates} pairs)`)}`;
+  $("s-fsm").textContent = `${s.fsm.how}; ${s.fsm.loading ? "loading the newest…" : (s.fsm.fit === "loaded" ? `the daemon's after ${s.fsm.updates} pairs` : "none loaded yet")}`;
   $("s-outcomes").textContent = Object.entries(s.outcomes).map(([k, v]) => `${k} ${v}`).join(", ") || "–";
   $("s-hz").textContent = `${fmt(st.hz, 1)} Hz`;
   const lat = s.latency_ms || {};
