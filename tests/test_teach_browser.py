@@ -157,11 +157,28 @@ def test_teach_in_a_browser(teach: tuple[subprocess.Popen[str], str, Path]) -> N
         _wait(page, f"window.teach.state.tick > {tick + 30}")  # still stepping
         page.click("#modes button[data-mode=demonstrate]")
         _wait(page, "window.teach.state.mode === 'demonstrate'")
+
+        # the buttons: a take, a checkpoint, a reset at a chosen location, the ball placed
+        page.click("#record")
+        _wait(page, "window.teach.state.recording === true")
+        page.click("#checkpoint")
+        _wait(page, "document.getElementById('answer').textContent.startsWith('checkpoint ')")
+        page.click("#record")
+        _wait(page, "window.teach.state.recording === false")
+        episode = _state(page)["episode"]
+        page.select_option("#location", "6")
+        page.click("#reset")
+        _wait(page, f"window.teach.state.episode > {episode} && window.teach.state.location === 6")
+        page.click("#field", position={"x": 300, "y": 100})  # ahead, to the robot's left
+        _wait(page, f"window.teach.state.episode > {episode + 1}")
+        ball = _state(page)["truth"]
+        assert ball["ball_x"] > 0.5 and ball["ball_y"] > 0.3, ball
         browser.close()
 
     proc.send_signal(signal.SIGINT)
     assert proc.wait(60) == 130
-    assert not processes_naming(str(session))  # the daemon (its config is in the session)
+    assert not processes_naming(str(session))  # the daemon and the take's recorder
+    assert list((session / "takes").rglob("*.mcap"))
     _check_log(session)
 
 

@@ -149,8 +149,11 @@ class TeachSession:
         if req.type == "record":
             return self._start_take() if req.on else self._stop_take()
         if req.type == "checkpoint":
-            st = self.client.checkpoint(30)
-            return f"checkpoint {st.info.get('checkpoint')} at {st.updates} pairs"
+            last = self.client.statuses[-1].msg if self.client.statuses else None
+            st = self._checkpoint_written(int(last.info.get("checkpoints_written", 0))
+                                          if last is not None else 0)
+            return (f"checkpoint {st.info.get('checkpoint')} at "
+                    f"{st.info.get('checkpoint_updates')} pairs")
         return ""
 
     def _start_take(self) -> str:
