@@ -19,6 +19,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("simulator.experiment.demo", "a short end-to-end session: demonstrate, learn, act"),
     "up": ("simulator.launch", "start daemon, simulator and controller from one TOML file"),
     "view": ("simulator.view.node", "live Foxglove view (WebSocket) of a session, or of a log"),
+    "teach": ("simulator.teach.cli",
+              "demonstrate, watch and correct the robot live from a web page"),
 }
 
 BENCHES: dict[str, tuple[str, str]] = {
