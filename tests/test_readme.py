@@ -23,8 +23,6 @@ MAX_LINES = 350
 #: the history, which quotes each command as it was run.
 PAGES = sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md")
                if p.name != "benchmark-history.md")
-#: Subcommands the README announces while other branches add them (checked once they exist).
-COMING = {"teach", "play"}
 
 
 def _text(path: Path = README) -> str:
@@ -113,8 +111,6 @@ def _problems(command: str) -> list[str]:
     words = _words(command)
     if not words or words[0].startswith("-") or not words[0].islower() or "..." in words[0]:
         return []  # a placeholder (roger CMD, roger SUBCOMMAND, roger ...)
-    if words[0] in COMING and words[0] not in COMMANDS:
-        return []
     table = "bench" if words[0] == "bench" and len(words) > 1 and words[1] in BENCHES else "roger"
     if table == "bench":
         words = words[1:]

@@ -39,7 +39,7 @@ from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.roger import Roger
 
 __all__ = ["FSM_PREFIX", "MODEL_KIND", "RogerFSM", "default_memory", "has_fsm",
-           "load_daemon_model", "make_daemon_model"]
+           "load_daemon_model", "make_daemon_model", "newest_assignment"]
 
 #: The daemon's model kind of a ROGER model with learned transitions (``[[robots]] model``).
 MODEL_KIND = FSM_MODEL
@@ -82,7 +82,7 @@ class RogerFSM(Roger):
 
     def learn_transition(self, x: npt.ArrayLike, y: npt.ArrayLike) -> None:
         """The transitions' part of :meth:`learn_one`, for the pair just learned."""
-        state = int(self.assignments_at([self.n_learned - 1])[0])
+        state = newest_assignment(self)
         self.fsm.observe(x, y, state, learn_start=False)
 
     def experts_state(self) -> dict[str, np.ndarray]:
@@ -113,6 +113,12 @@ class RogerFSM(Roger):
         if fsm is not None:
             model.fsm = fsm
         return model
+
+
+def newest_assignment(model: Roger) -> int:
+    """The MAP particle's expert of the pair ``model`` learned last: the id it chose in that
+    step (``assignments()[-1]``, in O(1))."""
+    return int(model.history.last_ids()[model.store.map_particle()])
 
 
 def has_fsm(state: Mapping[str, Any]) -> bool:
