@@ -8,9 +8,19 @@ STAMP := $(VENV)/.installed
 TEST_WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
-.PHONY: demo test test-all lint typecheck bench clean venv venv-peers
+.PHONY: demo test test-all lint typecheck bench clean venv browser venv-peers
 
 venv: $(STAMP)
+
+# roger teach's browser test drives Debian's chromium (tests/test_teach_browser.py): installed
+# here when missing and this is root (CI is); nothing to do when it is there already
+CHROMIUM ?= /usr/bin/chromium
+browser:
+	@test -x $(CHROMIUM) || { if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "==> installing chromium for the browser test (apt-get)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium \
+	    >/dev/null; else echo "==> no $(CHROMIUM): the browser test is skipped (apt-get \
+	install chromium)"; fi; }
 
 $(STAMP): pyproject.toml
 	@echo "==> creating $(VENV) and installing roger with its dependencies (about 1.5 min the first time)"
@@ -28,12 +38,12 @@ demo: $(STAMP)
 	-$(BIN)/roger compile
 	$(BIN)/roger demo
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(BIN)/ruff check .
 	$(BIN)/roger compile & compiling=$$!; $(BIN)/mypy; typed=$$?; wait $$compiling && test $$typed -eq 0
 	$(PYTEST)
 
-test-all: $(STAMP)
+test-all: $(STAMP) browser
 	$(BIN)/roger compile
 	$(PYTEST) -m ''
 

@@ -1,5 +1,5 @@
 """Where a learner step's time goes on this host, sampled over time (issue 11,
-docs/performance.md, *The host's slow spells*).
+docs/performance.md, *The slow spells are the two cores far apart*).
 
 The benchmark's step (``roger bench learner``: the synthetic stream at the paper's
 parameters) is timed in two parts: the experts' compiled kernels (the evaluation and the

@@ -57,6 +57,16 @@ def _check(summary: dict[str, Any], stdout: str, locations: list[int]) -> None:
     served = Path(summary["checkpoint"]).parents[2] / "daemon-merged.log"
     assert "resumed from" in served.read_text() and "(predict," in served.read_text()
     assert f"merged:     {merged['command']}" in stdout
+    # the robot alone: roger play on the live daemon's learned transitions, no HCC process
+    auto = summary["autonomous"]
+    assert [e["location"] for e in auto["episodes"]] == locations
+    assert auto["attempts"] == len(locations) and 0 <= auto["goals"] <= auto["attempts"]
+    ctl = auto["controller"]
+    assert ctl["role"] == "play" and ctl["no_prediction"] == 0
+    assert ctl["learned"] == sum(e["ticks"] for e in auto["episodes"]) == ctl["commands"]
+    assert not list(Path(summary["checkpoint"]).parents[2].glob("play/*hcc*"))
+    assert f"{auto['goals']} goals of {auto['attempts']} attempts" in stdout
+    assert "roger play --checkpoint" in stdout and "roger model fsm" in stdout
 
 
 def test_short_demo(tmp_path: Path) -> None:

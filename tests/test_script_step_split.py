@@ -1,6 +1,6 @@
-"""``scripts/learner_step_split.py`` (docs/performance.md, *The host's slow spells*): it times
-the benchmark's steps in two parts, the experts' kernels and the rest, on every core and on
-one thread, and rejects bad arguments with exit 2."""
+"""``scripts/learner_step_split.py`` (docs/performance.md, *The slow spells are the two cores
+far apart*): it times the benchmark's steps in two parts, the experts' kernels and the rest,
+on every core and on one thread, and rejects bad arguments with exit 2."""
 
 from __future__ import annotations
 

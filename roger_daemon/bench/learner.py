@@ -7,7 +7,9 @@ demonstrations (``roger_daemon/bench/data``), with the daemon's default configur
 ``default`` preset and the AIBO profile).  ``--param`` overrides a parameter of either.  Every
 update is timed; every ``--predict-every`` steps ``predict_multimap``, ``predict_one`` and
 ``predict_with_multimap`` (both in one pass, the daemon's call) are timed on the next input.
-The unimap baseline learns the same stream in the same run.
+The unimap baseline learns the same stream in the same run. On a 23-D/9-D stream the learned
+transitions' update (after every step) and choice (at every timed prediction) are timed beside
+the step (:mod:`.transitions`; ``transitions`` in the JSON, ``--no-transitions`` skips them).
 ``--compare REF`` runs git revision REF's learner beside this one instead
 (:mod:`.learner_compare`).  ``--json`` prints one JSON object.
 """
@@ -55,6 +57,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                         help="override a RogerParams field (VALUE as JSON), repeatable")
     parser.add_argument("--no-unimap", action="store_true", help="skip the unimap baseline")
+    parser.add_argument("--no-transitions", action="store_true",
+                        help="skip timing the learned transitions (roger+fsm's update and "
+                             "roger play's choice) beside the step")
     parser.add_argument("--threads", type=int, default=None, metavar="N",
                         help="threads of the learner's batched kernels (default: every core; "
                              "the results do not depend on it)")
@@ -170,7 +175,7 @@ def _ari(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int,
-            unimap: bool) -> dict[str, Any]:
+            unimap: bool, transitions: bool = True) -> dict[str, Any]:
     """Run the benchmark and return the result object."""
     machine = machine_record()
     params = stream.params
@@ -178,6 +183,11 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
     d_y = stream.y.shape[1]
     warm_up()
     model = Roger(d_x, d_y, params, seed=seed)
+    timer = None
+    if transitions and (d_x, d_y) == (23, 9):  # the AIBO's memory layout (roger+fsm)
+        from roger_daemon.bench.transitions import TransitionTimer
+
+        timer = TransitionTimer()
     upd: list[int] = []
     pm: list[int] = []
     po: list[int] = []
@@ -188,6 +198,8 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
         t0 = clock()
         model.learn_one(stream.x[i], stream.y[i])
         upd.append(clock() - t0)
+        if timer is not None:
+            timer.after_update(model, stream.x[i], stream.y[i])
         if predict_every > 0 and i % predict_every == 0:
             q = stream.x[min(i + 1, points - 1)]
             t0 = clock()
@@ -199,6 +211,8 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
             t0 = clock()
             model.predict_with_multimap(q)  # the daemon's one call per tick
             pw.append(clock() - t0)
+            if timer is not None:
+                timer.at_tick(q)
     wall = time.perf_counter() - start
     upd_arr = np.asarray(upd) * 1e-9
     quarters = [round(len(c) / float(c.sum()), 1) for c in np.array_split(upd_arr, 4) if c.size]
@@ -229,6 +243,9 @@ def measure(stream: BenchStream, seed: int, stream_seed: int, predict_every: int
         "roger_wall_s": round(wall, 2),
         "learner_threads": threads(),
     }
+    if timer is not None:
+        timer.play(model)
+        out["transitions"] = timer.result(upd)
     if unimap:
         base = UnimapGP(d_x, d_y, params, seed=seed)
         uni: list[int] = []
@@ -265,6 +282,15 @@ def _table(res: dict[str, Any]) -> str:
         ("segmentation purity / ARI",
          f"{res['segmentation_purity']} / {res['segmentation_ari']}"),
     ]
+    tr = res.get("transitions")
+    if tr is not None:
+        rows.append(("transitions update p50 / p99 ms",
+                     f"{tr['update_p50_ms']} / {tr['update_p99_ms']} "
+                     f"({100 * tr['update_share_of_step']:.1f} % of the mean step)"))
+        if "tick_p50_ms" in tr:
+            rows.append(("transitions tick p50 / p99 ms",
+                         f"{tr['tick_p50_ms']} / {tr['tick_p99_ms']} "
+                         f"({100 * tr['tick_share_of_step']:.1f} % of the mean step)"))
     if "unimap_updates_per_s" in res:
         rows.append(("unimap updates/s, p99 ms",
                      f"{res['unimap_updates_per_s']}, {res['unimap_update_p99_ms']}"))
@@ -293,6 +319,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--compare: {exc}") from None
         print(json.dumps(res) if args.json else compare_table(res))
         return 0
-    res = measure(stream, args.seed, args.stream_seed, args.predict_every, not args.no_unimap)
+    res = measure(stream, args.seed, args.stream_seed, args.predict_every, not args.no_unimap,
+                  not args.no_transitions)
     print(json.dumps(res) if args.json else _table(res))
     return 0

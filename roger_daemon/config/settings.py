@@ -18,6 +18,7 @@ __all__ = [
     "DEFAULT_PRESET",
     "MODELS",
     "DEFAULT_PROFILE",
+    "FSM_MODEL",
     "WORKERS",
     "ZENOH_MODES",
     "CheckpointConfig",
@@ -30,7 +31,9 @@ __all__ = [
 
 CLOCKS = ("realtime", "lockstep")
 WORKERS = ("auto", "process", "inline")
-MODELS = ("roger", "unimap")
+#: ROGER with its transitions learned online (roger_daemon/fsm/online.py, docs/autonomy.md)
+FSM_MODEL = "roger+fsm"
+MODELS = ("roger", "unimap", FSM_MODEL)
 #: the profile of a robot that names none (if its dimensions are that profile's)
 DEFAULT_PROFILE = "aibo"
 DEFAULT_PRESET = "default"

@@ -43,11 +43,11 @@ log = logging.getLogger(__name__)
 
 
 def make_model(robot: RobotConfig) -> Any:
-    """A fresh model for ``robot`` (the paper's ROGER or the unimap baseline)."""
-    from roger_daemon.learner import Roger, UnimapGP
+    """A fresh model for ``robot`` (the paper's ROGER, the unimap baseline, or ROGER with its
+    transitions learned online: roger_daemon/fsm/online.py)."""
+    from roger_daemon.fsm.online import make_daemon_model
 
-    cls = UnimapGP if robot.model == "unimap" else Roger
-    return cls(d_x=robot.x_dim, d_y=robot.y_dim, params=robot.params, seed=robot.seed)
+    return make_daemon_model(robot.model, robot.x_dim, robot.y_dim, robot.params, robot.seed)
 
 
 def model_meta(robot: RobotConfig) -> dict[str, Any]:
@@ -65,7 +65,7 @@ def load_robot(
     cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool
 ) -> tuple[RobotRuntime, Checkpoint | None]:
     """The runtime of one robot and the checkpoint it resumed from (None: fresh model)."""
-    from roger_daemon.learner import load_model
+    from roger_daemon.fsm.online import load_daemon_model as load_model
 
     if cfg.learner_workers == "inline":  # the loop learns: its compiled kernels now, not in
         from roger_daemon.learner.engine.jit import warm_up  # the robot's first live update

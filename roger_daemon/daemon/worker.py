@@ -223,7 +223,8 @@ class _Worker:
         from roger_daemon.config import RobotConfig
         from roger_daemon.daemon.main import make_model
         from roger_daemon.daemon.robot import RobotRuntime
-        from roger_daemon.learner import RogerParams, load_model
+        from roger_daemon.fsm.online import load_daemon_model as load_model
+        from roger_daemon.learner import RogerParams
         from roger_daemon.learner.engine.jit import compiled_signatures, threads, warm_up
 
         warm_up()  # the compiled kernels now, not inside this robot's first steps

@@ -101,6 +101,11 @@ class Memory:
     def __init__(self, spec: MemorySpec) -> None:
         self.spec = spec
         self._dt = 1.0 / spec.hz
+        # the indices features() reads, as arrays (one vectorised pass per tick)
+        self._blob_x = np.array([i for _, i in spec.blobs], dtype=np.int64)
+        self._proprio = np.array([i for i, _, _ in spec.proprio], dtype=np.int64)
+        self._offset = np.array([o for _, o, _ in spec.proprio], dtype=np.float64)
+        self._scale = np.array([s for _, _, s in spec.proprio], dtype=np.float64)
         self.reset()
 
     def reset(self) -> None:
@@ -140,18 +145,22 @@ class Memory:
 
     def features(self, x: FloatArray, ticks_in_state: int) -> FloatArray:
         """The transition model's input at this tick (module docstring), length ``spec.dim``."""
-        spec, cap = self.spec, self.spec.horizon_s
-        parts: list[float] = []
-        for _, i in spec.blobs:
-            seen = 1.0 if x[i + 2] > 0 else 0.0
-            parts += [seen, float(x[i]) * seen, float(x[i + 2]) * seen]
-        parts += [(float(x[i]) - off) / scale for i, off, scale in spec.proprio]
-        parts.append(min(ticks_in_state * self._dt, cap) / cap)
-        parts += list(self.since / cap)
-        parts += list(self.bearing / math.pi)
-        if spec.indicator is not None:
-            parts += list(self.since_motion / cap)
-        return np.array(parts)
+        cap = self.spec.horizon_s
+        n, p = len(self._blob_x), len(self._proprio)
+        out = np.empty(self.spec.dim)
+        size = x[self._blob_x + 2]
+        seen = (size > 0).astype(np.float64)
+        out[0:3 * n:3] = seen
+        out[1:3 * n:3] = x[self._blob_x] * seen
+        out[2:3 * n:3] = size * seen
+        k = 3 * n + p
+        out[3 * n:k] = (x[self._proprio] - self._offset) / self._scale
+        out[k] = min(ticks_in_state * self._dt, cap) / cap
+        out[k + 1:k + 1 + n] = self.since / cap
+        out[k + 1 + n:k + 1 + 2 * n] = self.bearing / math.pi
+        if self.spec.indicator is not None:
+            out[k + 1 + 2 * n:] = self.since_motion / cap
+        return out
 
     # -- state (a learning stream continues exactly after a checkpoint) -------------------------
 

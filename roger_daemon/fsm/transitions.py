@@ -68,7 +68,7 @@ class TransitionModel:
         """One observed transition ``prev -> state`` at features ``phi`` (a self pair when the
         state did not change). Rank-1 NIW update (docs/learner-math.md §3.2)."""
         x = np.asarray(phi, dtype=np.float64)
-        if x.shape != (self.dim,) or not np.all(np.isfinite(x)):
+        if x.shape != (self.dim,) or not np.isfinite(x).all():
             raise ValueError(f"TransitionModel: phi must be {self.dim} finite floats, got "
                              f"shape {x.shape}")
         key = (int(prev), int(state))

@@ -24,7 +24,7 @@ def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[st
     :class:`ReplayError` naming the file when the checkpoint's daemon arrays do not fit
     together."""
     from roger_daemon.daemon.checkpoint import CheckpointError, read_checkpoint
-    from roger_daemon.learner import load_model
+    from roger_daemon.fsm.online import load_daemon_model as load_model
 
     try:
         ck = read_checkpoint(Path(path))

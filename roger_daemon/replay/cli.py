@@ -15,6 +15,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from roger_daemon.config.settings import FSM_MODEL, MODELS
 from roger_daemon.replay.compare import REL_TOL
 
 __all__ = ["configure", "run"]
@@ -29,7 +30,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="take learner params from this config's [learner] table")
     parser.add_argument("--seed", type=int, help="model seed (default: the recorded one)")
     parser.add_argument("--robot", help="robot to replay (default: the recorded one)")
-    parser.add_argument("--model", choices=("roger", "unimap"), help="default: the recorded one")
+    parser.add_argument("--model", choices=MODELS,
+                        help="default: the recorded one; roger+fsm: also learn the transitions "
+                             "(a session of plain ROGER gives the same experts and a checkpoint "
+                             "for roger play, docs/autonomy.md)")
     parser.add_argument("--checkpoint", type=Path, metavar="FILE.npz",
                         help="the checkpoint the session resumed from (daemon checkpoint with "
                              "its queued pairs, or a plain state_dict .npz); or a daemon "
@@ -211,7 +215,7 @@ def _merged(res: Any) -> Any:
     from roger_daemon.replay.session import ReplayError
 
     model = res.model
-    if model is None or res.model_kind != "roger":
+    if model is None or res.model_kind not in ("roger", FSM_MODEL):
         raise ReplayError("--merge-groups needs a ROGER model (model kind 'roger')")
     if int(model.n_learned) != len(res.pairs):
         raise ReplayError(

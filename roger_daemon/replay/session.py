@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from protocols.messages import Perception
+from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.daemon.checkpoint import array_digest
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.robot_state import RobotState
@@ -69,12 +70,13 @@ __all__ = [
 def default_model_factory(
     kind: str, d_x: int, d_y: int, params: Mapping[str, Any] | None, seed: int | None
 ) -> Model:
-    """Build ``Roger`` (or ``UnimapGP`` for model ``"unimap"``) from ``roger_daemon.learner``."""
+    """The daemon's model of ``kind`` (``Roger``, ``UnimapGP`` for ``"unimap"``, ``RogerFSM``
+    for ``"roger+fsm"``: :func:`roger_daemon.fsm.online.make_daemon_model`)."""
     from roger_daemon import learner
+    from roger_daemon.fsm.online import make_daemon_model
 
     p = learner.RogerParams.from_mapping(dict(params)) if params else learner.RogerParams()
-    cls = learner.UnimapGP if kind == "unimap" else learner.Roger
-    model: Model = cls(d_x=d_x, d_y=d_y, params=p, seed=seed)
+    model: Model = make_daemon_model(kind, d_x, d_y, p, seed)
     return model
 
 
@@ -150,6 +152,9 @@ class _Replay:
     margins: list[DecisionMargin] = field(default_factory=list)
     unreplayable: int = 0
     digests: list[DigestCheck] = field(default_factory=list)
+    #: the session's own model kind: a session of plain ROGER replayed with its transitions
+    #: (``--model roger+fsm``) checks the experts' part of the state (roger_daemon/fsm/online.py)
+    recorded_kind: str = "roger"
 
     def segment(self, seg_no: int, seg: Segment) -> None:
         """Learn the segment's pairs through the runtime, evaluating the recorded predictions
@@ -194,7 +199,11 @@ class _Replay:
             self._check_digest(0, ModelCheck(seg.start_updates, want, ""))
 
     def _check_digest(self, seg_no: int, check: ModelCheck) -> None:
-        digest = array_digest(dict(self.rt.model.state_dict()))
+        model = self.rt.model
+        experts = getattr(model, "experts_state", None)
+        state = experts() if experts is not None and self.recorded_kind != FSM_MODEL \
+            else model.state_dict()
+        digest = array_digest(dict(state))
         self.digests.append(DigestCheck(seg_no, check.updates, check.digest == digest))
 
 
@@ -265,7 +274,7 @@ def replay_timeline(
     rt = RobotRuntime(tl.robot, dims, None,
                       lambda: factory(kind, dims.x, dims.y, use_params, use_seed),
                       queue_size=2**31 - 1, pair_window=tl.pair_window)
-    run = _Replay(rt, compare_labels, progress)
+    run = _Replay(rt, compare_labels, progress, recorded_kind=info.model)
     for i, seg in enumerate(tl.segments):
         first = _start(rt, tl, initial_model, initial_pairs, warnings) if i == 0 else None
         if i > 0:

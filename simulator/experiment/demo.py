@@ -12,9 +12,13 @@
    ``roger daemon`` serves that checkpoint in predict mode, and the same transitioner runs one
    episode on it from each demonstrated location (the README's workflow for a session of your
    own);
-5. the figures of the learned segmentation are drawn from the recorded session and the
-   checkpoint, and a summary is printed: experts found, both episodes' outcomes, where the
-   MCAP log, checkpoints and figures are.
+5. the robot plays alone (:mod:`.demo_play`): the live daemon learned a ``roger+fsm`` model,
+   so its final checkpoint holds the experts' learned transitions; a daemon in predict mode
+   serves it and ``roger play`` (no HCC process) drives one episode from each demonstrated
+   location;
+6. the figures of the learned segmentation are drawn from the recorded session and the
+   checkpoint, and a summary is printed: experts found, the episodes' outcomes (the robot's
+   own goals / attempts), where the MCAP log, checkpoints and figures are.
 """
 
 from __future__ import annotations
@@ -29,7 +33,15 @@ from pathlib import Path
 from typing import Any
 
 from roger_daemon.atomic import write_json
+from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.tools.common import port
+from simulator.experiment.demo_play import (
+    PLAY_MEANING,
+    controller_argv,
+    play_commands,
+    play_rows,
+    play_summary,
+)
 from simulator.experiment.goal_scoring import DEFAULT_TIME_LIMIT
 
 __all__ = ["MERGED_MEANING", "OUTCOME_MEANING", "configure", "run"]
@@ -112,12 +124,13 @@ class _Demo:
         console.rule("roger demo")
         console.print(f"demonstrations from locations {locations}, then the learned experts "
                       f"from location {args.test_location}, then the same experts merged per "
-                      f"group from each demonstrated location; output in {out}")
+                      f"group, then the robot alone on its learned transitions (roger play), "
+                      f"from each demonstrated location; output in {out}")
         summary: dict[str, Any] = {}
         live = {"mode": "learn+predict", "clock": "lockstep", "seed": args.seed,
                 "queue_size": 100_000}
         with self._daemon("daemon", live, {"on_shutdown": True}, {"enabled": True},
-                          ["--fresh"]) as daemon_ep:
+                          ["--fresh"], robots=[{"id": "aibo", "model": FSM_MODEL}]) as daemon_ep:
             demo = self._episodes("demonstration", "demonstrator", locations, args.seed,
                                   daemon_ep, out / "demonstration")
             pairs = sum(e["ticks"] for e in demo["episodes"])
@@ -134,12 +147,14 @@ class _Demo:
                                   out / "transitioner")
             summary = {"demo": demo, "test": test, "updates": st.updates}
         summary["merged"] = self._merged_groups(locations)
+        summary["autonomous"] = self._autonomous(locations)
         self._report(summary, time.monotonic() - t_all)
         return 0
 
     @contextlib.contextmanager
     def _daemon(self, name: str, daemon: dict[str, Any], checkpoint: dict[str, Any],
-                recording: dict[str, Any], argv: list[str]) -> Iterator[str]:
+                recording: dict[str, Any], argv: list[str],
+                robots: list[dict[str, Any]] | None = None) -> Iterator[str]:
         """``roger daemon`` (config ``OUT/NAME.toml``, log ``OUT/NAME.log``) on a free loopback
         port, with :attr:`client` connected: yields its endpoint; stopped at the end (SIGTERM,
         then exit 0 required)."""
@@ -150,7 +165,7 @@ class _Demo:
         port = self.args.daemon_port or free_port()
         cfg = write_config(out / f"{name}.toml", port=port, workdir=out, daemon=daemon,
                            checkpoint={"every_updates": 0, "every_s": 0.0, **checkpoint},
-                           recording=recording)
+                           recording=recording, robots=robots or [{"id": "aibo"}])
         with CHILDREN.spawning():  # a stop reaches it (procs.stop_children_on_signals)
             proc = DaemonProcess(cfg, args=argv, log=out / f"{name}.log", env=child_env())
             CHILDREN.add(proc.proc)
@@ -204,6 +219,18 @@ class _Demo:
                                   out / "merged-transitioner")
         return {"test": test, "experts": int(st.experts), "command": "roger " + " ".join(command)}
 
+    def _autonomous(self, locations: list[int]) -> dict[str, Any]:
+        """The robot plays alone (:mod:`.demo_play`): the live daemon's checkpoint served in
+        predict mode, ``roger play`` the only controller, one episode per location."""
+        serve = {"mode": "predict", "clock": "lockstep", "seed": self.args.seed}
+        with self._daemon("daemon-play", serve, {"dir": self.out / "checkpoints",
+                                                 "on_shutdown": False},
+                          {"enabled": False}, []) as endpoint:
+            self._status(lambda s: s.mode == "predict", 10)
+            test = self._episodes("learned transitions, no HCC (play)", "play", locations,
+                                  self.args.seed + 1, endpoint, self.out / "play")
+        return play_summary(test, self.out)
+
     def _episodes(self, title: str, role: str, locations: list[int], seed: int,
                   daemon_ep: str, workdir: Path) -> dict[str, Any]:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -221,7 +248,7 @@ class _Demo:
         group = ProcessGroup(workdir)
         try:
             group.start("controller", roger_argv(
-                "hcc", "--role", role, "--connect", f"tcp/127.0.0.1:{sim_port}",
+                *controller_argv(role, self.out), "--connect", f"tcp/127.0.0.1:{sim_port}",
                 "--connect", daemon_ep, "--exit-when-done", "--idle-exit", "120",
                 "--stats", str(workdir / "controller.json")))
             group.start("sim", roger_argv(
@@ -263,35 +290,15 @@ class _Demo:
         from rich.table import Table
 
         from roger_daemon.daemon.checkpoint import load_newest
-        from roger_daemon.labels import majority_labels
-        from roger_daemon.learner import load_model
-        from roger_daemon.recording import list_session_files, read_timeline
-        from simulator.experiment.figures import plot_experts_histogram, plot_pca
-        from simulator.experiment.metrics import segmentation_scores
+        from roger_daemon.fsm.online import load_daemon_model
+        from simulator.experiment.demo_play import segmentation_figures
 
         out = self.out
         ck = load_newest(out / "checkpoints", "aibo")
         if ck is None:
             raise RuntimeError("the daemon wrote no checkpoint")
-        model = load_model(ck.model)
-        mcap = [sf.path for sf in list_session_files(out / "recordings", robot="aibo")]
-        tl = read_timeline(mcap)
-        import numpy as np
-
-        x = np.array([p.x for p in tl.pairs])
-        y = np.array([p.y for p in tl.pairs])
-        labels = [p.label for p in tl.pairs]
-        assign = np.asarray(model.assignments()).tolist()
-        figs = {}
-        if len(assign) == len(labels) and labels:
-            groups = majority_labels(assign, labels)
-            seg = segmentation_scores(assign, labels)
-            figs["Fig. 7 (PCA by subtask / expert / group)"] = plot_pca(
-                x, y, labels, assign, out / "fig7_pca.png")
-            figs["Fig. 8 (data per expert)"] = plot_experts_histogram(
-                assign, labels, out / "fig8_experts.png")
-        else:  # should not happen: the log and the checkpoint disagree
-            groups, seg = {}, None
+        model = load_daemon_model(ck.model)
+        groups, seg, figs, mcap = segmentation_figures(out, model)
         test = summary["test"]["episodes"][0]
         ctl = summary["test"]["controller"]
         t = Table(title="roger demo: summary", show_header=False)
@@ -322,6 +329,7 @@ class _Demo:
                       f"location {e['location']}: [{'green' if e['success'] else 'red'}]"
                       f"{e['outcome']}[/]" for e in m_eps))
         t.add_row("commands chosen by (merged)", _chosen_by(merged["test"]["controller"]))
+        play_rows(t, summary["autonomous"])
         t.add_row("wall time", f"{wall:.0f} s")
         self.console.print(t)
         # paths and commands as plain lines, never wrapped, so that they can be copied
@@ -329,6 +337,7 @@ class _Demo:
 
         for text in (f"outcome {outcome}: {OUTCOME_MEANING.get(outcome, outcome)}",
                      f"merged per group: {MERGED_MEANING}",
+                     f"roger play: {PLAY_MEANING}",
                      "commands chosen by: label = an expert whose majority label is the FSM's "
                      "subtask; fallback_top = no such expert, the most probable one; "
                      "fallback_mean = an empty multimap, the prior mean; no_prediction = none "
@@ -342,6 +351,8 @@ class _Demo:
         if mcap:
             print(f"replay it:  roger replay {mcap[0]}")
         print(f"merged:     {merged['command']}")
+        for line in play_commands(out):
+            print(line)
         write_json(out / "summary.json", {
             "experts": int(model.n_experts),
             "pairs": int(model.n_learned),
@@ -352,6 +363,7 @@ class _Demo:
             "merged": {"experts": merged["experts"], "episodes": m_eps,
                        "transitioner": merged["test"]["controller"],
                        "checkpoint_dir": str(out / "merged"), "command": merged["command"]},
+            "autonomous": summary["autonomous"],
             "mcap": [str(p) for p in mcap],
             "checkpoint": str(ck.path),
             "figures": {k: str(v) for k, v in figs.items()},

@@ -270,7 +270,7 @@ def run_in_process(plan: Any, params: Any, console: Any,
     timings["evaluation"] = round(time.monotonic() - t0, 2)
     results = build_results(plan=plan, params=params, demos=demos, data=data, stream=stream,
                             models=models, episodes=episodes, check=None, train_s=train_s,
-                            errors=[])
+                            errors=[], fsms=fsms)
     results["figures"] = write_figures(plan.out, stream, np.asarray(models[0][1].assignments()),
                                        results)
     results["timings_s"] = {**timings, "total": round(time.monotonic() - t_all, 2)}

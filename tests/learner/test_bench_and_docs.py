@@ -34,6 +34,11 @@ def test_bench_json_has_the_contract_keys(capsys: pytest.CaptureFixture[str]) ->
     assert res["points"] == 60 and res["d_x"] == 23 and res["d_y"] == 9
     assert res["updates_per_s"] > 0 and res["experts"] >= 1
     assert res["params"]["beta"] == 300 and res["params"]["alpha"] == 0.5
+    # the learned transitions' cost beside the step: 60 updates, 12 ticks (every 5th step)
+    tr = res["transitions"]
+    assert tr["update_p50_ms"] > 0 and tr["tick_p50_ms"] > 0 and tr["step_mean_ms"] > 0
+    assert tr["update_share_of_step"] == pytest.approx(
+        tr["update_mean_ms"] / tr["step_mean_ms"], rel=0.01)
 
 
 def test_bench_table_and_param_override(capsys: pytest.CaptureFixture[str]) -> None:
@@ -41,6 +46,9 @@ def test_bench_table_and_param_override(capsys: pytest.CaptureFixture[str]) -> N
                  "--param", "kernel_dim_scaling=grollman"]) == 0
     out = capsys.readouterr().out
     assert "updates/s (mean)" in out and "unimap" not in out
+    assert "transitions update p50 / p99 ms" in out and "% of the mean step" in out
+    assert main(["bench", "learner", "--points", "10", "--no-unimap", "--no-transitions"]) == 0
+    assert "transitions" not in capsys.readouterr().out
 
 
 def test_benchmark_stream_is_deterministic_and_shaped() -> None:
