@@ -33,7 +33,7 @@ __all__ = ["DEFAULT_STEPS", "configure", "parse_curve", "run"]
 
 #: Optimizer steps per policy (the CPU budget, docs/peers.md "Budget"); LeRobot's default is
 #: 100,000 steps of batch 8 (``TrainPipelineConfig``), GPU hours.
-DEFAULT_STEPS = {"act": 3000, "diffusion": 3000}
+DEFAULT_STEPS = {"act": 1500, "diffusion": 1500}
 DEFAULT_CURVE = "10,20,40,80,130"
 SMOKE_STEPS = 4
 

@@ -37,16 +37,18 @@ class PeersRun:
         self.console = Console()
         self.timings: dict[str, float] = {}
         self.out: Path = plan.out
+        self.done: dict[str, Any] = {}
 
     def _log(self, text: str) -> None:
         self.console.log(text)
 
     def run(self) -> int:
-        """Every phase; writes ``OUT/results.json``; 0 on success."""
+        """Every phase; writes ``OUT/results.json`` after each (``complete`` false until the
+        end, so that a stopped run keeps what it measured); 0 on success."""
         import torch
 
         from simulator.experiment import peers_data as pd
-        from simulator.experiment.peers_report import build_results, write_curve_figure
+        from simulator.experiment.peers_report import write_curve_figure
 
         t_all = t0 = now()
         self.out.mkdir(parents=True, exist_ok=True)
@@ -60,20 +62,30 @@ class PeersRun:
         pd.export_stream(data, root)
         self.timings["export"] = round(now() - t0, 2)
         starts = kept if self.frames == "downsampled" else None
-        hcc = self._evaluate("hcc", None)
-        peers: dict[str, Any] = {}
-        trained: dict[str, Any] = {}
+        self.done = {"records": records, "data": data, "kept": kept, "peers": {}, "curve": {}}
+        self.done["hcc"] = self._evaluate("hcc", None)
         for name in self.policies:
-            trained[name], peers[name] = self._train_and_evaluate(name, root, starts)
-        curve = self._curve(data, records, kept, root, starts, peers) if self.curve else {}
-        results = build_results(self, records, data, kept, hcc, peers, curve)
-        if curve:
-            results["figures"] = {"learning_curve": str(write_curve_figure(self.out, curve))}
+            self.done["peers"][name] = self._train_and_evaluate(name, root, starts)
+            self._save()
+        if self.curve:
+            self._curve(data, records, kept, root, starts, self.done["peers"])
+        figures = ({"learning_curve": str(write_curve_figure(self.out, self.done["curve"]))}
+                   if self.curve else {})
         self.timings["total"] = round(now() - t_all, 2)
-        results["timings_s"] = self.timings
-        write_json(self.out / "results.json", results)
+        results = self._save(complete=True, figures=figures)
         self._print(results)
         return 0
+
+    def _save(self, complete: bool = False, figures: dict[str, str] | None = None
+              ) -> dict[str, Any]:
+        from simulator.experiment.peers_report import build_results
+
+        d = self.done
+        results = build_results(self, d["records"], d["data"], d["kept"], d["hcc"], d["peers"],
+                                d["curve"])
+        results.update(complete=complete, figures=figures or {}, timings_s=self.timings)
+        write_json(self.out / "results.json", results)
+        return results
 
     # --- evaluation ---------------------------------------------------------------------
 
@@ -123,28 +135,29 @@ class PeersRun:
         torch.set_num_threads(1)  # inference time per tick on one core
         return PolicyController(trained, seed=self.plan.seeds["eval_sim"])
 
-    def _train_and_evaluate(self, name: str, root: Path, starts: Any
-                            ) -> tuple[Any, dict[str, Any]]:
+    def _train_and_evaluate(self, name: str, root: Path, starts: Any) -> dict[str, Any]:
         trained = self._train(name, root, starts, None, name)
         size = trained.save(self.out / "models" / name)
         ctl = self._controller(trained)
         episodes = self._evaluate(name, ctl)
-        return trained, {"trained": trained, "episodes": episodes, "model_bytes": size,
+        return {"trained": trained, "episodes": episodes, "model_bytes": size,
                          **percentiles_ms(ctl.times_s), "ticks_timed": len(ctl.times_s),
                          "non_finite": ctl.counts.get("non_finite", 0)}
 
     # --- learning curve -------------------------------------------------------------------
 
     def _curve(self, data: Any, records: list[dict[str, Any]], kept: Any, root: Path,
-               starts: Any, peers: dict[str, Any]) -> dict[str, Any]:
+               starts: Any, peers: dict[str, Any]) -> None:
+        """Fills ``self.done["curve"]`` point by point (saved after each)."""
         from simulator.experiment import peers_data as pd
 
         total = len(records)
-        out: dict[str, Any] = {"demonstrations": self.curve, "attempts": self.curve_attempts,
-                               "order": "round-robin over the start locations"}
-        out.update(self._roger_curve(data, records, kept))
+        out = self.done["curve"]
+        out.update({"demonstrations": self.curve, "attempts": self.curve_attempts,
+                    "order": "round-robin over the start locations"})
+        self._roger_curve(data, records, kept, out)
         for name in self.policies:
-            rows = []
+            rows = out.setdefault(name, [])
             for n in self.curve:
                 if n == total:  # the main run's model: its first attempt per location
                     eps = [e for e in peers[name]["episodes"]["locations"]
@@ -157,11 +170,10 @@ class PeersRun:
                                          self.curve_attempts, held_out=False)["locations"]
                     cpu = trained.train_cpu_s
                 rows.append(_point(n, eps, train_cpu_s=cpu))
-            out[name] = rows
-        return out
+                self._save()
 
-    def _roger_curve(self, data: Any, records: list[dict[str, Any]], kept: Any
-                     ) -> dict[str, Any]:
+    def _roger_curve(self, data: Any, records: list[dict[str, Any]], kept: Any,
+                     out: dict[str, Any]) -> None:
         """ROGER learning the kept points in the curve's order, one pass, evaluated after
         each point with the HCC transitioner (``roger``) and alone (``autonomous``)."""
         import time as _time
@@ -177,6 +189,7 @@ class PeersRun:
                       seed=self.plan.seeds["learner"])
         episode = pd.episode_of(data)
         rows: dict[str, list[dict[str, Any]]] = {"roger": [], "autonomous": []}
+        out.update(rows)
         done, cpu = 0, 0.0
         for n in self.curve:
             c0 = _time.process_time()
@@ -197,7 +210,7 @@ class PeersRun:
                                      held_out=False)["locations"]
                 rows[key].append(_point(n, eps, train_cpu_s=round(cpu, 2), pairs=upto,
                                         experts=int(snap.n_experts)))
-        return rows
+            self._save()
 
     def _print(self, results: dict[str, Any]) -> None:
         for name, block in results["peers"].items():
