@@ -143,12 +143,12 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
             seed = args.seed
         initial: Any = None
         queued: list[Any] = []
-        ck_meta: dict[str, Any] = {}
+        ck_meta = None
         notes: list[str] = []
         if args.checkpoint:
             initial, queued, ck_meta = load_checkpoint(args.checkpoint)
             learned = int(initial.n_learned)
-            if ck_meta and learned != tl.segments[0].start_updates:
+            if ck_meta is not None and learned != tl.segments[0].start_updates:
                 # a checkpoint taken during the session: checkpoint + the log's tail
                 tl2, notes = resume_timeline(tl, files, learned=learned, meta=ck_meta,
                                              queued=queued)

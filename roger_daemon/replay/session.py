@@ -21,6 +21,7 @@ import numpy as np
 
 from protocols.messages import Perception
 from roger_daemon.daemon.checkpoint import array_digest
+from roger_daemon.daemon.checkpoint_meta import Counters
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.recording.session_read import read_timeline
@@ -219,7 +220,7 @@ def _start(rt: RobotRuntime, tl: Timeline, initial_model: Model | None,
     # the labels of the pairs it learned before are unknown here: the empty label, which
     # never wins a majority (roger_daemon.labels); nothing queued
     unknown = RobotState.from_labels([""] * int(initial_model.n_learned), vocab=[""])
-    rt.restore(unknown.to_arrays(rt.dims), {})
+    rt.restore(unknown.to_arrays(rt.dims), Counters())
     if tl.decisions:  # a version-2 log names the queued pairs it learned as its own
         return seg
     if len(initial_pairs) != seg.queued:
