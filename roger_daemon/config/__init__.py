@@ -29,7 +29,6 @@ from roger_daemon.config.parse import apply_overrides, load_config, parse_config
 from roger_daemon.config.settings import (
     CLOCKS,
     DEFAULT_PROFILE,
-    MODELS,
     WORKERS,
     CheckpointConfig,
     ConfigError,
@@ -42,7 +41,6 @@ from roger_daemon.config.settings import (
 __all__ = [
     "CLOCKS",
     "WORKERS",
-    "MODELS",
     "DEFAULT_PROFILE",
     "CheckpointConfig",
     "ConfigError",

@@ -18,7 +18,6 @@ from roger_daemon.config.settings import (
     CLOCKS,
     DEFAULT_PRESET,
     DEFAULT_PROFILE,
-    MODELS,
     WORKERS,
     ZENOH_MODES,
     CheckpointConfig,
@@ -218,7 +217,9 @@ def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[Rob
         rid = r.ident("id")
         if any(o.id == rid for o in robots):
             raise bad(r.key("id"), "unique among robots", rid)
-        model = r.choice("model", "roger", MODELS)
+        from roger_daemon.learner.registry import MODELS
+
+        model = r.choice("model", RobotConfig.model, tuple(MODELS))
         rseed = r.integer("seed", seed, lo=0)
         spec, profile, dims, params = _robot_params(learner_table, r, f"robots[{i}]")
         r.done()

@@ -16,7 +16,6 @@ from roger_daemon.zenoh_session import ZenohSettings
 __all__ = [
     "CLOCKS",
     "DEFAULT_PRESET",
-    "MODELS",
     "DEFAULT_PROFILE",
     "WORKERS",
     "ZENOH_MODES",
@@ -30,7 +29,6 @@ __all__ = [
 
 CLOCKS = ("realtime", "lockstep")
 WORKERS = ("auto", "process", "inline")
-MODELS = ("roger", "unimap")
 #: the profile of a robot that names none (if its dimensions are that profile's)
 DEFAULT_PROFILE = "aibo"
 DEFAULT_PRESET = "default"

@@ -46,11 +46,11 @@ log = logging.getLogger(__name__)
 
 
 def make_model(robot: RobotConfig) -> Any:
-    """A fresh model for ``robot`` (the paper's ROGER or the unimap baseline)."""
-    from roger_daemon.learner import Roger, UnimapGP
+    """A fresh model for ``robot``: its ``model`` kind from the learner's registry
+    (:func:`roger_daemon.learner.build_model`)."""
+    from roger_daemon.learner import build_model
 
-    cls = UnimapGP if robot.model == "unimap" else Roger
-    return cls(d_x=robot.x_dim, d_y=robot.y_dim, params=robot.params, seed=robot.seed)
+    return build_model(robot.model, robot.x_dim, robot.y_dim, robot.params, robot.seed)
 
 
 def model_meta(robot: RobotConfig) -> LearnerSpec:

@@ -70,12 +70,11 @@ __all__ = [
 def default_model_factory(
     kind: str, d_x: int, d_y: int, params: Mapping[str, Any] | None, seed: int | None
 ) -> Model:
-    """Build ``Roger`` (or ``UnimapGP`` for model ``"unimap"``) from ``roger_daemon.learner``."""
-    from roger_daemon import learner
+    """The model of ``kind`` from the learner's registry (``roger_daemon.learner.build_model``;
+    a log that names no kind gets ROGER)."""
+    from roger_daemon.learner import build_model
 
-    p = learner.RogerParams.from_mapping(dict(params)) if params else learner.RogerParams()
-    cls = learner.UnimapGP if kind == "unimap" else learner.Roger
-    model: Model = cls(d_x=d_x, d_y=d_y, params=p, seed=seed)
+    model: Model = build_model(kind or "roger", d_x, d_y, params or None, seed)
     return model
 
 
