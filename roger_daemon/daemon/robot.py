@@ -35,6 +35,7 @@ from protocols.messages import (
     Prediction,
     encode_prediction,
 )
+from roger_daemon.config.settings import DaemonConfig
 from roger_daemon.daemon.checkpoint_meta import Counters, LearnerSpec
 from roger_daemon.daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
 from roger_daemon.daemon.robot_state import NewestPair, Pair, RobotState
@@ -88,8 +89,8 @@ class RobotRuntime:
         make_model: Callable[[], Any],
         *,
         mode: str = "learn+predict",
-        queue_size: int = 256,
-        pair_window: int = 64,
+        queue_size: int = DaemonConfig.queue_size,
+        pair_window: int = DaemonConfig.pair_window,
         learner: LearnerSpec | None = None,
     ) -> None:
         self.robot = robot
