@@ -8,9 +8,19 @@ STAMP := $(VENV)/.installed
 TEST_WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
-.PHONY: demo test test-all lint typecheck bench clean venv
+.PHONY: demo test test-all lint typecheck bench clean venv browser venv-peers
 
 venv: $(STAMP)
+
+# roger teach's browser test drives Debian's chromium (tests/test_teach_browser.py): installed
+# here when missing and this is root (CI is); nothing to do when it is there already
+CHROMIUM ?= /usr/bin/chromium
+browser:
+	@test -x $(CHROMIUM) || { if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "==> installing chromium for the browser test (apt-get)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium \
+	    >/dev/null; else echo "==> no $(CHROMIUM): the browser test is skipped (apt-get \
+	install chromium)"; fi; }
 
 $(STAMP): pyproject.toml
 	@echo "==> creating $(VENV) and installing roger with its dependencies (about 1.5 min the first time)"
@@ -28,12 +38,12 @@ demo: $(STAMP)
 	-$(BIN)/roger compile
 	$(BIN)/roger demo
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(BIN)/ruff check .
 	$(BIN)/roger compile & compiling=$$!; $(BIN)/mypy; typed=$$?; wait $$compiling && test $$typed -eq 0
 	$(PYTEST)
 
-test-all: $(STAMP)
+test-all: $(STAMP) browser
 	$(BIN)/roger compile
 	$(PYTEST) -m ''
 
@@ -43,6 +53,20 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/roger bench learner
+
+# `roger experiment peers` (docs/peers.md): LeRobot's ACT and Diffusion Policy in their own venv.
+# LeRobot 0.4.4 (the last release for Python 3.11) needs torch >= 2.2.1, < 2.11 and torchvision;
+# torch 2.9.1 with torchvision 0.24.1 go in first (about 7 GB: PyPI's torch is a CUDA build, run
+# on the CPU here), then roger with the peers and test extras.
+PEERS_VENV := .venv-peers
+venv-peers: $(PEERS_VENV)/.installed
+
+$(PEERS_VENV)/.installed: pyproject.toml
+	test -x $(PEERS_VENV)/bin/python || $(PY) -m venv $(PEERS_VENV)
+	$(PEERS_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(PEERS_VENV)/bin/python -m pip install torch==2.9.1 torchvision==0.24.1
+	$(PEERS_VENV)/bin/python -m pip install -e '.[peers,test]'
+	touch $@
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache

@@ -25,6 +25,7 @@ from protocols.message_types import (
     MAX_VECTOR,
     MODES,
     SCHEMA_VERSION,
+    SOURCES,
     TYPES,
     Action,
     Command,
@@ -88,6 +89,25 @@ def _str(m: Mapping[str, Any], name: str, kind: str, *, choices: tuple[str, ...]
     if choices and v not in choices:
         raise ProtocolError("bad_value", f"{kind}: {name!r} must be one of {choices}, got {v!r}")
     return v
+
+
+def _bool(m: Mapping[str, Any], name: str, kind: str) -> bool:
+    v = _get(m, name, kind)
+    if not isinstance(v, bool):
+        raise ProtocolError(
+            "wrong_type", f"{kind}: {name!r} must be true or false, got {type(v).__name__}"
+        )
+    return v
+
+
+def _action(head: dict[str, Any], m: Mapping[str, Any], dy: int | None) -> Action:
+    """An action; ``source`` and ``correction`` (issue 54) are absent from the logs written
+    before them and read as ``""`` and ``false`` there (protocols/README.md)."""
+    kind = "action"
+    source = _str(m, "source", kind, choices=SOURCES) if "source" in m else ""
+    correction = _bool(m, "correction", kind) if "correction" in m else False
+    return Action(**head, y=_vector(m, "y", kind, dy), label=_str(m, "label", kind),
+                  source=source, correction=correction)
 
 
 _PLAIN_NUMBERS = frozenset((int, float))  # what msgpack decodes numbers to (bool is not one)
@@ -269,7 +289,7 @@ def decode(
     if kind == "perception":
         return Perception(**head, x=_vector(m, "x", kind, dx))
     if kind == "action":
-        return Action(**head, y=_vector(m, "y", kind, dy), label=_str(m, "label", kind))
+        return _action(head, m, dy)
     if kind == "command":
         return Command(**head, y=_vector(m, "y", kind, dy), source=_str(m, "source", kind))
     if kind == "prediction":

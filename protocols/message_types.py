@@ -32,6 +32,7 @@ __all__ = [
     "MAX_PAYLOAD_BYTES",
     "MODES",
     "SCHEMA_VERSION",
+    "SOURCES",
     "Action",
     "Command",
     "Control",
@@ -62,6 +63,9 @@ MAX_MULTIMAP = 512
 MAX_MAP_ENTRIES = 64
 MODES = ("learn", "predict", "learn+predict", "pause")
 CONTROL_OPS = ("mode", "reset", "checkpoint")
+#: who commanded an action (``Action.source``): a teacher (a person, a hand-coded
+#: controller), the robot itself, or unknown (docs/datasets.md, docs/teach.md)
+SOURCES = ("", "teacher", "robot")
 EPISODE_EVENTS = ("start", "goal", "own_goal", "out", "timeout", "end", "truth")
 
 FloatArray = npt.NDArray[np.float64]
@@ -148,6 +152,11 @@ class Action(Message):
 
     y: FloatArray = field(metadata=spec("action vector, Dims.y floats"))
     label: str = field(default="", metadata=spec("the demonstrator's subtask label"))
+    source: str = field(default="", metadata=spec(
+        "who commanded the action: 'teacher', 'robot' or '' (unknown)", choices=SOURCES))
+    correction: bool = field(default=False, metadata=spec(
+        "the teacher took over from the robot on this tick (a human-gated correction)",
+        minimum=None))
 
     KIND: ClassVar[str] = "action"
     DESCRIPTION: ClassVar[str] = (
@@ -159,7 +168,8 @@ class Action(Message):
 
     def body(self) -> dict[str, Any]:
         """The message's own fields as a msgpack-ready map (the envelope is added by ``encode``)."""
-        return {"y": self.y.tolist(), "label": self.label}
+        return {"y": self.y.tolist(), "label": self.label, "source": self.source,
+                "correction": bool(self.correction)}
 
 
 @dataclass(frozen=True, eq=False)

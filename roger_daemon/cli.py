@@ -71,6 +71,8 @@ COMMANDS = CommandTable({
     "hz": ("roger_daemon.tools.hz", "the rate of messages on a key expression"),
     "control": ("roger_daemon.tools.control", "mode, reset or checkpoint, confirmed by the daemon"),
     "config": ("roger_daemon.tools.config_example", "print shipped config files (daemon, systemd)"),
+    "model": ("roger_daemon.fsm.cli",
+              "inspect a model: fsm (the learned transitions of a roger+fsm checkpoint)"),
     "compile": ("roger_daemon.tools.compile_kernels",
                 "compile the learner's kernels into numba's cache, on every core"),
 }, "COMMANDS")

@@ -167,15 +167,18 @@ class RobotClient:
         return sent
 
     def send_action(self, tick: int, y: Iterable[float] | FloatArray, label: str = "",
-                    t: float | None = None, source: str = "") -> None:
+                    t: float | None = None, source: str = "", correction: bool = False) -> None:
         """Publish the demonstrated action of ``tick`` (the training target for perception
-        ``tick``), with its subtask ``label`` (kept as data, never learned from) and who gave
-        it, ``source`` (``"teacher"`` or ``"robot"``, where the protocol carries it)."""
+        ``tick``), with its subtask ``label`` (kept as data, never learned from), who gave
+        it, ``source`` (``"teacher"`` or ``"robot"``) and whether it is a teacher's
+        ``correction`` of a robot that was driving (docs/teach.md)."""
         extra: dict[str, Any] = {}
         if source:
             if "source" not in _ACTION_FIELDS:
                 raise ValueError("this protocol version's action message has no source field")
             extra["source"] = source
+        if correction:
+            extra["correction"] = True
         self.send_raw("action", encode(Action(self.robot, int(tick), self._t(tick, t),
                                               y=np.asarray(y, dtype=np.float64), label=label,
                                               **extra)))
@@ -244,6 +247,11 @@ class RobotClient:
         """Send perception(``tick``) and wait for its prediction."""
         self.send_perception(tick, x, t)
         return self.wait_prediction(tick, timeout)
+
+    def trim_predictions(self, keep: int) -> None:
+        """Forget all but the newest ``keep`` predictions (a long-running robot's memory)."""
+        with self._cond:
+            del self.predictions[:-keep or len(self.predictions)]
 
     def latest_prediction(self) -> Prediction | None:
         """The newest prediction received, if any."""

@@ -26,7 +26,7 @@ import sys
 import time
 from typing import Any
 
-from roger_daemon.tools.common import non_negative
+from roger_daemon.tools.common import count, non_negative
 
 STATES = ("far apart", "near", "mixed", "unknown")
 _BENCH = [sys.executable, "-m", "roger_daemon", "bench", "learner", "--json", "--no-unimap"]
@@ -47,10 +47,11 @@ def state_of(start: float | None, end: float | None, far_ns: float) -> str:
     return "far apart" if all(far) else "near" if not any(far) else "mixed"
 
 
-def one_run(far_ns: float) -> dict[str, Any]:
+def one_run(far_ns: float, points: int | None = None) -> dict[str, Any]:
     """One benchmark run in a process of its own: its time, rate, p99, state and readings."""
     when = time.strftime("%H:%M:%S")
-    done = subprocess.run(_BENCH, capture_output=True, text=True, timeout=_RUN_TIMEOUT_S,
+    bench = _BENCH if points is None else [*_BENCH, "--points", str(points)]
+    done = subprocess.run(bench, capture_output=True, text=True, timeout=_RUN_TIMEOUT_S,
                           check=False)
     if done.returncode != 0:
         return {"time": when, "failed": done.returncode, "stderr": done.stderr[-2000:]}
@@ -104,12 +105,14 @@ def main() -> int:
                         help="a round trip above this is far apart (default 250)")
     parser.add_argument("--target", type=non_negative, default=2000.0,
                         help="updates/s a run should reach (default 2000)")
+    parser.add_argument("--points", type=count, default=None,
+                        help="points each run learns (default: the whole stream)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()  # a bad number: argparse names it and exits 2
     runs: list[dict[str, Any]] = []
     end = time.monotonic() + 60.0 * args.minutes
     while True:
-        runs.append(one_run(args.far_ns))
+        runs.append(one_run(args.far_ns, args.points))
         if not args.json:
             print(_line(runs[-1]), flush=True)
         if time.monotonic() >= end:

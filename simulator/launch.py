@@ -6,6 +6,10 @@ annotated example; ``roger config example up``); everything else is derived so t
 - **Ports**: the daemon listens on ``ports.daemon``, the simulator on ``ports.sim`` and connects
   to the daemon, the controller connects to both (``0``: a free loopback port is picked). Every
   process is a peer on 127.0.0.1 with multicast scouting off.
+- **Controller**: ``controller.role`` ``demonstrator`` (the daemon learns), ``transitioner``
+  (the HCC picks among the learned experts) or ``play`` (``roger play``: no HCC at all, the
+  learned transitions of the newest checkpoint in ``checkpoints/`` pick; the daemon serves it
+  in predict mode; ``configs/up-play.toml``).
 - **Clock**: the daemon runs the simulator's clock (a lockstep transitioner waits for
   prediction(t), which only a lockstep daemon publishes for every perception).
 - **Queue**: in lockstep the simulator runs as fast as the controller answers, not as fast as
@@ -54,7 +58,9 @@ log = logging.getLogger("roger.up")
 
 TICK_HZ = 30.0
 N_LOCATIONS = 13  # the AIBO task's start locations (simulator.episodes.START_LOCATIONS)
-ROLES = ("demonstrator", "transitioner")
+#: the controller's roles: ``roger hcc --role demonstrator|transitioner``, or ``roger play``
+#: (no hand-coded controller: ROGER's experts and their learned transitions, docs/autonomy.md)
+ROLES = ("demonstrator", "transitioner", "play")
 SECTIONS = {"session", "ports", "daemon", "sim", "controller", "view"}
 
 
@@ -168,7 +174,7 @@ def plan(data: dict[str, Any], base: Path) -> Plan:
         daemon += ["--config", str((base / _get(dmn, "daemon", "config", str, "")).resolve())]
     if _get(dmn, "daemon", "fresh", bool, False):
         daemon.append("--fresh")
-    mode = "predict" if role == "transitioner" else "learn+predict"
+    mode = "learn+predict" if role == "demonstrator" else "predict"
     for s in [f"daemon.clock={json.dumps(clock)}", f"daemon.mode={json.dumps(mode)}",
               f"daemon.queue_size={p.queue_size}", f"zenoh.listen=[{json.dumps(p.daemon_ep)}]",
               "zenoh.connect=[]", "zenoh.multicast_scouting=false",
@@ -176,7 +182,9 @@ def plan(data: dict[str, Any], base: Path) -> Plan:
               *_strings(dmn, "daemon", "set")]:
         daemon += ["--set", s]
     p.argv["daemon"] = daemon
-    p.argv["controller"] = [*exe, "hcc", "--role", role, "--clock", clock,
+    # roger play reads the transitions of the checkpoint the daemon resumes (its newest)
+    node = ["play", "--checkpoint", "checkpoints"] if role == "play" else ["hcc", "--role", role]
+    p.argv["controller"] = [*exe, *node, "--clock", clock,
                             "--connect", sim_ep, "--connect", p.daemon_ep,
                             "--exit-when-done", *_strings(ctl, "controller", "args")]
     viewing = _get(view, "view", "enabled", bool, False)

@@ -77,6 +77,7 @@ class RenderedVision(Vision):
         self._lut_for: tuple[int, ...] = ()
         self._lut = np.zeros(1, dtype=np.int64)
         self.last_mask: np.ndarray | None = None
+        self.last_rgb: Any = None  # the same render's colour image (roger teach's page)
 
     def _build_lut(self) -> None:
         inst = self.world.instances
@@ -101,6 +102,7 @@ class RenderedVision(Vision):
             shadow=0,
             physicsClientId=self.world.client,
         )
+        self.last_rgb = out[2]
         return np.reshape(np.asarray(out[4], dtype=np.int64), (self.cam.height, self.cam.width))
 
     def blobs(self) -> np.ndarray:

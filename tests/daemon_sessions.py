@@ -138,6 +138,7 @@ def record_session(
     recover: bool = False,
     workers: bool = False,
     daemon: Mapping[str, Any] | None = None,
+    robot_options: Mapping[str, Any] | None = None,
 ) -> DaemonSession:
     """Record a session of ``n_ticks`` ticks (from ``tick0``) with the daemon's own code.
 
@@ -154,6 +155,7 @@ def record_session(
     in ``directory``).
     ``workers``: the model learns and predicts in a learner worker process
     (``roger_daemon.daemon.learners.ProcessLearners``, ``[daemon] workers = "process"``).
+    ``robot_options``: more keys of the robot's ``[[robots]]`` table (e.g. ``model``).
     """
     x, y, labels = synthetic_stream(stream, tick0 + n_ticks, seed=0)
     dims = Dims(int(x.shape[1]), int(y.shape[1]))
@@ -162,7 +164,7 @@ def record_session(
         "daemon": {"clock": "lockstep", "seed": seed, **(daemon or {})},
         # the paper's nu0 = 24 (the default is x_dim + 1 since issue 56: 2 for this 1-D stream)
         "learner": {"preset": "paper", "nu0": 24.0},
-        "robots": [{"id": robot, "x_dim": dims.x, "y_dim": dims.y}],
+        "robots": [{"id": robot, "x_dim": dims.x, "y_dim": dims.y, **(robot_options or {})}],
         "checkpoint": {"dir": str(ckdir), "every_updates": 0, "every_s": 0, "wal": False,
                        "on_shutdown": False},
         "recording": {"enabled": True, "dir": str(directory)},

@@ -139,7 +139,7 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ({"robots": [{"id": "a"}, {"id": "a"}]}, 'robots[1].id must be unique among robots, got "a"'),
     ({"robots": [{"id": "a", "x_dim": 0}]}, "robots[0].x_dim must be an integer >= 1, got 0"),
     ({"robots": [{"id": "a", "model": "gp"}]},
-     'robots[0].model must be one of "roger", "unimap", got "gp"'),
+     'robots[0].model must be one of "roger", "unimap", "roger+fsm", got "gp"'),
     ({"robots": [{"id": "a", "x_dim": 2, "x_scale": [1.0]}]},
      "robots[0].x_scale must be an array of 2 finite numbers, got [1.0]"),
     ({"robots": [{"id": "a", "x_dim": 2, "x_scale": [1.0, 0.0]}]},

@@ -385,6 +385,21 @@ def test_unpaired_actions_are_counted(tmp_path: Path) -> None:
     assert h.status().info["unpaired_actions"] == 3
 
 
+def test_pairs_are_counted_by_source_and_corrections(tmp_path: Path) -> None:
+    """Each queued pair counts under its action's source (status info pairs_teacher /
+    pairs_robot) and a teacher's correction also under corrections (docs/teach.md)."""
+    h = Harness(make_config(tmp_path))
+    tags = [("teacher", False)] * 3 + [("teacher", True)] * 2 + [("robot", False), ("", False)]
+    for t, (source, correction) in enumerate(tags):
+        h.send("perception", encode(Perception("aibo", t, t / 30, x=STREAM.x[t])))
+        h.send("action", encode(Action("aibo", t, t / 30, y=STREAM.y[t], source=source,
+                                       correction=correction)))
+    h.settle()
+    info = h.status().info
+    assert h.rt.updates == len(tags)
+    assert (info["pairs_teacher"], info["pairs_robot"], info["corrections"]) == (5, 1, 2)
+
+
 def test_shutdown_checkpoint_and_resume_identical(tmp_path: Path) -> None:
     cfg = make_config(tmp_path, queue_size=64)
     h = Harness(cfg)

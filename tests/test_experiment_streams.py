@@ -83,5 +83,8 @@ def test_two_streams_run_end_to_end(tmp_path: Path) -> None:
     for s in ("0", "4"):
         single = json.loads((out / f"stream-{s}" / "results.json").read_text())
         assert single["seed"] == int(s) and single["autonomous"]["trials"] == 1
+        graph = single["autonomous_seeds"][0]["graph"]  # against the HCC's, labels mapped
+        assert graph["edges_hcc"] > 0 and 0.0 <= graph["graph_agreement"] <= 1.0
         assert (out / f"stream-{s}" / "prepared.npz").exists()
     assert res["summary"]["autonomous"]["validation"]["n"] <= 1
+    assert 0.0 <= res["autonomous_graph_agreement"] <= 1.0

@@ -202,6 +202,24 @@ def test_decoder_enforces_every_field_spec(kind: str) -> None:
 
 
 
+def test_action_source_and_correction_round_trip_and_older_actions_still_decode() -> None:
+    """An action's source and correction (issue 54) survive the wire; an action of a log
+    written before them (neither key) reads as source '' and correction false; a bad source
+    is a bad_value, a correction that is not a bool a wrong_type."""
+    act = Action("aibo", 3, 0.1, y=np.arange(9.0), label="", source="teacher", correction=True)
+    back = decode("action", encode(act), dims=D)
+    assert isinstance(back, Action) and (back.source, back.correction) == ("teacher", True)
+    old = msgpack.unpackb(encode(act), raw=False)
+    del old["source"], old["correction"]
+    back = decode("action", msgpack.packb(old), dims=D)
+    assert isinstance(back, Action) and (back.source, back.correction) == ("", False)
+    for field_name, value, reason in (("source", "someone", "bad_value"),
+                                      ("correction", 1, "wrong_type")):
+        with pytest.raises(ProtocolError) as err:
+            decode("action", msgpack.packb(dict(old, **{field_name: value})), dims=D)
+        assert err.value.reason == reason
+
+
 def test_stamp_prediction_gives_the_bytes_of_decode_replace_encode() -> None:
     """A worker's encoded prediction stamped in place (the daemon's publish path) is byte for
     byte what decoding it, replacing the publish-time fields and encoding again gives."""

@@ -13,11 +13,13 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from protocols.aibo import DIMS as AIBO_DIMS
 from protocols.messages import MODES, Dims
 from roger_daemon.config.settings import (
     CLOCKS,
     DEFAULT_PRESET,
     DEFAULT_PROFILE,
+    FSM_MODEL,
     WORKERS,
     ZENOH_MODES,
     CheckpointConfig,
@@ -218,12 +220,15 @@ def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[Rob
         rid = r.ident("id")
         if any(o.id == rid for o in robots):
             raise bad(r.key("id"), "unique among robots", rid)
-        from roger_daemon.learner.registry import MODELS
+        from roger_daemon.config.models import MODELS
 
         model = r.choice("model", RobotConfig.model, tuple(MODELS))
         rseed = r.integer("seed", seed, lo=0)  # [daemon] seed unless the robot names one
         spec, profile, dims, params = _robot_params(learner_table, r, f"robots[{i}]")
         r.done()
+        if model == FSM_MODEL and (dims.x, dims.y) != (AIBO_DIMS.x, AIBO_DIMS.y):
+            raise bad(r.key("model"), f"a robot of the AIBO's dimensions for {FSM_MODEL!r} "
+                      "(the only memory layout shipped, docs/autonomy.md)", model)
         robots.append(RobotConfig(rid, dims.x, dims.y, model, rseed, spec, params,
                                   robot_profile=profile))
     return robots
@@ -327,7 +332,8 @@ def _recording_section(rec: Table) -> RecordingConfig:
 
 
 def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
-    """Apply ``SECTION.KEY=VALUE`` overrides (VALUE in TOML syntax; bare words are strings)."""
+    """Apply ``SECTION.KEY=VALUE`` overrides (VALUE in TOML syntax; bare words are strings).
+    ``robots.KEY=VALUE`` sets KEY in every ``[[robots]]`` table (the default robot's if none)."""
     out: dict[str, Any] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
     for item in overrides:
         if "=" not in item:
@@ -342,6 +348,13 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
             value = tomllib.loads(f"v = {text}")["v"]
         except tomllib.TOMLDecodeError:
             value = text
+        if parts[0] == "robots":
+            robots = out.get("robots", [{"id": "aibo"}])
+            if not isinstance(robots, list) or not all(isinstance(r, dict) for r in robots):
+                raise ConfigError(dotted, f"cannot override {dotted}: robots is not an array "
+                                  "of tables")
+            out["robots"] = [{**r, parts[1]: value} for r in robots]
+            continue
         section = out.setdefault(parts[0], {})
         if not isinstance(section, dict):
             raise ConfigError(dotted, f"cannot override {dotted}: {parts[0]} is not a table")

@@ -17,6 +17,7 @@ __all__ = [
     "CLOCKS",
     "DEFAULT_PRESET",
     "DEFAULT_PROFILE",
+    "FSM_MODEL",
     "WORKERS",
     "ZENOH_MODES",
     "CheckpointConfig",
@@ -29,6 +30,8 @@ __all__ = [
 
 CLOCKS = ("realtime", "lockstep")
 WORKERS = ("auto", "process", "inline")
+#: ROGER with its transitions learned online (roger_daemon/fsm/online.py, docs/autonomy.md)
+FSM_MODEL = "roger+fsm"
 #: the profile of a robot that names none (if its dimensions are that profile's)
 DEFAULT_PROFILE = "aibo"
 DEFAULT_PRESET = "default"

@@ -46,9 +46,10 @@ log = logging.getLogger(__name__)
 
 
 def make_model(robot: RobotConfig) -> Any:
-    """A fresh model for ``robot``: its ``model`` kind from the learner's registry
-    (:func:`roger_daemon.learner.build_model`)."""
-    from roger_daemon.learner import build_model
+    """A fresh model for ``robot``: its ``model`` kind from the one registry
+    (:func:`roger_daemon.config.models.build_model`: the paper's ROGER, the unimap baseline,
+    or ROGER with its transitions learned online)."""
+    from roger_daemon.config.models import build_model
 
     return build_model(robot.model, robot.x_dim, robot.y_dim, robot.params, robot.seed)
 
@@ -68,7 +69,7 @@ def load_robot(
     cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool
 ) -> tuple[RobotRuntime, Checkpoint | None]:
     """The runtime of one robot and the checkpoint it resumed from (None: fresh model)."""
-    from roger_daemon.learner import load_model
+    from roger_daemon.config.models import load_model
 
     if cfg.learner_workers == "inline":  # the loop learns: its compiled kernels now, not in
         from roger_daemon.learner.engine.jit import warm_up  # the robot's first live update

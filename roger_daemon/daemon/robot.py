@@ -135,6 +135,10 @@ class RobotRuntime:
         self.wal: Any = None
         self.decisions: Decisions | None = None  # roger_daemon.daemon.service.recording.DecisionLog
         self.resent = 0  # re-sent copies of the newest pair, not learned twice
+        # pairs queued by who commanded the action (Action.source: "teacher", "robot", ""),
+        # and the teacher's corrections among them (Action.correction; docs/teach.md)
+        self.sources: Counter[str] = Counter()
+        self.corrections = 0
         self._newest_pair: tuple[int, bytes, bytes] | None = None  # (tick, x, y) bytes
 
     # --- modes ---------------------------------------------------------------------------
@@ -217,6 +221,8 @@ class RobotRuntime:
             self._dropped(act.tick, "queue_full")
             return
         self.queue.append(Pair(perc.x, act.y, self._label_code(act.label), act.tick, perc.t))
+        self.sources[act.source] += 1
+        self.corrections += bool(act.correction)
 
     def _dropped(self, tick: int, reason: str) -> None:
         if self.decisions is not None:

@@ -220,8 +220,9 @@ class _Worker:
 
     def _load(self, req: dict[str, Any]) -> dict[str, Any]:
         from protocols.messages import Dims
+        from roger_daemon.config.models import build_model, load_model
         from roger_daemon.daemon.robot import RobotRuntime
-        from roger_daemon.learner import RogerParams, build_model, load_model
+        from roger_daemon.learner import RogerParams
         from roger_daemon.learner.engine.jit import compiled_signatures, threads, warm_up
 
         warm_up()  # the compiled kernels now, not inside this robot's first steps

@@ -107,9 +107,11 @@ class LearnedFSM:
     # -- learning ----------------------------------------------------------------------------
 
     def observe(self, x: npt.ArrayLike, y: npt.ArrayLike, state: int,
-                episode_start: bool = False) -> None:
+                episode_start: bool = False, *, learn_start: bool = True) -> None:
         """One demonstrated tick: perception ``x``, executed action ``y``, its expert ``state``
-        (``< 0``: none; the tick still advances the memories)."""
+        (``< 0``: none; the tick still advances the memories). ``learn_start=False``: an
+        episode's first state is entered without teaching the start row (a stream whose
+        episode boundaries are unknown: :mod:`.online`)."""
         xv = np.asarray(x, dtype=np.float64)
         yv = np.asarray(y, dtype=np.float64)
         track = self._learn
@@ -117,7 +119,8 @@ class LearnedFSM:
             track.reset()
         phi = track.features(xv)
         if state >= 0:
-            self.transitions.learn_one(track.state, int(state), phi)
+            if learn_start or track.state != START:
+                self.transitions.learn_one(track.state, int(state), phi)
             track.enter(int(state))
         track.command = yv
         self.n_observed += 1

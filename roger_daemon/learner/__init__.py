@@ -6,7 +6,7 @@ in its on-disk cache (:mod:`.engine.jit_compile`).  It imports nothing else of
 ``roger_daemon``.  The public API (``docs/learner-api.md``)::
 
     from roger_daemon.learner import RogerParams, Roger, UnimapGP, Prediction, ExpertPrediction
-    from roger_daemon.learner import ParameterError, load_model, build_model, MODELS, PRESETS
+    from roger_daemon.learner import ParameterError, load_model, MODELS, PRESETS
     from roger_daemon.learner import ReferenceRoger  # Algorithms 1 and 2 in plain numpy
 
 ``Roger`` runs on compiled kernels (numba); ``ReferenceRoger`` (:mod:`.reference`) is the same
@@ -20,7 +20,7 @@ from roger_daemon.learner.kernel import RBFKernel
 from roger_daemon.learner.params import PRESETS, ParameterError, RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.reference import ReferenceRoger
-from roger_daemon.learner.registry import MODELS, build_model, load_model
+from roger_daemon.learner.registry import MODELS, load_model
 from roger_daemon.learner.resampling import fearnhead_resample
 from roger_daemon.learner.roger import Roger
 from roger_daemon.learner.sogp import SparseOnlineGP
@@ -39,7 +39,6 @@ __all__ = [
     "RogerParams",
     "SparseOnlineGP",
     "UnimapGP",
-    "build_model",
     "fearnhead_resample",
     "load_model",
 ]

@@ -41,7 +41,7 @@ __all__ = ["CLASSES", "SCHEMA_ENCODING", "SCHEMA_PREFIX", "schema", "schema_byte
 SCHEMA_ENCODING = "jsonschema"
 SCHEMA_PREFIX = "roger."
 _DRAFT = "https://json-schema.org/draft/2020-12/schema"
-_SCALARS = {int: "integer", float: "number", str: "string"}
+_SCALARS = {int: "integer", float: "number", str: "string", bool: "boolean"}
 
 assert set(TYPES) == set(KINDS)
 #: every kind with a schema: the wire's, then the decision records (``daemon.<event>``)

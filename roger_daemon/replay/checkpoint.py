@@ -24,8 +24,8 @@ def load_checkpoint(path: str | Path
     ``.npz`` of a ``state_dict()`` (no queue, no meta: ``None``). Never unpickles.  Raises
     :class:`ReplayError` naming the file when the checkpoint's daemon arrays do not fit
     together."""
+    from roger_daemon.config.models import load_model
     from roger_daemon.daemon.checkpoint import CheckpointError, read_checkpoint
-    from roger_daemon.learner import load_model
 
     try:
         ck = read_checkpoint(Path(path))

@@ -14,6 +14,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.replay.compare import REL_TOL
 
 __all__ = ["configure", "run"]
@@ -29,8 +30,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="model seed (default: the recorded one)")
     parser.add_argument("--robot", help="robot to replay (default: the recorded one)")
     parser.add_argument("--model", metavar="KIND",
-                        help="the learner: a kind of roger_daemon.learner.MODELS (roger, "
-                             "unimap, ...; default: the recorded one)")
+                        help="the model kind (the daemon's [[robots]] model; default: the "
+                             "recorded one); roger+fsm: also learn the transitions (a session "
+                             "of plain ROGER gives the same experts and a checkpoint for roger "
+                             "play, docs/autonomy.md)")
     parser.add_argument("--checkpoint", type=Path, metavar="FILE.npz",
                         help="the checkpoint the session resumed from (daemon checkpoint with "
                              "its queued pairs, or a plain state_dict .npz); or a daemon "
@@ -103,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
 
     files = _session_files(list(args.files))
     if args.model is not None:
-        from roger_daemon.learner.registry import MODELS
+        from roger_daemon.config.models import MODELS
 
         if args.model not in MODELS:
             print(f"roger replay: --model must be one of {', '.join(MODELS)}, got "
@@ -218,7 +221,7 @@ def _merged(res: Any) -> Any:
     from roger_daemon.replay.session import ReplayError
 
     model = res.model
-    if model is None or res.model_kind != "roger":
+    if model is None or res.model_kind not in ("roger", FSM_MODEL):
         raise ReplayError("--merge-groups needs a ROGER model (model kind 'roger')")
     if int(model.n_learned) != len(res.pairs):
         raise ReplayError(

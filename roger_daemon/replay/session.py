@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from protocols.messages import Perception
+from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.daemon.checkpoint import array_digest
 from roger_daemon.daemon.checkpoint_meta import Counters
 from roger_daemon.daemon.robot import RobotRuntime
@@ -70,9 +71,9 @@ __all__ = [
 def default_model_factory(
     kind: str, d_x: int, d_y: int, params: Mapping[str, Any] | None, seed: int | None
 ) -> Model:
-    """The model of ``kind`` from the learner's registry (``roger_daemon.learner.build_model``;
-    a log that names no kind gets ROGER)."""
-    from roger_daemon.learner import build_model
+    """The model of ``kind`` from the one registry
+    (:func:`roger_daemon.config.models.build_model`; a log that names no kind gets ROGER)."""
+    from roger_daemon.config.models import build_model
 
     model: Model = build_model(kind or "roger", d_x, d_y, params or None, seed)
     return model
@@ -150,6 +151,9 @@ class _Replay:
     margins: list[DecisionMargin] = field(default_factory=list)
     unreplayable: int = 0
     digests: list[DigestCheck] = field(default_factory=list)
+    #: the session's own model kind: a session of plain ROGER replayed with its transitions
+    #: (``--model roger+fsm``) checks the experts' part of the state (roger_daemon/fsm/online.py)
+    recorded_kind: str = "roger"
 
     def segment(self, seg_no: int, seg: Segment) -> None:
         """Learn the segment's pairs through the runtime, evaluating the recorded predictions
@@ -194,7 +198,11 @@ class _Replay:
             self._check_digest(0, ModelCheck(seg.start_updates, want, ""))
 
     def _check_digest(self, seg_no: int, check: ModelCheck) -> None:
-        digest = array_digest(dict(self.rt.model.state_dict()))
+        model = self.rt.model
+        experts = getattr(model, "experts_state", None)
+        state = experts() if experts is not None and self.recorded_kind != FSM_MODEL \
+            else model.state_dict()
+        digest = array_digest(dict(state))
         self.digests.append(DigestCheck(seg_no, check.updates, check.digest == digest))
 
 
@@ -265,7 +273,7 @@ def replay_timeline(
     rt = RobotRuntime(tl.robot, dims, None,
                       lambda: factory(kind, dims.x, dims.y, use_params, use_seed),
                       queue_size=2**31 - 1, pair_window=tl.pair_window)
-    run = _Replay(rt, compare_labels, progress)
+    run = _Replay(rt, compare_labels, progress, recorded_kind=info.model)
     for i, seg in enumerate(tl.segments):
         first = _start(rt, tl, initial_model, initial_pairs, warnings) if i == 0 else None
         if i > 0:

@@ -27,6 +27,7 @@ EXAMPLES: dict[str, tuple[str, str]] = {
     "systemd": ("systemd/roger-daemon.service", "a systemd unit for roger daemon"),
     "systemd-router": ("systemd/roger-router.service", "a systemd unit for roger router"),
     "up": ("up-demonstration.toml", "a launch file for roger up (a demonstration session)"),
+    "up-play": ("up-play.toml", "a launch file for roger up: the robot plays alone (roger play)"),
     "held-out-poses": ("held-out-poses.toml",
                        "start poses the demonstrations never used (experiment --start-poses)"),
     "robot-aibo": ("robots/aibo.toml", "a robot profile: the AIBO's names and ranges "

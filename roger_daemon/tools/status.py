@@ -60,6 +60,9 @@ def describe(st: dict[str, Any]) -> str:
         f"experts {st['experts']}  queue {st['queue_depth']}  dropped {st['dropped']}  "
         f"latency p50/p99 {st['latency_ms_p50']:.1f}/{st['latency_ms_p99']:.1f} ms",
     ]
+    if info.get("pairs_teacher") or info.get("pairs_robot"):
+        lines.append(f"  pairs from the teacher {info.get('pairs_teacher', 0)}, from the robot "
+                     f"{info.get('pairs_robot', 0)}; corrections {info.get('corrections', 0)}")
     if st.get("invalid"):
         lines.append("  invalid " + ", ".join(f"{k} {v}" for k, v in st["invalid"].items()))
     if info.get("checkpoint"):

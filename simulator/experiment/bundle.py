@@ -42,6 +42,7 @@ class Bundle:
     data_labels: list[str]
     train_s: float
     timings: dict[str, float] = field(default_factory=dict)
+    data_tick: Any = None  # each demonstration pair's tick in its episode
 
 
 def _put(out: dict[str, np.ndarray], prefix: str, state: dict[str, np.ndarray]) -> None:
@@ -80,7 +81,7 @@ def prepare_stream(plan: Any, params: Any) -> dict[str, float]:
     out: dict[str, np.ndarray] = {
         "stream/x": stream.x, "stream/y": stream.y, "stream/location": stream.location,
         "stream/tick": stream.tick, "stream/labels": np.array(stream.labels, dtype=np.str_),
-        "data/labels": np.array(data.labels, dtype=np.str_),
+        "data/labels": np.array(data.labels, dtype=np.str_), "data/tick": data.tick,
     }
     for k, (_, model) in enumerate(models):
         _put(out, f"roger{k}", model.state_dict())
@@ -126,5 +127,6 @@ def load_bundle(directory: Path) -> Bundle:
         fsms = [LearnedFSM.from_state_dict(_take(arrays, f"fsm{k}"))
                 for k in range(int(meta["fsms"]))]
         data_labels = [str(s) for s in arrays["data/labels"]]
+        data_tick = np.asarray(arrays["data/tick"]) if "data/tick" in arrays.files else None
     return Bundle(stream, models, unimap, oracle, merged, fsms, list(meta["demos"]),
-                  data_labels, float(meta["train_s"]), dict(meta["timings"]))
+                  data_labels, float(meta["train_s"]), dict(meta["timings"]), data_tick)

@@ -2,6 +2,8 @@
 
 * ``roger experiment goal-scoring --out DIR [--quick] [--seed S] [--jobs N]``: the paper's
   section IV end to end (:mod:`simulator.experiment.goal_scoring`);
+* ``roger experiment peers --out DIR [--seed S] [--policies act,diffusion]``: LeRobot's ACT and
+  Diffusion Policy on the same demonstrations (:mod:`simulator.experiment.peers`);
 * ``roger experiment dpa``: the unimap baseline's controller node, executing each prediction's
   mean (:mod:`simulator.experiment.dpa_node`); the experiment starts it, one per job.
 """
@@ -17,6 +19,9 @@ __all__ = ["EXPERIMENTS", "configure", "run"]
 EXPERIMENTS: dict[str, tuple[str, str]] = {
     "goal-scoring": ("simulator.experiment.goal_scoring",
                      "the paper's section IV: demonstrate, learn, evaluate, report"),
+    "peers": ("simulator.experiment.peers",
+              "LeRobot's ACT and Diffusion Policy on goal-scoring's demonstrations (the "
+              "peers extra; docs/peers.md)"),
     "table": ("simulator.experiment.table",
               "a goal-scoring results.json as a Markdown table (the README's)"),
     "dpa": ("simulator.experiment.dpa_node",

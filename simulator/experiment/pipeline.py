@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from roger_daemon.labels import majority_labels
 from simulator.controllers.hcc import HCC
@@ -32,6 +33,7 @@ __all__ = [
     "controllers_for",
     "fit_transitions",
     "downsample",
+    "downsample_indices",
     "evaluate_in_process",
     "MergedGroups",
     "merge_all",
@@ -67,8 +69,13 @@ def make_hcc(plan: Any) -> HCC:
 
 def downsample(data: Demonstrations, plan: Any) -> Demonstrations:
     """At most ``plan.per_subtask`` random points per subtask, order kept (paper section IV)."""
+    return data.subset(downsample_indices(data, plan))
+
+
+def downsample_indices(data: Demonstrations, plan: Any) -> npt.NDArray[np.int64]:
+    """The indices :func:`downsample` keeps (seeded with ``plan.seeds["downsample"]``)."""
     rng = np.random.default_rng(plan.seeds["downsample"])
-    return data.subset(downsample_per_label(data.labels, plan.per_subtask, rng))
+    return downsample_per_label(data.labels, plan.per_subtask, rng)
 
 
 def learner_seeds(plan: Any) -> list[int]:
@@ -263,7 +270,7 @@ def run_in_process(plan: Any, params: Any, console: Any,
     timings["evaluation"] = round(time.monotonic() - t0, 2)
     results = build_results(plan=plan, params=params, demos=demos, data=data, stream=stream,
                             models=models, episodes=episodes, check=None, train_s=train_s,
-                            errors=[])
+                            errors=[], fsms=fsms)
     results["figures"] = write_figures(plan.out, stream, np.asarray(models[0][1].assignments()),
                                        results)
     results["timings_s"] = {**timings, "total": round(time.monotonic() - t_all, 2)}

@@ -118,14 +118,25 @@ def _seed_blocks(episodes: dict[str, list[dict[str, Any]]], models: Sequence[tup
 
 
 def autonomous_seed_blocks(episodes: dict[str, list[dict[str, Any]]],
-                           models: Sequence[tuple[int, Any]], hcc_rate: float | None
+                           models: Sequence[tuple[int, Any]], hcc_rate: float | None,
+                           fsms: Sequence[Any] = (), stream: Any = None, data: Any = None
                            ) -> list[dict[str, Any]]:
-    """One row per learner seed of the learned-transitions controller (``autonomous:K``)."""
+    """One row per learner seed of the learned-transitions controller (``autonomous:K``);
+    with the FSMs, each row's ``graph`` agreement with the HCC's (labels only for that score:
+    :mod:`simulator.experiment.fsm_graph`)."""
+    from simulator.experiment.fsm_graph import graph_agreement
+
     rows = []
-    for k, (seed, _) in enumerate(models):
+    for k, (seed, model) in enumerate(models):
         block = controller_block(episodes.get(f"autonomous:{k}", []))
-        rows.append({"learner_seed": seed, **block,
-                     "ratio_to_hcc": _ratio(block["success_rate"], hcc_rate)})
+        row = {"learner_seed": seed, **block,
+               "ratio_to_hcc": _ratio(block["success_rate"], hcc_rate)}
+        if k < len(fsms) and stream is not None and data is not None:
+            experts = majority_labels(np.asarray(model.assignments()).tolist(), stream.labels)
+            tick = getattr(data, "tick", None)
+            starts = None if tick is None else (np.asarray(tick) == 0).tolist()
+            row["graph"] = graph_agreement(fsms[k], experts, list(data.labels), starts)
+        rows.append(row)
     return rows
 
 
@@ -133,7 +144,7 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
                   stream: Any, models: Sequence[tuple[int, Any]],
                   episodes: dict[str, list[dict[str, Any]]], check: dict[str, Any] | None,
                   train_s: float, errors: Sequence[str],
-                  mcap: Sequence[str] = ()) -> dict[str, Any]:
+                  mcap: Sequence[str] = (), fsms: Sequence[Any] = ()) -> dict[str, Any]:
     """Everything the run measured, as a JSON-ready dict.
 
     ``episodes`` maps a controller key (``hcc``, ``dpa``, ``oracle``, ``roger:K`` for the
@@ -178,7 +189,13 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
     if "autonomous" in out:
         out["autonomous"]["name"] = ("ROGER experts chosen by learned transitions: no HCC, no "
                                      "label at run time (docs/autonomy.md)")
-        out["autonomous_seeds"] = autonomous_seed_blocks(episodes, models, hcc_rate)
+        out["autonomous_seeds"] = autonomous_seed_blocks(episodes, models, hcc_rate, fsms,
+                                                         stream, data)
+        if fsms:
+            from simulator.experiment.fsm_graph import mean_agreement
+
+            out["autonomous_graph_agreement"] = mean_agreement(
+                [r["graph"] for r in out["autonomous_seeds"] if "graph" in r])
     for c in ("roger", "oracle", "groups", "autonomous"):
         out[f"ratio_{c}_to_hcc"] = _ratio(out.get(c, {}).get("success_rate"), hcc_rate)
     dpa_rate = out.get("dpa", {}).get("success_rate")

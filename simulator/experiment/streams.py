@@ -152,8 +152,9 @@ def _json_default(o: Any) -> Any:
 class _Data:
     """What build_results reads of the whole demonstration stream."""
 
-    def __init__(self, labels: list[str]) -> None:
+    def __init__(self, labels: list[str], tick: Any = None) -> None:
         self.labels = labels
+        self.tick = tick  # each pair's tick in its episode (None: an older bundle)
         self.unpaired = 0
 
     def __len__(self) -> int:
@@ -167,9 +168,10 @@ def _stream_results(plan: Any, params: Any, episodes: dict[str, list[dict[str, A
     from simulator.experiment.start_poses import held_out_block
 
     b = _bundle(str(plan.out))
-    res = build_results(plan=plan, params=params, demos=b.demos, data=_Data(b.data_labels),
-                        stream=b.stream, models=b.models, episodes=episodes, check=None,
-                        train_s=b.train_s, errors=[])
+    res = build_results(plan=plan, params=params, demos=b.demos,
+                        data=_Data(b.data_labels, b.data_tick), stream=b.stream,
+                        models=b.models, episodes=episodes, check=None, train_s=b.train_s,
+                        errors=[], fsms=b.fsms)
     if held is not None:
         res["held_out"] = held_out_block(plan, starts, held)
     res["timings_s"] = dict(prep)
@@ -221,6 +223,9 @@ def summarise(per_stream: dict[int, dict[str, Any]]) -> dict[str, Any]:
             row[f"{c}_held_out_ratios"] = _ratios(res, c, "held_out")
         row["ari"] = [r["ari"] for r in res.get("roger_seeds", [])]
         row["experts"] = [r["experts"] for r in res.get("roger_seeds", [])]
+        row["autonomous_graph_agreement"] = [r["graph"]["graph_agreement"]
+                                             for r in res.get("autonomous_seeds") or []
+                                             if "graph" in r]
         table[str(s)] = row
     summary: dict[str, Any] = {}
     for c in SEEDED:
@@ -235,6 +240,8 @@ def summarise(per_stream: dict[int, dict[str, Any]]) -> dict[str, Any]:
                            "streams": table, "summary": summary}
     for c in SEEDED:
         out[f"ratio_{c}_to_hcc"] = summary[c]["all"]["mean_ratio"]
+    graph = [g for row in table.values() for g in row["autonomous_graph_agreement"]]
+    out["autonomous_graph_agreement"] = float(np.mean(graph)) if graph else None
     return out
 
 
