@@ -42,6 +42,7 @@ import numpy.typing as npt
 
 from protocols import Action, Control, Perception, Prediction, Status, decode, encode, keys
 from protocols.messages import Dims
+from roger_daemon.zenoh_session import DAEMON_ENDPOINT
 
 __all__ = ["Received", "RobotClient"]
 
@@ -79,7 +80,7 @@ class RobotClient:
         A Zenoh JSON5 file (authentication, TLS; ``configs/zenoh/secure/robot.json5``).
     """
 
-    def __init__(self, connect: str | Sequence[str] = "tcp/127.0.0.1:7447", *,
+    def __init__(self, connect: str | Sequence[str] = DAEMON_ENDPOINT, *,
                  robot: str = "aibo", dims: Dims | tuple[int, int] = (23, 9),
                  rate_hz: float = 30.0, mode: str = "peer", daemon_id: str | None = None,
                  zenoh_config: str | None = None) -> None:

@@ -34,6 +34,8 @@ if TYPE_CHECKING:
     import zenoh
 
 __all__ = [
+    "DAEMON_ENDPOINT",
+    "DAEMON_PORT",
     "ONE_THREAD_RUNTIME",
     "ZenohOverrideError",
     "ZenohSettings",
@@ -60,13 +62,20 @@ ONE_THREAD_RUNTIME = ("(rx: (handover: app), acc: (handover: app), tx: (handover
                       "net: (handover: app))")
 
 
+#: The daemon's conventional port on this machine, and its default endpoint: where ``roger
+#: daemon`` listens unless ``[zenoh] listen`` says otherwise, and where every client, tool and
+#: simulator node connects by default (``configs/roger.toml``).
+DAEMON_PORT = 7447
+DAEMON_ENDPOINT = f"tcp/127.0.0.1:{DAEMON_PORT}"
+
+
 @dataclass(frozen=True)
 class ZenohSettings:
     """How a process joins Zenoh. ``None`` means "leave to the JSON5 file or Zenoh's default"."""
 
     config_file: Path | None = None
     mode: str | None = "peer"
-    listen: tuple[str, ...] | None = ("tcp/127.0.0.1:7447",)
+    listen: tuple[str, ...] | None = (DAEMON_ENDPOINT,)
     connect: tuple[str, ...] | None = ()
     multicast_scouting: bool | None = False
     lease_ms: int | None = None

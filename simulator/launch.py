@@ -50,6 +50,7 @@ from typing import Any
 
 from roger_daemon.console import UsageError
 from roger_daemon.tools.common import port
+from roger_daemon.zenoh_session import DAEMON_PORT
 from simulator.supervise import Supervisor
 
 __all__ = ["Plan", "configure", "plan", "run"]
@@ -70,7 +71,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="launch file (TOML), e.g. configs/up-demonstration.toml")
     parser.add_argument("--dry-run", action="store_true",
                         help="print the command lines and the queue sizing, start nothing")
-    for name, default in (("daemon", 7447), ("sim", 7450), ("view", 8765)):
+    for name, default in (("daemon", DAEMON_PORT), ("sim", 7450), ("view", 8765)):
         parser.add_argument(f"--{name}-port", type=port, default=None, metavar="PORT",
                             help=f"override the file's ports.{name} (its default {default}; "
                                  "0: a free one), e.g. to run two sessions side by side")
@@ -164,7 +165,7 @@ def plan(data: dict[str, Any], base: Path) -> Plan:
     p.exit_when_done = _get(session, "session", "exit_when_done", bool, True)
     p.stop_timeout_s = float(_get(session, "session", "stop_timeout_s", (int, float), 30.0))
     p.learn_timeout_s = float(_get(session, "session", "learn_timeout_s", (int, float), 600.0))
-    pd, ps = _port(ports, "daemon", 7447), _port(ports, "sim", 7450)
+    pd, ps = _port(ports, "daemon", DAEMON_PORT), _port(ports, "sim", 7450)
     p.daemon_ep, sim_ep = f"tcp/127.0.0.1:{pd}", f"tcp/127.0.0.1:{ps}"
     p.max_pairs = math.ceil(_count_locations(locations) * episodes * time_limit * TICK_HZ)
     p.queue_size = _queue_size(dmn, p, clock, role)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
+from roger_daemon.zenoh_session import DAEMON_ENDPOINT as ZENOH_DAEMON_ENDPOINT
 from simulator.config import CameraConfig, SimConfig, load_config
 from simulator.episodes import parse_locations
 from simulator.transport import add_zenoh_args
@@ -12,9 +13,9 @@ from simulator.transport import add_zenoh_args
 __all__ = ["DAEMON_ENDPOINT", "DEFAULT_LISTEN", "configure", "episode_plan", "sim_config"]
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7450"
-#: The daemon's default listen endpoint (``configs/roger.toml``); unreachable is fine (peers
-#: keep retrying in the background).
-DAEMON_ENDPOINT = "tcp/127.0.0.1:7447"
+#: The daemon's default listen endpoint (:data:`roger_daemon.zenoh_session.DAEMON_ENDPOINT`);
+#: unreachable is fine (peers keep retrying in the background).
+DAEMON_ENDPOINT = ZENOH_DAEMON_ENDPOINT
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -26,9 +26,10 @@ from protocols import Action, Control, Perception, Prediction, decode, encode, k
 from protocols.messages import Dims
 from roger_daemon.config import parse_config
 from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint, write_checkpoint
+from roger_daemon.daemon.checkpoint_meta import CheckpointMeta, Counters
 from roger_daemon.daemon.learners import ProcessLearners
 from roger_daemon.daemon.main import open_recorders
-from roger_daemon.daemon.resume import Resumed, load_robot, model_meta, start_robots
+from roger_daemon.daemon.resume import Resumed, load_robot, start_robots
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.daemon.service import Service
@@ -175,8 +176,7 @@ def record_session(
     else:
         rt, ckpt = load_robot(cfg, robot_cfg, fresh=False)
         resumed = Resumed() if ckpt is None else Resumed(
-            str(ckpt.path), str(ckpt.meta.get("session_id", "") or ""),
-            int(ckpt.meta.get("session_segment", 0) or 0))
+            str(ckpt.path), ckpt.meta.session_id, ckpt.meta.session_segment)
     start_state = rt.model.state_dict()
     options = {"start_ns": START_NS + tick0 * TICK_NS, **(recorder_options or {})}
     recorders = open_recorders(cfg, {robot: rt}, {robot: resumed}, dict(options))
@@ -185,7 +185,7 @@ def record_session(
     learners = ProcessLearners({robot: rt}, {robot: robot_cfg}) if workers else None
     service = Service(cfg, transport, {robot: rt}, clock=clock, sync_checkpoints=True,
                       recorders=recorders, resumed={robot: resumed.checkpoint},
-                      checkpoint_meta=lambda _: model_meta(robot_cfg), learners=learners)
+                      learners=learners)
     out = DaemonSession(paths=[], dims=dims, service=service, rt=rt, transport=transport,
                         recorder=recorders[robot], checkpoint_dir=ckdir,
                         start_state=start_state)
@@ -214,7 +214,7 @@ def record_session(
             send("control", Control(robot, t, t / 30, op="checkpoint"))
             _settle(service, rt)
             ck = read_checkpoint(list_checkpoints(ckdir, robot)[0])  # the newest: this one
-            out.checkpoints[int(ck.meta["updates"])] = ck.model
+            out.checkpoints[int(ck.meta.updates)] = ck.model
     out.predictions = [_prediction(data, dims, robot) for _, data in transport.take("prediction")]
     if close:
         service.shutdown()
@@ -269,8 +269,9 @@ def daemon_checkpoint(directory: Path, robot: str, state: Mapping[str, Any], *, 
     robot_state.queue = [Pair(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64),
                               code[label], int(tick)) for tick, x, y, label in queue]
     daemon = robot_state.to_arrays(dims)
-    meta = {"updates": len(labels), "x_dim": dims.x, "y_dim": dims.y, "reason": "test",
-            "session_id": session_id, "session_segment": segment,
-            "counters": {"last_learned_tick": last_tick, "last_tick": last_tick or 0}}
+    meta = CheckpointMeta(reason="test", updates=len(labels), x_dim=dims.x, y_dim=dims.y,
+                          session_id=session_id, session_segment=segment,
+                          counters=Counters(last_tick=last_tick or 0,
+                                            last_learned_tick=last_tick))
     path, _ = write_checkpoint(directory, robot, dict(state), daemon, meta)
     return path

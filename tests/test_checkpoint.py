@@ -14,6 +14,7 @@ from roger_daemon.daemon import checkpoint as ck
 from roger_daemon.daemon.checkpoint import (
     CHECKPOINT_VERSION,
     CheckpointError,
+    CheckpointMeta,
     list_checkpoints,
     load_newest,
     read_checkpoint,
@@ -34,13 +35,17 @@ def model_state(n: int = 15) -> dict[str, np.ndarray]:
 DAEMON = {"label_vocab": np.array(["seek", "aim"]), "label_codes": np.array([0, 1, 1])}
 
 
+def meta(updates: int) -> CheckpointMeta:
+    return CheckpointMeta(reason="test", updates=updates, x_dim=23, y_dim=9)
+
+
 def test_round_trip_and_model_continues_identically(tmp_path: Path) -> None:
     state = model_state()
-    path, meta = write_checkpoint(tmp_path, "aibo", state, DAEMON, {"updates": 15})
+    path, written = write_checkpoint(tmp_path, "aibo", state, DAEMON, meta(15))
     assert path == tmp_path / "aibo" / "ckpt-00000001.npz"
     back = read_checkpoint(path)
-    assert back.meta["version"] == CHECKPOINT_VERSION and back.meta["updates"] == 15
-    assert back.meta["model_digest"] == meta["model_digest"] == ck.array_digest(state)
+    assert back.meta.version == CHECKPOINT_VERSION and back.meta.updates == 15
+    assert back.meta.model_digest == written.model_digest == ck.array_digest(state)
     for k in state:
         np.testing.assert_array_equal(back.model[k], state[k])
     assert back.daemon["label_vocab"].tolist() == ["seek", "aim"]
@@ -55,14 +60,15 @@ def test_round_trip_and_model_continues_identically(tmp_path: Path) -> None:
 
 def test_object_arrays_are_refused(tmp_path: Path) -> None:
     with pytest.raises(CheckpointError, match="object dtype"):
-        write_checkpoint(tmp_path, "aibo", {"bad": np.array([{"a": 1}], dtype=object)}, {}, {})
+        write_checkpoint(tmp_path, "aibo", {"bad": np.array([{"a": 1}], dtype=object)}, {},
+                         meta(0))
     assert list_checkpoints(tmp_path, "aibo") == []
 
 
 def test_sequence_numbers_and_pruning(tmp_path: Path) -> None:
     state = {"w": np.arange(3.0)}
     for i in range(7):
-        write_checkpoint(tmp_path, "aibo", state, {}, {"updates": i}, keep=3)
+        write_checkpoint(tmp_path, "aibo", state, {}, meta(i), keep=3)
     files = list_checkpoints(tmp_path, "aibo")
     assert [f.name for f in files] == ["ckpt-00000007.npz", "ckpt-00000006.npz",
                                        "ckpt-00000005.npz"]
@@ -70,7 +76,7 @@ def test_sequence_numbers_and_pruning(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage", "flip", "empty"])
 def test_damaged_files_are_detected(tmp_path: Path, damage: str) -> None:
-    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(1000.0)}, {}, {"updates": 1})
+    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(1000.0)}, {}, meta(1))
     data = bytearray(path.read_bytes())
     if damage == "truncate":
         path.write_bytes(bytes(data[: len(data) // 2]))
@@ -86,7 +92,7 @@ def test_damaged_files_are_detected(tmp_path: Path, damage: str) -> None:
 
 
 def test_tampered_array_with_valid_zip_fails_the_digest(tmp_path: Path) -> None:
-    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(4.0)}, {}, {"updates": 1})
+    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(4.0)}, {}, meta(1))
     with np.load(path, allow_pickle=False) as npz:
         arrays = {k: npz[k] for k in npz.files}
     arrays["model.w"] = arrays["model.w"] + 1
@@ -108,7 +114,7 @@ def test_newer_version_is_refused_and_old_versions_migrate(
         with open(path, "wb") as f:
             np.savez(f, **arrays)
 
-    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(2.0)}, {}, {"updates": 1})
+    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(2.0)}, {}, meta(1))
     rewrite_meta(path, version=CHECKPOINT_VERSION + 1)
     with pytest.raises(CheckpointError, match="newer than this daemon"):
         read_checkpoint(path)
@@ -116,20 +122,20 @@ def test_newer_version_is_refused_and_old_versions_migrate(
     with pytest.raises(CheckpointError, match="no migration"):
         read_checkpoint(path)
 
-    def upgrade(c: ck.Checkpoint) -> ck.Checkpoint:
-        return ck.Checkpoint(c.path, c.model, c.daemon, {**c.meta, "version": 1, "migrated": True})
+    def upgrade(c: ck.Stored) -> ck.Stored:
+        return ck.Stored({**c.meta, "version": 1, "migrated": True}, c.model, c.daemon)
 
     monkeypatch.setitem(ck.MIGRATIONS, 0, upgrade)
     caplog.set_level(logging.WARNING)
-    assert read_checkpoint(path).meta["migrated"] is True
+    assert read_checkpoint(path).meta.extra["migrated"] is True
     assert "migrating from version 0 to 1" in caplog.text
 
 
 def test_load_newest_skips_bad_files_with_a_clear_line(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    good, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(2.0)}, {}, {"updates": 1})
-    wrong, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(3.0)}, {}, {"updates": 2})
+    good, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(2.0)}, {}, meta(1))
+    wrong, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(3.0)}, {}, meta(2))
     bad = tmp_path / "aibo" / "ckpt-00000009.npz"
     bad.write_bytes(b"\x00" * 100)
     (tmp_path / "aibo" / "notes.txt").write_text("ignored")
@@ -147,7 +153,7 @@ def test_load_newest_skips_bad_files_with_a_clear_line(
 
 
 def test_a_robot_cannot_resume_another_robots_checkpoint(tmp_path: Path) -> None:
-    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(2.0)}, {}, {"updates": 1})
+    path, _ = write_checkpoint(tmp_path, "aibo", {"w": np.arange(2.0)}, {}, meta(1))
     other = tmp_path / "arm" / path.name
     other.parent.mkdir()
     other.write_bytes(path.read_bytes())
@@ -155,7 +161,7 @@ def test_a_robot_cannot_resume_another_robots_checkpoint(tmp_path: Path) -> None
 
 
 def test_checkpoint_is_a_plain_zip_of_npy_files(tmp_path: Path) -> None:
-    path, _ = write_checkpoint(tmp_path, "aibo", model_state(3), DAEMON, {"updates": 3})
+    path, _ = write_checkpoint(tmp_path, "aibo", model_state(3), DAEMON, meta(3))
     with zipfile.ZipFile(path) as z:
         names = z.namelist()
     assert "meta.npy" in names and "daemon.label_codes.npy" in names

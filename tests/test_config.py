@@ -203,3 +203,45 @@ def test_zenoh_file_leaves_unset_keys_to_the_file() -> None:
     cfg = parse_config({"zenoh": {"config_file": str(ROOT / "configs/zenoh/client.json5"),
                                   "connect": ["tcp/10.0.0.2:7447"]}})
     assert cfg.zenoh.connect == ("tcp/10.0.0.2:7447",)
+
+
+def test_every_default_the_parser_gives_is_the_dataclasses_own() -> None:
+    from dataclasses import fields
+
+    from roger_daemon.config import CheckpointConfig, DaemonConfig, RecordingConfig
+
+    cfg = parse_config({})
+    for section, cls in ((cfg, DaemonConfig), (cfg.checkpoint, CheckpointConfig),
+                         (cfg.recording, RecordingConfig)):
+        for f in fields(cls):
+            if f.name in ("robots", "learner", "zenoh", "checkpoint", "recording", "dir"):
+                continue
+            assert getattr(section, f.name) == getattr(cls(), f.name), f.name
+    assert cfg.checkpoint.dir == CheckpointConfig.dir.absolute()
+
+
+def test_a_recorded_configs_daemon_table_is_read_by_the_parser_alone() -> None:
+    from roger_daemon.config import daemon_settings
+
+    # the other sections are not read: a recorded config may name files this machine lacks
+    text = ('[daemon]\npair_window = 100\n[zenoh]\nconfig_file = "/nowhere.json5"\n'
+            '[[robots]]\nid = "arm"\nprofile = "/nowhere.toml"\n')
+    assert daemon_settings(text)["pair_window"] == 100
+    assert daemon_settings("")["pair_window"] == parse_config({}).pair_window
+    with pytest.raises(ConfigError, match="daemon.pair_window must be an integer >= 1"):
+        daemon_settings("[daemon]\npair_window = 0\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        daemon_settings("[daemon\n")
+
+
+def test_a_robot_the_config_does_not_list_is_resolved_as_if_listed() -> None:
+    from protocols.messages import Dims
+    from roger_daemon.config import robot_config
+
+    cfg = parse_config({"daemon": {"seed": 4}, "learner": {"theta_n": 0.3},
+                        "robots": [{"id": "arm", "x_dim": 2, "y_dim": 1, "model": "unimap"}]})
+    assert robot_config(cfg, "arm", Dims(5, 5)) is cfg.robots[0]
+    other = robot_config(cfg, "aibo", Dims(23, 9))
+    listed = parse_config({"daemon": {"seed": 4}, "learner": {"theta_n": 0.3},
+                           "robots": [{"id": "aibo", "x_dim": 23, "y_dim": 9}]}).robots[0]
+    assert other == listed and other.params.theta_n == 0.3 and other.seed == 4

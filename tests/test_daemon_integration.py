@@ -182,7 +182,7 @@ def test_sigterm_checkpoints_and_restart_resumes_identical_model(
     files = list_checkpoints(tmp_path / "checkpoints", "aibo")
     assert len(files) == 1
     saved = read_checkpoint(files[0])
-    assert saved.meta["updates"] == 25 and saved.meta["reason"] == "shutdown"
+    assert saved.meta.updates == 25 and saved.meta.reason == "shutdown"
     assert "checkpoint" in d.log() and "written" in d.log()
 
     # a corrupt newer checkpoint is reported and skipped
@@ -199,7 +199,7 @@ def test_sigterm_checkpoints_and_restart_resumes_identical_model(
         st = client.wait_status(lambda s: s.info["checkpoints_written"] == 1)
         assert st.info["resumed_from"] == str(files[0])
         assert st.updates == 25 and st.ticks == 25
-        assert st.info["checkpoint_digest"] == saved.meta["model_digest"]
+        assert st.info["checkpoint_digest"] == saved.meta.model_digest
         # it continues: the next perception is answered by the resumed model
         client.perception(25, STREAM.x[25])
         assert client.wait_prediction(25).updates == 25

@@ -314,7 +314,7 @@ def test_modes_and_reset_and_checkpoint_controls(tmp_path: Path) -> None:
     control("checkpoint")
     files = list_checkpoints(tmp_path / "ckpt", "aibo")
     assert len(files) == 1
-    assert read_checkpoint(files[0]).meta["updates"] == 5
+    assert read_checkpoint(files[0]).meta.updates == 5
     control("reset")
     assert h.rt.updates == 0 and h.rt.vocab == []
     assert h.status().mode == "pause"
@@ -415,7 +415,7 @@ def test_shutdown_checkpoint_and_resume_identical(tmp_path: Path) -> None:
     saved = read_checkpoint(files[0])
     rt, resumed = build_robot(cfg, cfg.robots[0], fresh=False)
     assert resumed == str(files[0])
-    assert rt.updates == saved.meta["updates"]
+    assert rt.updates == saved.meta.updates
     back = rt.model.state_dict()
     assert set(back) == set(saved.model)
     for k in back:
@@ -432,15 +432,15 @@ def test_periodic_checkpoints_by_updates_and_by_time(tmp_path: Path) -> None:
         h.pair(t)
         h.settle()
     files = list_checkpoints(tmp_path / "ckpt", "aibo")
-    assert [read_checkpoint(f).meta["updates"] for f in reversed(files)] == [4, 8]
+    assert [read_checkpoint(f).meta.updates for f in reversed(files)] == [4, 8]
     h.clock.advance(5.0)
     h.service.step(0)
     assert len(list_checkpoints(tmp_path / "ckpt", "aibo")) == 2  # 1 change, 5 s: not yet
     h.clock.advance(5.0)
     h.service.step(0)
     files = list_checkpoints(tmp_path / "ckpt", "aibo")
-    assert read_checkpoint(files[0]).meta["updates"] == 9
-    assert read_checkpoint(files[0]).meta["reason"] == "periodic"
+    assert read_checkpoint(files[0]).meta.updates == 9
+    assert read_checkpoint(files[0]).meta.reason == "periodic"
     h.clock.advance(20.0)
     h.service.step(0)
     assert len(list_checkpoints(tmp_path / "ckpt", "aibo")) == 3  # nothing changed: none

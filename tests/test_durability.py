@@ -137,11 +137,11 @@ def _check(workdir: Path, n: int, answers: list[tuple[int, int]], kills: int) ->
     # 2. the final model is the uninterrupted run over those pairs, bit for bit
     x, y, _ = synthetic_stream("sqrt", n)
     ck = read_checkpoint(list_checkpoints(workdir / "checkpoints", "sim")[0])
-    assert ck.meta["updates"] == n
+    assert ck.meta.updates == n
     ref = make_model(load_config(next(workdir.glob("daemon-*.toml"))).robots[0])
     for i in range(n):
         ref.learn_one(x[i], y[i])
-    assert array_digest(ref.state_dict()) == ck.meta["model_digest"]
+    assert array_digest(ref.state_dict()) == ck.meta.model_digest
     # 3. the daemon really was killed and recovered from the write-ahead log
     logs = "".join(p.read_text() for p in workdir.glob("daemon-*.log"))
     assert len(list(workdir.glob("daemon-*.log"))) == kills + 1

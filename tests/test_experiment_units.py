@@ -108,7 +108,7 @@ def test_the_daemon_resumes_the_written_checkpoints_with_their_labels(tmp_path: 
     for sub, m, kind in (("roger", model, "roger"), ("dpa", base, "unimap")):
         path, meta = write_model_checkpoint(tmp_path / sub, m, labels, model_kind=kind, seed=1,
                                             params=params)
-        assert path.is_file() and meta["updates"] == len(labels)
+        assert path.is_file() and meta.updates == len(labels)
         cfg = load_config(None, [
             f'checkpoint.dir="{tmp_path / sub}"', "daemon.mode=predict",
             "learner.beta=20", "learner.particles=3",

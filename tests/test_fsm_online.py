@@ -10,8 +10,10 @@ import pytest
 from daemon_sessions import record_session
 
 from roger_daemon.config import ConfigError, parse_config
+from roger_daemon.config.models import build_model as make_daemon_model
+from roger_daemon.config.models import load_model as load_daemon_model
 from roger_daemon.daemon.checkpoint import array_digest
-from roger_daemon.fsm.online import RogerFSM, has_fsm, load_daemon_model, make_daemon_model
+from roger_daemon.fsm.online import RogerFSM, has_fsm
 from roger_daemon.learner import Roger, RogerParams
 from roger_daemon.learner.synthetic import subtask_stream
 from roger_daemon.replay import replay_session

@@ -29,7 +29,7 @@ def test_garbage_on_every_kind_it_decodes_is_counted_alike_in_status_and_checkpo
     h.send("control", encode(Control("aibo", 0, 0.0, op="checkpoint")))
     h.settle()
     ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "aibo")[0])
-    assert ck.meta["counters"]["invalid"] == st.invalid
+    assert ck.meta.counters.invalid == st.invalid
     # after a restart from that checkpoint the counts go on from there, not doubled
     h2 = Harness(make_config(tmp_path), fresh=False)
     assert h2.status().invalid == st.invalid

@@ -20,7 +20,7 @@ from daemon_sessions import as_version_1, daemon_checkpoint, record_session, syn
 from protocols import Action, Control, Perception, encode, keys
 from roger_daemon.config import DaemonConfig, parse_config
 from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
-from roger_daemon.daemon.main import make_model, model_meta, open_recorders, start_robots
+from roger_daemon.daemon.main import make_model, open_recorders, start_robots
 from roger_daemon.daemon.service import Service
 from roger_daemon.labels import majority_labels
 from roger_daemon.recording import (
@@ -73,11 +73,9 @@ class Life:
         self.recorders = open_recorders(cfg, robots, where)
         self.clock = FakeClock()
         self.transport = MemoryTransport(now_ns=self.clock.monotonic_ns)
-        robot = cfg.robots[0]
         self.service = Service(
             cfg, self.transport, robots, clock=self.clock, sync_checkpoints=True,
             recorders=self.recorders, resumed={"sim": self.where.checkpoint},
-            checkpoint_meta=lambda rt: model_meta(robot),
         )
         self.service.start()
 
@@ -137,7 +135,7 @@ def test_crash_after_a_checkpoint_relearns_the_log_tail(
     logs2 = a.crash(tmp_path / "logs2")
     (first,) = list_session_files(logs2)
     assert not is_complete(first.path)
-    assert read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0]).meta["updates"] == 40
+    assert read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0]).meta.updates == 40
 
     b = Life(make_cfg(tmp_path, logs2))
     assert b.rt.updates == 50 and b.rt.recovered_pairs == 10 and b.rt.last_learned_tick == 49
@@ -148,9 +146,9 @@ def test_crash_after_a_checkpoint_relearns_the_log_tail(
     assert "recovered in place" in caplog.text
     assert "re-learned 10 pairs (ticks 40..49)" in caplog.text
     ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
-    assert ck.meta["reason"] == "recovered" and ck.meta["updates"] == 50
-    assert ck.meta["session_id"] == first.session_id and ck.meta["session_segment"] == 0
-    assert ck.meta["counters"]["last_learned_tick"] == 49
+    assert ck.meta.reason == "recovered" and ck.meta.updates == 50
+    assert ck.meta.session_id == first.session_id and ck.meta.session_segment == 0
+    assert ck.meta.counters.last_learned_tick == 49
     assert b.where.checkpoint == str(ck.path) and b.where.recovered_pairs == 10
 
     # the second life goes on, crashes again before its next checkpoint: recovered again
@@ -242,7 +240,7 @@ def test_reset_after_the_checkpoint_restarts_from_a_fresh_model(tmp_path: Path) 
     assert b.rt.updates == 12 and b.rt.recovered_pairs == 12
     assert_same(b.rt.model, reference(list(range(100, 112))))
     ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
-    assert ck.meta["reason"] == "recovered" and ck.meta["session_segment"] == 1
+    assert ck.meta.reason == "recovered" and ck.meta.session_segment == 1
 
 
 def test_fresh_ignores_checkpoint_and_logs(tmp_path: Path) -> None:
@@ -370,7 +368,7 @@ def test_recovery_by_hand_with_log_recover_and_replay_checkpoint(
     logs2 = a.crash(tmp_path / "logs2")
     (sf,) = list_session_files(logs2)
     last = list_checkpoints(tmp_path / "ckpt", "sim")[0]
-    assert read_checkpoint(last).meta["updates"] == 40
+    assert read_checkpoint(last).meta.updates == 40
     assert roger(["log", "recover", str(sf.path), "--in-place"]) == 3  # lossy: no footer
     assert is_complete(sf.path)
     capsys.readouterr()
@@ -380,7 +378,7 @@ def test_recovery_by_hand_with_log_recover_and_replay_checkpoint(
     assert "learned:      10 pairs" in out and "checkpoint:   " in out and "result:       OK" in out
     assert "result:       OK, bit-identical" in out  # the recorded checkpoint digest too
     saved = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
-    assert saved.meta["reason"] == "replay" and saved.meta["updates"] == 50
+    assert saved.meta.reason == "replay" and saved.meta.updates == 50
 
     b = Life(make_cfg(tmp_path, logs2))  # resumes from the replayed checkpoint: nothing newer
     assert b.where.checkpoint == str(saved.path) and b.rt.recovered_pairs == 0
@@ -401,7 +399,7 @@ def test_a_session_that_started_with_queued_pairs_is_continued_exactly(tmp_path:
     a.send("control", Control("sim", 0, 0.0, op="checkpoint"))
     a.service.step(0)  # 8 pairs formed, the checkpoint (12 learned + 8 queued), 1 learned
     ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
-    assert ck.meta["updates"] == 12 and ck.daemon["queue_ticks"].tolist() == list(range(12, 20))
+    assert ck.meta.updates == 12 and ck.daemon["queue_ticks"].tolist() == list(range(12, 20))
     a.flush()
     b = Life(make_cfg(tmp_path, a.crash(tmp_path / "logs2"), every=0, mode="learn"))
     assert b.rt.recovered_pairs == 0 and len(b.rt.queue) == 8  # the log ends with the queue

@@ -116,7 +116,7 @@ def test_sigkill_twice_then_recovery_equals_the_uninterrupted_session(tmp_path: 
     finally:
         ref.close()
     ref_model, ref_labels, ref_meta = _final_model(ref_dir)
-    assert ref_meta["updates"] == N and ref_model.n_experts >= 2
+    assert ref_meta.updates == N and ref_model.n_experts >= 2
 
     # -- life 1: learn 130 pairs (a checkpoint at 100), SIGKILL once they are all logged ---
     work = tmp_path / "crash"
@@ -134,8 +134,7 @@ def test_sigkill_twice_then_recovery_equals_the_uninterrupted_session(tmp_path: 
     finally:
         one.close()
     assert not is_complete(log1)
-    assert read_checkpoint(list_checkpoints(work / "checkpoints", "sim")[0]).meta[
-        "updates"] == 100
+    assert read_checkpoint(list_checkpoints(work / "checkpoints", "sim")[0]).meta.updates == 100
 
     # -- life 2: recovers 30 pairs from the log, goes on, SIGKILL at an arbitrary moment ----
     two = Life(work)
@@ -170,7 +169,7 @@ def test_sigkill_twice_then_recovery_equals_the_uninterrupted_session(tmp_path: 
         three.close()
 
     model, labels, meta = _final_model(work)
-    assert meta["updates"] == N
+    assert meta.updates == N
     diffs = behaviour_differences(behaviour(model, PROBES), behaviour(ref_model, PROBES), REL_TOL)
     assert diffs == []
     assert labels == ref_labels

@@ -477,8 +477,8 @@ def test_merge_groups_saves_the_experts_merged_per_group(
     want, groups = merge_groups(x, y, res.labels, res.model, params=res.model.params,
                                 seed=res.seed)
     ck = read_checkpoint(list_checkpoints(out, res.robot)[0])
-    assert ck.meta["model_digest"] == array_digest(want.state_dict())
+    assert ck.meta.model_digest == array_digest(want.state_dict())
     assert RobotState.from_arrays(ck.daemon).labels() == groups
-    assert ck.meta["params"] == want.params.to_mapping()  # one particle: the merged model's
+    assert ck.meta.learner.params == want.params.to_mapping()  # one particle: the merged model's
     assert want.n_experts == len(set(groups)) == 2 < res.model.n_experts == 3
     assert sorted(report["merged_groups"].values()) == sorted(set(groups))

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from roger_daemon.config import ConfigError, parse_config
-from roger_daemon.daemon.checkpoint import list_checkpoints, write_checkpoint
+from roger_daemon.daemon.checkpoint import CheckpointMeta, list_checkpoints, write_checkpoint
 from roger_daemon.daemon.retention import prune_oldest, prune_recordings
+
+META = CheckpointMeta(reason="test", updates=0, x_dim=1, y_dim=1)
 
 
 def _file(path: Path, size: int, age_s: float = 0.0) -> Path:
@@ -39,10 +41,10 @@ def test_prune_oldest_by_age(tmp_path: Path) -> None:
 def test_checkpoint_retention_by_bytes_never_deletes_the_newest(tmp_path: Path) -> None:
     model = {"w": np.zeros(10_000)}  # ~80 kB per checkpoint
     for _ in range(4):
-        write_checkpoint(tmp_path, "r", model, {}, {"updates": 0}, keep=5, max_bytes=200_000)
+        write_checkpoint(tmp_path, "r", model, {}, META, keep=5, max_bytes=200_000)
     kept = list_checkpoints(tmp_path, "r")
     assert [p.name for p in kept] == ["ckpt-00000004.npz", "ckpt-00000003.npz"]
-    write_checkpoint(tmp_path, "r", model, {}, {"updates": 0}, keep=5, max_bytes=1)
+    write_checkpoint(tmp_path, "r", model, {}, META, keep=5, max_bytes=1)
     assert [p.name for p in list_checkpoints(tmp_path, "r")] == ["ckpt-00000005.npz"]
 
 

@@ -189,7 +189,7 @@ def test_a_session_after_a_wal_recovery_replays_exactly(tmp_path: Path,
     b = Life(make_cfg(tmp_path, logs2, wal=True))
     assert b.rt.updates == 50 and b.rt.recovered_pairs == 10
     ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
-    assert ck.meta["reason"] == "recovered" and b.where.checkpoint == str(ck.path)
+    assert ck.meta.reason == "recovered" and b.where.checkpoint == str(ck.path)
     assert_same(b.rt.model, reference(list(range(50))))
     b.pairs(range(50, 65))
     b.stop()
@@ -216,7 +216,7 @@ def test_pairs_queued_in_the_checkpoint_are_not_learned_twice(tmp_path: Path) ->
     a.send("control", Control("sim", 0, 0.0, op="checkpoint"))
     a.settle()  # one drain: pairs queued, checkpoint (with the queue), then learning
     ck = read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0])
-    assert ck.meta["updates"] == 0 and len(ck.daemon["queue_ticks"]) == 10
+    assert ck.meta.updates == 0 and len(ck.daemon["queue_ticks"]) == 10
     assert a.rt.updates == 10
     b = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))  # a's kill -9
     assert b.rt.updates == 10 and len(b.rt.queue) == 0 and b.rt.recovered_pairs == 10
@@ -236,7 +236,7 @@ def test_a_reset_after_the_checkpoint_is_replayed(tmp_path: Path) -> None:
     a.send("control", Control("sim", 0, 0.0, op="reset"))
     a.settle()
     a.pairs(range(15, 21))
-    assert read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0]).meta["updates"] == 10
+    assert read_checkpoint(list_checkpoints(tmp_path / "ckpt", "sim")[0]).meta.updates == 10
     b = Life(make_cfg(tmp_path, tmp_path / "logs", every=0, wal=True))  # a's kill -9
     assert b.rt.updates == 6 and b.rt.recovered_pairs == 11  # 5, the reset, then 6
     assert_same(b.rt.model, reference(list(range(15, 21))))

@@ -328,8 +328,8 @@ def test_worker_equals_in_process_model_bit_for_bit(tmp_path: Path, processes: i
             loop.service.shutdown()
             paths = list_checkpoints(tmp_path / name, "aibo")
             ck[name] = read_checkpoint(paths[0])
-            assert ck[name].meta["updates"] == 30
-        assert ck["inline"].meta["model_digest"] == ck["process"].meta["model_digest"]
+            assert ck[name].meta.updates == 30
+        assert ck["inline"].meta.model_digest == ck["process"].meta.model_digest
         np.testing.assert_array_equal(ck["inline"].daemon["label_codes"],
                                       ck["process"].daemon["label_codes"])
         recs = [[(r.kind, r.index, r.tick) for r in read_records(wal_dir(tmp_path / n, "b2"))]
@@ -420,10 +420,10 @@ def test_shutdown_learns_queue_and_checkpoints(tmp_path: Path) -> None:
         proc.transport.inject(keys.key("aibo", "action"), a)
     proc.service.shutdown()
     ck = read_checkpoint(list_checkpoints(tmp_path / "s", "aibo")[0])
-    assert ck.meta["reason"] == "shutdown"
-    assert ck.meta["updates"] + len(ck.daemon["queue_ticks"]) == 20
+    assert ck.meta.reason == "shutdown"
+    assert ck.meta.updates + len(ck.daemon["queue_ticks"]) == 20
     assert len([r for r in read_records(wal_dir(tmp_path / "s", "aibo"))
-                if r.kind == "pair"]) == ck.meta["updates"]
+                if r.kind == "pair"]) == ck.meta.updates
     assert all(s.proc.poll() is not None for s in proc.learners.slots.values())
 
 
@@ -523,7 +523,7 @@ def test_daemon_stops_when_a_worker_dies_and_recovers_every_acknowledged_pair(
     finally:
         again.kill()
     assert read_checkpoint(list_checkpoints(tmp_path / "checkpoints", "aibo")[0]) \
-        .meta["updates"] == 12
+        .meta.updates == 12
 
 
 def test_realtime_reset_publishes_nothing_from_the_old_model(tmp_path: Path) -> None:

@@ -87,7 +87,7 @@ def checkpoint_profile(directory: Path, robot: str) -> dict[str, Any]:
                       key=lambda kv: -kv[1])
     history = sum(n for k, n in by_array if k.startswith("history_"))
     return {
-        "path": str(paths[0]), "bytes": size, "updates": int(ck.meta.get("updates", 0)),
+        "path": str(paths[0]), "bytes": size, "updates": ck.meta.updates,
         "distinct_experts": experts,
         "bytes_per_expert": (size - history) / experts if experts else float("nan"),
         "history_bytes": history,

@@ -25,11 +25,16 @@ override its profile's.
 
 from __future__ import annotations
 
-from roger_daemon.config.parse import apply_overrides, load_config, parse_config
+from roger_daemon.config.parse import (
+    apply_overrides,
+    daemon_settings,
+    load_config,
+    parse_config,
+    robot_config,
+)
 from roger_daemon.config.settings import (
     CLOCKS,
     DEFAULT_PROFILE,
-    MODELS,
     WORKERS,
     CheckpointConfig,
     ConfigError,
@@ -42,7 +47,6 @@ from roger_daemon.config.settings import (
 __all__ = [
     "CLOCKS",
     "WORKERS",
-    "MODELS",
     "DEFAULT_PROFILE",
     "CheckpointConfig",
     "ConfigError",
@@ -51,6 +55,8 @@ __all__ = [
     "RobotConfig",
     "ZenohSettings",
     "apply_overrides",
+    "daemon_settings",
     "load_config",
     "parse_config",
+    "robot_config",
 ]

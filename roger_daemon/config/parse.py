@@ -20,7 +20,6 @@ from roger_daemon.config.settings import (
     DEFAULT_PRESET,
     DEFAULT_PROFILE,
     FSM_MODEL,
-    MODELS,
     WORKERS,
     ZENOH_MODES,
     CheckpointConfig,
@@ -33,7 +32,7 @@ from roger_daemon.config.settings import (
 from roger_daemon.config.table import Table, bad, show
 from roger_daemon.profiles import ProfileError, RobotProfile, load_profile, shipped_profiles
 
-__all__ = ["apply_overrides", "load_config", "parse_config"]
+__all__ = ["apply_overrides", "daemon_settings", "load_config", "parse_config", "robot_config"]
 
 
 _PARAM_NAME = re.compile(r"^([a-z_][a-z0-9_]*) ")
@@ -183,25 +182,26 @@ def parse_config(data: Mapping[str, Any], *, source: Path | None = None) -> Daem
 
 
 def _daemon_section(d: Table) -> dict[str, Any]:
-    """The ``[daemon]`` table as :class:`DaemonConfig` keyword arguments."""
-    out: dict[str, Any] = {"id": d.ident("id", "roger"),
-                           "clock": d.choice("clock", "realtime", CLOCKS)}
-    out["rate_hz"] = rate_hz = d.number("rate_hz", 30.0)
+    """The ``[daemon]`` table as :class:`DaemonConfig` keyword arguments (the defaults are
+    :class:`DaemonConfig`'s, written there once)."""
+    c = DaemonConfig
+    out: dict[str, Any] = {"id": d.ident("id", c.id), "clock": d.choice("clock", c.clock, CLOCKS)}
+    out["rate_hz"] = rate_hz = d.number("rate_hz", c.rate_hz)
     if rate_hz > 1000:
         raise bad("daemon.rate_hz", "a number > 0 and <= 1000", rate_hz)
-    out["status_hz"] = status_hz = d.number("status_hz", 1.0)
+    out["status_hz"] = status_hz = d.number("status_hz", c.status_hz)
     if status_hz > 100:
         raise bad("daemon.status_hz", "a number > 0 and <= 100", status_hz)
     out.update(
-        mode=d.choice("mode", "learn+predict", MODES),
-        queue_size=d.integer("queue_size", 256, lo=1),
-        pair_window=d.integer("pair_window", 64, lo=1),
-        seed=d.integer("seed", 0, lo=0),
-        count_unserved=d.boolean("count_unserved", True),
-        workers=d.choice("workers", "auto", WORKERS),
-        worker_nice=d.integer("worker_nice", 5, lo=0),
-        worker_processes=d.integer("worker_processes", 0, lo=0),
-        log_dir=d.path("log_dir", None),
+        mode=d.choice("mode", c.mode, MODES),
+        queue_size=d.integer("queue_size", c.queue_size, lo=1),
+        pair_window=d.integer("pair_window", c.pair_window, lo=1),
+        seed=d.integer("seed", c.seed, lo=0),
+        count_unserved=d.boolean("count_unserved", c.count_unserved),
+        workers=d.choice("workers", c.workers, WORKERS),
+        worker_nice=d.integer("worker_nice", c.worker_nice, lo=0),
+        worker_processes=d.integer("worker_processes", c.worker_processes, lo=0),
+        log_dir=d.path("log_dir", c.log_dir),
     )
     if out["worker_nice"] > 19:
         raise bad("daemon.worker_nice", "an integer from 0 to 19", out["worker_nice"])
@@ -220,8 +220,10 @@ def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[Rob
         rid = r.ident("id")
         if any(o.id == rid for o in robots):
             raise bad(r.key("id"), "unique among robots", rid)
-        model = r.choice("model", "roger", MODELS)
-        rseed = r.integer("seed", seed, lo=0)
+        from roger_daemon.config.models import MODELS
+
+        model = r.choice("model", RobotConfig.model, tuple(MODELS))
+        rseed = r.integer("seed", seed, lo=0)  # [daemon] seed unless the robot names one
         spec, profile, dims, params = _robot_params(learner_table, r, f"robots[{i}]")
         r.done()
         if model == FSM_MODEL and (dims.x, dims.y) != (AIBO_DIMS.x, AIBO_DIMS.y):
@@ -230,6 +232,31 @@ def _robots(top: Table, learner_table: Mapping[str, Any], seed: int) -> list[Rob
         robots.append(RobotConfig(rid, dims.x, dims.y, model, rseed, spec, params,
                                   robot_profile=profile))
     return robots
+
+
+def robot_config(cfg: DaemonConfig, robot_id: str, dims: Dims) -> RobotConfig:
+    """The robot ``robot_id`` of ``cfg``; a robot it does not list is resolved as the daemon
+    would resolve ``[[robots]] id = robot_id, x_dim, y_dim = dims`` added to it (its
+    ``[learner]`` table, ``[daemon] seed``, the default profile where the dims are its)."""
+    try:
+        return cfg.robot(robot_id)
+    except KeyError:
+        pass
+    r = Table({"id": robot_id, "x_dim": dims.x, "y_dim": dims.y}, "robots[-]")
+    spec, profile, got, params = _robot_params(cfg.learner, r, "robots[-]")
+    return RobotConfig(robot_id, got.x, got.y, RobotConfig.model, cfg.seed, spec, params,
+                       robot_profile=profile)
+
+
+def daemon_settings(text: str) -> dict[str, Any]:
+    """The ``[daemon]`` settings of a config's text (a recorded session's ``config``), each
+    validated and defaulted as :func:`load_config` does, the file's other sections not read
+    (a recorded config may name files this machine lacks). Raises :class:`ConfigError`."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("", f"not valid TOML: {exc}") from None
+    return _daemon_section(Table(data, "").sub("daemon"))
 
 
 def _zenoh_section(z: Table) -> ZenohSettings:
@@ -265,19 +292,21 @@ def _zenoh_section(z: Table) -> ZenohSettings:
 
 def _checkpoint_section(c: Table) -> CheckpointConfig:
     """The ``[checkpoint]`` table."""
+    d = CheckpointConfig  # its defaults, written there once
     ckpt = CheckpointConfig(
         # absolute (from the working directory at start): status, `roger control checkpoint`
         # and the logs name files any reader can open (issue 56)
-        dir=(c.path("dir", CheckpointConfig.dir) or CheckpointConfig.dir).absolute(),
-        every_updates=c.integer("every_updates", CheckpointConfig.every_updates, lo=0),
-        every_s=c.number("every_s", CheckpointConfig.every_s, lo=0.0, lo_open=False),
-        keep=c.integer("keep", CheckpointConfig.keep, lo=1),
-        on_shutdown=c.boolean("on_shutdown", True),
-        shutdown_learn_s=c.number("shutdown_learn_s", 1.0, lo=0.0, lo_open=False),
-        wal=c.boolean("wal", True),
-        wal_commit_ms=c.number("wal_commit_ms", 50.0),
-        max_bytes=c.integer("max_bytes", 0, lo=0),
-        max_age_days=c.number("max_age_days", 0.0, lo=0.0, lo_open=False),
+        dir=(c.path("dir", d.dir) or d.dir).absolute(),
+        every_updates=c.integer("every_updates", d.every_updates, lo=0),
+        every_s=c.number("every_s", d.every_s, lo=0.0, lo_open=False),
+        keep=c.integer("keep", d.keep, lo=1),
+        on_shutdown=c.boolean("on_shutdown", d.on_shutdown),
+        shutdown_learn_s=c.number("shutdown_learn_s", d.shutdown_learn_s, lo=0.0,
+                                  lo_open=False),
+        wal=c.boolean("wal", d.wal),
+        wal_commit_ms=c.number("wal_commit_ms", d.wal_commit_ms),
+        max_bytes=c.integer("max_bytes", d.max_bytes, lo=0),
+        max_age_days=c.number("max_age_days", d.max_age_days, lo=0.0, lo_open=False),
     )
     if ckpt.wal_commit_ms > 50.0:
         raise bad("checkpoint.wal_commit_ms", "a number in (0, 50] (milliseconds)",
@@ -291,11 +320,12 @@ def _checkpoint_section(c: Table) -> CheckpointConfig:
 
 def _recording_section(rec: Table) -> RecordingConfig:
     """The ``[recording]`` table."""
+    d = RecordingConfig  # its defaults, written there once
     recording = RecordingConfig(
-        enabled=rec.boolean("enabled", True),
-        dir=(rec.path("dir", RecordingConfig.dir) or RecordingConfig.dir).absolute(),
-        max_bytes=rec.integer("max_bytes", 0, lo=0),
-        max_age_days=rec.number("max_age_days", 0.0, lo=0.0, lo_open=False),
+        enabled=rec.boolean("enabled", d.enabled),
+        dir=(rec.path("dir", d.dir) or d.dir).absolute(),
+        max_bytes=rec.integer("max_bytes", d.max_bytes, lo=0),
+        max_age_days=rec.number("max_age_days", d.max_age_days, lo=0.0, lo_open=False),
     )
     rec.done()
     return recording

@@ -16,7 +16,6 @@ from roger_daemon.zenoh_session import ZenohSettings
 __all__ = [
     "CLOCKS",
     "DEFAULT_PRESET",
-    "MODELS",
     "DEFAULT_PROFILE",
     "FSM_MODEL",
     "WORKERS",
@@ -33,7 +32,6 @@ CLOCKS = ("realtime", "lockstep")
 WORKERS = ("auto", "process", "inline")
 #: ROGER with its transitions learned online (roger_daemon/fsm/online.py, docs/autonomy.md)
 FSM_MODEL = "roger+fsm"
-MODELS = ("roger", "unimap", FSM_MODEL)
 #: the profile of a robot that names none (if its dimensions are that profile's)
 DEFAULT_PROFILE = "aibo"
 DEFAULT_PRESET = "default"

@@ -6,15 +6,17 @@ highest valid one is the newest). Each file is an ``np.savez`` archive of named 
 - ``model.<name>``: the learner's ``state_dict()`` (it carries the learner's own schema
   version, parameters, dimensions and RNG state);
 - ``daemon.<name>``: daemon state (labels of learned pairs, queued-but-unlearned pairs);
-- ``meta``: a 0-d unicode array holding a JSON object: ``format``, ``version``
-  (:data:`CHECKPOINT_VERSION`), ``robot``, ``created_unix_ns``, ``updates``, counters,
-  ``model_digest`` (SHA-256 of the model arrays) and ``digest`` (of every array).
+- ``meta``: a 0-d unicode array holding a JSON object, a
+  :class:`~roger_daemon.daemon.checkpoint_meta.CheckpointMeta` (format, version, robot,
+  counters, session position, the learner's identity, ``model_digest``: SHA-256 of the model
+  arrays, ``digest``: of every array).
 
 Writes are atomic and durable (:func:`roger_daemon.atomic.atomic_write`: a temporary file in
 the same directory, ``fsync``, rename, ``fsync`` of the directory). Reads use
 ``allow_pickle=False`` and verify the digest, so a truncated, garbled or tampered file raises
 :class:`CheckpointError` and is skipped by
-:func:`load_newest`. Older versions are upgraded by the functions in ``MIGRATIONS``.
+:func:`load_newest`. Older versions are upgraded by the functions in ``MIGRATIONS``
+(:mod:`roger_daemon.daemon.checkpoint_meta`) before the metadata is parsed.
 """
 
 from __future__ import annotations
@@ -26,11 +28,18 @@ import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from roger_daemon.atomic import atomic_write
+from roger_daemon.daemon.checkpoint_meta import (
+    CHECKPOINT_FORMAT,
+    CHECKPOINT_VERSION,
+    MIGRATIONS,
+    CheckpointMeta,
+    MetaError,
+    Stored,
+)
 from roger_daemon.daemon.retention import prune_checkpoints
 
 __all__ = [
@@ -39,6 +48,8 @@ __all__ = [
     "MIGRATIONS",
     "Checkpoint",
     "CheckpointError",
+    "CheckpointMeta",
+    "Stored",
     "array_digest",
     "list_checkpoints",
     "load_newest",
@@ -48,8 +59,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-CHECKPOINT_FORMAT = "roger-daemon-checkpoint"
-CHECKPOINT_VERSION = 1
 _NAME = re.compile(r"^ckpt-(\d{8,})\.npz$")
 
 
@@ -64,11 +73,7 @@ class Checkpoint:
     path: Path | None
     model: dict[str, np.ndarray]
     daemon: dict[str, np.ndarray]
-    meta: dict[str, Any]
-
-
-#: version -> function upgrading a Checkpoint of that version to version + 1.
-MIGRATIONS: dict[int, Callable[[Checkpoint], Checkpoint]] = {}
+    meta: CheckpointMeta
 
 
 def array_digest(arrays: Mapping[str, np.ndarray]) -> str:
@@ -115,12 +120,12 @@ def write_checkpoint(
     robot: str,
     model: Mapping[str, np.ndarray],
     daemon: Mapping[str, np.ndarray],
-    meta: Mapping[str, Any],
+    meta: CheckpointMeta,
     *,
     keep: int = 5,
     max_bytes: int = 0,
     max_age_s: float = 0.0,
-) -> tuple[Path, dict[str, Any]]:
+) -> tuple[Path, CheckpointMeta]:
     """Write one checkpoint atomically, prune old ones (``keep``, then the byte and age
     limits of :mod:`roger_daemon.daemon.retention`); return its path and final metadata."""
     d = robot_dir(directory, robot)
@@ -129,16 +134,8 @@ def write_checkpoint(
     seq = int(_NAME.match(existing[0].name).group(1)) + 1 if existing else 1  # type: ignore[union-attr]
     final = d / f"ckpt-{seq:08d}.npz"
     arrays = {**_check_arrays("model.", model), **_check_arrays("daemon.", daemon)}
-    full_meta = {
-        **meta,
-        "format": CHECKPOINT_FORMAT,
-        "version": CHECKPOINT_VERSION,
-        "robot": robot,
-        "sequence": seq,
-        "model_digest": array_digest(dict(model)),
-        "digest": array_digest(arrays),
-    }
-    arrays["meta"] = np.array(json.dumps(full_meta, sort_keys=True))
+    full_meta = meta.written(robot, seq, array_digest(dict(model)), array_digest(arrays))
+    arrays["meta"] = np.array(full_meta.dumps())
     with atomic_write(final) as f:
         np.savez(f, **arrays)  # type: ignore[arg-type]
     prune_checkpoints(list_checkpoints(directory, robot), keep=keep, max_bytes=max_bytes,
@@ -165,19 +162,28 @@ def read_checkpoint(path: Path) -> Checkpoint:
         raise CheckpointError("digest mismatch (file altered or partially written)")
     model = {k[6:]: v for k, v in arrays.items() if k.startswith("model.")}
     daemon = {k[7:]: v for k, v in arrays.items() if k.startswith("daemon.")}
-    ckpt = Checkpoint(Path(path), model, daemon, meta)
-    version = meta.get("version")
-    if not isinstance(version, int) or version > CHECKPOINT_VERSION:
+    stored = _migrated(path, Stored(meta, model, daemon))
+    try:
+        parsed = CheckpointMeta.from_json(stored.meta)
+    except MetaError as exc:
+        raise CheckpointError(f"its metadata: {exc}") from None
+    return Checkpoint(Path(path), stored.model, stored.daemon, parsed)
+
+
+def _migrated(path: Path, stored: Stored) -> Stored:
+    """``stored`` upgraded to :data:`CHECKPOINT_VERSION` (one logged step per version)."""
+    version = stored.meta.get("version")
+    if isinstance(version, bool) or not isinstance(version, int) or \
+            version > CHECKPOINT_VERSION:
         raise CheckpointError(
             f"version {version!r} is newer than this daemon's {CHECKPOINT_VERSION}"
         )
-    while ckpt.meta["version"] < CHECKPOINT_VERSION:
-        v = ckpt.meta["version"]
+    while (v := int(stored.meta["version"])) < CHECKPOINT_VERSION:
         if v not in MIGRATIONS:
             raise CheckpointError(f"version {v} has no migration to {v + 1}")
         log.warning("checkpoint %s: migrating from version %d to %d", path, v, v + 1)
-        ckpt = MIGRATIONS[v](ckpt)
-    return ckpt
+        stored = MIGRATIONS[v](stored)
+    return stored
 
 
 def load_newest(
@@ -191,8 +197,8 @@ def load_newest(
     for path in list_checkpoints(directory, robot):
         try:
             ckpt = read_checkpoint(path)
-            if ckpt.meta.get("robot") != robot:
-                raise CheckpointError(f"written for robot {ckpt.meta.get('robot')!r}")
+            if ckpt.meta.robot != robot:
+                raise CheckpointError(f"written for robot {ckpt.meta.robot!r}")
             if accept is not None:
                 accept(ckpt)
         except CheckpointError as exc:

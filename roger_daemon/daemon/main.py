@@ -208,11 +208,8 @@ def run(args: argparse.Namespace) -> int:
         if learners is not None:
             learners.close()
         return 1
-    by_id = {r.id: r for r in cfg.robots}
-    service = Service(
-        cfg, transport, robots, notifier=notifier, recorders=recorders, resumed=resumed,
-        checkpoint_meta=lambda rt: model_meta(by_id[rt.robot]), learners=learners,
-    )
+    service = Service(cfg, transport, robots, notifier=notifier, recorders=recorders,
+                      resumed=resumed, learners=learners)
     stop.append(service)
     try:
         service.start()

@@ -23,11 +23,12 @@ from __future__ import annotations
 from collections import OrderedDict
 
 from protocols.messages import Action, Perception
+from roger_daemon.config.settings import DaemonConfig
 
 __all__ = ["DEFAULT_PAIR_WINDOW", "LEARN_MODES", "PREDICT_MODES", "Pairing"]
 
 #: The daemon's default pairing window (``[daemon] pair_window``).
-DEFAULT_PAIR_WINDOW = 64
+DEFAULT_PAIR_WINDOW = DaemonConfig.pair_window
 #: Modes in which the daemon pairs and learns.
 LEARN_MODES = ("learn", "learn+predict")
 #: Modes in which the daemon answers perceptions with predictions.

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,9 +22,11 @@ from roger_daemon.config import DaemonConfig, RobotConfig
 from roger_daemon.daemon.checkpoint import (
     Checkpoint,
     CheckpointError,
+    CheckpointMeta,
     load_newest,
     write_checkpoint,
 )
+from roger_daemon.daemon.checkpoint_meta import LearnerSpec
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.daemon.sdnotify import Notifier
@@ -43,16 +46,17 @@ log = logging.getLogger(__name__)
 
 
 def make_model(robot: RobotConfig) -> Any:
-    """A fresh model for ``robot`` (the paper's ROGER, the unimap baseline, or ROGER with its
-    transitions learned online: roger_daemon/fsm/online.py)."""
-    from roger_daemon.fsm.online import make_daemon_model
+    """A fresh model for ``robot``: its ``model`` kind from the one registry
+    (:func:`roger_daemon.config.models.build_model`: the paper's ROGER, the unimap baseline,
+    or ROGER with its transitions learned online)."""
+    from roger_daemon.config.models import build_model
 
-    return make_daemon_model(robot.model, robot.x_dim, robot.y_dim, robot.params, robot.seed)
+    return build_model(robot.model, robot.x_dim, robot.y_dim, robot.params, robot.seed)
 
 
-def model_meta(robot: RobotConfig) -> dict[str, Any]:
-    """The model part of a checkpoint's metadata: kind, seed and learner parameters."""
-    return {"model": robot.model, "seed": robot.seed, "params": robot.params.to_mapping()}
+def model_meta(robot: RobotConfig) -> LearnerSpec:
+    """Which learner ``robot``'s model is (kind, seed, parameters), as checkpoints record it."""
+    return LearnerSpec(robot.model, robot.seed, robot.params.to_mapping())
 
 
 def build_robot(cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool) -> tuple[RobotRuntime, str]:
@@ -65,7 +69,7 @@ def load_robot(
     cfg: DaemonConfig, robot: RobotConfig, *, fresh: bool
 ) -> tuple[RobotRuntime, Checkpoint | None]:
     """The runtime of one robot and the checkpoint it resumed from (None: fresh model)."""
-    from roger_daemon.fsm.online import load_daemon_model as load_model
+    from roger_daemon.config.models import load_model
 
     if cfg.learner_workers == "inline":  # the loop learns: its compiled kernels now, not in
         from roger_daemon.learner.engine.jit import warm_up  # the robot's first live update
@@ -79,9 +83,9 @@ def load_robot(
     loaded: dict[str, Any] = {}
 
     def accept(ck: Checkpoint) -> None:
-        if (ck.meta.get("x_dim"), ck.meta.get("y_dim")) != (robot.x_dim, robot.y_dim):
+        if (ck.meta.x_dim, ck.meta.y_dim) != (robot.x_dim, robot.y_dim):
             raise CheckpointError(
-                f"dimensions {ck.meta.get('x_dim')}/{ck.meta.get('y_dim')} do not match the "
+                f"dimensions {ck.meta.x_dim}/{ck.meta.y_dim} do not match the "
                 f"config's {robot.x_dim}/{robot.y_dim}"
             )
         try:
@@ -96,20 +100,21 @@ def load_robot(
             raise CheckpointError("model and label counts disagree")
 
     rt = RobotRuntime(robot.id, dims, None, lambda: make_model(robot), mode=cfg.mode,
-                      queue_size=cfg.queue_size, pair_window=cfg.pair_window)
+                      queue_size=cfg.queue_size, pair_window=cfg.pair_window,
+                      learner=model_meta(robot))
     ckpt = None if fresh else load_newest(cfg.checkpoint.dir, robot.id, accept)
     if ckpt is None:
         rt.model = make_model(robot)
         return rt, None
     rt.model = loaded["model"]
-    rt.restore(ckpt.daemon, ckpt.meta.get("counters", {}))
-    saved = ckpt.meta.get("params")
+    rt.restore(ckpt.daemon, ckpt.meta.counters)
+    saved = ckpt.meta.learner.params
     if saved is not None and saved != robot.params.to_mapping():
         log.warning("%s: the checkpoint's learner parameters differ from the config's; "
                     "continuing with the checkpoint's (use --fresh to start over with the "
                     "config's)", robot.id)
     log.info("%s: resumed from %s (%d updates, %d queued pairs, model %s)", robot.id, ckpt.path,
-             rt.updates, len(rt.queue), str(ckpt.meta.get("model_digest", ""))[:12])
+             rt.updates, len(rt.queue), ckpt.meta.model_digest[:12])
     return rt, ckpt
 
 
@@ -127,8 +132,7 @@ class Resumed:
 def _position(ckpt: Checkpoint | None) -> Resumed:
     if ckpt is None:
         return Resumed("", "", 0)
-    return Resumed(str(ckpt.path), str(ckpt.meta.get("session_id", "") or ""),
-                   int(ckpt.meta.get("session_segment", 0) or 0))
+    return Resumed(str(ckpt.path), ckpt.meta.session_id, ckpt.meta.session_segment)
 
 
 def _same_learner(robot: RobotConfig, info: Any) -> str:
@@ -145,8 +149,7 @@ def _same_learner(robot: RobotConfig, info: Any) -> str:
 
 def recover_from_logs(
     cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime, ckpt: Checkpoint | None,
-    *, notifier: Notifier | None = None, model_meta: dict[str, Any] | None = None,
-    relearn: bool = True,
+    *, notifier: Notifier | None = None, relearn: bool = True,
 ) -> tuple[RobotRuntime, Resumed]:
     """Start-up self-recovery of one robot, before its new session opens.
 
@@ -218,9 +221,8 @@ def recover_from_logs(
                 base, rt.updates, int(rt.model.n_experts))
     session, segment = plan.position
     try:
-        path, full = _write_recovered(cfg, rt, session, segment, {
-            **(model_meta or {}), "recovered_pairs": len(plan.pairs),
-            "recovered_from": list(plan.sessions)})
+        path, full = _write_recovered(cfg, rt, session, segment, len(plan.pairs),
+                                      plan.sessions)
     except Exception as exc:
         log.error("%s: could not write the recovered checkpoint (%s); the new session "
                   "records that it resumed from %s plus %d recovered pairs", robot.id, exc,
@@ -228,7 +230,7 @@ def recover_from_logs(
         return rt, Resumed(where.checkpoint, session, segment, len(plan.pairs),
                            tuple(plan.sessions))
     log.info("%s: checkpoint %s written (recovered, %d updates, model %s)", robot.id, path,
-             rt.updates, str(full["model_digest"])[:12])
+             rt.updates, full.model_digest[:12])
     return rt, Resumed(str(path), session, segment, len(plan.pairs), tuple(plan.sessions))
 
 
@@ -251,8 +253,7 @@ def start_robots(
         if cfg.recording.enabled and not fresh:
             # Before the new session opens: an open session would cut the history it reads.
             robots[robot.id], logs = recover_from_logs(
-                cfg, robot, robots[robot.id], ckpt, notifier=notifier,
-                model_meta=model_meta(robot), relearn=not by_wal)
+                cfg, robot, robots[robot.id], ckpt, notifier=notifier, relearn=not by_wal)
             if not by_wal:
                 where[robot.id] = logs
     return robots, where
@@ -269,9 +270,9 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
     from roger_daemon.daemon import wal
 
     d = wal.wal_dir(cfg.checkpoint.dir, rt.robot)
-    seq = None if ckpt is None else ckpt.meta.get("wal_seq")
+    seq = None if ckpt is None else ckpt.meta.wal_seq
     has_log = bool(wal.read_records(d)) if seq is None else True
-    rep = wal.start(rt, d, checkpoint_seq=seq if isinstance(seq, int) else None,
+    rep = wal.start(rt, d, checkpoint_seq=seq,
                     replay=has_log and not fresh,
                     fresh=fresh or (ckpt is None and not has_log))
     if rep.pairs or rep.fresh:
@@ -286,7 +287,7 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
     if rep.pairs or rep.fresh or rep.stopped:  # the recovered state, durable at once
         try:
             path, _ = _write_recovered(cfg, rt, where.session or "", where.segment,
-                                       {**model_meta(robot), "recovered_pairs": rep.pairs})
+                                       rep.pairs)
             log.info("%s: checkpoint %s written (recovered, %d updates)", rt.robot, path,
                      rt.updates)
             where = Resumed(str(path), where.session, where.segment, rep.pairs)
@@ -297,10 +298,11 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
 
 
 def _write_recovered(cfg: DaemonConfig, rt: RobotRuntime, session: str, segment: int,
-                     extra: dict[str, Any]) -> tuple[Path, dict[str, Any]]:
-    """Write ``rt`` as a checkpoint of reason ``recovered`` standing at ``session``/``segment``."""
+                     pairs: int, sessions: Sequence[str] = ()) -> tuple[Path, CheckpointMeta]:
+    """Write ``rt`` as a checkpoint of reason ``recovered`` standing at ``session``/``segment``
+    after re-learning ``pairs`` pairs (from the session logs of ``sessions``)."""
     model, daemon, meta = checkpoint_snapshot(
         rt, "recovered", daemon_id=cfg.id, created_unix_ns=time.time_ns(), session_id=session,
-        session_segment=segment, extra=extra)
+        session_segment=segment, recovered_pairs=pairs, recovered_from=sessions)
     return write_checkpoint(cfg.checkpoint.dir, rt.robot, model, daemon, meta,
                             **cfg.checkpoint.limits())

@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -35,6 +35,8 @@ from protocols.messages import (
     Prediction,
     encode_prediction,
 )
+from roger_daemon.config.settings import DaemonConfig
+from roger_daemon.daemon.checkpoint_meta import Counters, LearnerSpec
 from roger_daemon.daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
 from roger_daemon.daemon.robot_state import NewestPair, Pair, RobotState
 from roger_daemon.daemon.window import Window
@@ -73,6 +75,8 @@ class RobotRuntime:
         ``n_experts``, ``n_learned``, ``state_dict``).
     make_model
         Builds a fresh model (used by the ``reset`` control).
+    learner
+        Which learner ``make_model`` builds (kind, seed, parameters), as checkpoints record it.
     mode
         Initial operating mode (one of ``protocols.messages.MODES``).
     """
@@ -85,13 +89,16 @@ class RobotRuntime:
         make_model: Callable[[], Any],
         *,
         mode: str = "learn+predict",
-        queue_size: int = 256,
-        pair_window: int = 64,
+        queue_size: int = DaemonConfig.queue_size,
+        pair_window: int = DaemonConfig.pair_window,
+        learner: LearnerSpec | None = None,
     ) -> None:
         self.robot = robot
         self.dims = dims
         self.model = model
         self.make_model = make_model
+        #: which learner the model is (its kind, seed, parameters): what checkpoints record
+        self.learner = learner or LearnerSpec(str(getattr(model, "kind", "roger")))
         self.mode = mode
         self.queue_size = queue_size
         self.pair_window = pair_window
@@ -389,17 +396,14 @@ class RobotRuntime:
         return RobotState(list(self.vocab), self.codes, [*ahead, *self.queue],
                           newest).to_arrays(self.dims)
 
-    def counters(self) -> dict[str, Any]:
-        """The runtime's counters, as checkpointed and reported in status."""
-        return {
-            "ticks": self.ticks, "dropped": self.dropped, "unpaired_actions": self.unpaired,
-            "learn_errors": self.learn_errors, "last_tick": self.last_tick,
-            "last_t": self.last_t, "mode": self.mode,
-            "last_learned_tick": self.last_learned_tick,
-            "invalid": {k: int(v) for k, v in sorted(self.invalid.items())},
-        }
+    def counters(self, invalid: Mapping[str, int] | None = None) -> Counters:
+        """The runtime's counters, as checkpointed (``invalid``: the rejections to report,
+        by default the robot's own)."""
+        return Counters(self.ticks, self.dropped, self.unpaired, self.learn_errors,
+                        self.last_tick, self.last_t, self.mode, self.last_learned_tick,
+                        dict(self.invalid if invalid is None else invalid))
 
-    def restore(self, arrays: dict[str, np.ndarray], counters: dict[str, Any]) -> None:
+    def restore(self, arrays: dict[str, np.ndarray], counters: Counters) -> None:
         """Load daemon state saved by :meth:`daemon_arrays` / :meth:`counters`
         (:class:`~roger_daemon.daemon.robot_state.RobotState`)."""
         state = RobotState.from_arrays(arrays)
@@ -412,15 +416,11 @@ class RobotRuntime:
         self.queue.extend(state.queue)
         n = state.newest
         self._newest_pair = None if n is None else (n.tick, n.x.tobytes(), n.y.tobytes())
-        self.ticks = int(counters.get("ticks", 0))
-        self.dropped = int(counters.get("dropped", 0))
-        self.unpaired = int(counters.get("unpaired_actions", 0))
-        self.learn_errors = int(counters.get("learn_errors", 0))
-        self.last_tick = int(counters.get("last_tick", 0))
-        self.last_t = float(counters.get("last_t", 0.0))
-        llt = counters.get("last_learned_tick")
-        self.last_learned_tick = int(llt) if isinstance(llt, int) and self.n_codes else None
-        inv = counters.get("invalid", {})
-        self.invalid = Counter({str(k): int(v) for k, v in inv.items() if k in REASONS})
+        self.ticks, self.dropped = counters.ticks, counters.dropped
+        self.unpaired, self.learn_errors = counters.unpaired_actions, counters.learn_errors
+        self.last_tick, self.last_t = counters.last_tick, counters.last_t
+        llt = counters.last_learned_tick
+        self.last_learned_tick = llt if self.n_codes else None
+        self.invalid = Counter({k: v for k, v in counters.invalid.items() if k in REASONS})
         self._labels_cache = None
         self._tally = LabelTally()

@@ -220,21 +220,22 @@ class _Worker:
 
     def _load(self, req: dict[str, Any]) -> dict[str, Any]:
         from protocols.messages import Dims
-        from roger_daemon.config import RobotConfig
-        from roger_daemon.daemon.main import make_model
+        from roger_daemon.config.models import build_model, load_model
         from roger_daemon.daemon.robot import RobotRuntime
-        from roger_daemon.fsm.online import load_daemon_model as load_model
         from roger_daemon.learner import RogerParams
         from roger_daemon.learner.engine.jit import compiled_signatures, threads, warm_up
 
         warm_up()  # the compiled kernels now, not inside this robot's first steps
-        robot = RobotConfig(id=str(req["robot"]), x_dim=int(req["x_dim"]),
-                            y_dim=int(req["y_dim"]), model=str(req["model"]),
-                            seed=int(req["seed"]), params=RogerParams.from_mapping(req["params"]))
+        dims = Dims(int(req["x_dim"]), int(req["y_dim"]))
+        kind, seed = str(req["model"]), int(req["seed"])
+        params = RogerParams.from_mapping(req["params"])
+
+        def fresh() -> Any:
+            return build_model(kind, dims.x, dims.y, params, seed)
+
         state = req.get("state")
-        model = make_model(robot) if state is None else load_model(unpack_arrays(state))
-        rt = RobotRuntime(robot.id, Dims(robot.x_dim, robot.y_dim), model,
-                          lambda: make_model(robot))
+        model = fresh() if state is None else load_model(unpack_arrays(state))
+        rt = RobotRuntime(str(req["robot"]), dims, model, fresh)
         codes = unpack_arrays(req["codes"])["codes"] if req.get("codes") else np.zeros(0)
         for c in codes.astype(np.int64):
             rt._append_code(int(c))

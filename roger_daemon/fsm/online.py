@@ -19,8 +19,9 @@ measures both); a refit would replay the whole stream and grow with it.
 
 The state dict is Roger's arrays unchanged plus ``fsm.*`` (:meth:`LearnedFSM.state_dict`), so
 the experts' part (:meth:`RogerFSM.experts_state`) has the digest a plain Roger model would
-have; :func:`load_daemon_model` loads either kind (a state without ``fsm.*`` is a plain model,
-as in every checkpoint written before this kind existed). No label is read anywhere here.
+have; :func:`roger_daemon.config.models.load_model` loads either kind (a state without
+``fsm.*`` is a plain model, as in every checkpoint written before this kind existed). No label
+is read anywhere here.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from roger_daemon.learner.params import RogerParams
 from roger_daemon.learner.roger import Roger
 
 __all__ = ["FSM_PREFIX", "MODEL_KIND", "RogerFSM", "default_memory", "has_fsm",
-           "load_daemon_model", "make_daemon_model", "newest_assignment"]
+           "newest_assignment"]
 
 #: The daemon's model kind of a ROGER model with learned transitions (``[[robots]] model``).
 MODEL_KIND = FSM_MODEL
@@ -124,27 +125,3 @@ def newest_assignment(model: Roger) -> int:
 def has_fsm(state: Mapping[str, Any]) -> bool:
     """Whether a model state dict (or a checkpoint's model arrays) holds learned transitions."""
     return f"{FSM_PREFIX}meta" in state
-
-
-def load_daemon_model(state: Mapping[str, np.ndarray]) -> Any:
-    """:func:`roger_daemon.learner.load_model`, or a :class:`RogerFSM` for a state with
-    transitions."""
-    from roger_daemon.learner import load_model
-
-    if has_fsm(state):
-        return RogerFSM.from_state_dict({k: np.asarray(state[k]) for k in state})
-    return load_model({k: state[k] for k in state})
-
-
-def make_daemon_model(kind: str, d_x: int, d_y: int, params: RogerParams | None,
-                      seed: Seed) -> Any:
-    """A fresh model of the daemon's ``kind``: ``"roger"``, ``"unimap"`` or ``"roger+fsm"``."""
-    from roger_daemon.learner import UnimapGP
-
-    if kind == MODEL_KIND:
-        return RogerFSM(d_x, d_y, params, seed)
-    if kind == "unimap":
-        return UnimapGP(d_x=d_x, d_y=d_y, params=params, seed=seed)
-    if kind == "roger":
-        return Roger(d_x=d_x, d_y=d_y, params=params, seed=seed)
-    raise ValueError(f"unknown model kind {kind!r} (roger, unimap, {MODEL_KIND})")

@@ -6,7 +6,7 @@ in its on-disk cache (:mod:`.engine.jit_compile`).  It imports nothing else of
 ``roger_daemon``.  The public API (``docs/learner-api.md``)::
 
     from roger_daemon.learner import RogerParams, Roger, UnimapGP, Prediction, ExpertPrediction
-    from roger_daemon.learner import ParameterError, load_model, PRESETS
+    from roger_daemon.learner import ParameterError, load_model, MODELS, PRESETS
     from roger_daemon.learner import ReferenceRoger  # Algorithms 1 and 2 in plain numpy
 
 ``Roger`` runs on compiled kernels (numba); ``ReferenceRoger`` (:mod:`.reference`) is the same
@@ -17,16 +17,17 @@ from __future__ import annotations
 
 from roger_daemon.learner.gate import NIWGate
 from roger_daemon.learner.kernel import RBFKernel
-from roger_daemon.learner.load import load_model
 from roger_daemon.learner.params import PRESETS, ParameterError, RogerParams
 from roger_daemon.learner.prediction import ExpertPrediction, Prediction
 from roger_daemon.learner.reference import ReferenceRoger
+from roger_daemon.learner.registry import MODELS, load_model
 from roger_daemon.learner.resampling import fearnhead_resample
 from roger_daemon.learner.roger import Roger
 from roger_daemon.learner.sogp import SparseOnlineGP
 from roger_daemon.learner.unimap import UnimapGP
 
 __all__ = [
+    "MODELS",
     "ExpertPrediction",
     "NIWGate",
     "PRESETS",

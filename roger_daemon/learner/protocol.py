@@ -1,8 +1,9 @@
 """The learner contract every model honours (``docs/learner-api.md``), as code.
 
 ``Roger`` and ``UnimapGP`` satisfy :class:`Learner`; ``tests/learner/test_conformance.py`` runs
-one conformance suite over every model in :data:`MODELS` (in the spirit of river's
-``check_estimator``): a new model is added there and must pass it unchanged.
+one conformance suite over every model of :data:`MODELS` (in the spirit of river's
+``check_estimator``): a new model is added to the registry
+(:data:`roger_daemon.learner.registry.MODELS`) and must pass it unchanged.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
+from roger_daemon.learner.registry import MODELS as _REGISTRY
 from roger_daemon.learner.roger import Roger
 from roger_daemon.learner.unimap import UnimapGP
 
@@ -99,5 +101,5 @@ class Learner(Protocol):
         ...
 
 
-#: Every learner the project ships; the conformance suite runs over each.
-MODELS: tuple[type[Roger] | type[UnimapGP], ...] = (Roger, UnimapGP)
+#: Every learner the project ships (the registry's); the conformance suite runs over each.
+MODELS: tuple[type[Roger] | type[UnimapGP], ...] = tuple(_REGISTRY.values())

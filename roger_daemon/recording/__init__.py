@@ -15,9 +15,9 @@ The daemon's seam::
 Start-up self-recovery after a crash (``roger_daemon.daemon.recover_from_logs``), before the
 new recorder opens (an open session would cut the history)::
 
-    pos = CheckpointPosition(learned=U, session_id=ck.meta["session_id"],
-                             segment=ck.meta["session_segment"],
-                             last_tick=ck.meta["counters"]["last_learned_tick"], queue=Q)
+    pos = CheckpointPosition(learned=U, session_id=ck.meta.session_id,
+                             segment=ck.meta.session_segment,
+                             last_tick=ck.meta.counters.last_learned_tick, queue=Q)
     plan = plan_recovery(log_dir, robot, dims=DIMS, checkpoint=pos)   # never raises
     # plan.recovered: footer-less files made whole; plan.notes: logs skipped and why
     # learn Q, then plan.pairs (on a fresh model if plan.fresh), write a checkpoint at

@@ -207,21 +207,20 @@ def session_metadata(
 
 
 def _pair_window(meta: Mapping[str, str]) -> int | None:
-    """``pair_window`` from the metadata, else from the recorded config's ``[daemon]`` table."""
+    """``pair_window`` from the metadata, else from the recorded config's ``[daemon]`` table
+    (read by the daemon's own parser: :func:`roger_daemon.config.daemon_settings`)."""
     txt = meta.get("pair_window", "")
     if txt:
         return int(txt)
     config = meta.get("config", "")
     if not config:
         return None
-    import tomllib
+    from roger_daemon.config import ConfigError, daemon_settings
 
     try:
-        daemon = tomllib.loads(config).get("daemon", {})
-    except tomllib.TOMLDecodeError:
+        return int(daemon_settings(config)["pair_window"])
+    except ConfigError:
         return None
-    value = daemon.get("pair_window") if isinstance(daemon, dict) else None
-    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from roger_daemon.zenoh_session import (
+    DAEMON_ENDPOINT,
     ZenohSettings,
     add_zenoh_args,
     endpoints,
@@ -36,7 +37,7 @@ __all__ = [
 ]
 
 #: The conventional port of the daemon or router on this machine.
-DEFAULT_CONNECT = ("tcp/127.0.0.1:7447",)
+DEFAULT_CONNECT = (DAEMON_ENDPOINT,)
 #: An ephemeral loopback port (others find it by gossip).
 DEFAULT_LISTEN = ("tcp/127.0.0.1:0",)
 

@@ -3,13 +3,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from roger_daemon.daemon.checkpoint_meta import CheckpointMeta, Counters, LearnerSpec
 from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.recording.timeline import LearnedPair, Segment, Timeline
 from roger_daemon.replay.result import Model, ReplayError, ReplayResult
@@ -17,31 +17,32 @@ from roger_daemon.replay.result import Model, ReplayError, ReplayResult
 __all__ = ["load_checkpoint", "resume_timeline", "save_checkpoint"]
 
 
-def load_checkpoint(path: str | Path) -> tuple[Model, list[LearnedPair], dict[str, Any]]:
+def load_checkpoint(path: str | Path
+                    ) -> tuple[Model, list[LearnedPair], CheckpointMeta | None]:
     """``(model, queued pairs, meta)`` from a daemon checkpoint (``roger_daemon.daemon.checkpoint``;
     its queue read by :class:`~roger_daemon.daemon.robot_state.RobotState`), or from a plain
-    ``.npz`` of a ``state_dict()`` (no queue, empty meta). Never unpickles.  Raises
+    ``.npz`` of a ``state_dict()`` (no queue, no meta: ``None``). Never unpickles.  Raises
     :class:`ReplayError` naming the file when the checkpoint's daemon arrays do not fit
     together."""
+    from roger_daemon.config.models import load_model
     from roger_daemon.daemon.checkpoint import CheckpointError, read_checkpoint
-    from roger_daemon.fsm.online import load_daemon_model as load_model
 
     try:
         ck = read_checkpoint(Path(path))
     except CheckpointError:
         with np.load(path, allow_pickle=False) as z:
-            return load_model({k: z[k] for k in z.files}), [], {}
+            return load_model({k: z[k] for k in z.files}), [], None
     model: Model = load_model(ck.model)
     try:
         state = RobotState.from_arrays(ck.daemon)
     except KeyError:  # an older checkpoint without a queue
-        return model, [], dict(ck.meta)
+        return model, [], ck.meta
     except ValueError as exc:  # daemon arrays that do not fit together
         raise ReplayError(f"checkpoint {path}: {exc}") from None
     start = int(model.n_learned)
     pairs = [LearnedPair(start + i, p.tick, p.x, p.y, state.label(p.label), 0)
              for i, p in enumerate(state.queue)]
-    return model, pairs, dict(ck.meta)
+    return model, pairs, ck.meta
 
 
 def resume_timeline(
@@ -49,7 +50,7 @@ def resume_timeline(
     files: Sequence[str | Path],
     *,
     learned: int,
-    meta: Mapping[str, Any],
+    meta: CheckpointMeta,
     queued: Sequence[LearnedPair] = (),
 ) -> tuple[Timeline, list[str]]:
     """The part of a session after a checkpoint taken *during* it (a crash's last checkpoint).
@@ -63,20 +64,18 @@ def resume_timeline(
     """
     from roger_daemon.recording.catchup import log_tail
 
-    same = str(meta.get("session_id", "") or "") == tl.info.session_id
-    counters = meta.get("counters", {}) if isinstance(meta.get("counters"), dict) else {}
-    last_tick = counters.get("last_learned_tick")
+    same = meta.session_id == tl.info.session_id
     tail = log_tail(
         list(files), learned=learned, robot=tl.robot, dims=tl.dims,
-        last_tick=last_tick if isinstance(last_tick, int) else None,
+        last_tick=meta.counters.last_learned_tick,
         from_session=tl.info.session_id if same and tl.info.session_id else None,
-        segment=int(meta.get("session_segment", 0) or 0) if same else 0,
+        segment=meta.session_segment if same else 0,
         queue=queued,
     )
     if tail.fresh:
         return tl, ["the session reset its model after the checkpoint: the model after the "
                     "reset is replayed from a fresh model, without the checkpoint"]
-    k = int(meta.get("session_segment", 0) or 0) if same else len(tl.segments) - 1
+    k = meta.session_segment if same else len(tl.segments) - 1
     k = min(max(k, 0), len(tl.segments) - 1)
     preds = [p for p in tl.segments[k].predictions if p.updates >= learned]
     seg = Segment(start_updates=learned, after_reset=False, pairs=list(tail.pairs),
@@ -126,13 +125,13 @@ def save_checkpoint(
     d = res.timeline.dims
     assert d is not None
     daemon = state.to_arrays(d)
-    meta = {
-        "reason": "replay", "updates": n, "x_dim": d.x, "y_dim": d.y,
-        "model": res.model_kind, "seed": res.seed, "params": res.params,
-        "counters": {"last_learned_tick": last, "last_tick": last or 0},
-        "session_id": res.info.session_id, "session_segment": seg_no,
-        "replayed_from": [str(p) for p in res.files],
-    }
+    meta = CheckpointMeta(
+        reason="replay", updates=n, x_dim=d.x, y_dim=d.y,
+        learner=LearnerSpec(res.model_kind, res.seed, res.params),
+        counters=Counters(last_learned_tick=last, last_tick=last or 0),
+        session_id=res.info.session_id, session_segment=seg_no,
+        replayed_from=tuple(str(p) for p in res.files),
+    )
     path, _ = write_checkpoint(Path(directory), res.robot, dict(model.state_dict()), daemon, meta,
                                keep=keep)
     return path

@@ -10,12 +10,11 @@ import argparse
 import json
 import signal
 import sys
-import tomllib
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from roger_daemon.config.settings import FSM_MODEL, MODELS
+from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.replay.compare import REL_TOL
 
 __all__ = ["configure", "run"]
@@ -30,10 +29,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="take learner params from this config's [learner] table")
     parser.add_argument("--seed", type=int, help="model seed (default: the recorded one)")
     parser.add_argument("--robot", help="robot to replay (default: the recorded one)")
-    parser.add_argument("--model", choices=MODELS,
-                        help="default: the recorded one; roger+fsm: also learn the transitions "
-                             "(a session of plain ROGER gives the same experts and a checkpoint "
-                             "for roger play, docs/autonomy.md)")
+    parser.add_argument("--model", metavar="KIND",
+                        help="the model kind (the daemon's [[robots]] model; default: the "
+                             "recorded one); roger+fsm: also learn the transitions (a session "
+                             "of plain ROGER gives the same experts and a checkpoint for roger "
+                             "play, docs/autonomy.md)")
     parser.add_argument("--checkpoint", type=Path, metavar="FILE.npz",
                         help="the checkpoint the session resumed from (daemon checkpoint with "
                              "its queued pairs, or a plain state_dict .npz); or a daemon "
@@ -82,23 +82,22 @@ def _session_files(files: list[Path]) -> list[Path]:
     return parts or files
 
 
-def _config(path: Path, robot: str) -> tuple[dict[str, Any] | None, int | None, str | None]:
+def _config(path: Path, robot: str, dims: Any) -> tuple[dict[str, Any], int, str | None]:
     """(learner params, seed, model kind) of ``robot`` in a daemon config file.
 
     Read with the daemon's own parser (per-robot overrides included); a file it rejects
-    raises ``ValueError``. A robot the config does not list gets the ``[learner]`` table and
-    ``[daemon] seed``.
+    raises ``ValueError``. A robot the config does not list is resolved as the daemon would
+    resolve it listed with the log's ``dims`` (:func:`roger_daemon.config.robot_config`: the
+    ``[learner]`` table and ``[daemon] seed``); its model kind is then the log's.
     """
-    from roger_daemon.config import load_config
+    from roger_daemon.config import load_config, robot_config
 
     cfg = load_config(path)
-    for r in cfg.robots:
-        if r.id == robot:
-            return dict(r.params.to_mapping()), int(r.seed), str(r.model)
-    with open(path, "rb") as f:
-        raw = tomllib.load(f)
-    table = raw.get("learner")
-    return (dict(table) if isinstance(table, dict) else None), int(cfg.seed), None
+    listed = any(r.id == robot for r in cfg.robots)
+    if dims is None and not listed:
+        raise ValueError(f"{path} does not list robot {robot!r} and the log names no dims")
+    r = robot_config(cfg, robot, dims)
+    return dict(r.params.to_mapping()), int(r.seed), str(r.model) if listed else None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,6 +105,13 @@ def run(args: argparse.Namespace) -> int:
     from roger_daemon.recording.mcapio import not_an_mcap_file
 
     files = _session_files(list(args.files))
+    if args.model is not None:
+        from roger_daemon.config.models import MODELS
+
+        if args.model not in MODELS:
+            print(f"roger replay: --model must be one of {', '.join(MODELS)}, got "
+                  f"{args.model!r}", file=sys.stderr)
+            return 2
     for f in files:
         if why := not_an_mcap_file(f):
             print(f"roger replay: {why}", file=sys.stderr)
@@ -141,18 +147,18 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     try:
         tl = read_timeline(files, robot=args.robot)
         if args.config:
-            params, seed, cfg_kind = _config(args.config, tl.robot)
+            params, seed, cfg_kind = _config(args.config, tl.robot, tl.dims)
             kind = kind or cfg_kind
         if args.seed is not None:
             seed = args.seed
         initial: Any = None
         queued: list[Any] = []
-        ck_meta: dict[str, Any] = {}
+        ck_meta = None
         notes: list[str] = []
         if args.checkpoint:
             initial, queued, ck_meta = load_checkpoint(args.checkpoint)
             learned = int(initial.n_learned)
-            if ck_meta and learned != tl.segments[0].start_updates:
+            if ck_meta is not None and learned != tl.segments[0].start_updates:
                 # a checkpoint taken during the session: checkpoint + the log's tail
                 tl2, notes = resume_timeline(tl, files, learned=learned, meta=ck_meta,
                                              queued=queued)

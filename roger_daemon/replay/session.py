@@ -22,6 +22,7 @@ import numpy as np
 from protocols.messages import Perception
 from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.daemon.checkpoint import array_digest
+from roger_daemon.daemon.checkpoint_meta import Counters
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.recording.session_read import read_timeline
@@ -70,13 +71,11 @@ __all__ = [
 def default_model_factory(
     kind: str, d_x: int, d_y: int, params: Mapping[str, Any] | None, seed: int | None
 ) -> Model:
-    """The daemon's model of ``kind`` (``Roger``, ``UnimapGP`` for ``"unimap"``, ``RogerFSM``
-    for ``"roger+fsm"``: :func:`roger_daemon.fsm.online.make_daemon_model`)."""
-    from roger_daemon import learner
-    from roger_daemon.fsm.online import make_daemon_model
+    """The model of ``kind`` from the one registry
+    (:func:`roger_daemon.config.models.build_model`; a log that names no kind gets ROGER)."""
+    from roger_daemon.config.models import build_model
 
-    p = learner.RogerParams.from_mapping(dict(params)) if params else learner.RogerParams()
-    model: Model = make_daemon_model(kind, d_x, d_y, p, seed)
+    model: Model = build_model(kind or "roger", d_x, d_y, params or None, seed)
     return model
 
 
@@ -228,7 +227,7 @@ def _start(rt: RobotRuntime, tl: Timeline, initial_model: Model | None,
     # the labels of the pairs it learned before are unknown here: the empty label, which
     # never wins a majority (roger_daemon.labels); nothing queued
     unknown = RobotState.from_labels([""] * int(initial_model.n_learned), vocab=[""])
-    rt.restore(unknown.to_arrays(rt.dims), {})
+    rt.restore(unknown.to_arrays(rt.dims), Counters())
     if tl.decisions:  # a version-2 log names the queued pairs it learned as its own
         return seg
     if len(initial_pairs) != seg.queued:

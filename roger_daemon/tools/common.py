@@ -25,7 +25,7 @@ from typing import Any
 from protocols import decode, keys
 from protocols.errors import ProtocolError
 from roger_daemon.console import UsageError
-from roger_daemon.zenoh_session import add_zenoh_args, settings_from_args
+from roger_daemon.zenoh_session import DAEMON_ENDPOINT, add_zenoh_args, settings_from_args
 
 __all__ = [
     "DEFAULT_CONNECT",
@@ -44,7 +44,7 @@ __all__ = [
     "settings_from_args",
 ]
 
-DEFAULT_CONNECT = "tcp/127.0.0.1:7447"  # the daemon's default listen endpoint
+DEFAULT_CONNECT = DAEMON_ENDPOINT  # the daemon's default listen endpoint
 
 
 def count(text: str) -> int:

@@ -290,7 +290,7 @@ class _Demo:
         from rich.table import Table
 
         from roger_daemon.daemon.checkpoint import load_newest
-        from roger_daemon.fsm.online import load_daemon_model
+        from roger_daemon.config.models import load_model as load_daemon_model
         from simulator.experiment.demo_play import segmentation_figures
 
         out = self.out

@@ -28,6 +28,7 @@ import numpy.typing as npt
 from protocols.messages import Dims
 from roger_daemon.atomic import write_json
 from roger_daemon.daemon.checkpoint import array_digest, write_checkpoint
+from roger_daemon.daemon.checkpoint_meta import CheckpointMeta, LearnerSpec
 from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.replay.compare import REL_TOL
 
@@ -124,7 +125,7 @@ def label_state(labels: Sequence[str]) -> RobotState:
 
 def write_model_checkpoint(directory: Path, model: Any, labels: Sequence[str], *,
                            model_kind: str, seed: int, params: Any,
-                           robot: str = "aibo") -> tuple[Path, dict[str, Any]]:
+                           robot: str = "aibo") -> tuple[Path, CheckpointMeta]:
     """Write ``model`` as the daemon's checkpoint of ``robot`` in ``directory``.
 
     Returns its path and metadata (``model_digest`` identifies the model).
@@ -133,18 +134,10 @@ def write_model_checkpoint(directory: Path, model: Any, labels: Sequence[str], *
         raise ValueError(f"{len(labels)} labels for {model.n_learned} learned pairs")
     d_x, d_y = int(model.d_x), int(model.d_y)
     daemon = label_state(labels).to_arrays(Dims(d_x, d_y))
-    meta = {
-        "created_unix_ns": time.time_ns(),
-        "reason": "experiment",
-        "daemon": "experiment",
-        "updates": int(model.n_learned),
-        "x_dim": d_x,
-        "y_dim": d_y,
-        "counters": {},
-        "model": model_kind,
-        "seed": seed,
-        "params": params.to_mapping(),
-    }
+    meta = CheckpointMeta(
+        reason="experiment", updates=int(model.n_learned), x_dim=d_x, y_dim=d_y,
+        created_unix_ns=time.time_ns(), daemon="experiment",
+        learner=LearnerSpec(model_kind, seed, params.to_mapping()))
     return write_checkpoint(directory, robot, model.state_dict(), daemon, meta, keep=1)
 
 

@@ -174,7 +174,7 @@ class ZenohRun:
                 f.unlink()
             _, meta = write_model_checkpoint(d, model, labels, model_kind=kind,
                                              seed=seed, params=model.params)
-            digests[key] = str(meta["model_digest"])
+            digests[key] = meta.model_digest
         save_training_data(plan.out, stream, models[0][1])
         self._phase("grouping", t0)
         return digests

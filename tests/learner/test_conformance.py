@@ -207,3 +207,19 @@ def _fields(e: Any) -> tuple[Any, ...]:
 def _same_prediction(a: Any, b: Any) -> bool:
     return (a.expert_id, a.gate_prob, a.mean.tolist(), a.var.tolist()) == (
         b.expert_id, b.gate_prob, b.mean.tolist(), b.var.tolist())
+
+
+def test_the_registry_builds_and_reloads_every_kind_it_names() -> None:
+    from roger_daemon.config.models import MODELS as DAEMON_MODELS
+    from roger_daemon.config.models import build_model
+    from roger_daemon.learner.registry import MODELS as REGISTRY
+    from roger_daemon.learner.registry import load_model
+
+    assert {k: DAEMON_MODELS[k] for k in REGISTRY} == REGISTRY  # the daemon's extends it
+    for kind, cls in REGISTRY.items():
+        model = build_model(kind, 2, 1, {"beta": 5}, seed=1)
+        assert type(model) is cls and model.kind == kind and model.params.beta == 5
+        model.learn_one(np.array([0.1, 0.2]), np.array([0.3]))
+        assert type(load_model(model.state_dict())) is cls
+    with pytest.raises(ValueError, match="unknown model kind 'nope' \\(one of roger, unimap, "):
+        build_model("nope", 2, 1)

@@ -13,12 +13,11 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from roger_daemon.config import CheckpointConfig
-from roger_daemon.daemon.checkpoint import write_checkpoint
+from roger_daemon.daemon.checkpoint import CheckpointMeta, write_checkpoint
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.service.clock import Clock
 from roger_daemon.daemon.service.schedule import QuietWork
@@ -31,18 +30,21 @@ log = logging.getLogger(__name__)
 _OVERDUE_NS = 1_000_000_000
 
 #: (model arrays, daemon arrays, metadata) of one robot
-Snapshot = tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]
+Snapshot = tuple[dict[str, np.ndarray], dict[str, np.ndarray], CheckpointMeta]
 
 
 def checkpoint_snapshot(
     rt: RobotRuntime, reason: str, *, daemon_id: str, created_unix_ns: int,
-    session_id: str, session_segment: int, extra: dict[str, Any] | None = None,
+    session_id: str, session_segment: int, invalid: Mapping[str, int] | None = None,
+    recovered_pairs: int = 0, recovered_from: Sequence[str] = (),
     model_state: Mapping[str, np.ndarray] | None = None, ahead: Sequence[Pair] = (),
 ) -> Snapshot:
     """(model arrays, daemon arrays, metadata) of one robot, copied (safe to write later).
 
     ``model_state``: the model's ``state_dict`` when a worker process sent it (else it is
-    taken from ``rt.model``); ``ahead``: pairs in flight to that worker, saved queued.
+    taken from ``rt.model``); ``ahead``: pairs in flight to that worker, saved queued;
+    ``invalid``: the rejections its counters report (status's: the robot's own and those no
+    robot can be blamed for; by default the robot's own).
 
     ``session_id``/``session_segment`` say where in the session logs the model stands (the
     recorder's session and the number of resets in it; ``""`` without recording): start-up
@@ -52,21 +54,12 @@ def checkpoint_snapshot(
         model = {k: np.array(v, copy=True) for k, v in rt.model.state_dict().items()}
     else:  # a worker's state: already this snapshot's own arrays
         model = dict(model_state)
-    meta: dict[str, Any] = {
-        "created_unix_ns": created_unix_ns,
-        "reason": reason,
-        "daemon": daemon_id,
-        "updates": rt.updates,
-        "x_dim": rt.dims.x,
-        "y_dim": rt.dims.y,
-        "counters": rt.counters(),
-        "session_id": session_id,
-        "session_segment": session_segment,
-        # the write-ahead log's last record reflected in this snapshot (None: no log)
-        "wal_seq": None if rt.wal is None else rt.wal.last_seq,
-    }
-    if extra:
-        meta.update(extra)
+    meta = CheckpointMeta(
+        reason=reason, updates=rt.updates, x_dim=rt.dims.x, y_dim=rt.dims.y,
+        created_unix_ns=created_unix_ns, daemon=daemon_id, counters=rt.counters(invalid),
+        session_id=session_id, session_segment=session_segment,
+        wal_seq=None if rt.wal is None else rt.wal.last_seq, learner=rt.learner,
+        recovered_pairs=recovered_pairs, recovered_from=tuple(recovered_from))
     return model, rt.daemon_arrays(ahead), meta
 
 
@@ -81,7 +74,7 @@ class CheckpointState:
     digest: str = ""
     written: int = 0
     errors: int = 0
-    in_flight: Future[tuple[Path, dict[str, Any]]] | None = None
+    in_flight: Future[tuple[Path, CheckpointMeta]] | None = None
     in_flight_gen: int = 0
     wal_seq: int | None = None  # of the newest checkpoint written in this life
     #: the first periodic checkpoint comes this share of its interval early (robot i of n:
@@ -101,7 +94,7 @@ class Checkpoints:
         snapshot: Callable[[RobotRuntime, str, Mapping[str, np.ndarray] | None,
                             Sequence[Pair]], Snapshot],
         *, sync: bool,
-        written: Callable[[RobotRuntime, dict[str, Any]], None] | None = None,
+        written: Callable[[RobotRuntime, CheckpointMeta], None] | None = None,
     ) -> None:
         self.config = config
         self.robots = robots
@@ -209,29 +202,29 @@ class Checkpoints:
         if self._writer is not None:
             self._writer.shutdown(wait=True)
 
-    def _rotate_wal(self, robot: str, meta: dict[str, Any]) -> None:
+    def _rotate_wal(self, robot: str, meta: CheckpointMeta) -> None:
         """After a durable checkpoint: new log segment; drop the segments the previous
         checkpoint covers (one checkpoint's worth of log is kept in case the newest fails)."""
         rt = self.robots[robot]
         st = self.state[robot]
-        if rt.wal is None or not isinstance(meta.get("wal_seq"), int):
+        if rt.wal is None or meta.wal_seq is None:
             return
         rt.wal.rotate()
         if st.wal_seq is not None:
             rt.wal.prune(st.wal_seq)
-        st.wal_seq = int(meta["wal_seq"])
+        st.wal_seq = meta.wal_seq
 
-    def _done(self, robot: str, gen: int, path: Path, meta: dict[str, Any]) -> None:
+    def _done(self, robot: str, gen: int, path: Path, meta: CheckpointMeta) -> None:
         st = self.state[robot]
         self._rotate_wal(robot, meta)
-        st.generation, st.path, st.updates = gen, str(path), int(meta["updates"])
+        st.generation, st.path, st.updates = gen, str(path), meta.updates
         st.phase = 0.0  # only the first periodic checkpoint comes early
-        st.digest = str(meta["model_digest"])
+        st.digest = meta.model_digest
         st.written += 1
         if self._written is not None:
             self._written(self.robots[robot], meta)
         log.info("%s: checkpoint %s written (%s, %d updates, model %s)", robot, path,
-                 meta.get("reason", ""), st.updates, st.digest[:12])
+                 meta.reason, st.updates, st.digest[:12])
 
     def _failed(self, robot: str, exc: BaseException) -> None:
         self.state[robot].errors += 1

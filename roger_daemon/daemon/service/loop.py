@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -39,6 +39,7 @@ from protocols.messages import (
     Status,
 )
 from roger_daemon.config import DaemonConfig
+from roger_daemon.daemon.checkpoint_meta import CheckpointMeta
 from roger_daemon.daemon.gc_policy import Thresholds, collect_when_idle
 from roger_daemon.daemon.health import Health
 from roger_daemon.daemon.robot import Pair, RobotRuntime
@@ -109,7 +110,6 @@ class Service:
         clock: Clock | None = None,
         sync_checkpoints: bool = False,
         resumed: Mapping[str, str] | None = None,
-        checkpoint_meta: Callable[[RobotRuntime], dict[str, Any]] | None = None,
         learners: Any = None,
     ) -> None:
         self.config = config
@@ -128,7 +128,6 @@ class Service:
         self.inbox = Inbox(max(4 * config.queue_size, 1024))
         self.stats = LoopStats()
         self.resumed = dict(resumed or {})
-        self._checkpoint_meta = checkpoint_meta
         self.checkpoints = Checkpoints(config.checkpoint, self.robots, self.clock, self._snapshot,
                                        sync=sync_checkpoints, written=self._checkpoint_written)
         self.outbox = Outbox(self.recorders, self.clock)
@@ -337,16 +336,13 @@ class Service:
     def _snapshot(self, rt: RobotRuntime, reason: str,
                   model_state: Mapping[str, np.ndarray] | None = None,
                   ahead: Sequence[Pair] = ()) -> Snapshot:
-        model, daemon, meta = checkpoint_snapshot(
+        # the same counts as status (restored into rt.invalid; self.unserved restarts at 0)
+        return checkpoint_snapshot(
             rt, reason, daemon_id=self.config.id, created_unix_ns=self.clock.time_ns(),
             session_id=self.recorders.session_id(rt.robot),
-            session_segment=rt.session_resets,
-            extra=self._checkpoint_meta(rt) if self._checkpoint_meta is not None else None,
+            session_segment=rt.session_resets, invalid=invalid_counts(rt, self.unserved),
             model_state=model_state, ahead=ahead,
         )
-        # the same counts as status (restored into rt.invalid; self.unserved restarts at 0)
-        meta["counters"]["invalid"] = invalid_counts(rt, self.unserved)
-        return model, daemon, meta
 
     def _checkpoint(self, rt: RobotRuntime, reason: str, *, sync: bool = False) -> None:
         if self.learners is not None:  # the worker sends its state to write_snapshot
@@ -360,7 +356,7 @@ class Service:
         """Checkpoint ``rt`` (with the model state a worker sent, if given)."""
         self.checkpoints.write(rt, reason, model_state, ahead=ahead, sync=sync)
 
-    def _checkpoint_written(self, rt: RobotRuntime, meta: dict[str, Any]) -> None:
+    def _checkpoint_written(self, rt: RobotRuntime, meta: CheckpointMeta) -> None:
         """A checkpoint of ``rt`` is on disk: its model digest goes into the session log."""
         if isinstance(rt.decisions, DecisionLog):
             rt.decisions.checkpoint(rt, meta)

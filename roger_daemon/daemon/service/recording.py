@@ -6,12 +6,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
 from protocols import keys
 from protocols.decisions import Dropped, Learned, ModelDigest, Reset, chain_digest
 from protocols.message_types import Message, encode
 from roger_daemon.config import RecordingConfig
+from roger_daemon.daemon.checkpoint_meta import CheckpointMeta
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.service.schedule import QuietWork
 
@@ -181,14 +182,13 @@ class DecisionLog:
                                            queue_size=rt.queue_size, dropped=rt.dropped,
                                            stamp_ns=now), now)
 
-    def checkpoint(self, rt: RobotRuntime, meta: dict[str, Any]) -> None:
+    def checkpoint(self, rt: RobotRuntime, meta: CheckpointMeta) -> None:
         """A checkpoint was written: record its model's digest, chained."""
-        digest = str(meta["model_digest"])
-        self.chain = chain_digest(self.chain, digest)
+        self.chain = chain_digest(self.chain, meta.model_digest)
         now = self.wall_ns()
         self._write(rt, "model", ModelDigest(
-            rt.robot, int(rt.last_learned_tick or 0), rt.last_t, updates=int(meta["updates"]),
-            segment=int(meta.get("session_segment", 0) or 0), digest=digest, chain=self.chain,
+            rt.robot, int(rt.last_learned_tick or 0), rt.last_t, updates=meta.updates,
+            segment=meta.session_segment, digest=meta.model_digest, chain=self.chain,
             stamp_ns=now), now)
 
     def _write(self, rt: RobotRuntime, event: str, record: Message, now: int) -> None:
