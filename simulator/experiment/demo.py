@@ -289,8 +289,8 @@ class _Demo:
     def _report(self, summary: dict[str, Any], wall: float) -> None:
         from rich.table import Table
 
-        from roger_daemon.daemon.checkpoint import load_newest
         from roger_daemon.config.models import load_model as load_daemon_model
+        from roger_daemon.daemon.checkpoint import load_newest
         from simulator.experiment.demo_play import segmentation_figures
 
         out = self.out
