@@ -54,8 +54,10 @@ def test_the_robots_first_checkpoints_are_staggered_over_an_interval() -> None:
 
 
 def _finished(ck: Checkpoints, robot: str) -> None:
-    fut: Future[tuple[Path, dict[str, Any]]] = Future()
-    fut.set_result((Path(f"{robot}.npz"), {"updates": 0, "model_digest": "d"}))
+    fut: Future[tuple[Path, Any]] = Future()
+    # the fields of a CheckpointMeta that booking a finished checkpoint reads
+    meta = SimpleNamespace(updates=0, model_digest="d", wal_seq=None, reason="periodic")
+    fut.set_result((Path(f"{robot}.npz"), meta))
     ck.state[robot].in_flight = fut
     ck.state[robot].in_flight_gen = ck.robots[robot].generation
 
