@@ -19,6 +19,7 @@ import logging
 import signal
 import subprocess
 import threading
+import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -169,6 +170,15 @@ class TeachSession:
                        "--connect", self.endpoint, "--listen", "tcp/127.0.0.1:0"),
             stdout=self._take_log, stderr=subprocess.STDOUT, env=child_env())
         self.takes.append(str(takes))
+        # "recording" only once the recorder has its file open: a take stopped sooner would
+        # leave nothing (the recorder's start-up takes a second or more)
+        before = set(takes.glob("*.mcap"))
+        deadline = time.monotonic() + 20.0
+        while (self._take.poll() is None and time.monotonic() < deadline
+               and not set(takes.glob("*.mcap")) - before):
+            time.sleep(0.05)
+        if self._take.poll() is not None:
+            return f"the recorder exited ({self._take.returncode}): see {self.out / 'takes.log'}"
         return f"recording into {takes}"
 
     def _stop_take(self) -> str:
