@@ -57,17 +57,11 @@ def _take(arrays: Any, prefix: str) -> dict[str, np.ndarray]:
 def prepare_stream(plan: Any, params: Any) -> dict[str, float]:
     """Demonstrate, train and fit one stream (``plan.seed``); write ``plan.out/prepared.npz``.
     Returns the phases' wall times."""
-    from simulator.experiment import inprocess as ip
     from simulator.experiment import pipeline as pl
 
     timings: dict[str, float] = {}
     t0 = time.monotonic()
-    sim = pl.make_sim(plan)
-    try:
-        data, records = ip.demonstrate(sim, pl.make_hcc(plan), plan.locations, plan.shots,
-                                       plan.seeds["demo_sim"])
-    finally:
-        sim.close()
+    data, records = pl.demonstrate(plan)
     timings["demonstrations"] = round(time.monotonic() - t0, 2)
     stream = pl.downsample(data, plan)
     t0 = time.monotonic()

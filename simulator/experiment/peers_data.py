@@ -32,15 +32,9 @@ IntArray = npt.NDArray[np.int64]
 def demonstrations(plan: Any) -> tuple[Demonstrations, list[dict[str, Any]], IntArray]:
     """The goal-scoring plan's demonstrations (every tick), their records and the kept
     (downsampled) indices."""
-    from simulator.experiment import inprocess as ip
     from simulator.experiment import pipeline as pl
 
-    sim = pl.make_sim(plan)
-    try:
-        data, records = ip.demonstrate(sim, pl.make_hcc(plan), plan.locations, plan.shots,
-                                       plan.seeds["demo_sim"])
-    finally:
-        sim.close()
+    data, records = pl.demonstrate(plan)
     return data, [r.to_json() for r in records], pl.downsample_indices(data, plan)
 
 

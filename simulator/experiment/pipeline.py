@@ -67,6 +67,17 @@ def make_hcc(plan: Any) -> HCC:
     return hcc_from_config(plan.task_config)
 
 
+def demonstrate(plan: Any) -> tuple[Demonstrations, list[Any]]:
+    """The plan's demonstrations (every tick) and their episode records: the HCC from
+    ``plan.locations`` x ``plan.shots`` in a simulator of its own, closed afterwards."""
+    sim = make_sim(plan)
+    try:
+        return ip.demonstrate(sim, make_hcc(plan), plan.locations, plan.shots,
+                              plan.seeds["demo_sim"])
+    finally:
+        sim.close()
+
+
 def downsample(data: Demonstrations, plan: Any) -> Demonstrations:
     """At most ``plan.per_subtask`` random points per subtask, order kept (paper section IV)."""
     return data.subset(downsample_indices(data, plan))
@@ -239,13 +250,8 @@ def run_in_process(plan: Any, params: Any, console: Any,
 
     timings: dict[str, float] = {}
     t_all = t0 = time.monotonic()
-    sim = make_sim(plan)
-    try:
-        data, records = ip.demonstrate(sim, make_hcc(plan), plan.locations, plan.shots,
-                                       plan.seeds["demo_sim"])
-        demos = [r.to_json() for r in records]
-    finally:
-        sim.close()
+    data, records = demonstrate(plan)
+    demos = [r.to_json() for r in records]
     timings["demonstrations"] = round(time.monotonic() - t0, 2)
     stream = downsample(data, plan)
     t0 = time.monotonic()
