@@ -31,6 +31,9 @@ class TransitionTimer:
 
         self._newest = newest_assignment
 
+        from roger_daemon.fsm.jit_fsm import warm
+
+        warm()  # the kernels loaded from numba's cache before timing, as the learner's
         self.fsm = LearnedFSM(aibo_memory())
         self.update_ns: list[int] = []
         self.tick_ns: list[int] = []

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.fsm.jit_fsm import AdvanceArgs
 from roger_daemon.fsm.memory import Memory, MemorySpec, spec_from_mapping, spec_to_mapping
 from roger_daemon.fsm.transitions import TransitionModel
 
@@ -41,6 +42,9 @@ START = -1
 
 #: Smallest gate probability taken into a score (a log of 0 would exclude an expert outright).
 GATE_FLOOR = 1e-300
+
+#: The command of a tick without one (the kernels read none).
+_NO_COMMAND = np.zeros(1)
 
 #: Version of :meth:`LearnedFSM.state_dict`'s layout.
 SCHEMA = 1
@@ -66,6 +70,7 @@ class _Track:
 
     def __init__(self, spec: MemorySpec) -> None:
         self.memory = Memory(spec)
+        self.phi = np.empty(spec.dim)  # the fast path's features of the tick
         self.reset()
 
     def reset(self) -> None:
@@ -77,6 +82,13 @@ class _Track:
     def features(self, x: FloatArray) -> FloatArray:
         self.memory.update(x, self.command)
         return self.memory.features(x, self.ticks)
+
+    def kernel_args(self, x: FloatArray) -> AdvanceArgs:
+        """:func:`.jit_fsm.advance`'s arguments for this tick, up to the features' buffer."""
+        m = self.memory
+        cmd = _NO_COMMAND if self.command is None else self.command
+        return (x, cmd, self.command is not None, m.blob_x, m.proprio, m.offset, m.scale,
+                m.config, m.buffer, self.ticks, self.phi)
 
     def enter(self, state: int) -> None:
         self.ticks = self.ticks + 1 if state == self.state else 0
@@ -92,10 +104,16 @@ class LearnedFSM:
         The robot's layout for the memories (:func:`roger_daemon.fsm.profiles.aibo_memory`).
     transitions : TransitionModel, optional
         A learned model to continue from; a new one by default.
+    fast : bool
+        Learn and choose by the compiled kernels (:mod:`.jit_fsm`, the default) or by the
+        readable numpy code they are tested against (``False``): the same memories and
+        statistics, bit for bit.
     """
 
-    def __init__(self, spec: MemorySpec, transitions: TransitionModel | None = None) -> None:
+    def __init__(self, spec: MemorySpec, transitions: TransitionModel | None = None,
+                 fast: bool = True) -> None:
         self.spec = spec
+        self.fast = fast
         self.transitions = transitions or TransitionModel(spec.dim)
         if self.transitions.dim != spec.dim:
             raise ValueError(f"LearnedFSM: the transitions have dim {self.transitions.dim}, the "
@@ -112,18 +130,41 @@ class LearnedFSM:
         (``< 0``: none; the tick still advances the memories). ``learn_start=False``: an
         episode's first state is entered without teaching the start row (a stream whose
         episode boundaries are unknown: :mod:`.online`)."""
-        xv = np.asarray(x, dtype=np.float64)
-        yv = np.asarray(y, dtype=np.float64)
+        xv = np.ascontiguousarray(x, dtype=np.float64)
+        yv = np.ascontiguousarray(y, dtype=np.float64)
         track = self._learn
         if episode_start:
             track.reset()
-        phi = track.features(xv)
-        if state >= 0:
-            if learn_start or track.state != START:
+        teach = state >= 0 and (learn_start or track.state != START)
+        if self.fast:
+            self._observe_fast(track, xv, int(state) if teach else None)
+        else:
+            phi = track.features(xv)
+            if teach:
                 self.transitions.learn_one(track.state, int(state), phi)
+        if state >= 0:
             track.enter(int(state))
         track.command = yv
         self.n_observed += 1
+
+    def _observe_fast(self, track: _Track, x: FloatArray, state: int | None) -> None:
+        """The memories, features and (``state`` given) the pair's update in one kernel call;
+        a pair seen for the first time by :meth:`TransitionModel.learn_one`."""
+        from roger_daemon.fsm import jit_fsm
+
+        tr = self.transitions
+        r = -1 if state is None else tr._index.get((track.state, state), -1)
+        buf = tr._buf
+        finite = jit_fsm.observe(*track.kernel_args(x), r, buf["count"], buf["mu"],
+                                 buf["lam"], buf["valid"], tr.kappa0)
+        if state is None:
+            return
+        if r < 0:
+            tr.learn_one(track.state, state, track.phi)
+        elif not finite:
+            raise ValueError(f"TransitionModel: phi must be {tr.dim} finite floats")
+        else:
+            tr.learned(r)
 
     # -- acting ------------------------------------------------------------------------------
 
@@ -141,20 +182,23 @@ class LearnedFSM:
         ``x``) the robot acts on this tick; enters that expert's state. ``-1``: empty table."""
         if not table.expert_ids:
             return -1
-        xv = np.asarray(x, dtype=np.float64)
+        xv = np.ascontiguousarray(x, dtype=np.float64)
         track = self._act
-        phi = track.features(xv)
-        row = self._best_row(track.state, phi, table)
-        if row < 0:
-            row = self._best_row(START, phi, table)
-        if row < 0:  # no learned successor in the multimap: the paper's gate argmax
-            row = int(np.argmax(np.asarray(table.gate_probs)))
+        if self.fast:
+            row = self._choose_fast(track, xv, table)
+        else:
+            phi = track.features(xv)
+            row = self._best_row(track.state, phi, table)
+            if row < 0:
+                row = self._best_row(START, phi, table)
+            if row < 0:  # no learned successor in the multimap: the paper's gate argmax
+                row = int(np.argmax(np.asarray(table.gate_probs)))
         track.enter(int(table.expert_ids[row]))
         return row
 
     def commit(self, command: npt.ArrayLike) -> None:
         """The command actually executed this tick (the memories' odometry and clocks)."""
-        self._act.command = np.asarray(command, dtype=np.float64)
+        self._act.command = np.ascontiguousarray(command, dtype=np.float64)
 
     def act(self, x: npt.ArrayLike, table: Any) -> FloatArray:
         """:meth:`choose`, then the chosen expert's mean as the command (committed)."""
@@ -163,6 +207,19 @@ class LearnedFSM:
                    else np.array(table.means[row], dtype=np.float64))
         self.commit(command)
         return command
+
+    def _choose_fast(self, track: _Track, x: FloatArray, table: Any) -> int:
+        """:meth:`choose`'s row by :func:`.jit_fsm.choose` (one call)."""
+        from roger_daemon.fsm import jit_fsm
+
+        tr = self.transitions
+        buf = tr._buf
+        return int(jit_fsm.choose(
+            *track.kernel_args(x), tr.source_rows(track.state), tr.source_rows(START),
+            buf["pairs"], buf["count"], buf["mu"], buf["lam"], buf["linv"], buf["lnorm"],
+            buf["valid"], tr.kappa0, tr.nu0, np.asarray(table.expert_ids, dtype=np.int64),
+            np.asarray(table.gate_probs, dtype=np.float64),
+            np.asarray(table.n_points, dtype=np.int64)))
 
     def _best_row(self, prev: int, phi: FloatArray, table: Any) -> int:
         states, scores = self.transitions.log_scores(prev, phi)

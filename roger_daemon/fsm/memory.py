@@ -102,21 +102,44 @@ class Memory:
         self.spec = spec
         self._dt = 1.0 / spec.hz
         # the indices features() reads, as arrays (one vectorised pass per tick)
-        self._blob_x = np.array([i for _, i in spec.blobs], dtype=np.int64)
-        self._proprio = np.array([i for i, _, _ in spec.proprio], dtype=np.int64)
-        self._offset = np.array([o for _, o, _ in spec.proprio], dtype=np.float64)
-        self._scale = np.array([s for _, _, s in spec.proprio], dtype=np.float64)
+        self.blob_x = self._blob_x = np.array([i for _, i in spec.blobs], dtype=np.int64)
+        self.proprio = self._proprio = np.array([i for i, _, _ in spec.proprio], dtype=np.int64)
+        self.offset = self._offset = np.array([o for _, o, _ in spec.proprio], dtype=np.float64)
+        self.scale = self._scale = np.array([s for _, _, s in spec.proprio], dtype=np.float64)
         self.reset()
+        self.config = self.kernel_config()
 
     def reset(self) -> None:
         """A new episode: nothing seen, no motion started, no command yet."""
         cap = self.spec.horizon_s
         n = len(self.spec.blobs)
-        self.since = np.full(n, cap)
-        self.bearing = np.zeros(n)
-        self.since_motion = np.full(2, cap)  # positive, negative indicator
-        self._last_indicator = 0.0
+        # one buffer [since (n), bearing (n), since_motion (2), last indicator], the views
+        # below into it: the compiled kernels (.jit_fsm) advance it in place
+        self.buffer = np.zeros(2 * n + 3)
+        self.since = self.buffer[:n]
+        self.bearing = self.buffer[n:2 * n]
+        self.since_motion = self.buffer[2 * n:2 * n + 2]  # positive, negative indicator
+        self.since[:] = cap
+        self.since_motion[:] = cap
         self._started = False
+
+    @property
+    def _last_indicator(self) -> float:
+        return float(self.buffer[-1])
+
+    @_last_indicator.setter
+    def _last_indicator(self, value: float) -> None:
+        self.buffer[-1] = value
+
+    def kernel_config(self) -> FloatArray:
+        """The spec's scalars as :func:`.jit_fsm.advance` reads them (``CFG_FIELDS``)."""
+        spec = self.spec
+
+        def index(i: int | None) -> float:
+            return -1.0 if i is None else float(i)
+
+        return np.array([self._dt, spec.horizon_s, spec.half_fov, index(spec.pan),
+                         index(spec.turn), index(spec.indicator), spec.threshold])
 
     def update(self, x: FloatArray, previous_command: FloatArray | None) -> None:
         """Advance one tick: the perception ``x`` and the command executed since the last
@@ -178,7 +201,7 @@ class Memory:
         motion = np.asarray(arrays["since_motion"], dtype=np.float64)
         if since.shape != (n,) or bearing.shape != (n,) or motion.shape != (2,):
             raise ValueError("Memory: saved arrays do not match the spec's blobs")
-        self.since, self.bearing, self.since_motion = since, bearing, motion
+        self.since[:], self.bearing[:], self.since_motion[:] = since, bearing, motion
         self._last_indicator = float(np.asarray(arrays["last_indicator"]).reshape(-1)[0])
 
 

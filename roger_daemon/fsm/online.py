@@ -72,6 +72,9 @@ class RogerFSM(Roger):
     def __init__(self, d_x: int, d_y: int, params: RogerParams | None = None,
                  seed: Seed = None, spec: MemorySpec | None = None) -> None:
         super().__init__(d_x, d_y, params, seed)
+        from roger_daemon.fsm.jit_fsm import warm
+
+        warm()  # the transitions' kernels loaded (numba's cache: roger compile) before a pair
         spec = default_memory(self.d_x, self.d_y) if spec is None else spec
         spec.check_dims(self.d_x, self.d_y)
         self.fsm = LearnedFSM(spec)

@@ -18,7 +18,7 @@ batched quadratic form (:meth:`TransitionModel.log_scores`).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -28,6 +28,8 @@ __all__ = ["TransitionModel"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+
+_NO_ROWS = np.zeros(0, dtype=np.int64)
 
 
 class TransitionModel:
@@ -54,13 +56,51 @@ class TransitionModel:
         self.dim = dim
         self.kappa0, self.lambda0, self.nu0 = float(kappa0), float(lambda0), nu
         self._index: dict[tuple[int, int], int] = {}  # (s, j) -> row of the arrays below
-        self.pairs = np.zeros((0, 2), dtype=np.int64)
-        self.count = np.zeros(0, dtype=np.int64)
-        self.mu = np.zeros((0, dim))
-        self.lam = np.zeros((0, dim, dim))
+        self.n_pairs = 0
+        self._grow(0)
         self._by_source: dict[int, list[int]] = {}
+        self._rows: dict[int, IntArray] = {}  # the rows of _by_source, as arrays (.jit_fsm)
         self._cache: dict[int, tuple[IntArray, FloatArray, FloatArray, FloatArray,
                                      FloatArray]] = {}
+
+    # -- storage: rows of arrays with room to grow (no copy per new pair) ----------------------
+
+    def _grow(self, need: int) -> None:
+        """Room for ``need`` pairs: the buffers, their first :attr:`n_pairs` rows kept. Besides
+        the statistics, per pair its compiled Student-t terms (:mod:`.jit_fsm`: ``linv``,
+        ``lnorm``, ``valid``; derived from the statistics, never saved)."""
+        cap = max(8, 2 * need) if need else 8
+        d, n = self.dim, self.n_pairs
+        old = getattr(self, "_buf", None)
+        buf: dict[str, Any] = {
+            "pairs": np.zeros((cap, 2), dtype=np.int64), "count": np.zeros(cap, np.int64),
+            "mu": np.zeros((cap, d)), "lam": np.zeros((cap, d, d)),
+            "linv": np.zeros((cap, d, d)), "lnorm": np.zeros((cap, 4)),
+            "valid": np.zeros(cap, dtype=np.bool_)}
+        if old is not None:
+            for k, v in buf.items():
+                v[:n] = old[k][:n]
+        self._buf = buf
+
+    @property
+    def pairs(self) -> IntArray:
+        """``(s, j)`` of every pair, one row each (a view)."""
+        return cast(IntArray, self._buf["pairs"][:self.n_pairs])
+
+    @property
+    def count(self) -> IntArray:
+        """How often each pair was observed (a view)."""
+        return cast(IntArray, self._buf["count"][:self.n_pairs])
+
+    @property
+    def mu(self) -> FloatArray:
+        """The NIW posterior means (a view)."""
+        return cast(FloatArray, self._buf["mu"][:self.n_pairs])
+
+    @property
+    def lam(self) -> FloatArray:
+        """The NIW posterior scale matrices ``Lambda_n`` (a view)."""
+        return cast(FloatArray, self._buf["lam"][:self.n_pairs])
 
     # -- learning ----------------------------------------------------------------------------
 
@@ -71,27 +111,45 @@ class TransitionModel:
         if x.shape != (self.dim,) or not np.isfinite(x).all():
             raise ValueError(f"TransitionModel: phi must be {self.dim} finite floats, got "
                              f"shape {x.shape}")
-        key = (int(prev), int(state))
-        r = self._index.get(key)
-        if r is None:
-            r = self._add_pair(key)
+        r = self.row(prev, state)
         n = int(self.count[r])
         kappa = self.kappa0 + n
         u = x - self.mu[r]
         self.lam[r] += np.outer(u, u) * (kappa / (kappa + 1.0))
         self.mu[r] += u / (kappa + 1.0)
         self.count[r] = n + 1
-        self._cache.pop(key[0], None)
+        self.learned(r)
+
+    def row(self, prev: int, state: int) -> int:
+        """The row of pair ``(prev, state)``, added (count 0, the prior) if it is new."""
+        key = (int(prev), int(state))
+        r = self._index.get(key)
+        return self._add_pair(key) if r is None else r
+
+    def learned(self, r: int) -> None:
+        """Row ``r``'s statistics changed: its cached Student-t terms are stale."""
+        self._cache.pop(int(self.pairs[r, 0]), None)
+        self._buf["valid"][r] = False
 
     def _add_pair(self, key: tuple[int, int]) -> int:
-        r = len(self.count)
+        r = self.n_pairs
+        if r == len(self._buf["count"]):
+            self._grow(r + 1)
         self._index[key] = r
-        self.pairs = np.vstack([self.pairs, np.array([key], dtype=np.int64)])
-        self.count = np.append(self.count, 0)
-        self.mu = np.vstack([self.mu, np.zeros((1, self.dim))])
-        self.lam = np.concatenate([self.lam, (np.eye(self.dim) * self.lambda0)[None]])
+        self._buf["pairs"][r] = key
+        self._buf["count"][r] = 0
+        self._buf["mu"][r] = 0.0
+        self._buf["lam"][r] = np.eye(self.dim) * self.lambda0
+        self._buf["valid"][r] = False
+        self.n_pairs = r + 1
         self._by_source.setdefault(key[0], []).append(r)
+        self._rows[key[0]] = np.array(self._by_source[key[0]], dtype=np.int64)
         return r
+
+    def source_rows(self, prev: int) -> IntArray:
+        """The rows of the pairs leaving ``prev``, in order of first observation."""
+        rows = self._rows.get(prev)
+        return _NO_ROWS if rows is None else rows
 
     # -- scoring -----------------------------------------------------------------------------
 
@@ -167,14 +225,14 @@ class TransitionModel:
         prior = np.asarray(arrays["prior"], dtype=np.float64)
         model = cls(int(prior[0]), float(prior[1]), float(prior[2]), float(prior[3]))
         pairs = np.asarray(arrays["pairs"], dtype=np.int64).reshape(-1, 2)
-        model.count = np.asarray(arrays["count"], dtype=np.int64).copy()
-        model.mu = np.asarray(arrays["mu"], dtype=np.float64).reshape(-1, model.dim).copy()
-        model.lam = np.asarray(arrays["lam"], dtype=np.float64).reshape(
-            -1, model.dim, model.dim).copy()
-        if not len(pairs) == len(model.count) == len(model.mu) == len(model.lam):
+        count = np.asarray(arrays["count"], dtype=np.int64).reshape(-1)
+        mu = np.asarray(arrays["mu"], dtype=np.float64).reshape(-1, model.dim)
+        lam = np.asarray(arrays["lam"], dtype=np.float64).reshape(-1, model.dim, model.dim)
+        if not len(pairs) == len(count) == len(mu) == len(lam):
             raise ValueError("TransitionModel: saved arrays disagree in length")
-        model.pairs = pairs.copy()
         for r, (s, j) in enumerate(pairs.tolist()):
-            model._index[(s, j)] = r
-            model._by_source.setdefault(s, []).append(r)
+            if (s, j) in model._index:
+                raise ValueError(f"TransitionModel: pair {(s, j)} saved twice")
+            model.row(s, j)
+            model.count[r], model.mu[r], model.lam[r] = count[r], mu[r], lam[r]
         return model

@@ -109,7 +109,8 @@ def _warm_resampling() -> None:
 
 
 def _warm_the_rest() -> None:
-    """Copies, the packed helpers, the small experts' kernels, the gates and the lineages."""
+    """Copies, the packed helpers, the small experts' kernels, the gates and the lineages; the
+    learned transitions' kernels (:mod:`roger_daemon.fsm.jit_fsm`)."""
     from roger_daemon.learner.engine import jit_batch as bk
     from roger_daemon.learner.engine import jit_cholesky as chk
     from roger_daemon.learner.engine import jit_kernels as k
@@ -163,12 +164,16 @@ def _warm_the_rest() -> None:
     bk.copy_batch(padded([sym], 0), padded([sym.copy()], 0), 1,
                   np.zeros(1, dtype=np.int64), 1)
     bk.balanced_owners(np.array([-1, 0]), np.array([1, 2]), 2, True)
+    from roger_daemon.fsm import jit_fsm
+
+    jit_fsm.warm()  # the learned transitions' kernels (roger+fsm, roger play)
 
 
 #: the families and what compiling each took on a cold cache, in seconds (2-core AMD EPYC, one
-#: process, 2026-11-28: 58 s in all); the costs only balance the shares (:func:`shares`)
+#: process, 2026-11-28: 58 s in all; the learned transitions' kernels 3.8 s more, 2026-12-02 at
+#: load 4.8); the costs only balance the shares (:func:`shares`)
 WARMERS: tuple[tuple[Callable[[], None], float], ...] = (
-    (_warm_learning, 27.6), (_warm_evaluation, 13.8), (_warm_the_rest, 9.7),
+    (_warm_learning, 27.6), (_warm_evaluation, 13.8), (_warm_the_rest, 13.5),
     (_warm_resampling, 7.0))
 
 
