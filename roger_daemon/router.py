@@ -2,9 +2,10 @@
 
 For several hosts: run one router, and start daemons, simulators and controllers as Zenoh
 clients that ``connect`` to it; nothing else changes. The default config listens on loopback
-only; a router that listens where other hosts reach it without an ``access_control`` block is
-warned about. The secure deployment (user/password authentication and an ACL by role) is
-``configs/zenoh/secure/`` (``docs/security.md``). Stops cleanly on SIGTERM/SIGINT.
+only; a router that listens where other hosts reach it without authentication or without an
+``access_control`` block is warned about, and the shipped example passwords are refused
+unless ``--insecure-example``. The secure deployment (user/password authentication and an
+ACL by role) is ``configs/zenoh/secure/`` (``docs/security.md``). Stops cleanly on SIGTERM/SIGINT.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import signal
 import time
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 from roger_daemon.daemon.sdnotify import Notifier
 from roger_daemon.zenoh_session import (
@@ -45,6 +47,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         metavar="KEY=JSON5",
                         help="override one Zenoh config key after the file and the flags, "
                              "e.g. transport/auth/usrpwd/dictionary_file='\"/etc/roger/creds\"'")
+    parser.add_argument("--insecure-example", action="store_true",
+                        help="start even though the credentials are the shipped example's "
+                             "(passwords change-me-*): for a try on one machine only")
 
 
 def exposed(listen: list[str]) -> list[str]:
@@ -58,6 +63,46 @@ def exposed(listen: list[str]) -> list[str]:
         if not (host == "localhost" or host == "::1" or host.startswith("127.")):
             out.append(ep)
     return out
+
+
+#: the passwords of the shipped example credentials (configs/zenoh/secure/), never to be used
+EXAMPLE_PASSWORD_PREFIX = "change-me"
+
+
+def example_credentials(dictionary_file: str | None) -> list[str]:
+    """The users of ``dictionary_file`` (``user:password`` lines) whose password is one of the
+    shipped example's (``change-me-*``, docs/security.md); [] if none or unreadable (Zenoh
+    reports an unreadable file itself)."""
+    if not dictionary_file:
+        return []
+    try:
+        lines = Path(dictionary_file).read_text().splitlines()
+    except (OSError, UnicodeDecodeError):
+        return []
+    return [user for user, _, pw in (ln.strip().partition(":") for ln in lines)
+            if pw.startswith(EXAMPLE_PASSWORD_PREFIX)]
+
+
+def exposure_warning(listen: list[str], *, acl: bool, auth: bool) -> str:
+    """What a router listening on ``listen`` must be warned about ("" if nothing): a listener
+    other hosts reach without authentication (anyone there connects) or without an ACL (any
+    client may publish anything); docs/security.md."""
+    public = exposed(listen)
+    missing = [what for what, ok in (("authentication", auth), ("access control", acl))
+               if not ok]
+    if not public or not missing:
+        return ""
+    return (f"the router listens on {', '.join(public)}, reachable from other hosts, WITHOUT "
+            f"{' or '.join(missing)}: anyone there can connect"
+            + (" as any role" if acl else "") + " and publish control (reset) or impersonate "
+            "a daemon. Use configs/zenoh/secure/router.json5 (docs/security.md)")
+
+
+def _authenticated(cfg: Any) -> bool:
+    """Whether the router's config makes a client prove who it is (user/password or mTLS)."""
+    usrpwd = json.loads(cfg.get_json("transport/auth/usrpwd/dictionary_file"))
+    mtls = json.loads(cfg.get_json("transport/link/tls/enable_mtls"))
+    return bool(usrpwd) or bool(mtls)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -93,6 +138,16 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # ZError: unreadable or invalid JSON5
         log.error("config error: %s is not a usable Zenoh config: %s", args.config, exc)
         return 2
+    dictionary = json.loads(cfg.get_json("transport/auth/usrpwd/dictionary_file"))
+    if (users := example_credentials(dictionary)) and not args.insecure_example:
+        log.error("%s holds the shipped example passwords (change-me-*) for %s: anyone who "
+                  "read the example can connect. Write your own dictionary (chmod 600) and "
+                  "pass --set 'transport/auth/usrpwd/dictionary_file=\"PATH\"', or "
+                  "--insecure-example to try it on one machine (docs/security.md)",
+                  dictionary, ", ".join(users))
+        return 2
+    if users:
+        log.warning("running with the example passwords of %s (--insecure-example)", dictionary)
     try:
         session = open_session(cfg)
     except Exception as exc:
@@ -104,11 +159,8 @@ def run(args: argparse.Namespace) -> int:
         acl = json.loads(cfg.get_json("access_control/enabled"))
         log.info("router %s listening on %s (access control %s)", session.zid(), listen,
                  "on" if acl else "off")
-        if exposed(listen) and not acl:
-            log.warning("the router listens on %s, reachable from other hosts, WITHOUT access "
-                        "control: anyone there can publish control (reset) or impersonate a "
-                        "daemon. Use configs/zenoh/secure/router.json5 (docs/security.md)",
-                        ", ".join(exposed(listen)))
+        if warning := exposure_warning(listen, acl=bool(acl), auth=_authenticated(cfg)):
+            log.warning("%s", warning)
         notifier.ready(f"router listening on {listen}")
         while not stop["flag"]:
             time.sleep(0.1)

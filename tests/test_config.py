@@ -159,7 +159,7 @@ BAD: list[tuple[dict[str, Any], str]] = [
     ({"checkpoint": {"keep": 0}}, "checkpoint.keep must be an integer >= 1, got 0"),
     ({"checkpoint": {"shutdown_learn_s": 10}},
      "checkpoint.shutdown_learn_s must be a number in [0, 3] (seconds), got 10.0"),
-    ({"checkpoint": {"dir": 5}}, "checkpoint.dir must be a path (string), got 5"),
+    ({"checkpoint": {"dir": 5}}, "checkpoint.dir must be a directory (a non-empty path), got 5"),
     ({"recording": {"enabled": 1}}, "recording.enabled must be true or false, got 1"),
 ]
 

@@ -296,7 +296,7 @@ def _checkpoint_section(c: Table) -> CheckpointConfig:
     ckpt = CheckpointConfig(
         # absolute (from the working directory at start): status, `roger control checkpoint`
         # and the logs name files any reader can open (issue 56)
-        dir=(c.path("dir", d.dir) or d.dir).absolute(),
+        dir=c.directory("dir", d.dir).absolute(),
         every_updates=c.integer("every_updates", d.every_updates, lo=0),
         every_s=c.number("every_s", d.every_s, lo=0.0, lo_open=False),
         keep=c.integer("keep", d.keep, lo=1),
@@ -323,7 +323,7 @@ def _recording_section(rec: Table) -> RecordingConfig:
     d = RecordingConfig  # its defaults, written there once
     recording = RecordingConfig(
         enabled=rec.boolean("enabled", d.enabled),
-        dir=(rec.path("dir", d.dir) or d.dir).absolute(),
+        dir=rec.directory("dir", d.dir).absolute(),
         max_bytes=rec.integer("max_bytes", d.max_bytes, lo=0),
         max_age_days=rec.number("max_age_days", d.max_age_days, lo=0.0, lo_open=False),
     )

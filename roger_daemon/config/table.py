@@ -109,6 +109,16 @@ class Table:
             raise bad(self.key(name), "a path (string)", v)
         return Path(v) if v else None
 
+    def directory(self, name: str, default: Path) -> Path:
+        """A directory's path: a non-empty string (an empty one is refused, never taken for
+        the default)."""
+        v = self.raw(name, default)
+        if isinstance(v, Path):
+            return v
+        if not isinstance(v, str) or not v.strip():
+            raise bad(self.key(name), "a directory (a non-empty path)", v)
+        return Path(v)
+
     def strings(self, name: str, default: tuple[str, ...] | None) -> tuple[str, ...] | None:
         """An array of non-empty strings, as a tuple."""
         v = self.raw(name, default)

@@ -234,11 +234,17 @@ class ReferenceRoger:
         experts below ``min_support`` points get 0 unless none has it (§6, §8)."""
         p = self.params
         lg = np.array([math.log(e.count) + e.gate.log_predictive(xs) for e in experts])
+        empty = (math.log(p.alpha) + self._prior.log_predictive(xs) if p.predict_empty_expert
+                 else -math.inf)
+        if not max(lg.max(), empty) > -math.inf:
+            # every gate density underflows: p(k | x) ∝ n_k, the CRP prior alone (§6)
+            lg = np.array([math.log(e.count) for e in experts])
+            empty = math.log(p.alpha)
         small = np.array([e.count < p.min_support for e in experts])
         if p.min_support > 1 and not small.all():
             lg[small] = -np.inf
         if p.predict_empty_expert:
-            lg = np.append(lg, math.log(p.alpha) + self._prior.log_predictive(xs))
+            lg = np.append(lg, empty)
         w = np.exp(lg - lg.max())
         out: FloatArray = w / w.sum()
         return out

@@ -31,13 +31,20 @@ def gate_probs(store: Experts, terms: ModelTerms, slots: IntArray, xs: FloatArra
     store.gates.crp_log_terms(slots, xs, store.counts, by_slot)
     lg = by_slot[slots]
     npts = store.counts[slots]
+    with_empty = terms.params.predict_empty_expert
+    empty = terms.log_alpha + store.gates.prior_log_predictive(xs) if with_empty else -np.inf
+    if not max(lg.max(), empty) > -np.inf:
+        # x so far from every gate that each density underflows: the gates cannot tell the
+        # experts apart, p(k | x) ∝ n_k (the CRP prior alone, docs/learner-math.md §6)
+        lg = np.log(npts.astype(np.float64))
+        empty = terms.log_alpha
     support = terms.params.min_support
     if support > 1:  # too small to compete, unless no expert has the support
         small = npts < support
         if not small.all():
             lg[small] = -np.inf
-    if terms.params.predict_empty_expert:
-        lg = np.append(lg, terms.log_alpha + store.gates.prior_log_predictive(xs))
+    if with_empty:
+        lg = np.append(lg, empty)
     w = np.exp(lg - lg.max())  # the methods: numpy's reductions without their wrappers
     out: FloatArray = w / w.sum()
     return out

@@ -42,6 +42,21 @@ def as_vector(name: str, value: object, dim: int) -> FloatArray:
     return arr
 
 
+def _scaled(name: str, v: FloatArray, offset: FloatArray, scale: FloatArray) -> FloatArray:
+    """``(v - offset) / scale`` (docs/learner-math.md), refused if it overflows."""
+    with np.errstate(over="ignore", invalid="ignore"):  # refused below, with the values
+        out: FloatArray = (v - offset) / scale
+    return _finite(name, v, out)
+
+
+def _finite(name: str, v: FloatArray, out: FloatArray) -> FloatArray:
+    if not np.isfinite(out).all():
+        raise ValueError(f"{name} scaled to model units overflows float64: {name} = "
+                         f"{v.tolist()} (finite, but too large for the configured "
+                         "offset, scale and input weights)")
+    return out
+
+
 class AffineScaling:
     """The fixed scaling of one model (identity where the params give ``None``)."""
 
@@ -64,15 +79,19 @@ class AffineScaling:
             self.weights = w[self.kept]
 
     def x_in(self, x: FloatArray) -> FloatArray:
-        """Raw input to model units (scaled, weighted, zero-weight dimensions dropped)."""
-        xs = x if self.identity_x else (x - self.x_offset) / self.x_scale
-        if self.kept is None:
-            return xs
-        return xs[self.kept] * self.weights
+        """Raw input to model units (scaled, weighted, zero-weight dimensions dropped);
+        ``ValueError`` when a finite input leaves float64's range on the way."""
+        if self.identity_x and self.kept is None:
+            return x
+        with np.errstate(over="ignore", invalid="ignore"):  # refused below, with the values
+            xs = x if self.identity_x else (x - self.x_offset) / self.x_scale
+            if self.kept is not None:
+                xs = xs[self.kept] * self.weights
+        return _finite("x", x, xs)
 
     def y_in(self, y: FloatArray) -> FloatArray:
-        """Raw output to model units."""
-        return y if self.identity_y else (y - self.y_offset) / self.y_scale
+        """Raw output to model units (``ValueError`` as :meth:`x_in`)."""
+        return y if self.identity_y else _scaled("y", y, self.y_offset, self.y_scale)
 
     def mean_out(self, mean: FloatArray) -> FloatArray:
         """Predictive mean back to raw output units."""

@@ -124,6 +124,9 @@ def export_json(path: str | Path, out: str | Path) -> ExportReport:
                     sequence=rec.sequence,
                 )
                 rep.messages += 1
+        if not rep.messages and not reader.complete:  # nothing written: the atomic write aborts
+            raise ValueError(f"{src} has no readable message to export (the file is cut "
+                             f"short: {reader.error or 'no footer'})")
         w.finish()
     rep.channels = len(channel_map)
     rep.source_complete = reader.complete

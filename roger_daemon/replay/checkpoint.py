@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -29,9 +30,8 @@ def load_checkpoint(path: str | Path
 
     try:
         ck = read_checkpoint(Path(path))
-    except CheckpointError:
-        with np.load(path, allow_pickle=False) as z:
-            return load_model({k: z[k] for k in z.files}), [], None
+    except CheckpointError as exc:
+        return _plain_state_dict(Path(path), str(exc)), [], None
     model: Model = load_model(ck.model)
     try:
         state = RobotState.from_arrays(ck.daemon)
@@ -43,6 +43,30 @@ def load_checkpoint(path: str | Path
     pairs = [LearnedPair(start + i, p.tick, p.x, p.y, state.label(p.label), 0)
              for i, p in enumerate(state.queue)]
     return model, pairs, ck.meta
+
+
+def _plain_state_dict(path: Path, why: str) -> Model:
+    """The model of a plain ``.npz`` of a ``state_dict()``; :class:`ReplayError` naming the
+    file when it is not one (a text file, a damaged archive, arrays of no model)."""
+    from roger_daemon.config.models import load_model
+
+    what = f"checkpoint {path} is neither a daemon checkpoint ({why}) nor a state_dict .npz"
+    if not path.is_file():
+        raise ReplayError(f"checkpoint {path}: " + ("not a file" if path.exists() else
+                                                     "no such file"))
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # numpy: "pickled data"
+        raise ReplayError(f"checkpoint {path} is not an .npz archive (expected a daemon "
+                          "checkpoint or a plain state_dict .npz)") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):  # a single .npy array
+        raise ReplayError(f"{what} (one array, not an archive of a model's arrays)")
+    try:
+        with z:
+            model: Model = load_model({k: z[k] for k in z.files})
+            return model
+    except (KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
+        raise ReplayError(f"{what} ({exc})") from None
 
 
 def resume_timeline(

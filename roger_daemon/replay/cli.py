@@ -16,6 +16,7 @@ from typing import Any
 
 from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.replay.compare import REL_TOL
+from roger_daemon.tools.common import non_negative, seconds
 
 __all__ = ["configure", "run"]
 
@@ -50,7 +51,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "model's first pair")
     parser.add_argument("--check", action="store_true",
                         help="exit 1 unless every recorded prediction is reproduced")
-    parser.add_argument("--tolerance", type=float, default=REL_TOL,
+    parser.add_argument("--tolerance", type=non_negative, default=REL_TOL,
                         help="max relative error of any float allowed by --check (default "
                              f"{REL_TOL:g}, what two BLAS kernels stay inside; the structure "
                              "is always compared exactly)")
@@ -58,11 +59,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     g = parser.add_argument_group("re-publish on Zenoh instead of replaying offline")
     g.add_argument("--publish", action="store_true", help="re-publish the recorded messages")
-    g.add_argument("--speed", type=float, default=1.0,
+    g.add_argument("--speed", type=non_negative, default=1.0,
                    help="pace by log_time: 1 realtime, 0 as fast as possible")
     g.add_argument("--kinds", default="perception,action,command,episode,control",
                    help="message kinds to re-publish (comma-separated)")
-    g.add_argument("--wait", type=float, default=2.0, metavar="S",
+    g.add_argument("--wait", type=seconds, default=2.0, metavar="S",
                    help="wait up to S seconds for subscribers before publishing (default 2)")
     from roger_daemon.recording import zenoh_net
 
@@ -116,6 +117,10 @@ def run(args: argparse.Namespace) -> int:
         if why := not_an_mcap_file(f):
             print(f"roger replay: {why}", file=sys.stderr)
             return 2
+    if args.save_checkpoint and (why := _not_a_directory(args.save_checkpoint)):
+        print(f"roger replay: --save-checkpoint must be a directory (the daemon's [checkpoint] "
+              f"dir), got {str(args.save_checkpoint)!r}: {why}", file=sys.stderr)
+        return 2
     if args.publish:
         if args.robot:
             from roger_daemon.recording.session_read import robot_absent
@@ -125,6 +130,15 @@ def run(args: argparse.Namespace) -> int:
                 return 2
         return _publish(args, files)
     return _replay(args, files)
+
+
+def _not_a_directory(path: Path) -> str:
+    """Why ``path`` cannot be (made) a directory ("" if it is one or can be created)."""
+    for p in (path, *path.parents):
+        if p.exists():
+            return "" if p.is_dir() else (
+                "it is a file" if p == path else f"{str(p)!r} is a file")
+    return ""
 
 
 def _replay(args: argparse.Namespace, files: list[Path]) -> int:

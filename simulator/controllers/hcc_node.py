@@ -39,6 +39,7 @@ import numpy as np
 
 from protocols import Action, Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
+from roger_daemon.tools.common import count, seconds
 from simulator.config import load_config
 from simulator.controllers.hcc import HCC, HCCParams, HeadModel
 from simulator.controllers.transitioner import DEFAULT_RULE, RULES, transition_command
@@ -77,13 +78,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--prediction-timeout",
-        type=float,
+        type=seconds,
         default=2.0,
         help="transitioner, lockstep: seconds to wait for prediction(t)",
     )
     parser.add_argument(
         "--max-prediction-age",
-        type=int,
+        type=count,
         default=3,
         help="transitioner, realtime: newest prediction at most this many ticks old",
     )
@@ -92,7 +93,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--idle-exit",
-        type=float,
+        type=seconds,
         default=0.0,
         help="exit after this many seconds without perception (0: never)",
     )

@@ -37,6 +37,7 @@ import numpy as np
 from protocols import Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
 from roger_daemon.fsm.player import Player, load_player
+from roger_daemon.tools.common import count, seconds
 from simulator.sim_args import DAEMON_ENDPOINT, DEFAULT_LISTEN
 from simulator.transport import (
     EPHEMERAL,
@@ -63,13 +64,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default="aibo", help="robot id in the key expressions")
     parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
                         help="how predictions are matched to perceptions")
-    parser.add_argument("--prediction-timeout", type=float, default=2.0,
+    parser.add_argument("--prediction-timeout", type=seconds, default=2.0,
                         help="lockstep: seconds to wait for prediction(t)")
-    parser.add_argument("--max-prediction-age", type=int, default=3,
+    parser.add_argument("--max-prediction-age", type=count, default=3,
                         help="realtime: newest prediction at most this many ticks old")
     parser.add_argument("--exit-when-done", action="store_true",
                         help="exit when the simulator's run is complete")
-    parser.add_argument("--idle-exit", type=float, default=0.0,
+    parser.add_argument("--idle-exit", type=seconds, default=0.0,
                         help="exit after this many seconds without perception (0: never)")
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
     add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))

@@ -34,6 +34,7 @@ import numpy as np
 from protocols import Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
 from roger_daemon.atomic import write_bytes
+from roger_daemon.tools.common import seconds
 from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
 from simulator.transport import (
     EPHEMERAL,
@@ -61,7 +62,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--idle-exit",
-        type=float,
+        type=seconds,
         default=0.0,
         help="exit after this many seconds without a prediction (0: never)",
     )
