@@ -137,7 +137,7 @@ def test_segments_grow_past_the_preallocation_and_prune_whole(tmp_path: Path) ->
     w3.close()
 
 
-def test_replay_relearns_in_order_and_stops_at_a_gap(tmp_path: Path) -> None:
+def test_replay_relearns_in_order_across_a_gap_and_stops_behind_the_model(tmp_path: Path) -> None:
     cfg = parse_config({"robots": [{"id": "sim", "x_dim": 1, "y_dim": 1}]})
     robot = cfg.robots[0]
 
@@ -165,9 +165,18 @@ def test_replay_relearns_in_order_and_stops_at_a_gap(tmp_path: Path) -> None:
     for i in range(5):
         partial.model.learn_one(*_pair(i))
     assert replay_into(partial, tmp_path, after_seq=5).pairs == 7
-    # a model the log does not continue: the replay stops and says why
-    wrong = runtime()
-    rep = replay_into(wrong, tmp_path, after_seq=3)
+    # pairs the log lacks (its segments pruned after a checkpoint found unreadable) and no
+    # copy holds: counted lost and named, and every record after them is still learned
+    behind = runtime()
+    rep = replay_into(behind, tmp_path, after_seq=3)
+    assert rep.pairs == 9 and rep.lost == 3 and rep.stopped == ""
+    assert rep.notes == ["pairs 0..2 (before record 4, tick 3) are lost: no intact copy"]
+    assert behind.updates == 9
+    # a model ahead of what the log continues: the replay stops and says why
+    ahead = runtime()
+    for i in range(8):
+        ahead.model.learn_one(*_pair(i))
+    rep = replay_into(ahead, tmp_path, after_seq=3)
     assert rep.pairs == 0 and "gap" in rep.stopped
 
 

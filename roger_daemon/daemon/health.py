@@ -13,6 +13,9 @@ Thresholds (the defaults of :class:`Thresholds`, documented in ``protocols/READM
 condition                                             level
 ====================================================  =======
 a learn, predict, checkpoint or recording error       ERROR
+the disk full (``disk_full``; learning on the log's   ERROR
+reserve, or stopped: ``learning_stopped``)
+pairs lost at start-up (``recovery_lost_pairs``)      WARN
 latency p99 >= 1000 ms                                ERROR
 more than 30 pairs dropped since the previous status  ERROR
 any pair dropped since the previous status            WARN
@@ -106,6 +109,7 @@ class Health:
             found.append(("ERROR" if p99 >= th.latency_error_ms else "WARN",
                           f"latency p99 {p99:.0f} ms"))
         found += self._input(int(counters.get("ticks", 0)), now_ns)
+        found += _states(info)
         self.last = (worst([lv for lv, _ in found]),
                      "; ".join(text for _, text in found)[:MAX_REASONS_CHARS])
         return self.last
@@ -118,3 +122,18 @@ class Health:
         if idle >= self.thresholds.no_input_s:
             return [("WARN", f"no perception for {idle:.0f} s")]
         return []
+
+
+def _states(info: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """Conditions that hold while they last (not changes): a full disk, a lossy start-up
+    (docs/durability.md)."""
+    found = []
+    full = str(info.get("disk_full", ""))
+    if full:
+        stopped = bool(info.get("learning_stopped", False))
+        found.append(("ERROR", f"disk full ({full}): " +
+                      ("learning stopped" if stopped else "learning on the log's reserve")))
+    lost = int(info.get("recovery_lost_pairs", 0))
+    if lost > 0:
+        found.append(("WARN", f"{lost} pairs lost at start-up (no intact copy)"))
+    return found

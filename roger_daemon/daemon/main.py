@@ -39,6 +39,7 @@ from roger_daemon.daemon.resume import (
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.sdnotify import Notifier
 from roger_daemon.daemon.service import Recorder, Service
+from roger_daemon.daemon.wal import DISK_FULL_ERRNOS
 
 __all__ = [
     "Resumed",
@@ -56,6 +57,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: ``systemctl status`` while the models load (``Notifier.starting``)
+#: exit status on a full disk (``EX_TEMPFAIL`` of sysexits.h: start again once there is
+#: space; docs/durability.md, *Disk full*)
+EXIT_DISK_FULL = 75
 STARTING = ("starting: loading the models (the first start after an install compiles the "
             "learner's kernels, about a minute)")
 
@@ -157,8 +161,46 @@ def _describe(cfg: DaemonConfig) -> dict[str, Any]:
     }
 
 
+def _disk_full(cfg: DaemonConfig, exc: OSError, what: str) -> int:
+    """The one line a full disk ends the daemon with (no traceback); its exit status."""
+    where = exc.filename or (f"checkpoints and write-ahead log in {cfg.checkpoint.dir}" +
+                             (f", recordings in {cfg.recording.dir}"
+                              if cfg.recording.enabled else ""))
+    log.error("%s: the disk is full (%s; %s). Free space there and start the daemon again "
+              "(exit status %d; nothing acknowledged is lost: docs/durability.md, Disk full)",
+              what, exc.strerror or exc, where, EXIT_DISK_FULL)
+    return EXIT_DISK_FULL
+
+
+def _serve(cfg: DaemonConfig, service: Service, notifier: Notifier) -> int:
+    """Run the loop until it stops; the exit status (a full disk: :data:`EXIT_DISK_FULL`)."""
+    try:
+        service.run()
+    except OSError as exc:
+        if exc.errno not in DISK_FULL_ERRNOS:
+            log.exception("the service loop failed")
+            return 1
+        return _disk_full(cfg, exc, "stopped")
+    except Exception:
+        log.exception("the service loop failed")
+        return 1
+    finally:
+        notifier.close()
+    if not service.final_checkpoints_ok:
+        if any(st.error.startswith("the disk is full")
+               for st in service.checkpoints.state.values()):
+            log.error("the final checkpoint failed: the disk is full at %s; the write-ahead "
+                      "log holds every pair learned (exit status %d)", cfg.checkpoint.dir,
+                      EXIT_DISK_FULL)
+            return EXIT_DISK_FULL
+        log.error("the final checkpoint failed (see above): exit status 1")
+        return 1
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the daemon until SIGTERM/SIGINT; 0 on a clean stop, 2 on a config error."""
+    """Run the daemon until SIGTERM/SIGINT; 0 on a clean stop, 2 on a config error,
+    :data:`EXIT_DISK_FULL` on a disk too full to start or to go on."""
     stop: list[Service] = []
     requested = {"early": False}
 
@@ -191,11 +233,16 @@ def run(args: argparse.Namespace) -> int:
     notifier = Notifier.from_env()
     # Finite but possibly long under systemd's start timeout: the first start after an install
     # or upgrade compiles the learner's kernels (~1 min), recovery re-learns logged pairs.
-    with notifier.starting(STARTING):
-        robots, where = start_robots(cfg, fresh=args.fresh, notifier=notifier)
-        resumed = {r: w.checkpoint for r, w in where.items()}
-        recorders = open_recorders(cfg, robots, where)
-        learners = _start_learners(cfg, robots)  # before Zenoh opens: never fork after that
+    try:
+        with notifier.starting(STARTING):
+            robots, where = start_robots(cfg, fresh=args.fresh, notifier=notifier)
+            resumed = {r: w.checkpoint for r, w in where.items()}
+            recorders = open_recorders(cfg, robots, where)
+            learners = _start_learners(cfg, robots)  # before Zenoh opens: never fork after
+    except OSError as exc:
+        if exc.errno not in DISK_FULL_ERRNOS:
+            raise
+        return _disk_full(cfg, exc, "cannot start")
 
     from roger_daemon.transport import ZenohTransport
 
@@ -222,14 +269,4 @@ def run(args: argparse.Namespace) -> int:
         service.request_stop()
     # started: collections at the loop's quiet moments from now on (daemon/gc_policy.py)
     service.gc_thresholds = hold_collections()
-    try:
-        service.run()
-    except Exception:
-        log.exception("the service loop failed")
-        return 1
-    finally:
-        notifier.close()
-    if not service.final_checkpoints_ok:
-        log.error("the final checkpoint failed (see above): exit status 1")
-        return 1
-    return 0
+    return _serve(cfg, service, notifier)

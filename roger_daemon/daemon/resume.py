@@ -23,10 +23,12 @@ from roger_daemon.daemon.checkpoint import (
     Checkpoint,
     CheckpointError,
     CheckpointMeta,
+    list_checkpoints,
     load_newest,
     write_checkpoint,
 )
 from roger_daemon.daemon.checkpoint_meta import LearnerSpec
+from roger_daemon.daemon.copies import checkpoint_position, log_repairs, session_log_copies
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.robot_state import RobotState
 from roger_daemon.daemon.sdnotify import Notifier
@@ -43,6 +45,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+#: ``info.recovery`` in status is a protocol string (at most 256 characters)
+MAX_RECOVERY_CHARS = 256
 
 
 def make_model(robot: RobotConfig) -> Any:
@@ -103,6 +108,9 @@ def load_robot(
                       queue_size=cfg.queue_size, pair_window=cfg.pair_window,
                       learner=model_meta(robot))
     ckpt = None if fresh else load_newest(cfg.checkpoint.dir, robot.id, accept)
+    skipped = _skipped(cfg, robot, ckpt) if not fresh else 0
+    if skipped:  # said in status (info.recovery) as well as by load_newest's warnings
+        rt.recovery = f"{skipped} newer checkpoints unreadable"
     if ckpt is None:
         rt.model = make_model(robot)
         return rt, None
@@ -116,6 +124,12 @@ def load_robot(
     log.info("%s: resumed from %s (%d updates, %d queued pairs, model %s)", robot.id, ckpt.path,
              rt.updates, len(rt.queue), ckpt.meta.model_digest[:12])
     return rt, ckpt
+
+
+def _skipped(cfg: DaemonConfig, robot: RobotConfig, ckpt: Checkpoint | None) -> int:
+    """How many checkpoints newer than ``ckpt`` (all of them if None) were unusable."""
+    paths = list_checkpoints(cfg.checkpoint.dir, robot.id)
+    return paths.index(ckpt.path) if ckpt is not None and ckpt.path in paths else len(paths)
 
 
 @dataclass
@@ -160,26 +174,12 @@ def recover_from_logs(
     With ``relearn=False`` (the write-ahead log already restored what was learned) only the
     logs are repaired and checked.
     """
-    from roger_daemon.recording.startup import CheckpointPosition, plan_recovery
-    from roger_daemon.recording.timeline import LearnedPair
+    from roger_daemon.recording.startup import plan_recovery
 
     where = _position(ckpt)
-    pos = None
-    if ckpt is not None:
-        start = rt.updates
-        queue = tuple(LearnedPair(start + i, p.tick, p.x, p.y,
-                                  rt.vocab[p.label] if 0 <= p.label < len(rt.vocab) else "", 0)
-                      for i, p in enumerate(rt.queue))
-        pos = CheckpointPosition(
-            learned=start, session_id=where.session or "", segment=where.segment,
-            last_tick=rt.last_learned_tick, queue=queue, path=where.checkpoint)
+    pos = None if ckpt is None else checkpoint_position(rt, ckpt)
     plan = plan_recovery(cfg.recording.dir, robot.id, dims=rt.dims, checkpoint=pos)
-    for rep in plan.recovered:
-        if rep.output:
-            log.warning("%s: log %s had no footer (killed daemon): recovered in place, %d "
-                        "messages in %d chunks kept, %d bytes of unreadable tail dropped "
-                        "(original kept as %s.damaged)", robot.id, rep.source, rep.messages,
-                        rep.chunks, rep.bytes_dropped, Path(rep.source).name)
+    log_repairs(robot.id, plan)
     for note in plan.notes:
         log.warning("%s: start-up recovery: %s", robot.id, note)
     if not plan.newer or not relearn:
@@ -265,36 +265,68 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
 
     Returns whether the log is the authority on what was learned (then the session logs are
     not re-learned) and where the model now stands (the ``recovered`` checkpoint written
-    after a replay, which the new session names as its start).
+    after a replay, which the new session names as its start). Pairs the log lost are taken
+    from the session logs when they hold them (:mod:`roger_daemon.daemon.copies`).
     """
     from roger_daemon.daemon import wal
 
     d = wal.wal_dir(cfg.checkpoint.dir, rt.robot)
     seq = None if ckpt is None else ckpt.meta.wal_seq
     has_log = bool(wal.read_records(d)) if seq is None else True
+    copies = None if fresh else session_log_copies(cfg, robot, rt, ckpt)
     rep = wal.start(rt, d, checkpoint_seq=seq,
                     replay=has_log and not fresh,
-                    fresh=fresh or (ckpt is None and not has_log))
-    if rep.pairs or rep.fresh:
-        rt.recovered_pairs = rep.pairs
-        log.warning("%s: start-up recovery: re-learned %d pairs (ticks %s..%s) and %d resets "
-                    "from the write-ahead log %s after %s: now %d updates", rt.robot,
-                    rep.pairs, rep.first_tick, rep.last_tick, rep.fresh, d,
-                    ckpt.path if ckpt is not None else "a fresh model", rt.updates)
-    if rep.stopped:
-        log.error("%s: write-ahead log %s: %s", rt.robot, d, rep.stopped)
+                    fresh=fresh or (ckpt is None and not has_log), copies=copies)
+    _report(rt, d, ckpt, rep)
     where = _position(ckpt)
-    if rep.pairs or rep.fresh or rep.stopped:  # the recovered state, durable at once
+    if rep.pairs or rep.fresh or rep.stopped or rep.copied or rep.lost:  # durable at once
         try:
             path, _ = _write_recovered(cfg, rt, where.session or "", where.segment,
-                                       rep.pairs)
+                                       rep.pairs + rep.copied)
             log.info("%s: checkpoint %s written (recovered, %d updates)", rt.robot, path,
                      rt.updates)
-            where = Resumed(str(path), where.session, where.segment, rep.pairs)
+            where = Resumed(str(path), where.session, where.segment, rep.pairs + rep.copied)
         except OSError as exc:
             log.error("%s: could not write the recovered checkpoint (%s); the write-ahead "
                       "log still holds the pairs", rt.robot, exc)
     return has_log and not fresh, where
+
+
+def _report(rt: RobotRuntime, d: Path, ckpt: Checkpoint | None, rep: Any) -> None:
+    """Log what the write-ahead log's replay found and did; ``rt.recovery`` says it in
+    status (docs/durability.md, *Torn and corrupt records*)."""
+    for dmg in rep.damage:
+        if dmg.torn_tail:
+            log.warning("%s: write-ahead log %s", rt.robot, dmg.describe())
+        else:
+            log.error("%s: write-ahead log %s", rt.robot, dmg.describe())
+    for note in rep.notes:
+        log.error("%s: write-ahead log %s: %s", rt.robot, d, note)
+    if rep.stopped:
+        log.error("%s: write-ahead log %s: %s", rt.robot, d, rep.stopped)
+    rt.recovered_pairs = rep.pairs + rep.copied
+    rt.recovery_lost = rep.lost
+    if rep.pairs or rep.fresh or rep.copied:
+        log.warning("%s: start-up recovery: re-learned %d pairs (ticks %s..%s) and %d resets "
+                    "from the write-ahead log %s and %d pairs from the session logs after %s: "
+                    "now %d updates", rt.robot, rep.pairs, rep.first_tick, rep.last_tick,
+                    rep.fresh, d, rep.copied,
+                    ckpt.path if ckpt is not None else "a fresh model", rt.updates)
+    parts = [f"checkpoint {Path(str(ckpt.path)).name} ({ckpt.meta.updates} updates)"
+             if ckpt is not None else "a fresh model"]
+    if rt.recovery:  # what load_robot found (checkpoints skipped)
+        parts[0] += f", {rt.recovery}"
+    if rep.pairs or rep.fresh:
+        parts.append(f"{rep.pairs} pairs and {rep.fresh} resets from the write-ahead log")
+    if rep.copied:
+        parts.append(f"{rep.copied} pairs from the session logs")
+    if rep.lost:
+        parts.append(f"{rep.lost} pairs lost (no intact copy)")
+    bad = [dm for dm in rep.damage if not dm.torn_tail]
+    if bad:
+        parts.append(f"{len(bad)} damaged stretches of the log skipped "
+                     f"(first: {bad[0].describe()})")
+    rt.recovery = " + ".join(parts)[:MAX_RECOVERY_CHARS]
 
 
 def _write_recovered(cfg: DaemonConfig, rt: RobotRuntime, session: str, segment: int,

@@ -121,6 +121,10 @@ class RobotRuntime:
         self.last_learned_tick: int | None = None  # tick of the newest learned pair
         self.session_resets = 0  # resets in this session (the log's segment number)
         self.recovered_pairs = 0  # pairs re-learned from the logs at start-up
+        self.recovery = ""  # what start-up recovered from where (docs/durability.md)
+        self.recovery_lost = 0  # pairs start-up found lost with no intact copy
+        self.disk_full_ticks = 0  # perceptions not learned: the disk was full
+        self.disk_full_since: int | None = None  # tick learning stopped at (None: learning)
         # windows and bookkeeping
         self.latency = Window()
         self.learn_ms = Window(200)
@@ -145,8 +149,9 @@ class RobotRuntime:
 
     @property
     def learning(self) -> bool:
-        """Whether the current mode pairs and learns."""
-        return self.mode in LEARN_MODES
+        """Whether the robot pairs and learns: its mode does, and its write-ahead log can take
+        what it learns (not with the disk full; docs/durability.md, *Disk full*)."""
+        return self.mode in LEARN_MODES and (self.wal is None or self.wal.accepting)
 
     @property
     def predicting(self) -> bool:
@@ -176,7 +181,13 @@ class RobotRuntime:
         self.last_tick, self.last_t = msg.tick, msg.t
         self.newest = (msg, recv_ns)
         if not self.learning:
+            if self.mode in LEARN_MODES:
+                self._not_logged(msg.tick)
             return
+        if self.disk_full_since is not None:
+            log.warning("%s: learning resumed at tick %d (%d perceptions not learned while "
+                        "the disk was full)", self.robot, msg.tick, self.disk_full_ticks)
+            self.disk_full_since = None
         pair = self.pairing.perception(msg)
         if pair is not None:
             self._enqueue(*pair)
@@ -194,6 +205,15 @@ class RobotRuntime:
             self._warn_once("unpaired", f"{self.robot}: action of tick "
                             f"{self.pairing.last_evicted_action} never met its perception; "
                             "dropped (counted as unpaired_actions)")
+
+    def _not_logged(self, tick: int) -> None:
+        """A perception not paired because the log cannot take what would be learned."""
+        self.disk_full_ticks += 1
+        if self.disk_full_since is None:
+            self.disk_full_since = tick
+            log.error("%s: learning stopped at tick %d: %s (predictions go on; learning "
+                      "resumes by itself when there is space)", self.robot, tick,
+                      getattr(self.wal, "full", "") or "the write-ahead log is full")
 
     def _label_code(self, label: str) -> int:
         code = self._vocab_index.get(label)

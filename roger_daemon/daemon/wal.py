@@ -19,9 +19,16 @@ followed by zeros (segments are zero-filled ahead of the records; see ``PREALLOC
 Payload maps carry ``k`` (``"pair"`` or ``"fresh"``) and ``s`` (the record's sequence number,
 increasing by one over the robot's whole history); pair records add ``i`` (the model's
 ``n_learned`` before learning it), ``tick``, ``x``/``y`` (float64 little-endian bytes) and
-``label``. A frame that is short or fails its CRC ends the segment (a torn write of a killed
-daemon: never acknowledged, since its commit had not returned). Segments are never appended
-to after the life that wrote them; each start opens a new one.
+``label``. Reading back (:mod:`roger_daemon.daemon.wal_read`) keeps every frame its CRC proves
+intact: a damaged one is reported with its offset and the reader resynchronises on the next
+intact frame; damage at the end is a torn write of a killed daemon (never acknowledged, since
+its commit had not returned). Segments are never appended to after the life that wrote them;
+each start opens a new one, and a segment is cut to its records when the next one starts.
+
+With the disk full the log cannot grow: the robot learns on what is left of the zero-filled
+reserve, stops learning (:attr:`WriteAheadLog.accepting`) while :data:`LOW_WATER` is left, so
+that nothing learned goes unlogged, and tries to grow again every :data:`RETRY_NS`
+(docs/durability.md, *Disk full*).
 
 The record is the daemon's decision, not its input, so it is also what a session log needs to
 replay the daemon without re-deriving its pairing (see ``docs/durability.md``).
@@ -29,112 +36,54 @@ replay the daemon without re-deriving its pairing (see ``docs/durability.md``).
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
-import re
-import struct
 import threading
 import time
 import zlib
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import Executor, Future
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 
 from protocols.packing import packb
 from roger_daemon.atomic import fsync_dir
+from roger_daemon.daemon.wal_read import FRAME as _FRAME
+from roger_daemon.daemon.wal_read import (
+    WalDamage,
+    WalRecord,
+    read_log,
+    read_records,
+    segments,
+)
+from roger_daemon.daemon.wal_replay import Copies, Replayed, replay_into
 
-__all__ = ["WalRecord", "WriteAheadLog", "read_records", "segments", "wal_dir"]
+__all__ = ["DISK_FULL_ERRNOS", "Copies", "Replayed", "WalDamage", "WalRecord", "WriteAheadLog",
+           "read_log", "read_records", "replay_into", "segments", "start", "wal_dir"]
 
 log = logging.getLogger(__name__)
 
-_FRAME = struct.Struct("<II")
 #: Segments are zero-filled ahead of the records, this much at a time: overwriting blocks
 #: that exist lets ``fdatasync`` flush data only, without a journal commit for a new file
 #: size (measured on ext4 under load: the sync's p99 13-18 ms instead of 17-95 ms).
 PREALLOCATE = 1 << 20
-_NAME = re.compile(r"^wal-(\d{12})\.log$")
-_MAX_RECORD = 1 << 20
-
-
-@dataclass(frozen=True)
-class WalRecord:
-    """One decision read back: a learned pair (``kind == "pair"``) or a fresh model."""
-
-    kind: str
-    seq: int
-    index: int = -1
-    tick: int = -1
-    x: np.ndarray | None = None
-    y: np.ndarray | None = None
-    label: str = ""
+#: the errors that mean "no space" (a full file system, a user's quota)
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+#: with the disk full, learning stops once less than this is left of the zero-filled reserve:
+#: what is left takes the pairs already learned or in flight to a learner worker (a few
+#: records of ~0.3 kB each), so nothing learned goes unlogged (docs/durability.md, *Disk full*)
+LOW_WATER = 256 << 10
+#: how often a full log tries to grow again (on the loop's clock)
+RETRY_NS = 1_000_000_000
 
 
 def wal_dir(checkpoint_dir: Path, robot: str) -> Path:
     """Where one robot's write-ahead log lives (next to its checkpoints)."""
     return Path(checkpoint_dir) / robot / "wal"
-
-
-def segments(directory: Path) -> list[tuple[int, Path]]:
-    """``(first seq, path)`` of every segment, oldest first."""
-    if not directory.is_dir():
-        return []
-    out = []
-    for p in directory.iterdir():
-        m = _NAME.match(p.name)
-        if m and p.is_file():
-            out.append((int(m.group(1)), p))
-    return sorted(out)
-
-
-def _decode(payload: bytes) -> WalRecord | None:
-    try:
-        m: Any = msgpack.unpackb(payload, raw=False)
-    except Exception:
-        return None
-    if not isinstance(m, dict) or not isinstance(m.get("s"), int):
-        return None
-    if m.get("k") == "fresh":
-        return WalRecord("fresh", m["s"])
-    if m.get("k") != "pair":
-        return None
-    try:
-        x = np.frombuffer(m["x"], dtype="<f8").copy()
-        y = np.frombuffer(m["y"], dtype="<f8").copy()
-        return WalRecord("pair", m["s"], int(m["i"]), int(m["tick"]), x, y, str(m["label"]))
-    except (KeyError, TypeError, ValueError):
-        return None
-
-
-def _read_segment(path: Path) -> Iterator[WalRecord]:
-    data = path.read_bytes()
-    pos = 0
-    while pos + _FRAME.size <= len(data):
-        length, crc = _FRAME.unpack_from(data, pos)
-        end = pos + _FRAME.size + length
-        if length == 0 or length > _MAX_RECORD or end > len(data):  # zeros: the end
-            return
-        payload = data[pos + _FRAME.size: end]
-        if zlib.crc32(payload) != crc:
-            return
-        rec = _decode(payload)
-        if rec is None:
-            return
-        yield rec
-        pos = end
-
-
-def read_records(directory: Path, after_seq: int = -1) -> list[WalRecord]:
-    """Every readable record with ``seq > after_seq``, in order (torn tails skipped)."""
-    out: list[WalRecord] = []
-    for _, path in segments(directory):
-        out.extend(r for r in _read_segment(path) if r.seq > after_seq)
-    return out
 
 
 class WriteAheadLog:
@@ -168,36 +117,104 @@ class WriteAheadLog:
         self.clock: Callable[[], int] = time.monotonic_ns
         self._lock = threading.Lock()  # the bookkeeping shared with a background commit
         self._inflight: Future[None] | None = None
-        self._open(next_seq)
+        #: "" or why the log cannot grow (the disk is full; docs/durability.md, *Disk full*)
+        self.full = ""
+        self._retry_ns = 0
+        self._fd, self._end = self._open(next_seq)
 
     @property
     def last_seq(self) -> int:
         """Sequence number of the newest record appended (-1 if none ever)."""
         return self.next_seq - 1
 
-    def _open(self, seq: int) -> None:
+    def _open(self, seq: int) -> tuple[int, int]:
+        """A new segment for records from ``seq`` on, zero-filled: ``(fd, its size)``. On an
+        error (a full disk) nothing is left of it."""
         path = self.directory / f"wal-{seq:012d}.log"
         # A segment of this name exists only if the previous life wrote no readable record
         # into it (else next_seq would be past it): whatever it holds is a torn write.
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            size = _zero_fill(fd, 0, PREALLOCATE)
+            os.fsync(fd)
+            fsync_dir(self.directory)
+        except OSError as exc:
+            os.close(fd)
+            path.unlink(missing_ok=True)
+            err = exc.error if isinstance(exc, _Partial) else exc
+            raise OSError(err.errno, err.strerror, str(path)) from None
         self._pos = 0
-        self._end = 0
-        self._extend(PREALLOCATE)
-        fsync_dir(self.directory)
+        return fd, size
 
     def _extend(self, at_least: int) -> None:
-        """Zero-fill the segment past ``_end`` (a frame of zeros reads as the end)."""
-        grow = max(PREALLOCATE, at_least)
-        os.pwrite(self._fd, bytes(grow), self._end)
+        """Zero-fill the segment past ``_end`` (a frame of zeros reads as the end); what was
+        written before an error still counts."""
+        try:
+            self._end = _zero_fill(self._fd, self._end, max(PREALLOCATE, at_least))
+        except _Partial as part:
+            self._end = part.end
+            raise part.error from None
         os.fsync(self._fd)  # the new size is durable once, not at every commit
-        self._end += grow
+
+    @property
+    def reserve(self) -> int:
+        """Bytes of the zero-filled reserve not yet taken by records."""
+        return self._end - self._pos
+
+    @property
+    def accepting(self) -> bool:
+        """Whether the robot may learn: the log can take what it learns (it can grow, or its
+        reserve has more than :data:`LOW_WATER` left)."""
+        return not self.full or self.reserve >= LOW_WATER
+
+    def _grow(self, need: int) -> None:
+        """Keep half a preallocation ahead of the records; with the disk full, try again at
+        most every :data:`RETRY_NS` (and in :meth:`poll_space`). Raises only if ``need``
+        bytes do not fit in what is left."""
+        if self.reserve - need >= PREALLOCATE // 2:
+            return
+        if not self.full or self.clock() >= self._retry_ns:
+            try:
+                self._extend(need)
+            except OSError as exc:
+                if exc.errno not in DISK_FULL_ERRNOS:
+                    raise
+                self._now_full(exc)
+        if self.reserve < need:
+            raise OSError(errno.ENOSPC, f"write-ahead log {self.directory}: the disk is full "
+                          f"and its reserve is used up ({self.reserve} bytes left)")
+
+    def _now_full(self, exc: OSError) -> None:
+        self._retry_ns = self.clock() + RETRY_NS
+        if not self.full:
+            self.full = f"{self.directory}: {os.strerror(exc.errno or errno.ENOSPC)}"
+            log.error("write-ahead log %s cannot grow (%s): %d kB of reserve left; learning "
+                      "stops below %d kB, predictions go on; retried every %g s",
+                      self.directory, exc.strerror or exc, self.reserve >> 10,
+                      LOW_WATER >> 10, RETRY_NS / 1e9)
+
+    def poll_space(self, now_ns: int) -> bool:
+        """With the disk full, try to grow (at most every :data:`RETRY_NS`); True once the log
+        can grow again (learning resumes)."""
+        if not self.full or now_ns < self._retry_ns:
+            return False
+        try:
+            self._extend(PREALLOCATE)
+        except OSError as exc:
+            if exc.errno not in DISK_FULL_ERRNOS:
+                raise
+            self._retry_ns = now_ns + RETRY_NS
+            return False
+        log.warning("write-ahead log %s: space again (%d kB of reserve); learning resumes",
+                    self.directory, self.reserve >> 10)
+        self.full = ""
+        return True
 
     def _append(self, rec: dict[str, Any]) -> int:
         seq = self.next_seq
         payload = packb({**rec, "s": seq})
         frame = _FRAME.pack(len(payload), zlib.crc32(payload)) + payload
-        if self._pos + len(frame) + _FRAME.size > self._end:
-            self._extend(len(frame) + _FRAME.size)
+        self._grow(len(frame) + _FRAME.size)
         os.pwrite(self._fd, frame, self._pos)
         self._pos += len(frame)
         with self._lock:
@@ -298,8 +315,18 @@ class WriteAheadLog:
         """Commit, then continue in a new segment (called after a checkpoint is taken)."""
         self._reap(wait=True)
         self.commit()
+        pos = self._pos
+        try:
+            fd, end = self._open(self.next_seq)
+        except OSError as exc:
+            if exc.errno not in DISK_FULL_ERRNOS:
+                raise
+            log.warning("write-ahead log %s: no space for a new segment (%s); continuing in "
+                        "the current one", self.directory, exc.strerror or exc)
+            return
+        os.ftruncate(self._fd, pos)  # its zero-filled rest is not needed any more
         os.close(self._fd)
-        self._open(self.next_seq)
+        self._fd, self._end = fd, end
 
     def prune(self, covered_seq: int) -> int:
         """Delete whole segments whose records all have ``seq <= covered_seq`` (a durable
@@ -322,51 +349,32 @@ class WriteAheadLog:
         self._fd = -1
 
 
-@dataclass
-class Replayed:
-    """What :func:`replay_into` did."""
+class _Partial(OSError):
+    """A zero fill that failed after writing up to ``end``."""
 
-    pairs: int = 0
-    fresh: int = 0
-    first_tick: int | None = None
-    last_tick: int | None = None
-    stopped: str = ""  # why replay stopped before the end ("" if it did not)
-    next_seq: int = 0  # sequence number for the next record
+    def __init__(self, error: OSError, end: int) -> None:
+        super().__init__(error.errno, error.strerror)
+        self.error, self.end = error, end
 
 
-def replay_into(rt: Any, directory: Path, after_seq: int) -> Replayed:
-    """Re-learn into ``rt`` (a RobotRuntime, WAL not attached) every decision after
-    ``after_seq``: ``fresh`` records reset the model, pair records are learned in order.
-
-    A pair whose index is not the model's ``n_learned`` (a gap: e.g. the segments after a
-    lost checkpoint were pruned) stops the replay; the rest is reported, not guessed.
-    """
-    out = Replayed()
-    records = read_records(directory)
-    out.next_seq = records[-1].seq + 1 if records else 0
-    for r in records:
-        if r.seq <= after_seq:
-            continue
-        if r.kind == "fresh":
-            rt.reset()
-            out.fresh += 1
-            continue
-        if r.index != rt.updates:
-            out.stopped = (f"record {r.seq} is pair {r.index} but the model has {rt.updates} "
-                           "pairs (a gap in the log); the rest is not used")
-            break
-        assert r.x is not None and r.y is not None
-        rt.relearn(r.x, r.y, r.label, r.tick)
-        out.pairs += 1
-        out.first_tick = r.tick if out.first_tick is None else out.first_tick
-        out.last_tick = r.tick
-    return out
+def _zero_fill(fd: int, start: int, size: int) -> int:
+    """Write ``size`` zero bytes at ``start`` (short writes continued); the new end. A full
+    disk raises :class:`_Partial` with how far the zeros got."""
+    zeros = memoryview(bytes(size))
+    done = 0
+    try:
+        while done < size:
+            done += os.pwrite(fd, zeros[done:], start + done)
+    except OSError as exc:
+        raise _Partial(exc, start + done) from None
+    return start + done
 
 
 def start(rt: Any, directory: Path, *, checkpoint_seq: int | None, replay: bool,
-          fresh: bool) -> Replayed:
+          fresh: bool, copies: Copies | None = None) -> Replayed:
     """Start-up of one robot's log: replay what follows the checkpoint (``replay``), then
-    attach a new segment to ``rt`` (``rt.wal``).
+    attach a new segment to ``rt`` (``rt.wal``). ``copies``: where pairs the log lost may
+    still be found (the session logs; :func:`replay_into`).
 
     ``checkpoint_seq`` is the checkpoint's ``wal_seq`` (None: no checkpoint, or one written
     without the log; then every record is replayed, from the first ``fresh`` one). A model
@@ -374,7 +382,8 @@ def start(rt: Any, directory: Path, *, checkpoint_seq: int | None, replay: bool,
     history with a ``fresh`` record. After a replay the caller writes a checkpoint (its
     ``wal_seq`` covers every record on disk, including any after a gap).
     """
-    rep = (replay_into(rt, directory, -1 if checkpoint_seq is None else checkpoint_seq)
+    rep = (replay_into(rt, directory, -1 if checkpoint_seq is None else checkpoint_seq,
+                       copies=copies)
            if replay else Replayed(next_seq=_next_seq(directory)))
     rt.session_resets = 0
     rt.wal = WriteAheadLog(directory, rep.next_seq)

@@ -8,10 +8,12 @@ checkpoint covers.
 
 from __future__ import annotations
 
+import errno
 import logging
+from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +30,11 @@ log = logging.getLogger(__name__)
 
 #: periodic checkpoints wait for a quiet moment at most this long (Checkpoints.poll)
 _OVERDUE_NS = 1_000_000_000
+#: after a failed checkpoint the next attempt waits this long, doubled at each failure up to
+#: :data:`_RETRY_MAX_NS`; the same failure is logged again at most that often
+#: (docs/durability.md, *Disk full*)
+_RETRY_NS = 1_000_000_000
+_RETRY_MAX_NS = 60_000_000_000
 
 #: (model arrays, daemon arrays, metadata) of one robot
 Snapshot = tuple[dict[str, np.ndarray], dict[str, np.ndarray], CheckpointMeta]
@@ -76,7 +83,15 @@ class CheckpointState:
     errors: int = 0
     in_flight: Future[tuple[Path, CheckpointMeta]] | None = None
     in_flight_gen: int = 0
-    wal_seq: int | None = None  # of the newest checkpoint written in this life
+    #: ``wal_seq`` of the newest checkpoints written in this life, oldest first: the log is
+    #: kept back to the oldest of them (a fallback for checkpoints found unreadable)
+    wal_seqs: deque[int] = field(default_factory=deque)
+    #: the last failure ("" once a checkpoint is written again), when the next attempt may
+    #: come, how long that wait is, and ``errors`` at the last success
+    error: str = ""
+    retry_ns: int = 0
+    backoff_ns: int = 0
+    errors_before: int = 0
     #: the first periodic checkpoint comes this share of its interval early (robot i of n:
     #: i/n), so that the robots' checkpoints do not all fall due together
     phase: float = 0.0
@@ -126,6 +141,8 @@ class Checkpoints:
         for rt in self.robots.values():
             st = self.state[rt.robot]
             if st.in_flight is not None or rt.generation == st.generation:
+                continue
+            if now < st.retry_ns:  # the last one failed: not at every cycle
                 continue
             early = 1.0 - st.phase
             by_updates = c.every_updates > 0 and \
@@ -203,16 +220,19 @@ class Checkpoints:
             self._writer.shutdown(wait=True)
 
     def _rotate_wal(self, robot: str, meta: CheckpointMeta) -> None:
-        """After a durable checkpoint: new log segment; drop the segments the previous
-        checkpoint covers (one checkpoint's worth of log is kept in case the newest fails)."""
+        """After a durable checkpoint: new log segment; drop the segments that the oldest of
+        the ``keep`` newest checkpoints covers (at least the previous one: the log then
+        reaches back to every checkpoint kept, in case the newer ones turn out unreadable)."""
         rt = self.robots[robot]
         st = self.state[robot]
         if rt.wal is None or meta.wal_seq is None:
             return
         rt.wal.rotate()
-        if st.wal_seq is not None:
-            rt.wal.prune(st.wal_seq)
-        st.wal_seq = meta.wal_seq
+        st.wal_seqs.append(meta.wal_seq)
+        if len(st.wal_seqs) > max(2, self.config.keep):
+            st.wal_seqs.popleft()
+        if len(st.wal_seqs) >= max(2, self.config.keep):
+            rt.wal.prune(st.wal_seqs[0])
 
     def _done(self, robot: str, gen: int, path: Path, meta: CheckpointMeta) -> None:
         st = self.state[robot]
@@ -221,13 +241,25 @@ class Checkpoints:
         st.phase = 0.0  # only the first periodic checkpoint comes early
         st.digest = meta.model_digest
         st.written += 1
+        if st.error:
+            log.warning("%s: checkpoints are written again (%s)", robot, path)
+        st.error, st.retry_ns, st.backoff_ns, st.errors_before = "", 0, 0, st.errors
         if self._written is not None:
             self._written(self.robots[robot], meta)
         log.info("%s: checkpoint %s written (%s, %d updates, model %s)", robot, path,
                  meta.reason, st.updates, st.digest[:12])
 
     def _failed(self, robot: str, exc: BaseException) -> None:
-        self.state[robot].errors += 1
+        """Count a failed checkpoint; the next attempt waits (1 s, doubled at each failure up
+        to a minute), so that a lasting failure (a full disk) is tried and logged at most
+        once a minute, not at every loop cycle."""
+        st = self.state[robot]
+        st.errors += 1
         if self.stopping:
             self.final_ok = False
-        log.error("%s: checkpoint failed: %s", robot, exc)
+        full = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+        st.error = f"the disk is full at {self.config.dir} ({exc})" if full else str(exc)
+        st.backoff_ns = min(2 * st.backoff_ns or _RETRY_NS, _RETRY_MAX_NS)
+        st.retry_ns = self.clock.monotonic_ns() + st.backoff_ns
+        log.error("%s: checkpoint failed (%d in a row): %s; next attempt in %g s", robot,
+                  st.errors - st.errors_before, st.error, st.backoff_ns / 1e9)

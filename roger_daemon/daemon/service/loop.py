@@ -251,6 +251,7 @@ class Service:
         for rt in self.robots.values():
             if rt.wal is not None:  # due: now; else started in the background (docs/durability)
                 rt.wal.commit_early(now, self._commit_ns, self._committer)
+                rt.wal.poll_space(now)  # a full disk: space again? (docs/durability.md)
         # work that can wait for a quiet moment (docs/fleet.md, *Work at quiet moments*)
         quiet = quiet_moment(self, self.clock.monotonic_ns())
         self.checkpoints.poll(now, quiet, lambda rt: self._checkpoint(rt, "periodic"))

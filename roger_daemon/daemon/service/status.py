@@ -20,8 +20,8 @@ from roger_daemon.daemon.window import percentiles
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["StatusRound", "invalid_counts", "publish_status", "robot_status", "status_deadline",
-           "status_due", "timer_info"]
+__all__ = ["StatusRound", "disk_full", "invalid_counts", "publish_status", "robot_status",
+           "status_deadline", "status_due", "timer_info"]
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +41,13 @@ def invalid_counts(rt: RobotRuntime, unserved: Mapping[str, int]) -> dict[str, i
     invalid = Counter(rt.invalid)
     invalid.update(unserved)
     return {k: int(v) for k, v in sorted(invalid.items())}
+
+
+def disk_full(rt: RobotRuntime, checkpoint_error: str) -> str:
+    """Which path is full ("" if none): the write-ahead log's, else the checkpoints'."""
+    if rt.wal is not None and rt.wal.full:
+        return str(rt.wal.full)
+    return checkpoint_error if checkpoint_error.startswith("the disk is full") else ""
 
 
 def robot_status(svc: Service, rt: RobotRuntime, now: int,
@@ -72,8 +79,14 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int,
         "checkpoint_digest": ck.digest,
         "checkpoints_written": ck.written,
         "checkpoint_errors": ck.errors,
+        "checkpoint_error": ck.error,
         "resumed_from": svc.resumed.get(rt.robot, ""),
         "recovered_pairs": rt.recovered_pairs,
+        "recovery": rt.recovery,
+        "recovery_lost_pairs": rt.recovery_lost,
+        "disk_full": disk_full(rt, ck.error),
+        "disk_full_ticks": rt.disk_full_ticks,
+        "learning_stopped": rt.disk_full_since is not None,
         "last_learned_tick": -1 if rt.last_learned_tick is None else rt.last_learned_tick,
         "recording": rt.robot in svc.recorders,
         "recording_errors": svc.recorders.errors,
