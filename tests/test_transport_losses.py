@@ -199,3 +199,17 @@ def test_zenoh_transport_reports_its_router_going_and_coming_back() -> None:
     finally:
         transport.close()
         router.close()
+
+
+def test_roger_status_says_the_losses(tmp_path: Path) -> None:
+    from roger_daemon.tools.status import describe
+
+    h = Harness(make_config(tmp_path))
+    h.transport.link(True)
+    _perceive(h, 0)
+    h.transport.link(False)
+    _perceive(h, 8)
+    h.settle()
+    text = describe(_status(h).to_map())
+    assert "lost in transport 7; link down, 1 down" in text
+    assert "WARN: no link for 1 s; 1 link down; 7 perceptions lost in transport" in text
