@@ -122,6 +122,16 @@ def test_the_outage_warning_is_said_again_once_the_link_returns(tmp_path: Path) 
     h.settle()
     st = _status(h)
     assert (st.info["level"], st.info["level_reasons"]) == ("OK", "")
+    h.transport.link(False)  # a second outage, with nothing new going wrong: nothing to say
+    for t in (46, 47):
+        _perceive(h, t)
+        h.settle()
+        _status(h)
+    h.transport.link(True)
+    _perceive(h, 48)
+    h.settle()
+    st = _status(h)
+    assert "while the link was down" not in st.info["level_reasons"]
 
 
 def test_after_a_stall_the_level_blames_the_stall_not_the_latency(tmp_path: Path) -> None:

@@ -11,7 +11,8 @@ after a stall or an outage, whose level names its cause instead: issue 55).
 The WARN or ERROR of an outage is said again once a link returns (:meth:`Health.link_returned`):
 published while the link was down, it reached nobody; the first status after the link is
 back carries at least its level, its reasons after ``while the link was down:`` (the worst
-level since :data:`NOTICE_NS` before the outage, its first occurrence).
+level since :data:`NOTICE_NS` before the outage, its first occurrence; one said again once is
+not said after the next outage).
 
 Thresholds (the defaults of :class:`Thresholds`, documented in ``protocols/README.md``):
 
@@ -92,10 +93,11 @@ class Health:
     #: the recent WARN and ERROR assessments but the link's own: (level, reasons, monotonic ns)
     alerts: deque[tuple[str, str, int]] = field(default_factory=lambda: deque(maxlen=16))
     _returned_from_ns: int | None = None
+    _heard_ns: int = -1  # when the outage's WARN/ERROR was last said again (on a live link)
 
     def link_returned(self, since_ns: int) -> None:
-        """A link came back after an outage (or the loop after a stall) that began at
-        ``since_ns``: the next assessment says the worst WARN/ERROR of it again."""
+        """A link came back after an outage that began at ``since_ns``: the next assessment
+        says the worst WARN/ERROR of it again."""
         self._returned_from_ns = since_ns
 
     def assess(self, counters: Mapping[str, Any], now_ns: int) -> tuple[str, str]:
@@ -152,9 +154,11 @@ class Health:
         """The worst WARN/ERROR of the outage once more (the first of that level: the cause
         rather than the silence after it), if a link just returned (:meth:`link_returned`)."""
         since, self._returned_from_ns = self._returned_from_ns, None
-        recent = [a for a in self.alerts if since is not None and a[2] >= since - NOTICE_NS]
+        recent = [a for a in self.alerts
+                  if since is not None and a[2] >= since - NOTICE_NS and a[2] > self._heard_ns]
         if not recent:
             return None
+        self._heard_ns = now_ns  # said on a live link: not again after the next outage
         top = worst([a[0] for a in recent])
         level, reasons, at_ns = next(a for a in recent if a[0] == top)
         return level, (f"while the link was down: {level} {reasons} "

@@ -39,13 +39,12 @@ class LinkWatch:
     up: dict[str, str] = field(default_factory=dict)  # zid -> whatami
     downs: int = 0
     stalls: int = 0
-    stall_s_max: float = 0.0
     last_stall_s: float = 0.0
     outage_since_ns: int | None = None  # no link at all since (None: some link is up)
     last_outage_s: float = 0.0
-    #: set when a link came back after an outage or a stall (the start of it, monotonic ns);
-    #: each robot's health takes it once (its last WARN/ERROR re-published)
-    returned_from_ns: int | None = None
+    #: when the last outage began (monotonic ns): each robot's health says the WARN/ERROR
+    #: since then again when a link returns
+    outage_began_ns: int | None = None
     _seen_any: bool = False
     _last_round_ns: int | None = None
 
@@ -70,7 +69,6 @@ class LinkWatch:
                 self.downs += 1
                 if not self.up:
                     self.outage_since_ns = ev.at_ns
-                    self.returned_from_ns = None
                 log.warning("link down: %s %s (%d link%s left); what is published meanwhile "
                             "reaches nobody there", ev.whatami, ev.zid, len(self.up),
                             "" if len(self.up) == 1 else "s")
@@ -80,7 +78,7 @@ class LinkWatch:
         start = self.outage_since_ns if self.outage_since_ns is not None else now_ns
         self.last_outage_s = (now_ns - start) / 1e9
         self.outage_since_ns = None
-        self.returned_from_ns = start
+        self.outage_began_ns = start
         return self.last_outage_s
 
     def round(self, now_ns: int, period_ns: int) -> float:
@@ -95,8 +93,6 @@ class LinkWatch:
         stalled = (now_ns - last) / 1e9
         self.stalls += 1
         self.last_stall_s = stalled
-        self.stall_s_max = max(self.stall_s_max, stalled)
-        self.returned_from_ns = last
         log.warning("the daemon's loop did not run for %.1f s (the process was stopped or "
                     "starved); the input of that time was queued or lost (status "
                     "info.lost_in_transport)", stalled)

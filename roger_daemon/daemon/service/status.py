@@ -194,14 +194,17 @@ def publish_status(svc: Service, now: int) -> None:
 def watch_links(svc: Service, now: int) -> None:
     """At a round's start: the links' events since the previous round, and whether the loop
     stalled (:class:`~roger_daemon.daemon.service.link.LinkWatch`). After an outage or a
-    stall the latency windows start afresh and each robot's health says the outage's
-    WARN/ERROR again (``roger_daemon.daemon.health``)."""
+    stall the latency windows start afresh; after an outage each robot's health says its
+    WARN/ERROR again (``roger_daemon.daemon.health``; a stalled loop published nothing
+    meanwhile, and what it says next goes out on a live link)."""
     returned = svc.link.apply(svc.transport.link_events())
     stalled = svc.link.round(now, svc._status_period_ns) > 0
-    since = svc.link.returned_from_ns
-    if (returned or stalled) and since is not None:
+    if returned or stalled:
         for rt in svc.robots.values():
             rt.latency.values.clear()
+    since = svc.link.outage_began_ns
+    if returned and since is not None:
+        for rt in svc.robots.values():
             svc.health[rt.robot].link_returned(since)
 
 
