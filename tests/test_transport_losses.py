@@ -41,6 +41,7 @@ def test_skipped_ticks_are_counted_as_lost_in_transport_and_logged(
             h.settle()
         st = _status(h)
     assert st.info["lost_in_transport"] == 6
+    assert "1 perception lost in transport" in st.info["level_reasons"]
     said = [r.getMessage() for r in caplog.records if "lost in transport" in r.getMessage()]
     assert said and "ticks 5 to 9 never arrived" in said[0]
 

@@ -135,11 +135,13 @@ class Health:
             n = self._grew(name, int(info.get(name, 0)))
             if n > 0:
                 found.append(("ERROR", f"{n} {name.replace('_', ' ')}"))
-        for name, where, text in (("dropped", counters, "pairs dropped (queue full)"),
-                                  ("lost_in_transport", info, "perceptions lost in transport")):
+        for name, where, one, text in (
+                ("dropped", counters, "pair", "dropped (queue full)"),
+                ("lost_in_transport", info, "perception", "lost in transport")):
             n = self._grew(name, int(where.get(name, 0)))
             if n > 0:
-                found.append(("ERROR" if n > th.drops_error else "WARN", f"{n} {text}"))
+                found.append(("ERROR" if n > th.drops_error else "WARN",
+                              f"{n} {one}{'' if n == 1 else 's'} {text}"))
         for name, text in WARN_COUNTERS.items():
             n = self._grew(name, int(info.get(name, 0)))
             if n > 0:
