@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from roger_daemon.transport import Deliver, Incoming, Publisher
+from roger_daemon.transport import Deliver, Incoming, LinkEvent, Publisher
 
 __all__ = ["MemoryTransport"]
 
@@ -50,6 +50,7 @@ class MemoryTransport:
     tokens: list[str] = field(default_factory=list)
     closed: bool = False
     intake_stopped: bool = False
+    links: list[LinkEvent] = field(default_factory=list)
     _subs: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
     now_ns: Callable[[], int] = time.monotonic_ns
 
@@ -69,6 +70,15 @@ class MemoryTransport:
         """Forget every subscriber."""
         self.intake_stopped = True
         self._subs = []
+
+    def link_events(self) -> list[LinkEvent]:
+        """The events :meth:`link` queued since the previous call."""
+        out, self.links[:] = list(self.links), []
+        return out
+
+    def link(self, up: bool, zid: str = "r0", whatami: str = "router") -> None:
+        """Queue a link event, stamped now (:attr:`now_ns`)."""
+        self.links.append(LinkEvent(up, zid, whatami, self.now_ns()))
 
     def close(self) -> None:
         """Stop intake and mark closed."""

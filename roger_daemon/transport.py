@@ -27,6 +27,7 @@ import select
 import threading
 import time
 import weakref
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -36,6 +37,7 @@ from roger_daemon.zenoh_session import ZenohSettings, open_session, zenoh_config
 __all__ = [
     "Inbox",
     "Incoming",
+    "LinkEvent",
     "Publisher",
     "Transport",
     "ZenohTransport",
@@ -65,6 +67,17 @@ class Incoming:
 Deliver = Callable[[Incoming], None]
 
 
+@dataclass(frozen=True, slots=True)
+class LinkEvent:
+    """One transport (a link to a router or a peer) opened (``up``) or closed, to the Zenoh
+    node ``zid`` (a ``router``, ``peer`` or ``client``), at ``at_ns`` (monotonic)."""
+
+    up: bool
+    zid: str
+    whatami: str
+    at_ns: int
+
+
 def _close_fds(*fds: int) -> None:
     for fd in fds:
         os.close(fd)
@@ -91,6 +104,9 @@ class Transport(Protocol):
 
     def stop_intake(self) -> None:
         """Undeclare every subscriber (first step of shutdown)."""
+
+    def link_events(self) -> list[LinkEvent]:
+        """The links opened and closed since the previous call (oldest first)."""
 
     def close(self) -> None:
         """Release everything; idempotent."""
@@ -198,6 +214,17 @@ class ZenohTransport:
         self._pubs: list[Any] = []
         self._tokens: list[Any] = []
         self._closed = False
+        self._links: deque[LinkEvent] = deque(maxlen=1024)
+        put = zenoh.SampleKind.PUT
+
+        def on_transport(ev: Any) -> None:
+            # a Zenoh thread: record it, nothing else (docs/zenoh-notes.md §3.1)
+            self._links.append(LinkEvent(ev.kind == put, str(ev.transport.zid),
+                                         str(ev.transport.whatami).lower(),
+                                         time.monotonic_ns()))
+
+        self._listener = self.session.info.declare_transport_events_listener(
+            on_transport, history=True)
 
     def subscribe(self, key_expr: str, deliver: Deliver) -> None:
         """Deliver every sample matching ``key_expr`` (from Zenoh's callback threads)."""
@@ -247,13 +274,21 @@ class ZenohTransport:
             except Exception:  # already closed with the session
                 pass
 
+    def link_events(self) -> list[LinkEvent]:
+        """The links opened and closed since the previous call (Zenoh's transport events;
+        the ones open at the start come first)."""
+        out = []
+        while self._links:
+            out.append(self._links.popleft())
+        return out
+
     def close(self) -> None:
         """Undeclare everything and close the session; idempotent."""
         if self._closed:
             return
         self._closed = True
         self.stop_intake()
-        for obj in (*self._tokens, *self._pubs):
+        for obj in (*self._tokens, *self._pubs, self._listener):
             try:
                 obj.undeclare()
             except Exception:

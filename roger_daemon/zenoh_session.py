@@ -15,15 +15,15 @@ multicast scouting off); with a file only the flags given on the command line ov
 Endpoint flags are repeatable and take comma lists; the word ``none`` stands for no endpoint.
 
 Zenoh is imported only when a config is built, so importing this module costs nothing.
-:func:`open_session` also hands Zenoh's runtimes over to its application runtime unless the
-environment sets ``ZENOH_RUNTIME`` (:data:`ONE_THREAD_RUNTIME`, docs/zenoh-notes.md §1.3).
+:func:`open_session` leaves Zenoh on its own multi-thread runtimes (``ZENOH_RUNTIME`` in the
+environment still decides): on one thread, a router waiting inside a BLOCK sample for a busy
+subscriber forwarded nothing else for 5 s (docs/zenoh-notes.md §1.3, issue 55).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
@@ -36,7 +36,6 @@ if TYPE_CHECKING:
 __all__ = [
     "DAEMON_ENDPOINT",
     "DAEMON_PORT",
-    "ONE_THREAD_RUNTIME",
     "ZenohOverrideError",
     "ZenohSettings",
     "add_zenoh_args",
@@ -54,12 +53,6 @@ class ZenohOverrideError(ValueError):
 
 REALTIME_QUEUE = 16  # Zenoh's maximum
 
-#: Zenoh's receive, transmit, accept and network runtimes handed over to its application
-#: runtime (the RON syntax of the ``ZENOH_RUNTIME`` variable): a daemon's Zenoh threads two
-#: instead of seven (one worker thread), which on a busy 2-core machine lowered its CPU and the
-#: predictions' delivery tail (docs/zenoh-notes.md §1.3). Set ``ZENOH_RUNTIME`` to override.
-ONE_THREAD_RUNTIME = ("(rx: (handover: app), acc: (handover: app), tx: (handover: app), "
-                      "net: (handover: app))")
 
 
 #: The daemon's conventional port on this machine, and its default endpoint: where ``roger
@@ -86,8 +79,6 @@ class ZenohSettings:
     #: drop-on-congestion message waits 1 ms for one): 8 robots' predictions published in
     #: one burst on a busy CPU were dropped at 2 (docs/zenoh-notes.md §4.3)
     realtime_queue: int | None = REALTIME_QUEUE
-
-
 
 
 def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
@@ -117,9 +108,8 @@ def open_session(conf: ZenohSettings | zenoh.Config) -> zenoh.Session:
     """Open a ``zenoh.Session`` (call after any fork); use it as ``with open_session(s) as z:``
     or close it yourself.
 
-    Zenoh reads ``ZENOH_RUNTIME`` when its runtimes start, at a process's first session: this
-    sets it to :data:`ONE_THREAD_RUNTIME` first unless the environment already has it."""
-    os.environ.setdefault("ZENOH_RUNTIME", ONE_THREAD_RUNTIME)
+    Zenoh's own multi-thread runtimes, unless the environment's ``ZENOH_RUNTIME`` says
+    otherwise: not one worker for all, which a BLOCK sample stalls (docs/zenoh-notes.md §1.3)."""
     import zenoh
 
     return zenoh.open(zenoh_config(conf) if isinstance(conf, ZenohSettings) else conf)

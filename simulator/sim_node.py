@@ -11,8 +11,9 @@ counts up over the whole run) and ``episode`` events; executes ``command``.
 
 Episodes: every location of ``--locations`` is run ``--episodes-per-location`` times (location
 major), at most ``--max-episodes``; the process then publishes a final ``end`` event with
-``data.run_complete = true``, prints one JSON object (``episodes`` and ``summary``) on stdout,
-writes it to ``--results FILE`` if asked, and exits 0. Episode events:
+``data.run_complete = true`` (again every 0.25 s while its subscribers stay, at most 2 s:
+events go out DROP like every stream), prints one JSON object (``episodes`` and
+``summary``) on stdout, writes it to ``--results FILE`` if asked, and exits 0. Episode events:
 
 * ``start``: data ``location``, ``location_name``, ``repetition``, ``seed``, ``tick`` (first),
   ``robot_x``, ``robot_y``, ``robot_yaw``, ``ball_x``, ``ball_y``;
@@ -34,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from protocols import Command, EpisodeEvent, Perception, keys
 from protocols.aibo import DIMS
@@ -98,7 +100,11 @@ class SimNode:
     def run(self, session: Any) -> dict[str, Any]:
         args = self.args
         self.pub_x = publisher(session, keys.perception(self.robot))
-        self.pub_ep = publisher(session, keys.episode(self.robot), never_drop=True)
+        # DROP like every stream of the simulator (a BLOCK event waiting in a router for a busy
+        # subscriber stalled the perceptions behind it for 5 s: docs/zenoh-notes.md §4.1), at a
+        # priority of its own so that perceptions never take its send queue's batches
+        self.pub_ep = publisher(session, keys.episode(self.robot),
+                                priority=zenoh.Priority.INTERACTIVE_HIGH)
         self.cmds = Subscription(session, self.robot, "command", DIMS, self.invalid, capacity=256)
         t_wait = time.monotonic()
         while not self.stop.stopped and time.monotonic() - t_wait < args.wait_subscribers:
@@ -133,27 +139,30 @@ class SimNode:
             )
         wall = time.monotonic() - t0
         summary = self._summary(results, wall, self.tick - ticks0)
-        put(
-            self.pub_ep,
-            EpisodeEvent(
-                self.robot,
-                self.tick,
-                0.0,
-                event="end",
-                episode=len(results),
-                data={
-                    "run_complete": True,
-                    **{k: v for k, v in summary.items() if not isinstance(v, dict)},
-                },
-            ),
+        final = EpisodeEvent(
+            self.robot,
+            self.tick,
+            0.0,
+            event="end",
+            episode=len(results),
+            data={
+                "run_complete": True,
+                **{k: v for k, v in summary.items() if not isinstance(v, dict)},
+            },
         )
+        put(self.pub_ep, final)
         # Linger so that the final event reaches the controller before the session closes
         # (closing drops what is still queued; a controller with --exit-when-done waits for
         # this event and then leaves): until no subscriber of the episode events is left, at
-        # most LINGER_S (a recorder stays to the end).
+        # most LINGER_S (a recorder stays to the end). The event goes out DROP, so it is sent
+        # again every RESEND_S meanwhile (a controller leaves on the first copy it sees).
         deadline = time.monotonic() + LINGER_S
+        resend = time.monotonic() + RESEND_S
         while has_subscribers(self.pub_ep) and time.monotonic() < deadline:
             time.sleep(0.02)
+            if time.monotonic() >= resend:
+                put(self.pub_ep, final)
+                resend += RESEND_S
         self.cmds.close()
         return {
             "schema": "roger.sim.results/1",

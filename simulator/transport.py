@@ -13,8 +13,8 @@
   lockstep most of the six or so processes of an episode are waiting at any moment, and on a
   2-core machine polling wake-ups took the CPU the working one needed).
 * :class:`StopFlag`: SIGTERM/SIGINT set a flag that the one loop of the process checks.
-* :func:`publisher`: a msgpack publisher with ``express=True`` and the default DROP congestion
-  control (a stalled peer never blocks the loop).
+* :func:`publisher`: a msgpack publisher with ``express=True`` and DROP congestion control
+  (a stalled peer never blocks the loop, nor a router's forwarding).
 
 Topology: Zenoh peers do not route for each other (a peer that only *connects* to the
 simulator never hears a third peer). Every ROGER process therefore also listens, by default
@@ -98,13 +98,17 @@ def config_from_args(args: argparse.Namespace) -> zenoh.Config:
     return zenoh_config(settings_from_args(args))
 
 
-def publisher(session: zenoh.Session, key: str, *, never_drop: bool = False) -> zenoh.Publisher:
-    """An express msgpack publisher. DROP congestion control by default (a stalled peer never
-    blocks the loop); ``never_drop`` blocks instead, for the rare messages a peer must see
-    (the episode events: a controller with ``--exit-when-done`` waits for the final one)."""
-    congestion = zenoh.CongestionControl.BLOCK if never_drop else zenoh.CongestionControl.DROP
+def publisher(session: zenoh.Session, key: str, *,
+              priority: zenoh.Priority | None = None) -> zenoh.Publisher:
+    """An express msgpack publisher with DROP congestion control: a stalled peer never blocks
+    the loop, and no sample of this process ever holds a router's forwarding of the others
+    (a BLOCK sample waiting in a router for a busy subscriber stalls everything that process
+    sends through it: docs/zenoh-notes.md §4.1, issue 55). ``priority``: Zenoh's default
+    (``DATA``) unless given; a priority of its own gives a stream its own send queue."""
     return session.declare_publisher(key, encoding=MSGPACK, express=True,
-                                     congestion_control=congestion)
+                                     congestion_control=zenoh.CongestionControl.DROP,
+                                     priority=zenoh.Priority.DATA if priority is None
+                                     else priority)
 
 
 def has_subscribers(pub: zenoh.Publisher) -> bool:

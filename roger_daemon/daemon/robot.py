@@ -8,6 +8,9 @@ the training queue of ``queue_size`` pairs; when it is full the new pair is drop
 ``dropped``, logged, and shown in status. An action whose perception never arrives is
 evicted after ``pair_window`` newer actions and counted as ``unpaired_actions``.
 
+Losses in transport: a skipped perception tick is counted in ``gaps``
+(:class:`~roger_daemon.daemon.tick_gaps.TickGaps`, status ``info.lost_in_transport``).
+
 Decisions: each learned pair, reset and dropped pair also goes to ``decisions`` (the session
 log's decision records, docs/durability.md) when one is attached.
 
@@ -39,6 +42,7 @@ from roger_daemon.config.settings import DaemonConfig
 from roger_daemon.daemon.checkpoint_meta import Counters, LearnerSpec
 from roger_daemon.daemon.pairing import LEARN_MODES, PREDICT_MODES, Pairing
 from roger_daemon.daemon.robot_state import NewestPair, Pair, RobotState
+from roger_daemon.daemon.tick_gaps import TickGaps
 from roger_daemon.daemon.window import Window
 from roger_daemon.labels import LabelTally, majority_labels_coded
 
@@ -125,6 +129,8 @@ class RobotRuntime:
         self.recovery_lost = 0  # pairs start-up found lost with no intact copy
         self.disk_full_ticks = 0  # perceptions not learned: the disk was full
         self.disk_full_since: int | None = None  # tick learning stopped at (None: learning)
+        self.gaps = TickGaps(robot, pair_window)  # perceptions lost in transport
+        self._latency_ns = -1  # receipt time of the newest perception whose latency counted
         # windows and bookkeeping
         self.latency = Window()
         self.learn_ms = Window(200)
@@ -178,6 +184,7 @@ class RobotRuntime:
     def on_perception(self, msg: Perception, recv_ns: int) -> None:
         """Take a perception: count it, keep it as the newest query, pair it when learning."""
         self.ticks += 1
+        self.gaps.see(msg.tick)
         self.last_tick, self.last_t = msg.tick, msg.t
         self.newest = (msg, recv_ns)
         if not self.learning:
@@ -191,6 +198,14 @@ class RobotRuntime:
         pair = self.pairing.perception(msg)
         if pair is not None:
             self._enqueue(*pair)
+
+    def add_latency(self, recv_ns: int, latency_ms: float) -> None:
+        """Count a prediction's latency, once per perception: answering the same perception
+        again (realtime, no newer one arrived: a link down) measures its age, not the daemon,
+        and would have the status blame latency for an outage."""
+        if recv_ns != self._latency_ns:
+            self._latency_ns = recv_ns
+            self.latency.add(latency_ms)
 
     def on_action(self, msg: Action) -> None:
         """Take an action: pair it with its tick's perception when learning."""
@@ -346,7 +361,7 @@ class RobotRuntime:
         multimap = tuple(ExpertOutput(*row) for row in rows)
         self.predict_ms.add((time.perf_counter_ns() - t0) / 1e6)
         latency_ms = (now_ns() - recv_ns) / 1e6
-        self.latency.add(latency_ms)
+        self.add_latency(recv_ns, latency_ms)
         return Prediction(
             self.robot, perc.tick, perc.t, mean=p.mean, var=p.var, expert=int(p.expert_id),
             multimap=multimap, latency_ms=latency_ms, mode=self.mode, updates=self.updates,

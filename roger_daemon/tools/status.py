@@ -63,6 +63,11 @@ def describe(st: dict[str, Any]) -> str:
     if info.get("pairs_teacher") or info.get("pairs_robot"):
         lines.append(f"  pairs from the teacher {info.get('pairs_teacher', 0)}, from the robot "
                      f"{info.get('pairs_robot', 0)}; corrections {info.get('corrections', 0)}")
+    if info.get("lost_in_transport") or info.get("link_downs") or info.get("loop_stalls"):
+        lines.append(f"  lost in transport {info.get('lost_in_transport', 0)}; link "
+                     f"{info.get('link_state', '?')}, {info.get('link_downs', 0)} down "
+                     f"(last outage {float(info.get('link_outage_s', 0)):.1f} s); stalls "
+                     f"{info.get('loop_stalls', 0)}")
     if st.get("invalid"):
         lines.append("  invalid " + ", ".join(f"{k} {v}" for k, v in st["invalid"].items()))
     if info.get("checkpoint"):

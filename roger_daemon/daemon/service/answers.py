@@ -84,7 +84,7 @@ def _worker_prediction(svc: Service, rt: RobotRuntime, reply: dict[str, Any], pe
         return
     latency_ms = (svc.clock.monotonic_ns() - recv_ns) / 1e6
     rt.predict_ms.add(float(reply["ms"]))
-    rt.latency.add(latency_ms)
+    rt.add_latency(recv_ns, latency_ms)
     # the worker encoded a validated Prediction: set the publish-time fields in place instead
     # of decoding and encoding it again (the loop's largest cost per robot; docs/fleet.md)
     stamp_ns = svc.clock.time_ns()

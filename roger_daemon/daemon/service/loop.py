@@ -53,6 +53,7 @@ from roger_daemon.daemon.service.checkpoints import Checkpoints, Snapshot, check
 from roger_daemon.daemon.service.clock import Clock, RealClock
 from roger_daemon.daemon.service.controls import apply_control
 from roger_daemon.daemon.service.intake import Admission
+from roger_daemon.daemon.service.link import LinkWatch
 from roger_daemon.daemon.service.outbox import Outbox
 from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
 from roger_daemon.daemon.service.schedule import LoopStats, TickSchedule
@@ -149,6 +150,7 @@ class Service:
         self.learners = learners
         self._committer: ThreadPoolExecutor | None = None
         self.health = {r: Health() for r in self.robots}
+        self.link = LinkWatch()  # links up and down, the loop's stalls (status info)
         # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
         self.acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
 

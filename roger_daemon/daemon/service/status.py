@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
 __all__ = ["StatusRound", "disk_full", "invalid_counts", "publish_status", "robot_status",
-           "status_deadline", "status_due", "timer_info"]
+           "status_deadline", "status_due", "timer_info", "watch_links"]
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +87,8 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int,
         "disk_full": disk_full(rt, ck.error),
         "disk_full_ticks": rt.disk_full_ticks,
         "learning_stopped": rt.disk_full_since is not None,
+        "lost_in_transport": rt.gaps.lost,
+        **svc.link.info(now),
         "last_learned_tick": -1 if rt.last_learned_tick is None else rt.last_learned_tick,
         "recording": rt.robot in svc.recorders,
         "recording_errors": svc.recorders.errors,
@@ -186,6 +188,7 @@ def publish_status(svc: Service, now: int) -> None:
     the systemd status line follows the round's last robot."""
     rnd = svc.status_round
     if not rnd.pending:
+        watch_links(svc, now)
         rnd.start(svc._next_status, svc.robots.values(), timer_info(svc))
         svc._next_status += svc._status_period_ns
         if svc._next_status <= now:
@@ -199,6 +202,23 @@ def publish_status(svc: Service, now: int) -> None:
             break
     if not rnd.pending:
         svc.notifier.status("; ".join(rnd.lines))
+
+
+def watch_links(svc: Service, now: int) -> None:
+    """At a round's start: the links' events since the previous round, and whether the loop
+    stalled (:class:`~roger_daemon.daemon.service.link.LinkWatch`). After an outage or a
+    stall the latency windows start afresh; after an outage each robot's health says its
+    WARN/ERROR again (``roger_daemon.daemon.health``; a stalled loop published nothing
+    meanwhile, and what it says next goes out on a live link)."""
+    returned = svc.link.apply(svc.transport.link_events())
+    stalled = svc.link.round(now, svc._status_period_ns) > 0
+    if returned or stalled:
+        for rt in svc.robots.values():
+            rt.latency.values.clear()
+    since = svc.link.outage_began_ns
+    if returned and since is not None:
+        for rt in svc.robots.values():
+            svc.health[rt.robot].link_returned(since)
 
 
 def _publish_one(svc: Service, rt: RobotRuntime, now: int, timer: Mapping[str, float]) -> str:
