@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from roger_daemon.transport import Deliver, Incoming, Publisher
+from roger_daemon.transport import TOKEN_ALIVE, TOKEN_GONE, Deliver, Incoming, Publisher
 
 __all__ = ["MemoryTransport"]
 
@@ -50,7 +50,10 @@ class MemoryTransport:
     tokens: list[str] = field(default_factory=list)
     closed: bool = False
     intake_stopped: bool = False
+    #: other sessions' liveliness tokens (:meth:`token`)
+    others: list[str] = field(default_factory=list)
     _subs: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
+    _watches: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
     now_ns: Callable[[], int] = time.monotonic_ns
 
     def subscribe(self, key_expr: str, deliver: Deliver) -> None:
@@ -64,6 +67,36 @@ class MemoryTransport:
     def declare_token(self, key: str) -> None:
         """Record a liveliness token."""
         self.tokens.append(key)
+
+    def undeclare_token(self, key: str) -> None:
+        """Forget a recorded liveliness token."""
+        if key in self.tokens:
+            self.tokens.remove(key)
+
+    def watch_tokens(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver the tokens :meth:`token` injects (and those of :attr:`others` at once)."""
+        rx = _key_regex(key_expr)
+        self._watches.append((rx, deliver))
+        for key in self.others:
+            if rx.match(key):
+                deliver(Incoming(key, TOKEN_ALIVE, len(TOKEN_ALIVE), self.now_ns(),
+                                 time.time_ns()))
+
+    def alive_tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """The keys of :attr:`others` (other sessions' tokens) matching ``key_expr``."""
+        rx = _key_regex(key_expr)
+        return [k for k in self.others if rx.match(k)]
+
+    def token(self, key: str, alive: bool) -> None:
+        """Another session's token of ``key`` appeared (``alive``) or went."""
+        if alive:
+            self.others.append(key)
+        elif key in self.others:
+            self.others.remove(key)
+        data = TOKEN_ALIVE if alive else TOKEN_GONE
+        for rx, deliver in self._watches:
+            if rx.match(key):
+                deliver(Incoming(key, data, len(data), self.now_ns(), time.time_ns()))
 
     def stop_intake(self) -> None:
         """Forget every subscriber."""

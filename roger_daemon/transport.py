@@ -36,6 +36,8 @@ from roger_daemon.zenoh_session import ZenohSettings, open_session, zenoh_config
 __all__ = [
     "Inbox",
     "Incoming",
+    "TOKEN_ALIVE",
+    "TOKEN_GONE",
     "Publisher",
     "Transport",
     "ZenohTransport",
@@ -44,6 +46,9 @@ __all__ = [
 ]
 
 ENCODING = "application/msgpack"
+#: payloads of :meth:`Transport.watch_tokens`' deliveries: a token appeared, or went
+TOKEN_ALIVE = b"alive"
+TOKEN_GONE = b"gone"
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,6 +93,16 @@ class Transport(Protocol):
 
     def declare_token(self, key: str) -> None:
         """Declare a liveliness token held until :meth:`close`."""
+
+    def undeclare_token(self, key: str) -> None:
+        """Withdraw a token :meth:`declare_token` declared (nothing if it holds none)."""
+
+    def watch_tokens(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver each liveliness token matching ``key_expr`` as it appears (payload
+        :data:`TOKEN_ALIVE`) and goes (:data:`TOKEN_GONE`), those alive now included."""
+
+    def alive_tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """The keys of the tokens matching ``key_expr`` alive now (waits up to ``timeout``)."""
 
     def stop_intake(self) -> None:
         """Undeclare every subscriber (first step of shutdown)."""
@@ -197,6 +212,7 @@ class ZenohTransport:
         self._subs: list[Any] = []
         self._pubs: list[Any] = []
         self._tokens: list[Any] = []
+        self._token_keys: list[str] = []
         self._closed = False
 
     def subscribe(self, key_expr: str, deliver: Deliver) -> None:
@@ -237,6 +253,36 @@ class ZenohTransport:
     def declare_token(self, key: str) -> None:
         """Declare a liveliness token held until :meth:`close`."""
         self._tokens.append(self.session.liveliness().declare_token(key))
+        self._token_keys.append(key)
+
+    def undeclare_token(self, key: str) -> None:
+        """Withdraw the token of ``key`` (nothing if this transport holds none)."""
+        if key not in self._token_keys:
+            return
+        i = self._token_keys.index(key)
+        token = self._tokens.pop(i)
+        self._token_keys.pop(i)
+        try:
+            token.undeclare()
+        except Exception:  # the session is closing
+            pass
+
+    def watch_tokens(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver token appearances and departures (from Zenoh's callback threads)."""
+        put_kind = self._zenoh.SampleKind.PUT
+
+        def on_sample(sample: Any) -> None:  # copy and enqueue only (module doc)
+            data = TOKEN_ALIVE if sample.kind == put_kind else TOKEN_GONE
+            deliver(Incoming(str(sample.key_expr), data, len(data), time.monotonic_ns(),
+                             time.time_ns()))
+
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            key_expr, on_sample, history=True))
+
+    def alive_tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """The keys of the tokens matching ``key_expr`` alive now (a liveliness query)."""
+        replies = self.session.liveliness().get(key_expr, timeout=timeout)
+        return [str(r.ok.key_expr) for r in replies if r.ok is not None]
 
     def stop_intake(self) -> None:
         """Undeclare every subscriber (first step of shutdown)."""
