@@ -288,7 +288,9 @@ class Replication:
             role.holders[daemon] = epoch
             role.seen_holder = True
             role.last_epoch = max(role.last_epoch, epoch)
-            if role.active and (epoch, _rank(daemon)) > (role.epoch, _rank(self.daemon)):
+            # a starting primary follows whoever serves; else the higher (epoch, rank) keeps it
+            if role.active and (starting or
+                                (epoch, _rank(daemon)) > (role.epoch, _rank(self.daemon))):
                 self._yield(robot, role, daemon, starting=starting)
             return
         if role.holders.pop(daemon, None) is not None and not role.active and not role.holders:
