@@ -183,3 +183,18 @@ def test_of_two_daemons_serving_one_robot_the_lower_epoch_yields(tmp_path: Path)
     abe.transport.token(keys.active_token("zed", "aibo", 0), alive=True)
     abe.settle()
     assert abe.status().info["role"] == "primary"
+
+
+def test_roger_status_names_the_role(tmp_path: Path) -> None:
+    from roger_daemon.tools.status import describe
+
+    prim, standby = pair_of(tmp_path)
+    for t in range(3):
+        feed(prim, t)
+    relay(prim, standby, skip=frozenset({1}))
+    assert "daemon spare (standby of prim, 1 pairs missing)" in describe(
+        standby.status().to_map())
+    assert "daemon prim (primary)" in describe(prim.status().to_map())
+    standby.transport.token(TOKEN, alive=False)
+    standby.settle()
+    assert "daemon spare (primary, took over 1 times)" in describe(standby.status().to_map())

@@ -47,11 +47,12 @@ DIMS = Dims(1, 1)
 MAX_RESENDS = 3
 
 
-def _config(workdir: Path, name: str, port: int, peer: int, **daemon: Any) -> Path:
+def _config(workdir: Path, name: str, port: int, peer: int, *,
+            zenoh: dict[str, Any] | None = None, **daemon: Any) -> Path:
     return harness.write_config(
         workdir / f"{name}.toml", port=port, workdir=workdir / name,
         daemon={"id": name, "clock": "lockstep", "seed": 3, **daemon},
-        zenoh={"connect": [f"tcp/127.0.0.1:{peer}"]},
+        zenoh=zenoh or {"connect": [f"tcp/127.0.0.1:{peer}"]},
         checkpoint={"every_updates": 25, "every_s": 0.0},
         robots=[{"id": "sim", "x_dim": 1, "y_dim": 1}],
     )
@@ -163,3 +164,41 @@ def test_kill_9_of_the_primary_the_standby_serves_on_with_every_pair(
     assert st_spare["info"]["role"] == "primary" and st_spare["info"]["takeovers"] == 1
     assert st_back["info"]["role"] == "standby" and st_back["info"]["served_by"] == "spare"
     assert "took over from prim" in spare.log()
+
+
+def test_the_standby_takes_over_through_the_acl_router(tmp_path: Path) -> None:
+    """Both daemons and the robot clients of ``roger router`` with
+    configs/zenoh/router-acl.json5: its rules let the decision records and the active tokens
+    through (the standby follows, then serves)."""
+    from test_router import ROOT, Router
+
+    port = harness.free_port()
+    router = Router(ROOT / "configs/zenoh/router-acl.json5", port, tmp_path / "router.log")
+    via = {"mode": "client", "connect": [f"tcp/127.0.0.1:{port}"], "listen": []}
+    procs = []
+    client = None
+    try:
+        procs.append(harness.DaemonProcess(_config(tmp_path, "prim", 0, 0, zenoh=via)))
+        procs[0].wait_ready()
+        procs.append(harness.DaemonProcess(_config(tmp_path, "spare", 0, 0, zenoh=via,
+                                                   role="standby")))
+        procs[1].wait_ready()
+        client = RobotClient(f"tcp/127.0.0.1:{port}", robot="sim", dims=DIMS, mode="client")
+        client.wait_daemon(30)
+        sender = Sender(client, 30)
+        for t in range(20):
+            sender.tick(t)
+        followed = _status(port, "spare")["info"]
+        procs[0].proc.kill()
+        for t in range(20, 30):
+            sender.tick(t)
+    finally:
+        for proc in procs:
+            proc.kill()
+        if client is not None:
+            client.close()
+        router.stop()
+    assert followed["role"] == "standby" and followed["standby_in_sync"]
+    assert followed["standby_followed"] == 20
+    assert sender.answers == {t: t + 1 for t in range(30)}
+    assert "took over from prim" in procs[1].log()
