@@ -37,11 +37,13 @@ __all__ = [
     "parse_active",
     "parse_decision",
     "parse_replica",
+    "parse_sync",
     "perception",
     "prediction",
     "replica",
     "replicas",
     "status",
+    "sync",
     "validate_robot_id",
 ]
 
@@ -163,6 +165,21 @@ def replica(daemon_id: str, robot: str, event: str) -> str:
 def replicas(robot: str) -> str:
     """Key expression of every daemon's published decision records for ``robot``."""
     return f"{ROOT}/@daemon/*/replica/{validate_robot_id(robot)}/*"
+
+
+def sync(daemon_id: str, robot: str) -> str:
+    """Where the daemon ``daemon_id`` answers a standby's catch-up query for ``robot``."""
+    daemon_id, robot = validate_robot_id(daemon_id), validate_robot_id(robot)
+    return f"{ROOT}/@daemon/{daemon_id}/sync/{robot}"
+
+
+def parse_sync(key_expr: str) -> tuple[str, str] | None:
+    """``(daemon, robot)`` of a catch-up answer's key, or ``None``."""
+    parts = str(key_expr).split("/")
+    if (len(parts) != 5 or parts[0] != ROOT or parts[1] != "@daemon" or parts[3] != "sync"
+            or not _ID.match(parts[2]) or not _ID.match(parts[4])):
+        return None
+    return parts[2], parts[4]
 
 
 def parse_replica(key_expr: str) -> tuple[str, str, str] | None:

@@ -52,6 +52,9 @@ class MemoryTransport:
     intake_stopped: bool = False
     #: other sessions' liveliness tokens (:meth:`token`)
     others: list[str] = field(default_factory=list)
+    #: the transports whose queryables :meth:`query` reaches, and our own
+    peers: list[MemoryTransport] = field(default_factory=list)
+    queryables: dict[str, Callable[[], bytes]] = field(default_factory=dict)
     _subs: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
     _watches: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
     now_ns: Callable[[], int] = time.monotonic_ns
@@ -97,6 +100,21 @@ class MemoryTransport:
         for rx, deliver in self._watches:
             if rx.match(key):
                 deliver(Incoming(key, data, len(data), self.now_ns(), time.time_ns()))
+
+    def serve(self, key: str, answer: Callable[[], bytes]) -> None:
+        """Answer the queries of the transports linked to this one (:attr:`peers`)."""
+        self.queryables[key] = answer
+
+    def query(self, key: str, deliver: Deliver, timeout: float) -> None:
+        """Ask the queryables of :attr:`peers` matching ``key``; answers delivered at once
+        (an empty payload on ``key`` when none matched)."""
+        rx = _key_regex(key)
+        answers = [(served, answer) for peer in self.peers
+                   for served, answer in peer.queryables.items()
+                   if rx.match(served) or served == key]
+        for served, answer in answers or [(key, lambda: b"")]:
+            data = answer()
+            deliver(Incoming(served, data, len(data), self.now_ns(), time.time_ns()))
 
     def stop_intake(self) -> None:
         """Forget every subscriber."""

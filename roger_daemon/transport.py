@@ -104,6 +104,13 @@ class Transport(Protocol):
     def alive_tokens(self, key_expr: str, timeout: float) -> list[str]:
         """The keys of the tokens matching ``key_expr`` alive now (waits up to ``timeout``)."""
 
+    def serve(self, key: str, answer: Callable[[], bytes]) -> None:
+        """Answer every query on ``key`` with ``answer()`` (called on another thread)."""
+
+    def query(self, key: str, deliver: Deliver, timeout: float) -> None:
+        """Ask ``key`` without waiting: each answer is delivered (from another thread); an
+        empty payload on ``key`` when none came."""
+
     def stop_intake(self) -> None:
         """Undeclare every subscriber (first step of shutdown)."""
 
@@ -283,6 +290,34 @@ class ZenohTransport:
         """The keys of the tokens matching ``key_expr`` alive now (a liveliness query)."""
         replies = self.session.liveliness().get(key_expr, timeout=timeout)
         return [str(r.ok.key_expr) for r in replies if r.ok is not None]
+
+    def serve(self, key: str, answer: Callable[[], bytes]) -> None:
+        """A queryable on ``key``: each query is answered with ``answer()``, on Zenoh's
+        thread (``answer`` reads files only: standby_sync.history)."""
+
+        def on_query(query: Any) -> None:
+            query.reply(key, answer())
+
+        self._pubs.append(self.session.declare_queryable(key, on_query))
+
+    def query(self, key: str, deliver: Deliver, timeout: float) -> None:
+        """A query on ``key``; its answers are delivered as they come (no size limit), and an
+        empty payload on ``key`` when the query ends without one."""
+        answered = []
+
+        def on_reply(reply: Any) -> None:  # copy and enqueue only (module doc)
+            if reply.ok is None:
+                return
+            answered.append(True)
+            data = reply.ok.payload.to_bytes()
+            deliver(Incoming(str(reply.ok.key_expr), data, len(data), time.monotonic_ns(),
+                             time.time_ns()))
+
+        def on_end() -> None:
+            if not answered:
+                deliver(Incoming(key, b"", 0, time.monotonic_ns(), time.time_ns()))
+
+        self.session.get(key, self._zenoh.handlers.Callback(on_reply, on_end), timeout=timeout)
 
     def stop_intake(self) -> None:
         """Undeclare every subscriber (first step of shutdown)."""

@@ -14,6 +14,7 @@ from protocols import Action, Control, Perception, encode, keys
 from roger_daemon.config import ConfigError, DaemonConfig, parse_config
 from roger_daemon.daemon.checkpoint import array_digest
 from roger_daemon.daemon.main import make_model
+from roger_daemon.daemon.wal import WriteAheadLog, wal_dir
 
 TOKEN = keys.active_token("prim", "aibo", 0)
 
@@ -52,8 +53,10 @@ def pair_of(tmp_path: Path) -> tuple[Harness, Harness]:
     return prim, standby
 
 
-def _started(cfg: DaemonConfig, *, others: list[str]) -> Harness:
-    """A ``Harness`` whose transport already sees ``others``' tokens when it starts."""
+def _started(cfg: DaemonConfig, *, others: list[str], peers: tuple[Harness, ...] = (),
+             wal: bool = False) -> Harness:
+    """A ``Harness`` whose transport already sees ``others``' tokens (and reaches ``peers``'
+    queryables) when it starts; with ``wal``, a write-ahead log in its checkpoint dir."""
     from roger_daemon.testing import MemoryTransport
 
     original = MemoryTransport.__init__
@@ -61,12 +64,21 @@ def _started(cfg: DaemonConfig, *, others: list[str]) -> Harness:
     def with_others(self: MemoryTransport, *a: object, **kw: object) -> None:
         original(self, *a, **kw)  # type: ignore[arg-type]
         self.others.extend(others)
+        self.peers.extend(p.transport for p in peers)
 
     MemoryTransport.__init__ = with_others  # type: ignore[method-assign]
     try:
-        return Harness(cfg)
+        return Harness(cfg, wal=new_wal(cfg) if wal else None)
     finally:
         MemoryTransport.__init__ = original  # type: ignore[method-assign]
+
+
+def new_wal(cfg: DaemonConfig) -> WriteAheadLog:
+    """A fresh robot's log, as the daemon starts one (wal.start with ``fresh``)."""
+    log = WriteAheadLog(wal_dir(cfg.checkpoint.dir, "aibo"), 0)
+    log.append_fresh()
+    log.commit()
+    return log
 
 
 def reference_digest(h: Harness, n: int) -> str:
@@ -163,6 +175,11 @@ def test_a_primary_that_finds_another_daemon_serving_starts_as_its_standby(
     feed(back, 0)
     assert back.predictions() == []
     assert back.status().info["role"] == "standby"
+    # when the daemon it follows goes, it serves in the mode it was configured with
+    back.transport.token(keys.active_token("spare", "aibo", 1), alive=False)
+    back.settle()
+    assert [(p.tick, p.mode) for p in back.predictions()] == [(0, "learn+predict")]
+    assert keys.active_token("prim", "aibo", 2) in back.transport.tokens
 
 
 def test_of_two_daemons_serving_one_robot_the_lower_epoch_yields(tmp_path: Path) -> None:
@@ -198,3 +215,52 @@ def test_roger_status_names_the_role(tmp_path: Path) -> None:
     standby.transport.token(TOKEN, alive=False)
     standby.settle()
     assert "daemon spare (primary, took over 1 times)" in describe(standby.status().to_map())
+
+
+def test_a_standby_started_late_catches_up_from_the_primarys_files(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The primary's newest checkpoint (pairs 0-19) and its log after it (20-24), over the
+    sync query; then live records as usual, and the takeover finds every pair."""
+    caplog.set_level("INFO", logger="roger_daemon.daemon.standby")
+    cfg = make_config(tmp_path / "p", {"every_updates": 10}, id="prim")
+    prim = Harness(cfg, wal=new_wal(cfg))
+    for t in range(25):
+        feed(prim, t)
+    prim.transport.published.clear()
+    standby = _started(make_config(tmp_path / "s", id="spare", role="standby"),
+                       others=[TOKEN], peers=(prim,), wal=True)
+    standby.settle()
+    assert "caught up with prim: 20 updates from its checkpoint, 5 records after it" in \
+        caplog.text
+    assert standby.rt.updates == 25 and digest(standby) == digest(prim)
+    st = standby.status()
+    assert st.info["standby_syncs"] == 1 and st.info["standby_in_sync"]
+    for t in range(25, 35):
+        feed(prim, t)
+        feed(standby, t)
+        relay(prim, standby)
+    assert digest(standby) == digest(prim) == reference_digest(prim, 35)
+    standby.transport.token(TOKEN, alive=False)
+    standby.settle()
+    assert standby.predictions()[-1].updates == 35
+
+
+def test_a_primary_that_yields_catches_up_with_the_daemon_that_serves(tmp_path: Path) -> None:
+    """The returning primary: it had pairs 0-9, the standby that took over learned 10-19."""
+    pcfg = make_config(tmp_path / "p", id="prim")
+    prim = Harness(pcfg, wal=new_wal(pcfg))
+    spare = _started(make_config(tmp_path / "s", {"every_updates": 15}, id="spare",
+                                 role="standby"), others=[TOKEN], wal=True)
+    for t in range(10):
+        feed(prim, t)
+        feed(spare, t)
+    relay(prim, spare)
+    spare.transport.token(TOKEN, alive=False)
+    for t in range(10, 20):
+        feed(spare, t)
+    assert spare.rt.updates == 20 and prim.rt.updates == 10
+    prim.transport.peers.append(spare.transport)
+    prim.transport.token(keys.active_token("spare", "aibo", 1), alive=True)
+    prim.settle()
+    assert prim.status().info["role"] == "standby"
+    assert prim.rt.updates == 20 and digest(prim) == digest(spare) == reference_digest(prim, 20)

@@ -10,10 +10,11 @@ may not have reached the standby.
 
 What must hold: the standby answers the next tick (counted in re-sends of one tick, never
 timed); every prediction(t) reports exactly t + 1 updates (no acknowledged pair lost, none
-learned twice); no tick is answered by two daemons; the standby's final checkpoint holds the
-model an uninterrupted in-process run learns from the same pairs, bit for bit (state digest);
-the primary, started again, finds the standby serving and becomes its standby; ``roger status``
-names each daemon's role.
+learned twice); no tick is answered by two daemons; the primary, started again, finds the
+standby serving, becomes its standby and catches up with it; when the standby is killed in
+turn the primary serves again, and its final checkpoint holds the model an uninterrupted
+in-process run learns from the same pairs, bit for bit (state digest); ``roger status`` names
+each daemon's role.
 """
 
 from __future__ import annotations
@@ -122,30 +123,38 @@ def test_kill_9_of_the_primary_the_standby_serves_on_with_every_pair(
         else:
             threading.Timer(random.Random(kill_after).uniform(0.0, 0.006),
                             prim.proc.kill).start()
-        for t in range(kill_after, n - 20):
+        for t in range(kill_after, 70):
             if t not in sender.answers:
                 sender.tick(t)
         first = next(r for r in client.predictions if r.msg.tick == kill_after + 1)
         takeover_ms = (first.recv_ns - killed) / 1e6
         prim.proc.wait(30)
         prim.kill()
-        # the primary comes back: the standby serves the robot, so it follows it
+        # the primary comes back: the standby serves the robot, so it follows it, caught up
         back = harness.DaemonProcess(prim_cfg, log=tmp_path / "prim-back.log")
         back.wait_ready()
         back.wait_for_log("starting as its standby")
-        for t in range(n - 20, n):
+        back.wait_for_log("caught up with spare")
+        for t in range(70, 85):
             sender.tick(t)
         st_spare, st_back = _status(pa, "spare"), _status(pa, "prim")
-        code, _ = spare.terminate(timeout=30)
-        assert code == 0, spare.log()
+        killed_again = time.monotonic_ns()
+        spare.proc.kill()  # and now the standby dies: the primary serves again
+        for t in range(85, n):
+            sender.tick(t)
+        again = next(r for r in client.predictions if r.msg.tick == 85)
+        back_ms = (again.recv_ns - killed_again) / 1e6
+        code, _ = back.terminate(timeout=30)
+        assert code == 0, back.log()
     finally:
         for proc in (back, spare, prim):
             if proc is not None:
                 proc.kill()
         if client is not None:
             client.close()
-    print(f"kill {kill}: prediction {kill_after + 1} {takeover_ms:.1f} ms after kill -9; "
-          f"re-sends {dict(sender.resends)}")
+    print(f"kill {kill}: prediction {kill_after + 1} {takeover_ms:.1f} ms after kill -9 of the "
+          f"primary, prediction 85 {back_ms:.1f} ms after kill -9 of the standby; re-sends "
+          f"{dict(sender.resends)}")
     # the standby answered the ticks around the kill within a few re-sends of each
     assert sender.resends[kill_after] + sender.resends[kill_after + 1] <= MAX_RESENDS
     # every acknowledgement counts exactly the pairs sent so far: none lost, none twice
@@ -153,17 +162,19 @@ def test_kill_9_of_the_primary_the_standby_serves_on_with_every_pair(
     # no tick answered by two daemons (a tick re-sent is answered once per sending)
     per_tick = Counter(r.msg.tick for r in client.predictions)
     assert {t: c for t, c in per_tick.items() if c != 1 + sender.resends[t]} == {}
-    # the standby's final model is the uninterrupted run over the same pairs, bit for bit
-    ck = read_checkpoint(list_checkpoints(tmp_path / "spare" / "checkpoints", "sim")[0])
+    # the final model (the primary's, after two takeovers) is the uninterrupted run over the
+    # same pairs, bit for bit
+    ck = read_checkpoint(list_checkpoints(tmp_path / "prim" / "checkpoints", "sim")[0])
     assert ck.meta.updates == n
-    ref = make_model(load_config(spare_cfg).robots[0])
+    ref = make_model(load_config(prim_cfg).robots[0])
     for i in range(n):
         ref.learn_one(sender.x[i], sender.y[i])
     assert array_digest(dict(ref.state_dict())) == ck.meta.model_digest
     # the roles as roger status shows them
     assert st_spare["info"]["role"] == "primary" and st_spare["info"]["takeovers"] == 1
     assert st_back["info"]["role"] == "standby" and st_back["info"]["served_by"] == "spare"
-    assert "took over from prim" in spare.log()
+    assert st_back["info"]["standby_in_sync"] and st_back["info"]["standby_syncs"] >= 1
+    assert "took over from prim" in spare.log() and "took over from spare" in back.log()
 
 
 def test_the_standby_takes_over_through_the_acl_router(tmp_path: Path) -> None:
@@ -199,6 +210,44 @@ def test_the_standby_takes_over_through_the_acl_router(tmp_path: Path) -> None:
             client.close()
         router.stop()
     assert followed["role"] == "standby" and followed["standby_in_sync"]
-    assert followed["standby_followed"] == 20
+    assert followed["standby_followed"] == 20 and followed["standby_syncs"] == 1
+    assert sender.answers == {t: t + 1 for t in range(30)}
+    assert "took over from prim" in procs[1].log()
+
+
+def test_the_standby_takes_over_in_the_secure_deployment(tmp_path: Path) -> None:
+    """configs/zenoh/secure/router.json5 (authentication and an ACL by role): the daemons'
+    rules let a standby catch up, follow and take over."""
+    from test_secure_deployment import Deployment
+
+    dep = Deployment(tmp_path)
+    via = {"config_file": dep.client_file("daemon"), "mode": "client",
+           "connect": [dep.endpoint], "listen": []}
+    procs = []
+    client = None
+    try:
+        procs.append(harness.DaemonProcess(_config(tmp_path, "prim", 0, 0, zenoh=via)))
+        procs[0].wait_ready()
+        procs.append(harness.DaemonProcess(_config(tmp_path, "spare", 0, 0, zenoh=via,
+                                                   role="standby")))
+        procs[1].wait_ready()
+        client = RobotClient(dep.endpoint, robot="sim", dims=DIMS, mode="client",
+                             zenoh_config=str(dep.client_file("robot")))
+        client.wait_daemon(30)
+        sender = Sender(client, 30)
+        for t in range(20):
+            sender.tick(t)
+        followed = client.wait_status(
+            lambda st: st.daemon == "spare" and st.info["standby_followed"] == 20, 60).info
+        procs[0].proc.kill()
+        for t in range(20, 30):
+            sender.tick(t)
+    finally:
+        for proc in procs:
+            proc.kill()
+        if client is not None:
+            client.close()
+        dep.close()
+    assert followed["role"] == "standby" and followed["standby_syncs"] == 1
     assert sender.answers == {t: t + 1 for t in range(30)}
     assert "took over from prim" in procs[1].log()

@@ -30,102 +30,34 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from protocols import keys
 from protocols.decisions import Dropped, Learned, Reset, decode_decision
 from protocols.errors import ProtocolError
-from protocols.message_types import Message, encode
+from protocols.message_types import Message
 from protocols.messages import Action, Control, Perception
-from roger_daemon.daemon.checkpoint_meta import CheckpointMeta
+from roger_daemon.config import DaemonConfig
 from roger_daemon.daemon.pairing import Pairing
-from roger_daemon.daemon.robot import Decisions, Pair, RobotRuntime
-from roger_daemon.transport import TOKEN_ALIVE, Incoming, Publisher
+from roger_daemon.daemon.robot import RobotRuntime
+from roger_daemon.daemon.standby_role import Replicated, RobotRole
+from roger_daemon.daemon.standby_sync import SyncError, history, install
+from roger_daemon.transport import TOKEN_ALIVE, Incoming
 
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["Replicated", "Replication", "RobotRole"]
+__all__ = ["Replication"]
 
 log = logging.getLogger(__name__)
 
 #: how long a starting primary looks for another daemon's token of its robots (s)
 LOOK_S = 1.0
-#: recent decided pairs kept to recognise a robot's message that arrives after its record
-DECIDED_KEEP = 256
+#: a catch-up query unanswered this long is given up (the gap is then counted)
+SYNC_TIMEOUT_S = 10.0
 #: a standby serves a robot nobody has served yet after this many status periods
 UNSERVED_PERIODS = 5
-
-
-@dataclass
-class RobotRole:
-    """What the hot standby keeps for one robot (module doc)."""
-
-    robot: str
-    active: bool
-    mode: str  # the robot's mode as the serving daemon has it (mode controls)
-    epoch: int = 0
-    token: str = ""  # our active token's key while we serve the robot
-    holders: dict[str, int] = field(default_factory=dict)  # other daemons serving it: epoch
-    last_epoch: int = -1  # the highest epoch seen for this robot
-    seen_holder: bool = False
-    next_updates: int = 1  # the ``updates`` of the next decided pair
-    missing: int = 0  # decided pairs whose records never came (gaps)
-    followed: int = 0  # decided pairs queued from records
-    takeovers: int = 0
-    tail_pairs: int = 0  # held pairs queued at the last takeover
-    pairing: Pairing = field(default_factory=Pairing)
-    held: deque[tuple[Perception, Action]] = field(default_factory=deque)
-    decided: deque[tuple[int, bytes]] = field(default_factory=lambda: deque(maxlen=DECIDED_KEEP))
-    newest: tuple[Perception, int] | None = None
-
-
-class Replicated:
-    """A robot's :class:`~roger_daemon.daemon.robot.Decisions`: the session log's (``inner``)
-    and, while this daemon serves the robot, published for a standby."""
-
-    def __init__(self, inner: Decisions | None, role: RobotRole,
-                 pubs: Mapping[str, Publisher], wall_ns: Any) -> None:
-        self.inner = inner
-        self.role = role
-        self.pubs = dict(pubs)
-        self.wall_ns = wall_ns
-
-    def _put(self, event: str, record: Message) -> None:
-        if self.role.active:
-            self.pubs[event].put(encode(record))
-
-    def learned(self, rt: RobotRuntime, pair: Pair) -> None:
-        """``pair`` became model pair ``rt.updates - 1``."""
-        if self.inner is not None:
-            self.inner.learned(rt, pair)
-        label = rt.vocab[pair.label] if 0 <= pair.label < len(rt.vocab) else ""
-        self._put("learned", Learned(rt.robot, pair.tick, pair.t, updates=rt.updates,
-                                     segment=rt.session_resets, x=pair.x, y=pair.y,
-                                     label=label, stamp_ns=self.wall_ns()))
-
-    def reset(self, rt: RobotRuntime, forgotten: int) -> None:
-        """The model was replaced by a fresh one."""
-        if self.inner is not None:
-            self.inner.reset(rt, forgotten)
-        self._put("reset", Reset(rt.robot, rt.last_tick, rt.last_t, segment=rt.session_resets,
-                                 forgotten=forgotten, stamp_ns=self.wall_ns()))
-
-    def dropped(self, rt: RobotRuntime, tick: int, reason: str) -> None:
-        """The completed pair of ``tick`` was not queued."""
-        if self.inner is not None:
-            self.inner.dropped(rt, tick, reason)
-        self._put("dropped", Dropped(rt.robot, tick, rt.last_t, reason=reason,
-                                     queue_size=rt.queue_size, dropped=rt.dropped,
-                                     stamp_ns=self.wall_ns()))
-
-    def checkpoint(self, rt: RobotRuntime, meta: CheckpointMeta) -> None:
-        """A checkpoint was written: into the session log's digest chain."""
-        chained = getattr(self.inner, "checkpoint", None)
-        if chained is not None:
-            chained(rt, meta)
 
 
 class Replication:
@@ -148,7 +80,8 @@ class Replication:
     # --- start -----------------------------------------------------------------------------
 
     def start(self, now: int) -> None:
-        """Publishers, the decision-record and token subscriptions; which robots we serve."""
+        """Publishers, the decision-record and token subscriptions, the catch-up queryable;
+        which robots we serve."""
         svc, tr = self.svc, self.svc.transport
         self._start_ns = now
         self._unserved_ns = UNSERVED_PERIODS * int(round(1e9 / svc.config.status_hz))
@@ -158,22 +91,34 @@ class Replication:
                     for ev in ("learned", "reset", "dropped")}
             rt.decisions = Replicated(rt.decisions, role, pubs, svc.clock.time_ns)
             tr.subscribe(keys.replicas(robot), svc.inbox.put)
+            tr.serve(keys.sync(self.daemon, robot), _answer(svc.config, robot))
             role.next_updates = rt.updates + len(rt.queue) + 1
-            if role.active:  # a primary: is another daemon serving it already?
-                for key in tr.alive_tokens(keys.active_tokens(robot), LOOK_S):
-                    self._token(key, alive=True, starting=True)
+            if not role.active:  # a standby
+                self._become_passive(rt, role)
+                continue
+            for key in tr.alive_tokens(keys.active_tokens(robot), LOOK_S):
+                self._token(key, alive=True, starting=True)  # another daemon serves it?
             if role.active:
                 self._declare(role, role.epoch)
-            else:
-                self._become_passive(rt, role)
         tr.watch_tokens(keys.active_tokens(), svc.inbox.put)
 
     # --- the loop's hooks ------------------------------------------------------------------
 
     def intercept(self, item: Incoming) -> bool:
-        """Handle ``item`` if it is a token change or a decision record; whether it was."""
+        """Handle ``item`` if it is a token change, a decision record or a catch-up answer;
+        whether it was one."""
         if keys.parse_active(item.key) is not None:
             self._token(item.key, alive=item.payload == TOKEN_ALIVE)
+            return True
+        synced = keys.parse_sync(item.key)
+        if synced is not None:
+            role = self.roles.get(synced[1])
+            if role is not None and role.syncing and not role.active:
+                if item.payload:
+                    self._install(self.svc.robots[synced[1]], role, item.payload)
+                else:  # the query ended unanswered
+                    self._give_up(self.svc.robots[synced[1]], role,
+                                  f"daemon {synced[0]} did not answer")
             return True
         where = keys.parse_replica(item.key)
         if where is None:
@@ -188,7 +133,11 @@ class Replication:
         except ProtocolError as exc:
             rt.count_invalid(exc.reason, f"decision record from {daemon}: {exc.detail}")
             return True
-        self._follow(rt, role, msg, daemon)
+        if role.syncing and not isinstance(msg, Dropped):  # applied once caught up
+            role.pending.append((msg, daemon))
+            role.resync = role.resync or isinstance(msg, Reset)
+        else:
+            self._follow(rt, role, msg, daemon, live=True)
         return True
 
     def passive(self, robot: str) -> bool:
@@ -203,15 +152,18 @@ class Replication:
             rt.ticks += 1
             rt.last_tick, rt.last_t = msg.tick, msg.t
             role.newest = (msg, recv_ns)
-            self._hold(role, role.pairing.perception(msg))
+            role.hold(role.pairing.perception(msg))
         elif isinstance(msg, Action):
-            self._hold(role, role.pairing.action(msg))
+            role.hold(role.pairing.action(msg))
         elif isinstance(msg, Control) and msg.op == "mode":
             role.mode = msg.mode  # reset comes as a record; checkpoints are the server's
 
     def poll(self, now: int) -> None:
-        """A standby serves a robot nobody has served since it started (for a while)."""
+        """Catch-up queries unanswered too long; a standby serves a robot nobody has served
+        since it started (for a while)."""
         for robot, role in self.roles.items():
+            if role.syncing and now - role.sync_sent_ns >= int(SYNC_TIMEOUT_S * 1e9):
+                self._give_up(self.svc.robots[robot], role, f"no answer in {SYNC_TIMEOUT_S} s")
             if (not role.active and not role.holders and not role.seen_holder
                     and now - self._start_ns >= self._unserved_ns):
                 log.warning("%s: no daemon has served it since we started; serving it", robot)
@@ -222,39 +174,24 @@ class Replication:
         role = self.roles[robot]
         return {"role": "primary" if role.active else "standby", "epoch": role.epoch,
                 "standby_followed": role.followed, "standby_missing": role.missing,
-                "standby_in_sync": role.missing == 0, "takeovers": role.takeovers,
+                "standby_in_sync": role.missing == 0 and not role.syncing,
+                "standby_syncs": role.syncs, "takeovers": role.takeovers,
                 "takeover_tail_pairs": role.tail_pairs,
                 "served_by": self.daemon if role.active else ",".join(sorted(role.holders))}
 
     # --- following -------------------------------------------------------------------------
 
-    def _hold(self, role: RobotRole, pair: tuple[Perception, Action] | None) -> None:
-        if pair is None:
-            return
-        perc, act = pair
-        if (act.tick, perc.x.tobytes()) in role.decided:
-            return  # its record came first
-        role.held.append(pair)
-        while len(role.held) > 4 * role.pairing.window:
-            role.held.popleft()
-
-    def _unhold(self, role: RobotRole, tick: int, x: bytes | None) -> None:
-        """Take the held pair of a decision record off (and the older ones the serving daemon
-        passed over); remember it if it has not come yet."""
-        for i, (perc, act) in enumerate(role.held):
-            if act.tick == tick and (x is None or perc.x.tobytes() == x):
-                for _ in range(i + 1):
-                    role.held.popleft()
-                return
-        role.decided.append((tick, b"" if x is None else x))
-
-    def _follow(self, rt: RobotRuntime, role: RobotRole, msg: Message, daemon: str) -> None:
+    def _follow(self, rt: RobotRuntime, role: RobotRole, msg: Message, daemon: str, *,
+                live: bool) -> None:
         from roger_daemon.daemon.service.controls import learn_before_reset
 
         if isinstance(msg, Learned):
             if msg.updates < role.next_updates:
-                return  # a record we have (the serving daemon re-sent it)
+                return  # a record we have (a catch-up answer held it too)
             if msg.updates > role.next_updates:
+                if live and self._sync(rt, role, daemon):
+                    role.pending.append((msg, daemon))
+                    return
                 gap = msg.updates - role.next_updates
                 role.missing += gap
                 log.error("%s: %d decision records of %s never came (pairs %d-%d): this "
@@ -263,7 +200,7 @@ class Replication:
             rt.follow(msg.x, msg.y, msg.label, msg.tick)
             role.next_updates = msg.updates + 1
             role.followed += 1
-            self._unhold(role, msg.tick, msg.x.tobytes())
+            role.unhold(msg.tick, msg.x.tobytes())
         elif isinstance(msg, Reset):
             learn_before_reset(self.svc, rt)
             log.info("%s: %s reset the model: resetting ours", rt.robot, daemon)
@@ -272,7 +209,54 @@ class Replication:
             role.held.clear()
             role.pairing.clear()
         elif isinstance(msg, Dropped):
-            self._unhold(role, msg.tick, None)
+            role.unhold(msg.tick, None)
+
+    # --- catching up (standby_sync.py) -----------------------------------------------------
+
+    def _sync(self, rt: RobotRuntime, role: RobotRole, daemon: str) -> bool:
+        """Ask ``daemon`` for its state of ``rt``; whether we now wait for it."""
+        if self.svc.learners is not None:
+            log.error("%s: a standby with learner worker processes cannot catch up (the "
+                      "model lives in a worker); set [daemon] workers = \"inline\"", rt.robot)
+            return False
+        if role.syncing:
+            return True
+        role.syncing, role.pending = True, []
+        role.sync_sent_ns = self.svc.clock.monotonic_ns()
+        log.info("%s: catching up with %s (we have %d updates)", rt.robot, daemon, rt.updates)
+        self.svc.transport.query(keys.sync(daemon, rt.robot), self.svc.inbox.put,
+                                 SYNC_TIMEOUT_S)
+        return True
+
+    def _install(self, rt: RobotRuntime, role: RobotRole, payload: bytes) -> None:
+        """The catch-up answer came: the serving daemon's state, then its records, ours."""
+        try:
+            daemon, records = install(rt, payload, self.svc.config.checkpoint.dir / rt.robot)
+        except (SyncError, ProtocolError) as exc:
+            self._give_up(rt, role, str(exc))
+            return
+        self.svc.checkpoints.write(rt, "synced", None, sync=True)  # our log starts from it
+        role.syncing, role.missing, role.syncs = False, 0, role.syncs + 1
+        role.synced_with = (daemon, role.holders.get(daemon, -1))
+        role.next_updates = rt.updates + 1
+        for msg in records:
+            self._follow(rt, role, msg, daemon, live=False)
+        log.info("%s: caught up with %s: %d updates from its checkpoint, %d records after it",
+                 rt.robot, daemon, rt.updates, len(records))
+        self._replay_pending(rt, role)
+        if role.resync:  # a reset came meanwhile: which side of it the answer was is unsure
+            role.resync = False
+            self._sync(rt, role, daemon)
+
+    def _give_up(self, rt: RobotRuntime, role: RobotRole, why: str) -> None:
+        log.error("%s: catching up failed (%s); following with a gap", rt.robot, why)
+        role.syncing = False
+        self._replay_pending(rt, role)
+
+    def _replay_pending(self, rt: RobotRuntime, role: RobotRole) -> None:
+        pending, role.pending = role.pending, []
+        for msg, daemon in pending:
+            self._follow(rt, role, msg, daemon, live=False)
 
     # --- tokens ----------------------------------------------------------------------------
 
@@ -292,6 +276,8 @@ class Replication:
             if role.active and (starting or
                                 (epoch, _rank(daemon)) > (role.epoch, _rank(self.daemon))):
                 self._yield(robot, role, daemon, starting=starting)
+            elif not role.active and not starting and role.synced_with != (daemon, epoch):
+                self._sync(self.svc.robots[robot], role, daemon)  # a new server: its state
             return
         if role.holders.pop(daemon, None) is not None and not role.active and not role.holders:
             self._take_over(robot, role, daemon)
@@ -323,12 +309,16 @@ class Replication:
             self.svc.transport.undeclare_token(role.token)
             role.token = ""
         self._become_passive(self.svc.robots[robot], role)
+        if not starting:  # at start: once the token watch delivers the server's token
+            self._sync(self.svc.robots[robot], role, daemon)
 
     def _take_over(self, robot: str, role: RobotRole, daemon: str) -> None:
         """Serve ``robot``: queue the held pairs, adopt the pairing, answer the newest."""
         from roger_daemon.daemon.service.answers import answer_now
 
         svc, rt = self.svc, self.svc.robots[robot]
+        if role.syncing:
+            self._give_up(rt, role, f"{daemon or 'the serving daemon'} went")
         role.active = True
         role.takeovers += 1
         rt.mode = role.mode
@@ -339,12 +329,17 @@ class Replication:
         rt.pairing = role.pairing
         rt.newest = role.newest
         self._declare(role, role.last_epoch + 1)
-        log.warning("%s: took over from %s (epoch %d): %d updates, %d decided pairs queued, "
-                    "%d held pairs queued, %d never received", robot, daemon or "nobody",
-                    role.epoch, rt.updates, len(rt.queue) - len(held), len(held), role.missing)
+        log.warning("%s: took over from %s (epoch %d): %d updates, %d held pairs queued, %d "
+                    "decided pairs never received", robot, daemon or "nobody", role.epoch,
+                    rt.updates, len(held), role.missing)
         if rt.newest is not None and rt.predicting and svc.config.clock == "lockstep":
             perc, recv_ns = rt.newest  # its sender waits for this answer
             answer_now(svc, rt, perc, recv_ns)
+
+
+def _answer(cfg: DaemonConfig, robot: str) -> Callable[[], bytes]:
+    """The catch-up answer for ``robot``, computed when asked (on Zenoh's thread)."""
+    return lambda: history(cfg, robot)
 
 
 def _rank(daemon: str) -> tuple[int, ...]:
