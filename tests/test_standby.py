@@ -264,3 +264,19 @@ def test_a_primary_that_yields_catches_up_with_the_daemon_that_serves(tmp_path: 
     prim.settle()
     assert prim.status().info["role"] == "standby"
     assert prim.rt.updates == 20 and digest(prim) == digest(spare) == reference_digest(prim, 20)
+
+
+def test_in_realtime_the_takeover_answers_on_the_next_tick(tmp_path: Path) -> None:
+    standby = _started(make_config(tmp_path / "s", id="spare", role="standby",
+                                   clock="realtime"), others=[TOKEN])
+    feed(standby, 0)
+    standby.clock.advance(0.1)
+    standby.settle()
+    assert standby.predictions() == []  # another daemon serves it
+    standby.transport.token(TOKEN, alive=False)
+    standby.settle()
+    standby.clock.advance(0.1)
+    standby.service.step(0)
+    # every answer (the first tick's too) counts the held pair the takeover queued
+    answers = {(p.tick, p.updates) for p in standby.predictions()}
+    assert answers == {(0, 1)}

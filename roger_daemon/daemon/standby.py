@@ -314,7 +314,7 @@ class Replication:
 
     def _take_over(self, robot: str, role: RobotRole, daemon: str) -> None:
         """Serve ``robot``: queue the held pairs, adopt the pairing, answer the newest."""
-        from roger_daemon.daemon.service.answers import answer_now
+        from roger_daemon.daemon.service.answers import answer_now, learn_queued
 
         svc, rt = self.svc, self.svc.robots[robot]
         if role.syncing:
@@ -332,6 +332,9 @@ class Replication:
         log.warning("%s: took over from %s (epoch %d): %d updates, %d held pairs queued, %d "
                     "decided pairs never received", robot, daemon or "nobody", role.epoch,
                     rt.updates, len(held), role.missing)
+        # before any answer (the realtime tick's too): it counts every pair the dead daemon
+        # may have acknowledged
+        learn_queued(svc, rt)
         if rt.newest is not None and rt.predicting and svc.config.clock == "lockstep":
             perc, recv_ns = rt.newest  # its sender waits for this answer
             answer_now(svc, rt, perc, recv_ns)
