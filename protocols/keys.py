@@ -2,7 +2,12 @@
 
 Every robot has seven keys ``roger/<robot>/<kind>``; daemons also declare a liveliness token
 ``roger/@daemon/<daemon-id>``. The daemon's decision records (``protocols.decisions``) are
-log channels ``roger/<robot>/daemon/<event>``, never published.
+log channels ``roger/<robot>/daemon/<event>``, never published. For a hot standby the daemon
+serving a robot publishes its ``learned``, ``reset`` and ``dropped`` records on
+``roger/@daemon/<daemon-id>/replica/<robot>/<event>`` and holds the liveliness token
+``roger/@daemon/<daemon-id>/active/<robot>/<epoch>`` (docs/daemon.md, *Hot standby*): a
+verbatim ``@daemon`` chunk is matched by no wildcard, so ``roger/**`` (recorders, the daemon's
+own intake) never sees them.
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ __all__ = [
     "ROBOT_ID_PATTERN",
     "ROOT",
     "action",
+    "active_token",
+    "active_tokens",
     "all_of_kind",
     "command",
     "control",
@@ -27,10 +34,16 @@ __all__ = [
     "everything",
     "key",
     "parse",
+    "parse_active",
     "parse_decision",
+    "parse_replica",
+    "parse_sync",
     "perception",
     "prediction",
+    "replica",
+    "replicas",
     "status",
+    "sync",
     "validate_robot_id",
 ]
 
@@ -114,6 +127,68 @@ def daemon_liveliness(daemon_id: str) -> str:
 def daemon_liveliness_all() -> str:
     """Liveliness key expression matching every daemon."""
     return f"{ROOT}/@daemon/*"
+
+
+def active_token(daemon_id: str, robot: str, epoch: int) -> str:
+    """Liveliness token of the daemon serving ``robot`` (a hot standby watches it); ``epoch``
+    counts the takeovers that led to this daemon serving it."""
+    if not isinstance(epoch, int) or epoch < 0:
+        raise ProtocolError("bad_value", f"epoch must be an integer >= 0, got {epoch!r}")
+    return (f"{ROOT}/@daemon/{validate_robot_id(daemon_id)}/active/{validate_robot_id(robot)}"
+            f"/{epoch}")
+
+
+def active_tokens(robot: str = "*") -> str:
+    """Key expression of every daemon's active token for ``robot`` (``"*"``: any robot)."""
+    if robot != "*":
+        validate_robot_id(robot)
+    return f"{ROOT}/@daemon/*/active/{robot}/*"
+
+
+def parse_active(key_expr: str) -> tuple[str, str, int] | None:
+    """``(daemon, robot, epoch)`` of an active token's key, or ``None`` if it is not one."""
+    parts = str(key_expr).split("/")
+    if (len(parts) != 6 or parts[0] != ROOT or parts[1] != "@daemon" or parts[3] != "active"
+            or not _ID.match(parts[2]) or not _ID.match(parts[4]) or not parts[5].isdigit()):
+        return None
+    return parts[2], parts[4], int(parts[5])
+
+
+def replica(daemon_id: str, robot: str, event: str) -> str:
+    """Where the daemon serving ``robot`` publishes its decision records of ``event``."""
+    if event not in DECISIONS:
+        raise ProtocolError("bad_key", f"event must be one of {DECISIONS}, got {event!r}")
+    daemon_id, robot = validate_robot_id(daemon_id), validate_robot_id(robot)
+    return f"{ROOT}/@daemon/{daemon_id}/replica/{robot}/{event}"
+
+
+def replicas(robot: str) -> str:
+    """Key expression of every daemon's published decision records for ``robot``."""
+    return f"{ROOT}/@daemon/*/replica/{validate_robot_id(robot)}/*"
+
+
+def sync(daemon_id: str, robot: str) -> str:
+    """Where the daemon ``daemon_id`` answers a standby's catch-up query for ``robot``."""
+    daemon_id, robot = validate_robot_id(daemon_id), validate_robot_id(robot)
+    return f"{ROOT}/@daemon/{daemon_id}/sync/{robot}"
+
+
+def parse_sync(key_expr: str) -> tuple[str, str] | None:
+    """``(daemon, robot)`` of a catch-up answer's key, or ``None``."""
+    parts = str(key_expr).split("/")
+    if (len(parts) != 5 or parts[0] != ROOT or parts[1] != "@daemon" or parts[3] != "sync"
+            or not _ID.match(parts[2]) or not _ID.match(parts[4])):
+        return None
+    return parts[2], parts[4]
+
+
+def parse_replica(key_expr: str) -> tuple[str, str, str] | None:
+    """``(daemon, robot, event)`` of a published decision record's key, or ``None``."""
+    parts = str(key_expr).split("/")
+    if (len(parts) != 6 or parts[0] != ROOT or parts[1] != "@daemon" or parts[3] != "replica"
+            or not _ID.match(parts[2]) or not _ID.match(parts[4]) or parts[5] not in DECISIONS):
+        return None
+    return parts[2], parts[4], parts[5]
 
 
 def parse(key_expr: str) -> tuple[str, str]:

@@ -13,7 +13,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from roger_daemon.transport import Deliver, Incoming, LinkEvent, Publisher
+from roger_daemon.transport import (
+    TOKEN_ALIVE,
+    TOKEN_GONE,
+    Deliver,
+    Incoming,
+    LinkEvent,
+    Publisher,
+)
 
 __all__ = ["MemoryTransport"]
 
@@ -51,7 +58,13 @@ class MemoryTransport:
     closed: bool = False
     intake_stopped: bool = False
     links: list[LinkEvent] = field(default_factory=list)
+    #: other sessions' liveliness tokens (:meth:`token`)
+    others: list[str] = field(default_factory=list)
+    #: the transports whose queryables :meth:`query` reaches, and our own
+    peers: list[MemoryTransport] = field(default_factory=list)
+    queryables: dict[str, Callable[[], bytes]] = field(default_factory=dict)
     _subs: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
+    _watches: list[tuple[re.Pattern[str], Deliver]] = field(default_factory=list)
     now_ns: Callable[[], int] = time.monotonic_ns
 
     def subscribe(self, key_expr: str, deliver: Deliver) -> None:
@@ -65,6 +78,51 @@ class MemoryTransport:
     def declare_token(self, key: str) -> None:
         """Record a liveliness token."""
         self.tokens.append(key)
+
+    def undeclare_token(self, key: str) -> None:
+        """Forget a recorded liveliness token."""
+        if key in self.tokens:
+            self.tokens.remove(key)
+
+    def watch_tokens(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver the tokens :meth:`token` injects (and those of :attr:`others` at once)."""
+        rx = _key_regex(key_expr)
+        self._watches.append((rx, deliver))
+        for key in self.others:
+            if rx.match(key):
+                deliver(Incoming(key, TOKEN_ALIVE, len(TOKEN_ALIVE), self.now_ns(),
+                                 time.time_ns()))
+
+    def alive_tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """The keys of :attr:`others` (other sessions' tokens) matching ``key_expr``."""
+        rx = _key_regex(key_expr)
+        return [k for k in self.others if rx.match(k)]
+
+    def token(self, key: str, alive: bool) -> None:
+        """Another session's token of ``key`` appeared (``alive``) or went."""
+        if alive:
+            self.others.append(key)
+        elif key in self.others:
+            self.others.remove(key)
+        data = TOKEN_ALIVE if alive else TOKEN_GONE
+        for rx, deliver in self._watches:
+            if rx.match(key):
+                deliver(Incoming(key, data, len(data), self.now_ns(), time.time_ns()))
+
+    def serve(self, key: str, answer: Callable[[], bytes]) -> None:
+        """Answer the queries of the transports linked to this one (:attr:`peers`)."""
+        self.queryables[key] = answer
+
+    def query(self, key: str, deliver: Deliver, timeout: float) -> None:
+        """Ask the queryables of :attr:`peers` matching ``key``; answers delivered at once
+        (an empty payload on ``key`` when none matched)."""
+        rx = _key_regex(key)
+        answers = [(served, answer) for peer in self.peers
+                   for served, answer in peer.queryables.items()
+                   if rx.match(served) or served == key]
+        for served, answer in answers or [(key, lambda: b"")]:
+            data = answer()
+            deliver(Incoming(served, data, len(data), self.now_ns(), time.time_ns()))
 
     def stop_intake(self) -> None:
         """Forget every subscriber."""

@@ -38,6 +38,8 @@ __all__ = [
     "Inbox",
     "Incoming",
     "LinkEvent",
+    "TOKEN_ALIVE",
+    "TOKEN_GONE",
     "Publisher",
     "Transport",
     "ZenohTransport",
@@ -46,6 +48,9 @@ __all__ = [
 ]
 
 ENCODING = "application/msgpack"
+#: payloads of :meth:`Transport.watch_tokens`' deliveries: a token appeared, or went
+TOKEN_ALIVE = b"alive"
+TOKEN_GONE = b"gone"
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,6 +106,23 @@ class Transport(Protocol):
 
     def declare_token(self, key: str) -> None:
         """Declare a liveliness token held until :meth:`close`."""
+
+    def undeclare_token(self, key: str) -> None:
+        """Withdraw a token :meth:`declare_token` declared (nothing if it holds none)."""
+
+    def watch_tokens(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver each liveliness token matching ``key_expr`` as it appears (payload
+        :data:`TOKEN_ALIVE`) and goes (:data:`TOKEN_GONE`), those alive now included."""
+
+    def alive_tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """The keys of the tokens matching ``key_expr`` alive now (waits up to ``timeout``)."""
+
+    def serve(self, key: str, answer: Callable[[], bytes]) -> None:
+        """Answer every query on ``key`` with ``answer()`` (called on another thread)."""
+
+    def query(self, key: str, deliver: Deliver, timeout: float) -> None:
+        """Ask ``key`` without waiting: each answer is delivered (from another thread); an
+        empty payload on ``key`` when none came."""
 
     def stop_intake(self) -> None:
         """Undeclare every subscriber (first step of shutdown)."""
@@ -213,6 +235,7 @@ class ZenohTransport:
         self._subs: list[Any] = []
         self._pubs: list[Any] = []
         self._tokens: list[Any] = []
+        self._token_keys: list[str] = []
         self._closed = False
         self._links: deque[LinkEvent] = deque(maxlen=1024)
         put = zenoh.SampleKind.PUT
@@ -264,6 +287,64 @@ class ZenohTransport:
     def declare_token(self, key: str) -> None:
         """Declare a liveliness token held until :meth:`close`."""
         self._tokens.append(self.session.liveliness().declare_token(key))
+        self._token_keys.append(key)
+
+    def undeclare_token(self, key: str) -> None:
+        """Withdraw the token of ``key`` (nothing if this transport holds none)."""
+        if key not in self._token_keys:
+            return
+        i = self._token_keys.index(key)
+        token = self._tokens.pop(i)
+        self._token_keys.pop(i)
+        try:
+            token.undeclare()
+        except Exception:  # the session is closing
+            pass
+
+    def watch_tokens(self, key_expr: str, deliver: Deliver) -> None:
+        """Deliver token appearances and departures (from Zenoh's callback threads)."""
+        put_kind = self._zenoh.SampleKind.PUT
+
+        def on_sample(sample: Any) -> None:  # copy and enqueue only (module doc)
+            data = TOKEN_ALIVE if sample.kind == put_kind else TOKEN_GONE
+            deliver(Incoming(str(sample.key_expr), data, len(data), time.monotonic_ns(),
+                             time.time_ns()))
+
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            key_expr, on_sample, history=True))
+
+    def alive_tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """The keys of the tokens matching ``key_expr`` alive now (a liveliness query)."""
+        replies = self.session.liveliness().get(key_expr, timeout=timeout)
+        return [str(r.ok.key_expr) for r in replies if r.ok is not None]
+
+    def serve(self, key: str, answer: Callable[[], bytes]) -> None:
+        """A queryable on ``key``: each query is answered with ``answer()``, on Zenoh's
+        thread (``answer`` reads files only: standby_sync.history)."""
+
+        def on_query(query: Any) -> None:
+            query.reply(key, answer())
+
+        self._pubs.append(self.session.declare_queryable(key, on_query))
+
+    def query(self, key: str, deliver: Deliver, timeout: float) -> None:
+        """A query on ``key``; its answers are delivered as they come (no size limit), and an
+        empty payload on ``key`` when the query ends without one."""
+        answered = []
+
+        def on_reply(reply: Any) -> None:  # copy and enqueue only (module doc)
+            if reply.ok is None:
+                return
+            answered.append(True)
+            data = reply.ok.payload.to_bytes()
+            deliver(Incoming(str(reply.ok.key_expr), data, len(data), time.monotonic_ns(),
+                             time.time_ns()))
+
+        def on_end() -> None:
+            if not answered:
+                deliver(Incoming(key, b"", 0, time.monotonic_ns(), time.time_ns()))
+
+        self.session.get(key, self._zenoh.handlers.Callback(on_reply, on_end), timeout=timeout)
 
     def stop_intake(self) -> None:
         """Undeclare every subscriber (first step of shutdown)."""

@@ -498,7 +498,9 @@ def test_majority_labels() -> None:
 
 def test_liveliness_token_and_subscriptions(tmp_path: Path) -> None:
     h = Harness(make_config(tmp_path))
-    assert h.transport.tokens == [keys.daemon_liveliness("roger")]
+    # the daemon's token, and the token of the robot it serves (a standby watches it)
+    assert h.transport.tokens == [keys.daemon_liveliness("roger"),
+                                  keys.active_token("roger", "aibo", 0)]
     # one subscriber on roger/** (order-preserving); other daemons' outputs are ignored
     assert h.transport.inject(keys.prediction("aibo"), b"x") == 1
     assert h.transport.inject(keys.status("aibo"), b"x") == 1

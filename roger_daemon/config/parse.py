@@ -20,6 +20,7 @@ from roger_daemon.config.settings import (
     DEFAULT_PRESET,
     DEFAULT_PROFILE,
     FSM_MODEL,
+    ROLES,
     WORKERS,
     ZENOH_MODES,
     CheckpointConfig,
@@ -201,6 +202,7 @@ def _daemon_section(d: Table) -> dict[str, Any]:
         workers=d.choice("workers", c.workers, WORKERS),
         worker_nice=d.integer("worker_nice", c.worker_nice, lo=0),
         worker_processes=d.integer("worker_processes", c.worker_processes, lo=0),
+        role=d.choice("role", c.role, ROLES),
         log_dir=d.path("log_dir", c.log_dir),
     )
     if out["worker_nice"] > 19:

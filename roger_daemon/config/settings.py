@@ -24,12 +24,15 @@ __all__ = [
     "ConfigError",
     "DaemonConfig",
     "RecordingConfig",
+    "ROLES",
     "RobotConfig",
     "ZenohSettings",
 ]
 
 CLOCKS = ("realtime", "lockstep")
 WORKERS = ("auto", "process", "inline")
+#: ``[daemon] role``: serve the robots, or follow the serving daemon as a hot standby
+ROLES = ("primary", "standby")
 #: ROGER with its transitions learned online (roger_daemon/fsm/online.py, docs/autonomy.md)
 FSM_MODEL = "roger+fsm"
 #: the profile of a robot that names none (if its dimensions are that profile's)
@@ -130,6 +133,9 @@ class DaemonConfig:
     #: per usable core, at most one per robot; each serves several robots' models in turn
     #: (docs/fleet.md, *A pool of workers*)
     worker_processes: int = 0
+    #: "primary": serve the robots; "standby": follow the serving daemon's decisions and take
+    #: its robots over when its liveliness token goes (docs/daemon.md, *Hot standby*)
+    role: str = "primary"
     log_dir: Path | None = None
     robots: tuple[RobotConfig, ...] = ()
     learner: Mapping[str, Any] = field(default_factory=dict)

@@ -268,6 +268,17 @@ class RobotRuntime:
         self.queue.append(Pair(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64),
                                self._label_code(label), int(tick)))
 
+    def enqueue_pair(self, perc: Perception, act: Action) -> None:
+        """Queue the pair ``perc``/``act`` formed elsewhere (a hot standby's pairs at
+        takeover, docs/daemon.md): re-sends recognised, the queue bound applied."""
+        self._enqueue(perc, act)
+
+    def follow(self, x: np.ndarray, y: np.ndarray, label: str, tick: int) -> None:
+        """Queue a pair the serving daemon decided to learn (a hot standby, docs/daemon.md):
+        no size limit, and it becomes the newest pair (a re-sent copy is not learned twice)."""
+        self.enqueue_recovered(x, y, label, tick)
+        self._newest_pair = (int(tick), self.queue[-1].x.tobytes(), self.queue[-1].y.tobytes())
+
     def _warn_once(self, what: str, text: str) -> None:
         if what not in self._reported:
             self._reported.add(what)

@@ -2,10 +2,12 @@
 
 Without ``--watch``: waits for the next status (published at 1 Hz, and at once after a control
 request) of ``ROBOT``, or of every robot heard within a status period when no robot is named,
-prints it and exits 0 (1 if none came within ``--timeout``). With ``--watch``: prints every
-status as it arrives until Ctrl-C, and a ``STALE`` line when a robot's status stops coming
-(:func:`roger_daemon.daemon.health.is_stale`). ``--json``: one JSON object per status, the message's
-fields plus ``level`` (``OK``/``WARN``/``ERROR``/``STALE``) and ``age_s``.
+prints it and exits 0 (1 if none came within ``--timeout``); a robot with a hot standby has a
+status from each daemon, each printed with its role (docs/daemon.md, *Hot standby*). With
+``--watch``: prints every status as it arrives until Ctrl-C, and a ``STALE`` line when a
+robot's status stops coming (:func:`roger_daemon.daemon.health.is_stale`). ``--json``: one
+JSON object per status, the message's fields plus ``level`` (``OK``/``WARN``/``ERROR``/
+``STALE``) and ``age_s``.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from roger_daemon.tools.common import (
 )
 
 STATUS_HZ = 1.0  # the daemon's default status rate; staleness is judged against it
-GATHER_S = 1.2  # with no ROBOT: listen this long after the first status for the others
+GATHER_S = 1.2  # listen this long after the first status for the others (robots, daemons)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -54,8 +56,8 @@ def describe(st: dict[str, Any]) -> str:
     info = st.get("info", {})
     reasons = info.get("level_reasons", "")
     lines = [
-        f"{st['robot']}  {level_of(st)}  daemon {st['daemon']}  mode {st['mode']}  "
-        f"up {st['uptime_s']:.0f} s",
+        f"{st['robot']}  {level_of(st)}  daemon {st['daemon']}{_role(info)}  mode {st['mode']}"
+        f"  up {st['uptime_s']:.0f} s",
         f"  ticks {st['ticks']}  updates {st['updates']} ({st['updates_per_s']:.1f}/s)  "
         f"experts {st['experts']}  queue {st['queue_depth']}  dropped {st['dropped']}  "
         f"latency p50/p99 {st['latency_ms_p50']:.1f}/{st['latency_ms_p99']:.1f} ms",
@@ -76,6 +78,18 @@ def describe(st: dict[str, Any]) -> str:
     if reasons:
         lines.append(f"  {level_of(st)}: {reasons}")
     return "\n".join(lines)
+
+
+def _role(info: dict[str, Any]) -> str:
+    """`` (standby of D)`` / `` (primary, took over N times)``: a hot standby's role."""
+    role = info.get("role")
+    if role == "standby":
+        sync = "" if info.get("standby_in_sync", True) else \
+            f", {info.get('standby_missing')} pairs missing"
+        return f" (standby of {info.get('served_by') or 'nobody'}{sync})"
+    if role == "primary" and info.get("takeovers"):
+        return f" (primary, took over {info['takeovers']} times)"
+    return f" ({role})" if role else ""
 
 
 def _emit(st: dict[str, Any], as_json: bool, age_s: float = 0.0) -> None:
@@ -111,13 +125,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"roger status: no status from {who} within {args.timeout:g} s; is a daemon "
                   f"running and reachable (roger list)?", file=sys.stderr)
             return 1
-        found = {first["robot"]: first}
-        if args.robot is None:
-            end = time.monotonic() + GATHER_S
-            while (st := _next_status(listener, end - time.monotonic())) is not None:
-                found.setdefault(st["robot"], st)
-        for robot in sorted(found):
-            _emit(found[robot], args.json)
+        found = {(first["robot"], first["daemon"]): first}  # a standby's status too
+        end = time.monotonic() + GATHER_S
+        while (st := _next_status(listener, end - time.monotonic())) is not None:
+            found.setdefault((st["robot"], st["daemon"]), st)
+        for robot_daemon in sorted(found):
+            _emit(found[robot_daemon], args.json)
         return 0
     finally:
         listener.close()

@@ -67,6 +67,7 @@ from roger_daemon.daemon.service.status import (
     status_deadline,
     status_due,
 )
+from roger_daemon.daemon.standby import Replication
 from roger_daemon.transport import Inbox, Incoming, Transport
 
 __all__ = ["Service"]
@@ -153,6 +154,8 @@ class Service:
         self.link = LinkWatch()  # links up and down, the loop's stalls (status info)
         # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
         self.acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
+        #: which robots this daemon serves and which it follows (docs/daemon.md, Hot standby)
+        self.replication = Replication(self)
 
     # --- life cycle ----------------------------------------------------------------------
 
@@ -165,6 +168,7 @@ class Service:
         # their order (action(t) before perception(t+1)), which lockstep determinism needs.
         self.transport.subscribe(keys.everything(), self.inbox.put)
         self.transport.declare_token(keys.daemon_liveliness(self.config.id))
+        self.replication.start(now)
         self.checkpoints.start(now)
         if self.learners is not None:
             self.learners.attach(self)
@@ -248,6 +252,7 @@ class Service:
         if self._can_learn(now):
             self._learn_once()
             now = self.clock.monotonic_ns()
+        self.replication.poll(now)
         if status_due(self, now):  # one robot's at a time (status.StatusRound)
             publish_status(self, now)
         for rt in self.robots.values():
@@ -305,11 +310,15 @@ class Service:
     # --- intake ----------------------------------------------------------------------------
 
     def _handle(self, item: Incoming) -> None:
+        if self.replication.intercept(item):  # tokens and decision records (standby.py)
+            return
         admitted = self.admission.admit(item)
         if admitted is None:
             return
         rt, _, msg = admitted
-        if isinstance(msg, Perception):
+        if self.replication.passive(rt.robot):  # another daemon serves it: follow only
+            self.replication.take(rt, msg, item.recv_ns)
+        elif isinstance(msg, Perception):
             rt.on_perception(msg, item.recv_ns)
             if rt.predicting and not self._stopping:
                 if not self._realtime:
@@ -361,8 +370,9 @@ class Service:
 
     def _checkpoint_written(self, rt: RobotRuntime, meta: CheckpointMeta) -> None:
         """A checkpoint of ``rt`` is on disk: its model digest goes into the session log."""
-        if isinstance(rt.decisions, DecisionLog):
-            rt.decisions.checkpoint(rt, meta)
+        decisions = getattr(rt.decisions, "inner", rt.decisions)  # standby.Replicated's
+        if isinstance(decisions, DecisionLog):
+            decisions.checkpoint(rt, meta)
 
     def _commit(self, rt: RobotRuntime) -> None:
         """Group commit of the robot's write-ahead log (a no-op when nothing is pending).

@@ -107,6 +107,7 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int,
         "control_stamp_ns": svc.acks[rt.robot][2],
         "level": svc.health[rt.robot].last[0],
         "level_reasons": svc.health[rt.robot].last[1],
+        **svc.replication.info(rt.robot),
     }
     if svc.learners is not None:
         info.update(svc.learners.info(rt))
