@@ -2,7 +2,9 @@
 
 Inline, the loop's thread predicts after committing the robot's write-ahead log (a prediction
 acknowledges what it reports); with learner worker processes the worker predicts and the loop
-publishes its replies (:func:`worker_predictions`). These functions are parts of
+publishes its replies (:func:`worker_predictions`). Either way the answer is
+:meth:`~roger_daemon.daemon.robot.RobotRuntime.answer`'s one encoding, published by
+:func:`publish_reply`. These functions are parts of
 :class:`~roger_daemon.daemon.service.loop.Service`'s loop and use its state.
 """
 
@@ -18,7 +20,7 @@ from roger_daemon.daemon.robot import RobotRuntime
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
 
-__all__ = ["answer_now", "learn_queued", "on_timer", "publish_prediction",
+__all__ = ["answer_now", "learn_queued", "on_timer", "publish_prediction", "publish_reply",
            "worker_predictions"]
 
 log = logging.getLogger(__name__)
@@ -53,15 +55,10 @@ def publish_prediction(svc: Service, rt: RobotRuntime, perc: Perception, recv_ns
         return
     svc._commit(rt)  # acknowledged means durable: the updates it reports are on disk
     try:
-        pred = rt.predict(perc, recv_ns, svc.clock.monotonic_ns)
+        reply = rt.answer(perc)
     except Exception as exc:  # prediction only reads the model: skip it, keep serving
-        rt.predict_errors += 1
-        if rt.predict_errors == 1:
-            log.exception("%s: prediction for tick %d failed (%s); further failures are "
-                          "only counted", rt.robot, perc.tick, exc)
-        return
-    svc.outbox.prediction(rt.robot, pred)
-    svc.stats.published += 1
+        reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+    publish_reply(svc, rt, reply, perc, recv_ns)
 
 
 def worker_predictions(svc: Service, batch: Sequence[tuple[Any, ...]]) -> None:
@@ -71,26 +68,29 @@ def worker_predictions(svc: Service, batch: Sequence[tuple[Any, ...]]) -> None:
     svc._commit_all({id(b[0]): b[0] for b in batch
                      if b[0].wal is not None and b[0].wal.durable_seq < b[4]}.values())
     for rt, reply, perc, recv_ns, _seq in batch:
-        _worker_prediction(svc, rt, reply, perc, recv_ns)
+        publish_reply(svc, rt, reply, perc, recv_ns)
 
 
-def _worker_prediction(svc: Service, rt: RobotRuntime, reply: dict[str, Any], perc: Perception,
-                       recv_ns: int) -> None:
+def publish_reply(svc: Service, rt: RobotRuntime, reply: dict[str, Any], perc: Perception,
+                  recv_ns: int) -> None:
+    """Publish the answer to ``perc`` (:meth:`RobotRuntime.answer`'s reply, computed inline
+    or by a learner worker): the one way the daemon publishes a prediction. A failed one is
+    counted (and logged the first time)."""
     if not reply.get("ok"):
         rt.predict_errors += 1
         if rt.predict_errors == 1:
-            log.error("%s: prediction for tick %d failed in the worker (%s); further "
-                      "failures are only counted", rt.robot, perc.tick, reply.get("error"))
+            log.error("%s: prediction for tick %d failed (%s); further failures are only "
+                      "counted", rt.robot, perc.tick, reply.get("error"))
         return
     latency_ms = (svc.clock.monotonic_ns() - recv_ns) / 1e6
     rt.predict_ms.add(float(reply["ms"]))
     rt.latency.add(latency_ms)
-    # the worker encoded a validated Prediction: set the publish-time fields in place instead
+    # RobotRuntime.answer encoded the Prediction: set the publish-time fields in place instead
     # of decoding and encoding it again (the loop's largest cost per robot; docs/fleet.md)
     stamp_ns = svc.clock.time_ns()
     payload = stamp_prediction(reply["pred"], robot=rt.robot, tick=perc.tick,
                                latency_ms=latency_ms, mode=rt.mode, stamp_ns=stamp_ns)
-    svc.outbox.prediction_payload(rt.robot, payload, stamp_ns, perc.tick)
+    svc.outbox.prediction(rt.robot, payload, stamp_ns, perc.tick)
     svc.stats.published += 1
 
 
