@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING
 
 from protocols.messages import Control
 from roger_daemon.daemon.robot import RobotRuntime
-from roger_daemon.daemon.service.answers import learn_queued
 
 if TYPE_CHECKING:
     from roger_daemon.daemon.service.loop import Service
@@ -42,6 +41,5 @@ def learn_before_reset(svc: Service, rt: RobotRuntime) -> None:
     """Learn and log every pair queued before a reset; the reset then forgets them with the
     model. Which pairs the old model learned depends only on the order in which the messages
     arrived, not on how far the loop had got (docs/fleet.md, *Ordering is the guarantee*)."""
-    learn_queued(svc, rt)
-    if svc.learners is not None:
-        svc.learners.drain(rt)  # its pending replies are bookkept and logged first
+    svc.learners.learn_all(rt)
+    svc.learners.drain(rt)  # a worker's pending replies are bookkept and logged first
