@@ -47,7 +47,7 @@ from roger_daemon.daemon.sdnotify import Notifier
 from roger_daemon.daemon.service.answers import Answers
 from roger_daemon.daemon.service.checkpoints import Checkpoints, Snapshot, checkpoint_snapshot
 from roger_daemon.daemon.service.clock import Clock, RealClock
-from roger_daemon.daemon.service.controls import apply_control
+from roger_daemon.daemon.service.controls import Controls
 from roger_daemon.daemon.service.intake import Admission
 from roger_daemon.daemon.service.outbox import Outbox
 from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
@@ -144,8 +144,10 @@ class Service:
         self.learners: Learners = learners or InlineLearners(self.robots)
         self._committer: ThreadPoolExecutor | None = None
         self.health = {r: Health() for r in self.robots}
+        self.controls = Controls(self.robots, self.learners, self._checkpoint, self.outbox,
+                                 self.clock, self.status_of)
         # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
-        self.acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
+        self.acks = self.controls.acks
 
     # --- life cycle ----------------------------------------------------------------------
 
@@ -304,7 +306,7 @@ class Service:
         elif isinstance(msg, Action):
             rt.on_action(msg)
         elif isinstance(msg, Control):
-            apply_control(self, rt, msg)
+            self.controls.apply(rt, msg)
 
     # --- output ----------------------------------------------------------------------------
 
