@@ -71,9 +71,9 @@ def _check(summary: dict[str, Any], stdout: str, locations: list[int]) -> None:
 
 def test_short_demo(tmp_path: Path) -> None:
     summary, stdout, _ = _demo(tmp_path / "demo", "--locations", "0", "--vision", "fast",
-                               "--time-limit", "10")
+                               "--episode-duration", "6")
     _check(summary, stdout, [0])
-    assert summary["test_episode"]["sim_time_s"] <= 10.0 + 1e-6
+    assert summary["test_episode"]["sim_time_s"] <= 6.0 + 1e-6
 
 
 @pytest.mark.slow
