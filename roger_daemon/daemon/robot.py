@@ -333,11 +333,9 @@ class RobotRuntime:
         )
 
     def answer(self, perc: Perception) -> dict[str, Any]:
-        """The reply to a prediction request for ``perc`` (inline and in a learner worker
-        alike): ``ok``, ``pred`` -- the daemon's one prediction encoding, ``encode_prediction``
-        of the model's answer, the same bytes as ``encode(self.predict(...))``, whose
-        publish-time fields the loop stamps (``stamp_prediction``) -- and ``ms``, its time; or
-        ``ok`` false and ``error`` when the model could not answer."""
+        """The answer to ``perc``, inline or in a worker: ``ok``, ``pred`` (the daemon's one
+        prediction encoding, the bytes of ``encode(self.predict(...))``; the loop stamps its
+        publish-time fields) and ``ms``; or ``ok`` false and ``error``."""
         t0 = time.perf_counter_ns()
         try:
             p, rows = self._predict_rows(perc.x)
