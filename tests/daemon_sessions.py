@@ -225,10 +225,11 @@ def record_session(
 def _settle(service: Service, rt: RobotRuntime) -> None:
     for _ in range(1000):
         service.step(0)
-        if service.learners is not None:  # every reply of the worker handled
+        workers = isinstance(service.learners, ProcessLearners)
+        if workers:  # every reply of the worker handled
             service.learners.drain()
             service.step(0)
-        busy = service.learners is not None and service.learners.learning()
+        busy = workers and service.learners.learning()
         if not rt.queue and not len(service.inbox) and not busy:  # every pair learned
             return
     raise AssertionError("the loop did not settle")

@@ -506,3 +506,27 @@ def test_liveliness_token_and_subscriptions(tmp_path: Path) -> None:
     assert h.transport.inject(keys.status("aibo"), b"x") == 1
     h.settle()
     assert h.transport.published == [] and h.rt.invalid == {} and h.service.unserved == {}
+
+
+def test_inline_answers_are_the_one_encoding_stamped_on_the_loops_clock(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Inline as in a learner worker, a prediction is published as ``RobotRuntime.answer``'s
+    bytes (``encode_prediction``) with its publish-time fields stamped on the service's clock:
+    the message dataclass is never encoded on the way (issue 58: one prediction encoder)."""
+    def refuse(self: Prediction) -> dict[str, Any]:
+        raise AssertionError("a daemon answer encoded the Prediction dataclass")
+
+    monkeypatch.setattr(Prediction, "body", refuse)
+    h = Harness(make_config(tmp_path))
+    try:
+        for t in range(5):
+            h.pair(t)
+            h.clock.advance(0.01)
+            h.settle()
+        preds = h.predictions()
+        assert [p.tick for p in preds] == list(range(5))
+        assert [p.updates for p in preds] == list(range(5))
+        assert all(p.stamp_ns - h.clock.wall in range(10**9, 10**9 + 10**8) for p in preds)
+        assert len({p.stamp_ns for p in preds}) == 5  # each stamped when it was published
+    finally:
+        h.service.shutdown()

@@ -416,3 +416,15 @@ def test_a_session_that_started_with_queued_pairs_is_continued_exactly(tmp_path:
     c = Life(make_cfg(tmp_path, logs3, every=0, mode="learn"))
     assert c.rt.updates == 25 and c.rt.recovered_pairs == 5
     assert_same(c.rt.model, reference(list(range(25))))
+
+
+def test_a_daemon_without_the_write_ahead_log_says_what_it_gives_up(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """``checkpoint.wal = false`` stays (docs/durability.md, *Without the log*), but a start
+    says once that acknowledged pairs can be lost; the default start says nothing of it."""
+    with caplog.at_level(logging.WARNING, logger="roger_daemon.daemon.resume"):
+        start_robots(make_cfg(tmp_path / "a", tmp_path / "a" / "logs", wal=True), fresh=False)
+    assert "checkpoint.wal = false" not in caplog.text
+    with caplog.at_level(logging.WARNING, logger="roger_daemon.daemon.resume"):
+        start_robots(make_cfg(tmp_path / "b", tmp_path / "b" / "logs"), fresh=False)
+    assert caplog.text.count("checkpoint.wal = false: a crash can lose acknowledged") == 1

@@ -26,8 +26,8 @@ PERIOD = SECOND // 30
 
 def _svc(*, realtime: bool, answering: bool = False, inbox: int = 0,
          next_tick: int = 0, delivering: bool = False) -> Any:
-    learners = SimpleNamespace(answering=lambda: answering,
-                               windows=SimpleNamespace(delivering=lambda: delivering))
+    learners = SimpleNamespace(answering=lambda: answering,  # a learner_host.Learners
+                               delivering=lambda: delivering)
     return SimpleNamespace(
         _next_status=10 * SECOND, _status_period_ns=SECOND, _realtime=realtime,
         status_round=StatusRound(),

@@ -347,11 +347,13 @@ def test_inline_loop_commits_every_answered_robot_before_publishing(tmp_path: Pa
     seen: list[tuple[str, bool, bool]] = []
     publish = inline.service.outbox.prediction
 
-    def checked(robot: str, msg: Any) -> None:
+    def checked(robot: str, payload: bytes, stamp_ns: int, tick: int) -> None:
         walls = [rt.wal for rt in inline.robots.values()]
         assert all(w is not None for w in walls)
+        msg = decode("prediction", payload)
+        assert isinstance(msg, Prediction)
         seen.append((robot, any(w.dirty for w in walls if w is not None), msg.updates > 0))
-        publish(robot, msg)
+        publish(robot, payload, stamp_ns, tick)
 
     inline.service.outbox.prediction = checked  # type: ignore[method-assign]
     try:

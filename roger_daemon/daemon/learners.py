@@ -42,15 +42,17 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from roger_daemon.daemon.learner_host import Answer, Replies, log_seq
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.tick_windows import TickWindows
 from roger_daemon.daemon.worker import pack_arrays, unpack_arrays
 from roger_daemon.daemon.worker_procs import (
+    RemoteModel,
     WorkerError,
     WorkerProcess,
     WorkerProcesses,
@@ -61,42 +63,9 @@ __all__ = ["ProcessLearners", "RemoteModel", "WorkerError"]
 
 log = logging.getLogger(__name__)
 
-WORKER_MODES = ("process", "inline")
-
 #: the deadline of the first worker's start: on a cold numba cache it compiles every kernel
 #: (~40 s on an idle 2-core machine, several times that on a busy one)
 COMPILE_TIMEOUT_S = 900.0
-
-
-class RemoteModel:
-    """``RobotRuntime.model`` when a worker owns the model: the counts the loop reports.
-
-    ``reset`` replaces the model through :meth:`fresh` (``RobotRuntime.make_model``).
-    """
-
-    def __init__(self, owner: ProcessLearners, robot: str, n_learned: int,
-                 n_experts: int) -> None:
-        self._owner, self._robot = owner, robot
-        self.n_learned = n_learned
-        self.n_experts = n_experts
-
-    def fresh(self) -> RemoteModel:
-        """Replace the worker's model by a fresh one (a reset); returns ``self``."""
-        self._owner.send(self._robot, {"op": "fresh"}, None)
-        slot = self._owner.slots[self._robot]
-        slot.ready = slot.waiting = None  # the old model's predictions are not published
-        slot.vocab_sent = -1  # a reset starts the label vocabulary again
-        self.n_learned, self.n_experts = 0, 0
-        return self
-
-    def state_dict(self) -> dict[str, np.ndarray]:
-        """Not available: the model's state lives in the worker process."""
-        raise WorkerError("the model lives in a worker process: use ProcessLearners.snapshot")
-
-
-def _log_seq(rt: RobotRuntime) -> int:
-    """The last write-ahead log record of ``rt`` (-1 without a log)."""
-    return rt.wal.last_seq if rt.wal is not None else -1
 
 
 def _vec(a: np.ndarray) -> bytes:
@@ -104,7 +73,8 @@ def _vec(a: np.ndarray) -> bytes:
 
 
 class ProcessLearners(WorkerProcesses):
-    """The robots' models in worker processes; see the module docstring.
+    """The robots' models in worker processes (a :class:`~.learner_host.Learners`); see the
+    module docstring.
 
     Parameters
     ----------
@@ -125,10 +95,11 @@ class ProcessLearners(WorkerProcesses):
 
     depth = 1  # learn requests in flight per robot
     process_depth = 1  # ... and per worker process, whichever robots they are for
+    prepares = True  # realtime: predictions prepared as perceptions arrive (prepare)
 
     def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
                  processes: int = 0, timeout_s: float = 120.0, nice: int = 0) -> None:
-        self._service: Any = None
+        self._results: Replies | None = None
         self.windows = TickWindows()  # the realtime tick's windows (pump, new_tick)
         super().__init__(robots, processes=processes, timeout_s=timeout_s, nice=nice)
         def loaded() -> bool:
@@ -162,32 +133,69 @@ class ProcessLearners(WorkerProcesses):
         rt.model = model
         rt.make_model = model.fresh
 
-    def attach(self, service: Any) -> None:
-        """Route replies to ``service`` (its loop waits for them: :meth:`fds`)."""
-        self._service = service
-        self.windows.period_ns = int(service.schedule.period_ns)
+    def attach(self, replies: Replies) -> None:
+        """Route replies to ``replies`` (the loop waits for them: :meth:`fds`)."""
+        self._results = replies
+        self.windows.period_ns = int(replies.period_ns)
+
+    def _sink(self) -> Replies:
+        if self._results is None:
+            raise WorkerError("a worker replied before the service attached")
+        return self._results
+
+    def has_work(self, now: int, deadline_ns: int | None) -> bool:
+        """Whether replies are waiting to be handled (:meth:`pump`)."""
+        return self.has_replies()
+
+    def learn(self, now: int, deadline_ns: int | None) -> None:
+        """Nothing on the loop's thread: the workers learn (:meth:`feed`)."""
+
+    def learn_more(self) -> None:
+        """Shutdown: handle replies and feed the workers; then the next reply (waited for up
+        to 50 ms), and again."""
+        self.pump()
+        if not self._replies:
+            self.read_replies(0.05)
+        if (item := self.next_reply()) is not None:
+            self._dispatch(*item)
+            self.pump()
+
+    def wake_ns(self) -> int | None:
+        """When the delivery window after a tick closes (:mod:`.tick_windows`)."""
+        return self.windows.wake_ns()
+
+    def delivering(self) -> bool:
+        """Whether the tick's predictions are still being delivered (:mod:`.tick_windows`)."""
+        return self.windows.delivering()
+
+    def publish_tick(self, due: Sequence[RobotRuntime]) -> bool:
+        """Publish the newest prepared prediction of each of ``due`` at once."""
+        batch = self.prepared(due)
+        if batch:
+            self._sink().publish(batch)
+        return bool(batch)
 
     # --- replies ---------------------------------------------------------------------------
 
     def pump(self, deadline_ns: int | None = None) -> None:
         """Handle every reply that arrived, then keep each worker fed with learning
         (:meth:`feed`). Predictions of the batch are published together
-        (``service.worker_predictions``: one parallel write-ahead log commit for all).
+        (``Replies.publish``: one parallel write-ahead log commit for all).
 
         ``deadline_ns`` (realtime: the next timer tick) starts the quiet window before it: no
         worker starts a step then that is not expected back before the tick, so the cores
         are free when the loop wakes to publish (``None``: no timer)."""
         self.windows.deadline_ns = deadline_ns
-        batch: list[tuple[Any, ...]] = []
+        batch: list[Answer] = []
         self.read_replies()
         while (item := self.next_reply()) is not None:
             self._dispatch(*item, batch=batch)
         if batch:
-            self._service.worker_predictions(batch)
+            self._sink().publish(batch)
         self.feed()
 
     def _dispatch(self, robot: str, frame: dict[str, Any] | None,
-                  batch: list[tuple[Any, ...]] | None = None) -> None:
+                  batch: list[Answer] | None = None) -> None:
         if frame is None:
             raise WorkerError(self._died(robot, "it exited"))
         if "fatal" in frame:
@@ -205,24 +213,25 @@ class ProcessLearners(WorkerProcesses):
             s.predict_est_ns = max(time.monotonic_ns() - sent_ns,
                                    int(s.predict_est_ns * 0.95))
             # every learn reply before it is bookkept: the log up to here is what it counts
-            item = (s.rt, frame, perc, recv_ns, _log_seq(s.rt))
+            item = (s.rt, frame, perc, recv_ns, log_seq(s.rt))
             if prepared:
                 if frame.get("ok"):
                     s.ready = item[1:]
                     s.ready_updates = s.model.n_learned if s.model is not None else 0
                 else:  # counted and logged there; the tick keeps the last good one
-                    self._service.worker_predictions([item])
+                    self._sink().publish([item])
                 self._prepare_waiting(s)
             elif batch is not None:
                 batch.append(item)
-            elif self._service is not None:
-                self._service.worker_predictions([item])
+            elif self._results is not None:
+                self._results.publish([item])
         elif op == "snapshot":
             s.snapshots -= 1
             ahead = [c[0] for o, c in s.pending if o == "learn"]
             reason, sync = ctx
-            self._service.write_snapshot(s.rt, reason, unpack_arrays(frame["state"], copy=False),
-                                         ahead=ahead, sync=sync)
+            self._sink().write_snapshot(s.rt, reason,
+                                        unpack_arrays(frame["state"], copy=False),
+                                        ahead=ahead, sync=sync)
         elif op in ("load", "fresh") and s.model is not None:
             s.model.n_learned, s.model.n_experts = int(frame["n"]), int(frame["experts"])
 
@@ -319,7 +328,7 @@ class ProcessLearners(WorkerProcesses):
             self._send_learn(s)
 
     def predict(self, rt: RobotRuntime, perc: Any, recv_ns: int) -> None:
-        """Ask for a prediction (lockstep); the reply goes to ``service.worker_predictions``."""
+        """Ask for a prediction (lockstep); the reply goes to ``Replies.publish``."""
         self._send_predict(self.slots[rt.robot], perc, recv_ns, prepared=False)
 
     def prepare(self, rt: RobotRuntime, perc: Any, recv_ns: int) -> None:
@@ -340,9 +349,9 @@ class ProcessLearners(WorkerProcesses):
             self._send_predict(s, *s.waiting, prepared=True)
             s.waiting = None
 
-    def prepared(self, robots: Iterable[RobotRuntime]) -> list[tuple[Any, ...]]:
+    def prepared(self, robots: Iterable[RobotRuntime]) -> list[Answer]:
         """The tick: the newest prepared prediction of each of ``robots`` (for
-        ``service.worker_predictions``); a robot with none yet counts a busy tick."""
+        ``Replies.publish``); a robot with none yet counts a busy tick."""
         out = []
         for rt in robots:
             s = self.slots[rt.robot]
@@ -359,7 +368,7 @@ class ProcessLearners(WorkerProcesses):
         s.predicts += 1
 
     def snapshot(self, rt: RobotRuntime, reason: str, *, sync: bool) -> None:
-        """Ask for the model's state; the reply goes to ``service.write_snapshot``."""
+        """Ask for the model's state; the reply goes to ``Replies.write_snapshot``."""
         s = self.slots[rt.robot]
         if s.snapshots and not sync:
             return
@@ -380,16 +389,6 @@ class ProcessLearners(WorkerProcesses):
     def learning(self) -> bool:
         """True while learn requests are in flight."""
         return any(s.learns for s in self.slots.values())
-
-    def wait_one(self, timeout: float) -> None:
-        """Handle the next reply (up to ``timeout`` s), then feed the workers."""
-        if not self._replies:
-            self.read_replies(timeout)
-        item = self.next_reply()
-        if item is None:
-            return
-        self._dispatch(*item)
-        self.pump()
 
     def info(self, rt: RobotRuntime) -> dict[str, Any]:
         """The worker's part of the robot's status ``info``."""

@@ -27,6 +27,7 @@ from protocols.messages import MAX_PAYLOAD_BYTES, SCHEMA_VERSION
 from roger_daemon.config import ConfigError, DaemonConfig, load_config
 from roger_daemon.daemon.checkpoint import array_digest
 from roger_daemon.daemon.gc_policy import hold_collections
+from roger_daemon.daemon.learner_host import InlineLearners, Learners
 from roger_daemon.daemon.resume import (
     Resumed,
     build_robot,
@@ -131,11 +132,12 @@ def open_recorders(
     return out
 
 
-def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Any:
-    """``[daemon] workers`` = ``"process"`` (or ``"auto"`` with several robots): hand the
-    models to ``worker_processes`` worker processes, at ``worker_nice``."""
+def _start_learners(cfg: DaemonConfig, robots: dict[str, RobotRuntime]) -> Learners:
+    """Where the models live: ``[daemon] workers`` = ``"process"`` (or ``"auto"`` with several
+    robots) hands them to ``worker_processes`` worker processes, at ``worker_nice``; else the
+    loop's own thread."""
     if cfg.learner_workers != "process":
-        return None
+        return InlineLearners(robots)
     from roger_daemon.daemon.learners import ProcessLearners
 
     return ProcessLearners(robots, {r.id: r for r in cfg.robots},
@@ -252,8 +254,7 @@ def run(args: argparse.Namespace) -> int:
         log.error("cannot open the Zenoh session (%s); check [zenoh] in the config", exc)
         for rec in recorders.values():
             rec.close()
-        if learners is not None:
-            learners.close()
+        learners.close()
         return 1
     service = Service(cfg, transport, robots, notifier=notifier, recorders=recorders,
                       resumed=resumed, learners=learners)
@@ -262,8 +263,7 @@ def run(args: argparse.Namespace) -> int:
         service.start()
     except Exception:
         transport.close()
-        if learners is not None:
-            learners.close()
+        learners.close()
         raise
     if requested["early"]:
         service.request_stop()

@@ -243,6 +243,9 @@ def start_robots(
     log)."""
     robots: dict[str, RobotRuntime] = {}
     where: dict[str, Resumed] = {}
+    if not cfg.checkpoint.wal:  # kept on purpose: docs/durability.md, *Without the log*
+        log.warning("checkpoint.wal = false: a crash can lose acknowledged pairs; start-up "
+                    "re-learns only what the session logs recorded (docs/durability.md)")
     for robot in cfg.robots:
         robots[robot.id], ckpt = load_robot(cfg, robot, fresh=fresh)
         where[robot.id] = _position(ckpt)

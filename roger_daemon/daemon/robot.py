@@ -378,13 +378,19 @@ class RobotRuntime:
             multimap=multimap, latency_ms=latency_ms, mode=self.mode, updates=self.updates,
         )
 
-    def predict_payload(self, perc: Perception) -> bytes:
-        """``encode(self.predict(perc, ...))`` built without the message objects (a learner
-        worker's reply; the loop stamps the publish-time fields): the same bytes."""
-        p, rows = self._predict_rows(perc.x)
-        return encode_prediction(self.robot, perc.tick, perc.t, mean=p.mean, var=p.var,
+    def answer(self, perc: Perception) -> dict[str, Any]:
+        """The answer to ``perc``, inline or in a worker: ``ok``, ``pred`` (the daemon's one
+        prediction encoding, the bytes of ``encode(self.predict(...))``; the loop stamps its
+        publish-time fields) and ``ms``; or ``ok`` false and ``error``."""
+        t0 = time.perf_counter_ns()
+        try:
+            p, rows = self._predict_rows(perc.x)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+        pred = encode_prediction(self.robot, perc.tick, perc.t, mean=p.mean, var=p.var,
                                  expert=int(p.expert_id), multimap=rows, mode=self.mode,
                                  updates=self.updates)
+        return {"ok": True, "pred": pred, "ms": (time.perf_counter_ns() - t0) / 1e6}
 
     def _predict_rows(self, x: np.ndarray) -> tuple[Any, list[ExpertRow]]:
         """The model's answer for ``x`` and its multimap as :class:`ExpertOutput` rows."""

@@ -183,8 +183,6 @@ class Replication:
 
     def _follow(self, rt: RobotRuntime, role: RobotRole, msg: Message, daemon: str, *,
                 live: bool) -> None:
-        from roger_daemon.daemon.service.controls import learn_before_reset
-
         if isinstance(msg, Learned):
             if msg.updates < role.next_updates:
                 return  # a record we have (a catch-up answer held it too)
@@ -202,7 +200,7 @@ class Replication:
             role.followed += 1
             role.unhold(msg.tick, msg.x.tobytes())
         elif isinstance(msg, Reset):
-            learn_before_reset(self.svc, rt)
+            self.svc.controls.learn_before_reset(rt)
             log.info("%s: %s reset the model: resetting ours", rt.robot, daemon)
             rt.reset()
             role.next_updates = 1
@@ -314,8 +312,6 @@ class Replication:
 
     def _take_over(self, robot: str, role: RobotRole, daemon: str) -> None:
         """Serve ``robot``: queue the held pairs, adopt the pairing, answer the newest."""
-        from roger_daemon.daemon.service.answers import answer_now, learn_queued
-
         svc, rt = self.svc, self.svc.robots[robot]
         if role.syncing:
             self._give_up(rt, role, f"{daemon or 'the serving daemon'} went")
@@ -334,10 +330,10 @@ class Replication:
                     rt.updates, len(held), role.missing)
         # before any answer (the realtime tick's too): it counts every pair the dead daemon
         # may have acknowledged
-        learn_queued(svc, rt)
+        svc.learners.learn_all(rt)
         if rt.newest is not None and rt.predicting and svc.config.clock == "lockstep":
             perc, recv_ns = rt.newest  # its sender waits for this answer
-            answer_now(svc, rt, perc, recv_ns)
+            svc.learners.predict(rt, perc, recv_ns)  # after learn_all: lockstep's order
 
 
 def _answer(cfg: DaemonConfig, robot: str) -> Callable[[], bytes]:

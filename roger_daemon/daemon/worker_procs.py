@@ -27,17 +27,16 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
+
+import numpy as np
 
 from roger_daemon.daemon.robot import RobotRuntime
 from roger_daemon.daemon.worker import FrameReader, write_frame
 from roger_daemon.machine import usable_cores
 
-if TYPE_CHECKING:
-    from roger_daemon.daemon.learners import RemoteModel
-
-__all__ = ["WorkerError", "WorkerProcess", "WorkerProcesses", "WorkerSlot", "pool_size",
-           "threads_per_worker"]
+__all__ = ["RemoteModel", "WorkerError", "WorkerProcess", "WorkerProcesses", "WorkerSlot",
+           "pool_size", "threads_per_worker"]
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +96,34 @@ def pool_size(robots: int, processes: int = 0) -> int:
     worker_processes``), or with 0 one per usable core; never more than one per robot."""
     want = processes if processes > 0 else usable_cores()
     return max(1, min(robots, want))
+
+
+class RemoteModel:
+    """``RobotRuntime.model`` when a worker owns the model: the counts the loop reports
+    (:class:`~roger_daemon.daemon.learners.ProcessLearners` installs it).
+
+    ``reset`` replaces the model through :meth:`fresh` (``RobotRuntime.make_model``).
+    """
+
+    def __init__(self, owner: WorkerProcesses, robot: str, n_learned: int,
+                 n_experts: int) -> None:
+        self._owner, self._robot = owner, robot
+        self.n_learned = n_learned
+        self.n_experts = n_experts
+
+    def fresh(self) -> RemoteModel:
+        """Replace the worker's model by a fresh one (a reset); returns ``self``."""
+        self._owner.send(self._robot, {"op": "fresh"}, None)
+        slot = self._owner.slots[self._robot]
+        slot.ready = slot.waiting = None  # the old model's predictions are not published
+        slot.vocab_sent = -1  # a reset starts the label vocabulary again
+        self.n_learned, self.n_experts = 0, 0
+        return self
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Not available: the model's state lives in the worker process."""
+        raise WorkerError("the model lives in a worker process: use ProcessLearners.snapshot")
+
 
 
 class WorkerProcesses:

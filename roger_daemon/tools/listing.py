@@ -52,20 +52,24 @@ def gather(listener: Listener, until: float) -> dict[str, dict[str, Any]]:
     return out
 
 
-def _heard(listener: Listener) -> set[str]:
-    """The robots of the samples queued on ``listener`` (their keys ``roger/<robot>/...``)."""
+def _heard(inputs: Any) -> set[str]:
+    """The robots of the samples waiting in the subscriber ``inputs`` (Zenoh's own
+    ``RingChannel``: only drained at the end, so no queue of ours; docs/zenoh-notes.md §3.2)."""
     robots = set()
-    while (s := listener.get(0.0)) is not None:
-        robots.add(s.key.split("/")[1])
+    while (s := inputs.try_recv()) is not None:
+        robots.add(str(s.key_expr).split("/")[1])
     return robots
 
 
 def run(args: argparse.Namespace) -> int:
     """Print the daemons, their robots and the unserved robots; 1 if nothing was heard."""
+    import zenoh
+
     session = open_from_args(args)
     listener = Listener(session, keys.all_of_kind("status"))
     tokens = Listener(session, keys.daemon_liveliness_all(), liveliness=True, history=True)
-    inputs = Listener(session, keys.all_of_kind("perception"), capacity=1024)
+    inputs = session.declare_subscriber(keys.all_of_kind("perception"),
+                                        zenoh.handlers.RingChannel(1024))
     try:
         start = time.monotonic()
         statuses = gather(listener, start + args.wait)
@@ -79,8 +83,9 @@ def run(args: argparse.Namespace) -> int:
                       if s is not None and s.key.startswith(TOKEN_PREFIX)})
         unserved = sorted(_heard(inputs) - set(statuses))
     finally:
-        for li in (listener, tokens, inputs):
+        for li in (listener, tokens):
             li.close()
+        inputs.undeclare()
         session.close()
     daemons: list[dict[str, Any]] = [{"id": d, "robots": [
         {"robot": r, "level": level_of(st), "mode": st["mode"], "updates": st["updates"]}

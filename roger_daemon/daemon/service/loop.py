@@ -27,7 +27,6 @@ import logging
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
 
 import numpy as np
 
@@ -42,16 +41,13 @@ from roger_daemon.config import DaemonConfig
 from roger_daemon.daemon.checkpoint_meta import CheckpointMeta
 from roger_daemon.daemon.gc_policy import Thresholds, collect_when_idle
 from roger_daemon.daemon.health import Health
+from roger_daemon.daemon.learner_host import InlineLearners, Learners, Replies
 from roger_daemon.daemon.robot import Pair, RobotRuntime
 from roger_daemon.daemon.sdnotify import Notifier
-from roger_daemon.daemon.service.answers import (
-    answer_now,
-    on_timer,
-    worker_predictions,
-)
+from roger_daemon.daemon.service.answers import Answers
 from roger_daemon.daemon.service.checkpoints import Checkpoints, Snapshot, checkpoint_snapshot
 from roger_daemon.daemon.service.clock import Clock, RealClock
-from roger_daemon.daemon.service.controls import apply_control
+from roger_daemon.daemon.service.controls import Controls
 from roger_daemon.daemon.service.intake import Admission
 from roger_daemon.daemon.service.link import LinkWatch
 from roger_daemon.daemon.service.outbox import Outbox
@@ -112,7 +108,7 @@ class Service:
         clock: Clock | None = None,
         sync_checkpoints: bool = False,
         resumed: Mapping[str, str] | None = None,
-        learners: Any = None,
+        learners: Learners | None = None,
     ) -> None:
         self.config = config
         self.transport = transport
@@ -133,13 +129,11 @@ class Service:
         self.checkpoints = Checkpoints(config.checkpoint, self.robots, self.clock, self._snapshot,
                                        sync=sync_checkpoints, written=self._checkpoint_written)
         self.outbox = Outbox(self.recorders, self.clock)
+        self.answers = Answers(self.outbox, self.clock, self.stats, self._commit_all)
         self.schedule = TickSchedule(int(round(1e9 / config.rate_hz)), self.stats)
         self._commit_ns = int(config.checkpoint.wal_commit_ms * _MS)
         self._status_period_ns = int(round(1e9 / config.status_hz))
         self._realtime = config.clock == "realtime"
-        self._learned_since_tick = False
-        self._learn_est_ns = 0
-        self._rr = 0
         self._next_status = 0
         self.status_round = StatusRound()
         self.started_ns = 0
@@ -147,13 +141,16 @@ class Service:
         #: set once started (gc_policy.hold_collections): collect at quiet moments only
         self.gc_thresholds: Thresholds | None = None
         self._stopping = False
-        # roger_daemon.daemon.learners.ProcessLearners: the models live in worker processes
-        self.learners = learners
+        # where the models live (learner_host.Learners): the loop's own thread, or worker
+        # processes (roger_daemon.daemon.learners.ProcessLearners)
+        self.learners: Learners = learners or InlineLearners(self.robots)
         self._committer: ThreadPoolExecutor | None = None
         self.health = {r: Health() for r in self.robots}
         self.link = LinkWatch()  # links up and down, the loop's stalls (status info)
+        self.controls = Controls(self.robots, self.learners, self._checkpoint, self.outbox,
+                                 self.clock, self.status_of)
         # per robot: (controls applied, op of the last one, its stamp_ns) -- the confirmation
-        self.acks: dict[str, tuple[int, str, int]] = {r: (0, "", 0) for r in self.robots}
+        self.acks = self.controls.acks
         #: which robots this daemon serves and which it follows (docs/daemon.md, Hot standby)
         self.replication = Replication(self)
 
@@ -170,8 +167,8 @@ class Service:
         self.transport.declare_token(keys.daemon_liveliness(self.config.id))
         self.replication.start(now)
         self.checkpoints.start(now)
-        if self.learners is not None:
-            self.learners.attach(self)
+        self.learners.attach(Replies(self.answers.publish, self.write_snapshot,
+                                     self.schedule.period_ns))
         for rt in self.robots.values():  # an append's age is judged on the loop's clock
             if rt.wal is not None:
                 rt.wal.clock = self.clock.monotonic_ns
@@ -227,12 +224,12 @@ class Service:
     def step(self, max_wait_s: float = 0.05) -> None:
         """One cycle of the loop (see the module docstring)."""
         now = self.clock.monotonic_ns()
-        if self._can_learn(now) or (self.learners is not None and self.learners.has_replies()):
+        if self.learners.has_work(now, self._tick_deadline()):
             wait = 0.0
         else:
             wait = max(0.0, min(max_wait_s, (self._next_deadline(now) - now) / 1e9))
         # one wait for messages, worker replies and the next deadline (docs/fleet.md, One wait)
-        item = self.inbox.get(wait, self.learners.fds() if self.learners is not None else ())
+        item = self.inbox.get(wait, self.learners.fds())
         # bounded, so that a backlog (lockstep runs ahead of learning) never starves status,
         # checkpoints, the watchdog or a stop request: the rest waits for the next cycle
         budget = min(self.inbox.capacity, MAX_DRAIN_PER_STEP)
@@ -242,16 +239,13 @@ class Service:
             budget -= 1
             item = self.inbox.get(0) if budget > 0 else None
         self._tick_first()
-        if self.learners is not None:
-            self.learners.pump(self.schedule.next_tick if self._realtime and self._timer_active()
-                               else None)
+        self.learners.pump(self._tick_deadline())
         now = self.clock.monotonic_ns()
         if self._realtime and now >= self.schedule.next_tick:
-            on_timer(self, now)
+            self._on_timer(now)
             now = self.clock.monotonic_ns()
-        if self._can_learn(now):
-            self._learn_once()
-            now = self.clock.monotonic_ns()
+        self.learners.learn(now, self._tick_deadline())
+        now = self.clock.monotonic_ns()
         self.replication.poll(now)
         if status_due(self, now):  # one robot's at a time (status.StatusRound)
             publish_status(self, now)
@@ -268,44 +262,37 @@ class Service:
             collect_when_idle(self.gc_thresholds)
 
     def _tick_first(self) -> None:
-        """With learner workers the tick publishes predictions already prepared: fire it as
+        """When the learners prepare predictions (workers) the tick publishes them: fire it as
         soon as it is due, before the messages and replies that arrived meanwhile (nothing
         drained now could be ready for it; docs/fleet.md, *Prepared predictions*)."""
-        if self.learners is not None and self._realtime:
+        if self.learners.prepares and self._realtime:
             now = self.clock.monotonic_ns()
             if now >= self.schedule.next_tick:
-                on_timer(self, now)
+                self._on_timer(now)
+
+    def _on_timer(self, now: int) -> None:
+        """Realtime tick: publish a prediction for the newest perception of every predicting
+        robot (inline computed now; workers prepared them as the perceptions arrived:
+        docs/fleet.md, *Prepared predictions*)."""
+        due = [rt for rt in self.robots.values()
+               if rt.predicting and rt.newest is not None and not self._stopping]
+        published = self.learners.publish_tick(due)
+        self.schedule.fired(now, bool(due))
+        self.learners.new_tick(self.schedule.next_tick, published=published)
 
     def _next_deadline(self, now: int) -> int:
         deadline = status_deadline(self, now)
         if self._realtime and self._timer_active():
             deadline = min(deadline, self.schedule.next_tick)
-        wake = self.learners.windows.wake_ns() if self.learners is not None else None
+        wake = self.learners.wake_ns()
         return deadline if wake is None else min(deadline, wake)  # the delivery window
 
     def _timer_active(self) -> bool:
         return any(rt.predicting and rt.newest is not None for rt in self.robots.values())
 
-    def _can_learn(self, now: int) -> bool:
-        if self.learners is not None:
-            return False  # the workers learn; the loop only feeds them (learners.pump)
-        if not any(rt.learning and rt.queue for rt in self.robots.values()):
-            return False
-        if not self._realtime or not self._timer_active() or not self._learned_since_tick:
-            return True
-        return now + self._learn_est_ns + _MS < self.schedule.next_tick
-
-    def _learn_once(self) -> None:
-        robots = list(self.robots.values())
-        for i in range(len(robots)):
-            rt = robots[(self._rr + i) % len(robots)]
-            if rt.learning and rt.queue:
-                self._rr = (self._rr + i + 1) % len(robots)
-                ms = rt.learn_one()
-                ns = int(ms * _MS)
-                self._learn_est_ns = max(ns, int(self._learn_est_ns * 0.95))
-                self._learned_since_tick = True
-                return
+    def _tick_deadline(self) -> int | None:
+        """The next realtime tick while the timer is active (learning must fit before it)."""
+        return self.schedule.next_tick if self._realtime and self._timer_active() else None
 
     # --- intake ----------------------------------------------------------------------------
 
@@ -321,21 +308,19 @@ class Service:
         elif isinstance(msg, Perception):
             rt.on_perception(msg, item.recv_ns)
             if rt.predicting and not self._stopping:
-                if not self._realtime:
-                    answer_now(self, rt, msg, item.recv_ns)
-                elif self.learners is not None:  # published on the next tick
+                if not self._realtime:  # lockstep: its complete pairs learned first, so
+                    # prediction(t+1) includes pair t when action(t) came first (and no pair
+                    # that came after it: the causal order of a lock-stepped simulator)
+                    self.learners.learn_all(rt)
+                    self.learners.predict(rt, msg, item.recv_ns)
+                else:  # published on the next tick (prepared now by workers)
                     self.learners.prepare(rt, msg, item.recv_ns)
         elif isinstance(msg, Action):
             rt.on_action(msg)
         elif isinstance(msg, Control):
-            apply_control(self, rt, msg)
+            self.controls.apply(rt, msg)
 
     # --- output ----------------------------------------------------------------------------
-
-    def worker_predictions(self, batch: Sequence[tuple[Any, ...]]) -> None:
-        """Publish predictions learner workers computed: ``(rt, reply, perception,
-        receipt ns)`` each (:func:`~roger_daemon.daemon.service.answers.worker_predictions`)."""
-        worker_predictions(self, batch)
 
     # --- status ----------------------------------------------------------------------------
 
@@ -357,10 +342,7 @@ class Service:
         )
 
     def _checkpoint(self, rt: RobotRuntime, reason: str, *, sync: bool = False) -> None:
-        if self.learners is not None:  # the worker sends its state to write_snapshot
-            self.learners.snapshot(rt, reason, sync=sync)
-            return
-        self.write_snapshot(rt, reason, None, sync=sync)
+        self.learners.snapshot(rt, reason, sync=sync)  # the model's state to write_snapshot
 
     def write_snapshot(self, rt: RobotRuntime, reason: str,
                        model_state: Mapping[str, np.ndarray] | None, *,

@@ -39,13 +39,9 @@ class Outbox:
                 transport.publisher(keys.status(robot), realtime=False),
             )
 
-    def prediction(self, robot: str, msg: Message) -> None:
-        """Publish and record a prediction of ``robot``."""
-        self._publish(robot, self.pubs[robot].prediction, keys.prediction(robot), msg)
-
-    def prediction_payload(self, robot: str, payload: bytes, stamp_ns: int, tick: int) -> None:
-        """Publish and record a prediction of ``robot`` already encoded (a learner worker's,
-        stamped with ``protocols.messages.stamp_prediction``)."""
+    def prediction(self, robot: str, payload: bytes, stamp_ns: int, tick: int) -> None:
+        """Publish and record a prediction of ``robot``, encoded by
+        ``RobotRuntime.answer`` and stamped with ``protocols.messages.stamp_prediction``."""
         self.pubs[robot].prediction.put(payload)
         self.recorders.write(robot, keys.prediction(robot), payload, self.clock.time_ns(),
                              stamp_ns, tick)

@@ -67,8 +67,7 @@ def _release(svc: Service, *, aborting: bool) -> None:
     write-ahead log committer (not when ``aborting``: a commit may hang), the write-ahead
     logs, recorders, transport."""
     svc.checkpoints.close()
-    if svc.learners is not None:
-        svc.learners.close(kill=aborting)
+    svc.learners.close(kill=aborting)
     if svc._committer is not None and not aborting:
         svc._committer.shutdown(wait=True)
     _close_wals(svc)
@@ -78,18 +77,13 @@ def _release(svc: Service, *, aborting: bool) -> None:
 
 
 def _learn_queued(svc: Service, until: float) -> None:
-    """Shutdown: learn queued pairs until ``until`` (``time.monotonic``); with workers,
-    then wait for every pair in flight (learned and logged) and every snapshot."""
+    """Shutdown: learn queued pairs until ``until`` (``time.monotonic``); then wait for every
+    pair in flight (learned and logged) and every snapshot (with workers)."""
     while time.monotonic() < until and any(
         rt.learning and rt.queue for rt in svc.robots.values()
     ):
-        if svc.learners is None:
-            svc._learn_once()
-        else:
-            svc.learners.pump()
-            svc.learners.wait_one(0.05)
-    if svc.learners is not None:
-        svc.learners.drain()
+        svc.learners.learn_more()
+    svc.learners.drain()
 
 
 def _close_wals(svc: Service) -> None:

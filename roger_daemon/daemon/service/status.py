@@ -109,8 +109,7 @@ def robot_status(svc: Service, rt: RobotRuntime, now: int,
         "level_reasons": svc.health[rt.robot].last[1],
         **svc.replication.info(rt.robot),
     }
-    if svc.learners is not None:
-        info.update(svc.learners.info(rt))
+    info.update(svc.learners.info(rt))
     return Status(
         rt.robot, rt.last_tick, rt.last_t, daemon=svc.config.id, mode=rt.mode,
         ticks=rt.ticks, updates=rt.updates, updates_per_s=rt.updates_per_s(now),
@@ -164,11 +163,10 @@ def quiet_moment(svc: Service, now: int) -> bool:
     answered and nothing waits in the inbox (the status round; the loop's held recordings
     and collections, docs/fleet.md)."""
     if svc._realtime and svc._timer_active():
-        if svc.learners is not None and svc.learners.windows.delivering():
+        if svc.learners.delivering():
             return False
         return now < svc.schedule.next_tick - 3 * svc.schedule.period_ns // 4
-    answering = svc.learners is not None and svc.learners.answering()
-    return not answering and len(svc.inbox) == 0
+    return not svc.learners.answering() and len(svc.inbox) == 0
 
 
 def status_deadline(svc: Service, now: int) -> int:
