@@ -60,7 +60,7 @@ MAX_PAYLOAD_BYTES = 64 * 1024
 MAX_VECTOR = 1024
 MAX_STR = 256
 MAX_MULTIMAP = 512
-MAX_MAP_ENTRIES = 64
+MAX_MAP_ENTRIES = 128  # a daemon status's info has ~66 keys with learner workers and a standby
 MODES = ("learn", "predict", "learn+predict", "pause")
 CONTROL_OPS = ("mode", "reset", "checkpoint")
 #: who commanded an action (``Action.source``): a teacher (a person, a hand-coded

@@ -17,7 +17,7 @@ DAEMON = Path(__file__).resolve().parents[1] / "roger_daemon" / "daemon"
 
 def _protocol_methods() -> set[str]:
     return {name for name, _ in inspect.getmembers(Learners, inspect.isfunction)
-            if not name.startswith("_")} | {"prepares"}
+            if not name.startswith("_")} | {"prepares", "in_process"}
 
 
 @pytest.mark.parametrize("host", [InlineLearners, ProcessLearners])
@@ -25,12 +25,13 @@ def test_both_hosts_have_every_method_of_the_interface(host: type) -> None:
     """Each host implements the whole interface, with the protocol's parameters."""
     for name in sorted(_protocol_methods()):
         assert hasattr(host, name), f"{host.__name__} lacks {name}"
-        if name == "prepares":
+        if name in ("prepares", "in_process"):
             continue
         want = list(inspect.signature(getattr(Learners, name)).parameters)
         got = list(inspect.signature(getattr(host, name)).parameters)
         assert got[:len(want)] == want, (host.__name__, name, got, want)
     assert InlineLearners.prepares is False and ProcessLearners.prepares is True
+    assert InlineLearners.in_process is True and ProcessLearners.in_process is False
 
 
 def test_the_daemon_never_asks_which_host_it_has() -> None:

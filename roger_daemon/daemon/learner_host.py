@@ -74,6 +74,9 @@ class Learners(Protocol):
     #: prepared ones, so the loop fires a due tick before anything else (docs/fleet.md,
     #: *Prepared predictions*)
     prepares: bool
+    #: the models are the loop's own ``RobotRuntime.model`` objects (not in worker processes),
+    #: so a state can be installed into them in place (a standby's catch-up, docs/daemon.md)
+    in_process: bool
 
     def attach(self, replies: Replies) -> None:
         """Send results to ``replies`` from now on (the service's start)."""
@@ -140,6 +143,7 @@ class InlineLearners:
     progresses), round robin over the robots, and answers at once."""
 
     prepares = False
+    in_process = True
 
     def __init__(self, robots: Mapping[str, RobotRuntime]) -> None:
         self._robots = list(robots.values())

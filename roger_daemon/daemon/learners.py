@@ -96,6 +96,7 @@ class ProcessLearners(WorkerProcesses):
     depth = 1  # learn requests in flight per robot
     process_depth = 1  # ... and per worker process, whichever robots they are for
     prepares = True  # realtime: predictions prepared as perceptions arrive (prepare)
+    in_process = False  # the models live in the workers
 
     def __init__(self, robots: Mapping[str, RobotRuntime], configs: Mapping[str, Any], *,
                  processes: int = 0, timeout_s: float = 120.0, nice: int = 0) -> None:

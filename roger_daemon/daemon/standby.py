@@ -213,7 +213,7 @@ class Replication:
 
     def _sync(self, rt: RobotRuntime, role: RobotRole, daemon: str) -> bool:
         """Ask ``daemon`` for its state of ``rt``; whether we now wait for it."""
-        if self.svc.learners is not None:
+        if not self.svc.learners.in_process:
             log.error("%s: a standby with learner worker processes cannot catch up (the "
                       "model lives in a worker); set [daemon] workers = \"inline\"", rt.robot)
             return False

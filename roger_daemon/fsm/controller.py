@@ -24,12 +24,14 @@ Two memories: one follows the demonstration (learning), one the robot's own comm
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.fsm.jit_fsm import AdvanceArgs
+if TYPE_CHECKING:  # jit_fsm imports numba: loaded only where a kernel is called (a daemon
+    # with learner workers keeps numba out of its loop's process, docs/fleet.md)
+    from roger_daemon.fsm.jit_fsm import AdvanceArgs
 from roger_daemon.fsm.memory import Memory, MemorySpec, spec_from_mapping, spec_to_mapping
 from roger_daemon.fsm.transitions import TransitionModel
 
