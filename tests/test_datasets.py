@@ -213,3 +213,40 @@ def test_bad_inputs_and_outputs_are_refused_and_nothing_is_overwritten(
     assert roger(["log", "export", str(SESSIONS[0]), "--format", "parquet", "--profile",
                   "nonesuch"]) == 2
     assert "no shipped robot profile 'nonesuch'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_lerobots_own_loader_reads_the_export(dtype: str, tmp_path: Path) -> None:
+    """LeRobot's ``LeRobotDataset`` (0.4.4, the ``peers`` extra: ``make venv-peers``, then
+    ``.venv-peers/bin/python -m pytest tests/test_datasets.py``) loads ``roger log export
+    --format lerobot`` from disk: every frame's state, action, indices, timestamp and task,
+    and the episode ranges its ``delta_timestamps`` pad at (a chunk of actions never runs
+    into the next episode). Skipped where LeRobot is not installed; the layout test above
+    checks the same files against LeRobot's published v3 layout everywhere."""
+    pytest.importorskip("lerobot")
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    pairs = made_up_pairs()  # three episodes at 20 fps, a 3-D -> 2-D profile
+    log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))
+    want = pairs_from_log(log)
+    root = tmp_path / "ds"
+    assert roger(["log", "export", str(log), "--format", "lerobot", "--dtype", dtype,
+                  "--out", str(root)]) == 0
+    task = pq.read_table(root / "meta" / "tasks.parquet").column("task")[0].as_py()
+    step = 1 / want.fps
+    ds = LeRobotDataset("roger/export", root=root, delta_timestamps={"action": [0.0, step]})
+    assert len(ds) == len(want) and ds.num_episodes == want.episodes == 3
+    assert ds.fps == 20 and ds.meta.features["observation.state"]["names"] == ["px", "py",
+                                                                                "load"]
+    frame = want.frame_index()
+    ends = {int(i) for i in np.flatnonzero(np.diff(want.episode))} | {len(want) - 1}
+    for i in range(len(want)):
+        item = ds[i]
+        np.testing.assert_allclose(item["observation.state"].double().numpy(),
+                                   want.x[i].astype(dtype), rtol=1e-6)
+        np.testing.assert_allclose(item["action"][0].double().numpy(),
+                                   want.y[i].astype(dtype), rtol=1e-6)
+        assert int(item["episode_index"]) == want.episode[i] and int(item["index"]) == i
+        assert int(item["frame_index"]) == frame[i] and item["task"] == task
+        assert float(item["timestamp"]) == pytest.approx(frame[i] * step, abs=1e-5)
+        assert bool(item["action_is_pad"][1]) == (i in ends)  # the episode's last frame
