@@ -212,6 +212,10 @@ def _live(args: argparse.Namespace) -> int:
         keys.validate_robot_id(args.robot)
     except ValueError as exc:
         raise UsageError(f"--robot: {exc}") from None
+    # SIGTERM (roger up's stop) from now on ends the loop below and closes what it opened,
+    # however early it comes: exit 0 (docs/cli.md, exit statuses), never killed mid-setup
+    stop: list[int] = []
+    signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
     sinks = Sinks()
     try:
         server = sinks.fg.start_server(name=f"roger view {args.robot}", host=args.host,
@@ -230,8 +234,6 @@ def _live(args: argparse.Namespace) -> int:
     print(f"roger view: ws://{args.host}:{server.port}", flush=True)
     conv = Converter()
     start = time.monotonic()
-    stop: list[int] = []
-    signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
     heard = False
     try:
         while not stop and (not args.duration or time.monotonic() - start < args.duration):
