@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -44,10 +44,24 @@ from protocols import Action, Control, Perception, Prediction, Status, decode, e
 from protocols.messages import Dims
 from roger_daemon.zenoh_session import DAEMON_ENDPOINT
 
-__all__ = ["Received", "RobotClient"]
+__all__ = ["Received", "RobotClient", "checkpoint_outcome"]
 
 FloatArray = npt.NDArray[np.float64]
 _ACTION_FIELDS = {f.name for f in dataclasses.fields(Action)}
+
+
+def checkpoint_outcome(before: Mapping[str, Any], now: Mapping[str, Any]) -> str | None:
+    """Whether a checkpoint requested when the daemon's status ``info`` was ``before`` has
+    ended by the status ``info`` ``now``: ``"written"`` once ``checkpoints_written`` grew,
+    ``"failed"`` once ``checkpoint_errors`` grew, ``None`` while neither did
+    (``protocols/README.md``, control). :meth:`RobotClient.checkpoint` and ``roger control``
+    both decide by it."""
+    def grew(key: str) -> bool:
+        return int(now.get(key, 0)) > int(before.get(key, 0))
+
+    if grew("checkpoint_errors"):
+        return "failed"
+    return "written" if grew("checkpoints_written") else None
 
 
 @dataclass(frozen=True)
@@ -191,9 +205,11 @@ class RobotClient:
 
     def _confirmed(self, op: str, mode: str, timeout: float) -> Status:
         msg = Control(self.robot, 0, 0.0, op=op, mode=mode)
+        with self._cond:
+            seen = len(self.statuses)  # before sending: a quick confirmation is not missed
         self.send_raw("control", encode(msg))
-        return self.wait_status(
-            lambda st: st.info.get("control_stamp_ns") == msg.stamp_ns, timeout=timeout)
+        return self._wait_status_from(
+            seen, lambda st: st.info.get("control_stamp_ns") == msg.stamp_ns, timeout)
 
     def set_mode(self, mode: str, timeout: float = 10.0) -> Status:
         """Switch the daemon's mode for this robot (``"learn"``, ``"predict"``,
@@ -205,8 +221,23 @@ class RobotClient:
         return self._confirmed("reset", "", timeout)
 
     def checkpoint(self, timeout: float = 10.0) -> Status:
-        """Ask for a checkpoint; the confirming status's ``info`` names the file."""
-        return self._confirmed("checkpoint", "", timeout)
+        """Ask for a checkpoint and wait until it is on disk; return that status, whose
+        ``info["checkpoint"]`` names the file (``info["checkpoint_updates"]``: the pairs in
+        it). The daemon confirms the request at once and writes the file in the background
+        (``protocols/README.md``, control): the confirming status still names the previous
+        checkpoint. ``RuntimeError`` if the daemon reports that the write failed,
+        ``TimeoutError`` after ``timeout`` seconds in all."""
+        end = time.monotonic() + timeout
+        ack = self._confirmed("checkpoint", "", timeout)
+        with self._cond:
+            seen = len(self.statuses)
+        done = self._wait_status_from(
+            seen, lambda st: checkpoint_outcome(ack.info, st.info) is not None,
+            max(end - time.monotonic(), 0.0))
+        if checkpoint_outcome(ack.info, done.info) == "failed":
+            raise RuntimeError(f"the daemon reported that the checkpoint of {self.robot} "
+                               f"failed (see its log)")
+        return done
 
     # --- receiving ----------------------------------------------------------------------------
 
@@ -262,9 +293,15 @@ class RobotClient:
     def wait_status(self, predicate: Callable[[Status], bool] | None = None,
                     timeout: float = 60.0) -> Status:
         """The first status received from now on that satisfies ``predicate``."""
-        end = time.monotonic() + timeout
         with self._cond:
             seen = len(self.statuses)
+        return self._wait_status_from(seen, predicate, timeout)
+
+    def _wait_status_from(self, seen: int, predicate: Callable[[Status], bool] | None,
+                          timeout: float) -> Status:
+        """The first status after the ``seen`` first ones that satisfies ``predicate``."""
+        end = time.monotonic() + timeout
+        with self._cond:
             while True:
                 for r in self.statuses[seen:]:
                     if predicate is None or predicate(r.msg):

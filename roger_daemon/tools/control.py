@@ -20,6 +20,7 @@ from typing import Any
 from protocols import Control, encode, keys
 from protocols.errors import ProtocolError
 from protocols.messages import MODES
+from roger_daemon.client import checkpoint_outcome
 from roger_daemon.tools.common import (
     Listener,
     UsageError,
@@ -98,15 +99,12 @@ def _control(session: Any, listener: Listener, args: argparse.Namespace) -> int:
 
 def _checkpoint_written(listener: Listener, deadline: float, ack: dict[str, Any],
                         args: argparse.Namespace) -> int:
-    written = int(ack["info"].get("checkpoints_written", 0))
-    errors = int(ack["info"].get("checkpoint_errors", 0))
-    done = _wait(listener, deadline, lambda st: (
-        int(st["info"].get("checkpoints_written", 0)) > written
-        or int(st["info"].get("checkpoint_errors", 0)) > errors))
+    done = _wait(listener, deadline,
+                 lambda st: checkpoint_outcome(ack["info"], st["info"]) is not None)
     if done is None:
         return _fail(f"the daemon accepted the checkpoint request but reported no checkpoint "
                      f"written within {args.timeout:g} s")
-    if int(done["info"].get("checkpoint_errors", 0)) > errors:
+    if checkpoint_outcome(ack["info"], done["info"]) == "failed":
         return _fail("the daemon reported that the checkpoint failed (see its log)")
     print(f"{args.robot}: checkpoint {done['info'].get('checkpoint')} "
           f"({done['info'].get('checkpoint_updates')} updates), confirmed by daemon "
