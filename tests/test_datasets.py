@@ -153,6 +153,44 @@ def test_episodes_names_sources_and_fps_survive_every_format(fmt: str, tmp_path:
         assert info["features"]["action"]["names"] == ["vx", "vy"]
 
 
+def test_the_hdf5_export_follows_robomimics_layout(tmp_path: Path) -> None:
+    """Read with h5py alone, as robomimic's SequenceDataset does: data/demo_<e> sorted by
+    number, attrs num_samples and total, obs/<key>, actions, rewards, dones, env_args JSON."""
+    h5py = pytest.importorskip("h5py")
+    pairs = made_up_pairs()
+    log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))
+    path = export(log, "hdf5", tmp_path / "out")
+    with h5py.File(path, "r") as f:
+        data = f["data"]
+        demos = sorted(data, key=lambda k: int(k[5:]))
+        assert demos == ["demo_0", "demo_1", "demo_2"] and data.attrs["total"] == len(pairs)
+        env = json.loads(data.attrs["env_args"])
+        assert {"env_name", "type", "env_kwargs"} <= set(env) and env["env_name"] == "cart"
+        starts = [0, 20, 30, 50]
+        for e, name in enumerate(demos):
+            demo, (a, b) = data[name], starts[e:e + 2]
+            assert demo.attrs["num_samples"] == b - a
+            np.testing.assert_array_equal(demo["obs/state"][()], pairs.x[a:b])
+            np.testing.assert_array_equal(demo["actions"][()], pairs.y[a:b])
+            assert demo["dones"][()].tolist() == [0] * (b - a - 1) + [1]
+            assert demo["rewards"].shape == (b - a,) and not demo["rewards"][()].any()
+
+
+def test_the_parquet_export_has_a_named_column_per_entry(tmp_path: Path) -> None:
+    """docs/datasets.md: one row per pair, x.<perception name> and y.<action name> columns
+    (``df["x.load"]`` in pandas), the episode and frame indices, the subtask and source."""
+    pairs = made_up_pairs()
+    log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))
+    table = pq.read_table(export(log, "parquet", tmp_path / "out"))
+    assert {"index", "episode_index", "frame_index", "timestamp", "tick", "subtask",
+            "source", "x.px", "x.py", "x.load", "y.vx", "y.vy"} <= set(table.column_names)
+    np.testing.assert_array_equal(table.column("x.load").to_numpy(), pairs.x[:, 2])
+    np.testing.assert_array_equal(table.column("y.vy").to_numpy(), pairs.y[:, 1])
+    assert table.column("episode_index").to_pylist() == pairs.episode.tolist()
+    assert table.column("subtask").to_pylist() == pairs.label
+    assert json.loads(table.schema.metadata[b"roger"])["fps"] == 20.0
+
+
 def test_an_episode_boundary_is_where_the_simulator_started_an_episode(tmp_path: Path) -> None:
     pairs = made_up_pairs()
     log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))

@@ -296,7 +296,7 @@ def camera_rgb(sim: Any) -> np.ndarray:
     frame when it has one, else a render of the same view. The carpet has no colour of its
     own in the simulator (the vision only segments), so it is painted green here, and what
     the camera sees of no body grey."""
-    import pybullet as p
+    from simulator.bullet import p
 
     cam = sim.cfg.camera
     rgb = getattr(sim.vision, "last_rgb", None)

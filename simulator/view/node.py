@@ -69,7 +69,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="address of the WebSocket server (default 127.0.0.1, this host only)")
     parser.add_argument("--port", type=port, default=8765,
                         help="port of the WebSocket server (default 8765, Foxglove's; 0: any)")
-    parser.add_argument("--record", type=Path, default=None, metavar="OUT",
+    parser.add_argument("--record", type=Path, default=None, metavar="FILE",
                         help="also write the live channels to this MCAP file")
     parser.add_argument("--log", type=Path, default=None, metavar="FILE",
                         help="deprecated spelling of the positional LOG")
