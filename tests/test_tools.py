@@ -172,6 +172,25 @@ def test_robot_client_checkpoint_returns_once_the_file_is_on_disk(
             assert path.is_absolute() and path == newest.absolute(), (path, newest)
 
 
+def test_robot_client_on_a_given_session_leaves_it_open(daemon: tuple[str, Path]) -> None:
+    """What roger control does: RobotClient on the session the connection options opened,
+    the robot's sizes unknown (dims=None); closing the client leaves the session to its
+    owner."""
+    from roger_daemon.config import ZenohSettings
+    from roger_daemon.transport import open_session
+
+    ep, _ = daemon
+    session = open_session(ZenohSettings(connect=(ep,), listen=()))
+    try:
+        with RobotClient(session=session, robot="aibo", dims=None) as client:
+            assert client.wait_status(timeout=30).robot == "aibo"
+        replies = session.liveliness().get(keys.daemon_liveliness_all(), timeout=10)
+        assert any(r.ok is not None for r in replies)  # still open, still connected
+        assert client.errors == []
+    finally:
+        session.close()
+
+
 def test_checkpoint_outcome_is_decided_by_the_status_counters() -> None:
     before = {"checkpoints_written": 2, "checkpoint_errors": 0}
     assert checkpoint_outcome(before, before) is None
