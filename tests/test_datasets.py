@@ -221,6 +221,19 @@ def test_a_foreign_lerobot_dataset_without_roger_columns_imports(tmp_path: Path)
     np.testing.assert_array_equal(back.tick, np.arange(len(want)))
 
 
+def test_a_foreign_datasets_names_given_as_a_map_are_kept(tmp_path: Path) -> None:
+    """Datasets converted from LeRobot's older versions name entries {"motors": [...]}."""
+    root = export(SESSIONS[0], "lerobot", tmp_path / "ds")
+    (root / "meta" / "roger.json").unlink()
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["features"]["observation.state"]["names"] = {"motors": list(aibo.PERCEPTION_NAMES)}
+    info["features"]["action"]["names"] = {"motors": list(aibo.ACTION_NAMES)}
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    back = read_dataset(root)
+    assert back.profile.x_names == aibo.PERCEPTION_NAMES
+    assert back.profile.y_names == aibo.ACTION_NAMES
+
+
 def test_float32_export_for_lerobot_policies(tmp_path: Path) -> None:
     out = tmp_path / "ds"
     assert roger(["log", "export", str(SESSIONS[0]), "--format", "lerobot", "--dtype",
