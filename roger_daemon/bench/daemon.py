@@ -5,13 +5,13 @@ this process is the robot and the demonstrator, feeding the shipped synthetic st
 (:func:`roger_daemon.learner.synthetic.subtask_stream`, 23-D perception, 9-D actions with
 subtask labels). Three phases, each with a fresh daemon and model:
 
-1. **lockstep** (``--seconds``): at ``--rate`` Hz the client publishes perception(t), waits
+1. **lockstep** (``--duration``): at ``--rate`` Hz the client publishes perception(t), waits
    for prediction(t), then publishes action(t). ``latency_*`` is perception published ->
    prediction received, measured in this process (same clock at both ends). It includes the
    time a perception waits while the loop finishes a ``learn_one`` (reported as
    ``learn_ms_*``); then a few seconds in mode ``predict`` give the latency without learning
    (``predict_only_latency_*``: transport and daemon overhead only).
-2. **realtime** (``--seconds``): the client publishes perception/action pairs at ``--rate``
+2. **realtime** (``--duration``): the client publishes perception/action pairs at ``--rate``
    Hz; the daemon publishes on its own 30 Hz timer. ``period_jitter_p99_ms`` is the daemon's
    own measurement of its publisher (|actual period - 1/rate|, from its status);
    ``client_period_jitter_p99_ms`` is the same seen at the receiver (adds transport noise).
