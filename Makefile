@@ -38,9 +38,14 @@ demo: $(STAMP)
 	-$(BIN)/roger compile
 	$(BIN)/roger demo
 
-test: $(STAMP) browser
-	$(BIN)/ruff check .
-	$(BIN)/roger compile & compiling=$$!; $(BIN)/mypy; typed=$$?; wait $$compiling && test $$typed -eq 0
+# the browser's install (network and disk, when chromium is missing) runs beside ruff, mypy and
+# `roger compile` (CPU), and pytest starts once all of them are done
+test: $(STAMP)
+	$(MAKE) --no-print-directory browser & browser=$$!; \
+	  $(BIN)/ruff check . && linted=0 || linted=1; \
+	  $(BIN)/roger compile & compiling=$$!; $(BIN)/mypy; typed=$$?; \
+	  wait $$compiling; compiled=$$?; wait $$browser; \
+	  test $$linted -eq 0 && test $$typed -eq 0 && test $$compiled -eq 0
 	$(PYTEST)
 
 test-all: $(STAMP) browser

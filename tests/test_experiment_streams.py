@@ -88,3 +88,25 @@ def test_two_streams_run_end_to_end(tmp_path: Path) -> None:
         assert (out / f"stream-{s}" / "prepared.npz").exists()
     assert res["summary"]["autonomous"]["validation"]["n"] <= 1
     assert 0.0 <= res["autonomous_graph_agreement"] <= 1.0
+
+
+def test_table_adds_the_peers_rows_from_their_results(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """``--peers`` appends each peer's row from a ``roger experiment peers`` results file (the
+    shipped ones of docs/peers.md), and refuses a file that is not one, naming it."""
+    from roger_daemon.cli import main
+
+    root = Path(__file__).resolve().parents[1] / "docs" / "figures"
+    act, dp = root / "peers" / "results-act.json", root / "peers" / "results-diffusion.json"
+    assert main(["experiment", "table", str(root / "goal-scoring" / "results.json"),
+                 "--peers", str(act), str(dp)]) == 0
+    out = capsys.readouterr().out
+    expected = json.loads(act.read_text())["peers"]["act"]
+    assert (f"| ACT (LeRobot), {expected['steps']:,} steps | {expected['successes']}/"
+            f"{expected['trials']} |") in out
+    assert "| Diffusion Policy (LeRobot), 1,500 steps | 1/13 | 8 % (1 % - 33 %) |" in out
+    bad = tmp_path / "notes.json"
+    bad.write_text('{"schema": 1}')
+    assert main(["experiment", "table", str(root / "goal-scoring" / "results.json"),
+                 "--peers", str(bad)]) == 2
+    assert f"--peers {bad}" in capsys.readouterr().err

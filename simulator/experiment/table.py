@@ -4,7 +4,9 @@ The README's results table is this command's output for the reference run
 (``roger experiment goal-scoring --streams 0-4``), so that it is never typed by hand. A
 multi-stream ``results.json`` gives one column per stream (the HCC's success rate, the
 others' ratio to it, mean over the learner seeds) and the summary over (stream, seed); a
-single-stream one gives each row's goals, rate and ratio.
+single-stream one gives each row's goals, rate and ratio. ``--peers FILE ...`` adds a table of
+``roger experiment peers`` results (docs/peers.md): each peer's success with its 95 % interval,
+its ratio to the HCC of its own run, training CPU seconds and p99 inference per tick.
 """
 
 from __future__ import annotations
@@ -76,6 +78,25 @@ def _single_table(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+PEER_NAMES = {"act": "ACT (LeRobot)", "diffusion": "Diffusion Policy (LeRobot)"}
+
+
+def peers_table(runs: list[dict[str, Any]]) -> str:
+    """The peers' rows of ``roger experiment peers`` results files (docs/peers.md)."""
+    lines = ["| peer (acts alone) | goals | success (95 % CI) | ratio to HCC | held-out poses "
+             "| train CPU s | infer p99 ms |", "|---|---|---|---|---|---|---|"]
+    for res in runs:
+        for key, b in res["peers"].items():
+            held = b.get("held_out") or {}
+            held_s = f"{held['successes']}/{held['trials']}" if held.get("trials") else "-"
+            lines.append(
+                f"| {PEER_NAMES.get(key, key)}, {b['steps']:,} steps | {b['successes']}/"
+                f"{b['trials']} | {_f(b['success_rate'], pct=True)} ({_f(b['ci95_low'], True)}"
+                f" - {_f(b['ci95_high'], True)}) | {_f(b.get('ratio_to_hcc'))} | {held_s} | "
+                f"{b['train_cpu_s']:,.0f} | {b['infer_p99_ms']:.1f} |")
+    return "\n".join(lines)
+
+
 def markdown(res: dict[str, Any]) -> str:
     """The Markdown table of a goal-scoring ``results.json`` (either kind)."""
     return _streams_table(res) if "streams" in res else _single_table(res)
@@ -84,6 +105,8 @@ def markdown(res: dict[str, Any]) -> str:
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger experiment table``."""
     parser.add_argument("results", type=Path, help="a goal-scoring results.json")
+    parser.add_argument("--peers", type=Path, nargs="+", default=[], metavar="FILE",
+                        help="roger experiment peers results.json files: their rows follow")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,5 +120,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"roger experiment table: {args.results}: not a goal-scoring results.json "
               f"({exc})", file=sys.stderr)
         return 2
+    runs = []
+    for path in args.peers:
+        try:
+            peer = json.loads(path.read_text(encoding="utf-8"))
+            if not isinstance(peer, dict) or not isinstance(peer.get("peers"), dict):
+                raise ValueError("no 'peers' object")
+            runs.append(peer)
+            peers_table([peer])
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            print(f"roger experiment table: --peers {path}: not a roger experiment peers "
+                  f"results.json ({exc})", file=sys.stderr)
+            return 2
+    if runs:
+        text += "\n\n" + peers_table(runs)
     print(text)
     return 0

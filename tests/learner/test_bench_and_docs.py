@@ -74,6 +74,14 @@ def test_bench_aibo_stream_is_shipped_and_learned_with_the_daemon_defaults(
     assert res["params"]["input_weights"][-2:] == [0.0, 0.0]  # the AIBO profile
 
 
+def test_bench_compare_refuses_an_unknown_revision(capsys: pytest.CaptureFixture[str]) -> None:
+    """A revision git does not know exits 2 naming ``--compare``, before compiling anything."""
+    assert main(["bench", "learner", "--points", "4", "--compare", "no-such-revision-xyz"]) == 2
+    assert "--compare" in capsys.readouterr().err
+
+
+# compiles the revision's kernels in a checkout of their own (~45 s on 2 cores): `make test-all`
+@pytest.mark.slow
 def test_bench_compare_runs_a_git_revision_beside_this_learner(
         capsys: pytest.CaptureFixture[str]) -> None:
     from roger_daemon.bench.learner_compare import reference_kernels
@@ -91,8 +99,6 @@ def test_bench_compare_runs_a_git_revision_beside_this_learner(
     assert res["speedup"] > 0 and isinstance(res["same_segmentation"], bool)
     assert main(["bench", "learner", "--points", "4", "--compare", "HEAD"]) == 0
     assert "speedup (new / REF updates/s)" in capsys.readouterr().out
-    assert main(["bench", "learner", "--points", "4", "--compare", "no-such-revision-xyz"]) == 2
-    assert "--compare" in capsys.readouterr().err
     # the reference's batched kernels run on this learner's threads, not on their default
     assert main(["bench", "learner", "--stream", "aibo", "--points", "4", "--compare", "HEAD",
                  "--threads", "1", "--json"]) == 0
