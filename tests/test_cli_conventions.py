@@ -150,7 +150,7 @@ def test_one_word_for_a_duration_and_out_is_a_directory() -> None:
     only as deprecated aliases, said so in --help), and every ``--out`` of a roger command is
     a directory."""
     old = {"--seconds", "--minutes", "--time-limit"}
-    unit = re.compile(r"-(seconds|minutes|hours)$")  # --warmup-minutes, --saturate-seconds
+    unit = re.compile(r"-(seconds|minutes|hours|s|ms)$")  # --warmup-minutes, --rotate-s
     for path, a in all_actions():
         opts = a.option_strings
         if old & set(opts) or any(unit.search(o) for o in opts):
