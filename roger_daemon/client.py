@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -44,10 +44,24 @@ from protocols import Action, Control, Perception, Prediction, Status, decode, e
 from protocols.messages import Dims
 from roger_daemon.zenoh_session import DAEMON_ENDPOINT
 
-__all__ = ["Received", "RobotClient"]
+__all__ = ["Received", "RobotClient", "checkpoint_outcome"]
 
 FloatArray = npt.NDArray[np.float64]
 _ACTION_FIELDS = {f.name for f in dataclasses.fields(Action)}
+
+
+def checkpoint_outcome(before: Mapping[str, Any], now: Mapping[str, Any]) -> str | None:
+    """Whether a checkpoint requested when the daemon's status ``info`` was ``before`` has
+    ended by the status ``info`` ``now``: ``"written"`` once ``checkpoints_written`` grew,
+    ``"failed"`` once ``checkpoint_errors`` grew, ``None`` while neither did
+    (``protocols/README.md``, control). :meth:`RobotClient.checkpoint` and ``roger control``
+    both decide by it."""
+    def grew(key: str) -> bool:
+        return int(now.get(key, 0)) > int(before.get(key, 0))
+
+    if grew("checkpoint_errors"):
+        return "failed"
+    return "written" if grew("checkpoints_written") else None
 
 
 @dataclass(frozen=True)
@@ -69,7 +83,8 @@ class RobotClient:
         The robot id (the daemon's ``[[robots]] id``): keys ``roger/<robot>/...``.
     dims
         ``(perception size, action size)`` as the daemon is configured for this robot;
-        incoming predictions are checked against it. Default: the AIBO's ``(23, 9)``.
+        incoming predictions are checked against it. Default: the AIBO's ``(23, 9)``;
+        ``None``: not checked (an operator's tool that does not know the robot's sizes).
     rate_hz
         The robot's rate: a message's ``t`` is ``tick / rate_hz`` unless given.
     mode
@@ -78,25 +93,31 @@ class RobotClient:
         :meth:`wait_daemon` waits for this daemon's liveliness token; ``None``: any daemon.
     zenoh_config
         A Zenoh JSON5 file (authentication, TLS; ``configs/zenoh/secure/robot.json5``).
+    session
+        An open Zenoh session to use instead of opening one (``connect``, ``mode`` and
+        ``zenoh_config`` are then unused); :meth:`close` leaves it open for its owner.
     """
 
     def __init__(self, connect: str | Sequence[str] = DAEMON_ENDPOINT, *,
-                 robot: str = "aibo", dims: Dims | tuple[int, int] = (23, 9),
+                 robot: str = "aibo", dims: Dims | tuple[int, int] | None = (23, 9),
                  rate_hz: float = 30.0, mode: str = "peer", daemon_id: str | None = None,
-                 zenoh_config: str | None = None) -> None:
+                 zenoh_config: str | None = None, session: Any = None) -> None:
         import zenoh
 
         from roger_daemon.zenoh_session import ZenohSettings, open_session
 
         endpoints = (connect,) if isinstance(connect, str) else tuple(connect)
         self.robot = keys.validate_robot_id(robot)
-        self.dims = dims if isinstance(dims, Dims) else Dims(int(dims[0]), int(dims[1]))
+        self.dims = dims if dims is None or isinstance(dims, Dims) else Dims(int(dims[0]),
+                                                                              int(dims[1]))
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
         self.rate_hz, self.daemon_id = float(rate_hz), daemon_id
+        self._owns_session = session is None
         self.session = open_session(ZenohSettings(
             config_file=None if zenoh_config is None else Path(zenoh_config), mode=mode,
-            connect=endpoints, listen=None if mode == "client" else ()))
+            connect=endpoints, listen=None if mode == "client" else ())
+        ) if session is None else session
         #: every prediction / status received, in order (with receive times)
         self.predictions: list[Received] = []
         self.statuses: list[Received] = []
@@ -126,10 +147,15 @@ class RobotClient:
         self.close()
 
     def close(self) -> None:
-        """Close the Zenoh session (idempotent)."""
+        """Close the Zenoh session, or undeclare this client's subscribers and publishers on
+        a session it was given (idempotent)."""
         if not self._closed:
             self._closed = True
-            self.session.close()
+            if self._owns_session:
+                self.session.close()
+                return
+            for entity in (*self._subs, *self._pubs.values()):
+                entity.undeclare()
 
     def _on(self, kind: str) -> Callable[[Any], None]:
         sink = self.predictions if kind == "prediction" else self.statuses
@@ -189,24 +215,55 @@ class RobotClient:
         ``"checkpoint"``; :meth:`set_mode` and friends wait for the confirmation."""
         self.send_raw("control", encode(Control(self.robot, 0, 0.0, op=op, mode=mode)))
 
-    def _confirmed(self, op: str, mode: str, timeout: float) -> Status:
+    def request(self, op: str, mode: str = "", timeout: float = 10.0) -> Status:
+        """Send a control request (``op`` ``"mode"`` with ``mode``, ``"reset"`` or
+        ``"checkpoint"``) and return the status that confirms it: the daemon's first status
+        whose ``info["control_stamp_ns"]`` is the request's stamp, published once applied
+        (``protocols/README.md``, control). ``TimeoutError`` after ``timeout`` seconds."""
         msg = Control(self.robot, 0, 0.0, op=op, mode=mode)
+        with self._cond:
+            seen = len(self.statuses)  # before sending: a quick confirmation is not missed
         self.send_raw("control", encode(msg))
-        return self.wait_status(
-            lambda st: st.info.get("control_stamp_ns") == msg.stamp_ns, timeout=timeout)
+        return self._wait_status_from(
+            seen, lambda st: st.info.get("control_stamp_ns") == msg.stamp_ns, timeout)
 
     def set_mode(self, mode: str, timeout: float = 10.0) -> Status:
         """Switch the daemon's mode for this robot (``"learn"``, ``"predict"``,
         ``"learn+predict"``, ``"pause"``); return the status that confirms it."""
-        return self._confirmed("mode", mode, timeout)
+        return self.request("mode", mode, timeout)
 
     def reset(self, timeout: float = 10.0) -> Status:
         """Replace this robot's model by a fresh one; return the confirming status."""
-        return self._confirmed("reset", "", timeout)
+        return self.request("reset", "", timeout)
 
     def checkpoint(self, timeout: float = 10.0) -> Status:
-        """Ask for a checkpoint; the confirming status's ``info`` names the file."""
-        return self._confirmed("checkpoint", "", timeout)
+        """Ask for a checkpoint and wait until it is on disk; return that status, whose
+        ``info["checkpoint"]`` names the file (``info["checkpoint_updates"]``: the pairs in
+        it). The daemon confirms the request at once and writes the file in the background
+        (``protocols/README.md``, control): the confirming status still names the previous
+        checkpoint. ``RuntimeError`` if the daemon reports that the write failed,
+        ``TimeoutError`` after ``timeout`` seconds in all."""
+        end = time.monotonic() + timeout
+        ack = self.request("checkpoint", "", timeout)
+        return self.wait_checkpoint(ack, max(end - time.monotonic(), 0.0))
+
+    def wait_checkpoint(self, ack: Status, timeout: float = 10.0) -> Status:
+        """After the confirming status ``ack`` of a checkpoint request: the status that shows
+        the file written (:func:`checkpoint_outcome`); ``RuntimeError`` if it shows the write
+        failed, ``TimeoutError`` after ``timeout`` seconds."""
+        done = self._wait_status_from(
+            self._status_index(ack), lambda st: checkpoint_outcome(ack.info, st.info)
+            is not None, timeout)
+        if checkpoint_outcome(ack.info, done.info) == "failed":
+            raise RuntimeError(f"the daemon reported that the checkpoint of {self.robot} "
+                               f"failed (see its log)")
+        return done
+
+    def _status_index(self, st: Status) -> int:
+        """How many statuses were received up to and including ``st`` (0 if not among them)."""
+        with self._cond:
+            return next((i + 1 for i in range(len(self.statuses) - 1, -1, -1)
+                         if self.statuses[i].msg is st), 0)
 
     # --- receiving ----------------------------------------------------------------------------
 
@@ -262,9 +319,15 @@ class RobotClient:
     def wait_status(self, predicate: Callable[[Status], bool] | None = None,
                     timeout: float = 60.0) -> Status:
         """The first status received from now on that satisfies ``predicate``."""
-        end = time.monotonic() + timeout
         with self._cond:
             seen = len(self.statuses)
+        return self._wait_status_from(seen, predicate, timeout)
+
+    def _wait_status_from(self, seen: int, predicate: Callable[[Status], bool] | None,
+                          timeout: float) -> Status:
+        """The first status after the ``seen`` first ones that satisfies ``predicate``."""
+        end = time.monotonic() + timeout
+        with self._cond:
             while True:
                 for r in self.statuses[seen:]:
                     if predicate is None or predicate(r.msg):

@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                    PYTHONPATH=os.pathsep.join(p for p in (str(HERE / "fleet_trace"),
                                                           os.environ.get("PYTHONPATH", "")) if p))
         cmd = [sys.executable, "-m", "roger_daemon", "bench", "fleet", "--robots",
-               str(args.robots), "--seconds", str(args.seconds), "--clock", "lockstep",
+               str(args.robots), "--duration", str(args.seconds), "--clock", "lockstep",
                "--json", *args.extra]
         bench = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
         if bench.returncode != 0:

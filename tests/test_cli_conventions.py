@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -144,14 +145,15 @@ def test_benchmark_ranges_are_usage_errors_naming_the_value(
 
 
 def test_one_word_for_a_duration_and_out_is_a_directory() -> None:
-    """Issue 56: ``--duration`` / ``--episode-duration`` in seconds (the old ``--seconds``,
-    ``--minutes``, ``--time-limit`` only as deprecated aliases, said so in --help), and every
-    ``--out`` of a roger command is a directory."""
+    """Issue 56: ``--duration`` / ``--episode-duration`` / ``--PHASE-duration`` in seconds
+    (the old ``--seconds``, ``--minutes``, ``--time-limit`` and any option named in a unit
+    only as deprecated aliases, said so in --help), and every ``--out`` of a roger command is
+    a directory."""
     old = {"--seconds", "--minutes", "--time-limit"}
+    unit = re.compile(r"-(seconds|minutes|hours|s|ms)$")  # --warmup-minutes, --rotate-s
     for path, a in all_actions():
         opts = a.option_strings
-        if old & set(opts):
-            assert opts[0] not in old or "deprecated" in (a.help or ""), f"{path} {opts}"
+        if old & set(opts) or any(unit.search(o) for o in opts):
             assert "deprecated" in (a.help or ""), f"{path} {opts}: say so in --help"
         if "--out" in opts:
             assert a.metavar == "DIR", f"{path} --out is a {a.metavar}, not a directory"

@@ -153,6 +153,44 @@ def test_episodes_names_sources_and_fps_survive_every_format(fmt: str, tmp_path:
         assert info["features"]["action"]["names"] == ["vx", "vy"]
 
 
+def test_the_hdf5_export_follows_robomimics_layout(tmp_path: Path) -> None:
+    """Read with h5py alone, as robomimic's SequenceDataset does: data/demo_<e> sorted by
+    number, attrs num_samples and total, obs/<key>, actions, rewards, dones, env_args JSON."""
+    h5py = pytest.importorskip("h5py")
+    pairs = made_up_pairs()
+    log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))
+    path = export(log, "hdf5", tmp_path / "out")
+    with h5py.File(path, "r") as f:
+        data = f["data"]
+        demos = sorted(data, key=lambda k: int(k[5:]))
+        assert demos == ["demo_0", "demo_1", "demo_2"] and data.attrs["total"] == len(pairs)
+        env = json.loads(data.attrs["env_args"])
+        assert {"env_name", "type", "env_kwargs"} <= set(env) and env["env_name"] == "cart"
+        starts = [0, 20, 30, 50]
+        for e, name in enumerate(demos):
+            demo, (a, b) = data[name], starts[e:e + 2]
+            assert demo.attrs["num_samples"] == b - a
+            np.testing.assert_array_equal(demo["obs/state"][()], pairs.x[a:b])
+            np.testing.assert_array_equal(demo["actions"][()], pairs.y[a:b])
+            assert demo["dones"][()].tolist() == [0] * (b - a - 1) + [1]
+            assert demo["rewards"].shape == (b - a,) and not demo["rewards"][()].any()
+
+
+def test_the_parquet_export_has_a_named_column_per_entry(tmp_path: Path) -> None:
+    """docs/datasets.md: one row per pair, x.<perception name> and y.<action name> columns
+    (``df["x.load"]`` in pandas), the episode and frame indices, the subtask and source."""
+    pairs = made_up_pairs()
+    log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))
+    table = pq.read_table(export(log, "parquet", tmp_path / "out"))
+    assert {"index", "episode_index", "frame_index", "timestamp", "tick", "subtask",
+            "source", "x.px", "x.py", "x.load", "y.vx", "y.vy"} <= set(table.column_names)
+    np.testing.assert_array_equal(table.column("x.load").to_numpy(), pairs.x[:, 2])
+    np.testing.assert_array_equal(table.column("y.vy").to_numpy(), pairs.y[:, 1])
+    assert table.column("episode_index").to_pylist() == pairs.episode.tolist()
+    assert table.column("subtask").to_pylist() == pairs.label
+    assert json.loads(table.schema.metadata[b"roger"])["fps"] == 20.0
+
+
 def test_an_episode_boundary_is_where_the_simulator_started_an_episode(tmp_path: Path) -> None:
     pairs = made_up_pairs()
     log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))
@@ -181,6 +219,19 @@ def test_a_foreign_lerobot_dataset_without_roger_columns_imports(tmp_path: Path)
     assert back.robot == "so100_follower" and back.label == [""] * len(want)
     assert back.profile.x_names == aibo.PERCEPTION_NAMES
     np.testing.assert_array_equal(back.tick, np.arange(len(want)))
+
+
+def test_a_foreign_datasets_names_given_as_a_map_are_kept(tmp_path: Path) -> None:
+    """Datasets converted from LeRobot's older versions name entries {"motors": [...]}."""
+    root = export(SESSIONS[0], "lerobot", tmp_path / "ds")
+    (root / "meta" / "roger.json").unlink()
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["features"]["observation.state"]["names"] = {"motors": list(aibo.PERCEPTION_NAMES)}
+    info["features"]["action"]["names"] = {"motors": list(aibo.ACTION_NAMES)}
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    back = read_dataset(root)
+    assert back.profile.x_names == aibo.PERCEPTION_NAMES
+    assert back.profile.y_names == aibo.ACTION_NAMES
 
 
 def test_float32_export_for_lerobot_policies(tmp_path: Path) -> None:
@@ -213,3 +264,40 @@ def test_bad_inputs_and_outputs_are_refused_and_nothing_is_overwritten(
     assert roger(["log", "export", str(SESSIONS[0]), "--format", "parquet", "--profile",
                   "nonesuch"]) == 2
     assert "no shipped robot profile 'nonesuch'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_lerobots_own_loader_reads_the_export(dtype: str, tmp_path: Path) -> None:
+    """LeRobot's ``LeRobotDataset`` (0.4.4, the ``peers`` extra: ``make venv-peers``, then
+    ``.venv-peers/bin/python -m pytest tests/test_datasets.py``) loads ``roger log export
+    --format lerobot`` from disk: every frame's state, action, indices, timestamp and task,
+    and the episode ranges its ``delta_timestamps`` pad at (a chunk of actions never runs
+    into the next episode). Skipped where LeRobot is not installed; the layout test above
+    checks the same files against LeRobot's published v3 layout everywhere."""
+    pytest.importorskip("lerobot")
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    pairs = made_up_pairs()  # three episodes at 20 fps, a 3-D -> 2-D profile
+    log = write_session(pairs, tmp_path / "log", params=RogerParams().for_dims(3))
+    want = pairs_from_log(log)
+    root = tmp_path / "ds"
+    assert roger(["log", "export", str(log), "--format", "lerobot", "--dtype", dtype,
+                  "--out", str(root)]) == 0
+    task = pq.read_table(root / "meta" / "tasks.parquet").column("task")[0].as_py()
+    step = 1 / want.fps
+    ds = LeRobotDataset("roger/export", root=root, delta_timestamps={"action": [0.0, step]})
+    assert len(ds) == len(want) and ds.num_episodes == want.episodes == 3
+    assert ds.fps == 20 and ds.meta.features["observation.state"]["names"] == ["px", "py",
+                                                                                "load"]
+    frame = want.frame_index()
+    ends = {int(i) for i in np.flatnonzero(np.diff(want.episode))} | {len(want) - 1}
+    for i in range(len(want)):
+        item = ds[i]
+        np.testing.assert_allclose(item["observation.state"].double().numpy(),
+                                   want.x[i].astype(dtype), rtol=1e-6)
+        np.testing.assert_allclose(item["action"][0].double().numpy(),
+                                   want.y[i].astype(dtype), rtol=1e-6)
+        assert int(item["episode_index"]) == want.episode[i] and int(item["index"]) == i
+        assert int(item["frame_index"]) == frame[i] and item["task"] == task
+        assert float(item["timestamp"]) == pytest.approx(frame[i] * step, abs=1e-5)
+        assert bool(item["action_is_pad"][1]) == (i in ends)  # the episode's last frame

@@ -70,9 +70,16 @@ def _check(summary: dict[str, Any], stdout: str, locations: list[int]) -> None:
 
 
 def test_short_demo(tmp_path: Path) -> None:
+    from roger_daemon.harness import free_port
+
+    daemon_port, sim_port = free_port(), free_port()  # issue 56, item 17: ports of one's own
     summary, stdout, _ = _demo(tmp_path / "demo", "--locations", "0", "--vision", "fast",
-                               "--episode-duration", "6")
+                               "--episode-duration", "6", "--daemon-port", str(daemon_port),
+                               "--sim-port", str(sim_port))
     _check(summary, stdout, [0])
+    for name in ("daemon", "daemon-merged", "daemon-play"):  # every daemon of the demo
+        config = (tmp_path / "demo" / f"{name}.toml").read_text(encoding="utf-8")
+        assert f"tcp/127.0.0.1:{daemon_port}" in config, name
     assert summary["test_episode"]["sim_time_s"] <= 6.0 + 1e-6
 
 

@@ -216,6 +216,29 @@ def test_10_record_interrupted_by_ctrl_c_exits_130_like_every_command(tmp_path: 
     assert "Traceback" not in err and list(tmp_path.glob("*.mcap"))
 
 
+@pytest.mark.integration
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 0)])
+def test_10_view_exits_130_after_ctrl_c_and_0_when_its_supervisor_stops_it(
+        sig: signal.Signals, status: int) -> None:
+    """docs/cli.md, exit statuses: Ctrl-C 130 as every command; SIGTERM (roger up's stop) 0."""
+    pytest.importorskip("foxglove")
+    with interruptible_child():
+        proc = subprocess.Popen([*ROGER, "view", "--port", "0", "--connect",
+                                 f"tcp/127.0.0.1:{free_port()}", "--duration", "120"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert "roger view: ws://" in proc.stdout.readline()  # serving: inside its loop
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == status, err
+    assert "Traceback" not in err
+
+
 # 11, 12 --------------------------------------------------------------------------------------
 
 @pytest.mark.integration

@@ -17,6 +17,7 @@ import pytest
 
 from protocols import Status, encode, keys
 from roger_daemon.cli import main
+from roger_daemon.client import RobotClient, checkpoint_outcome
 from roger_daemon.harness import (
     Client,
     DaemonProcess,
@@ -152,6 +153,50 @@ def test_control_mode_reset_checkpoint_are_confirmed(
     assert code == 0 and "reset (0 updates)" in out, err
     code, out, err = roger(capsys, "control", "aibo", "mode", "learn+predict", *common)
     assert code == 0, err
+
+
+def test_robot_client_checkpoint_returns_once_the_file_is_on_disk(
+        daemon: tuple[str, Path]) -> None:
+    """RobotClient.checkpoint waits for the write, not only for the confirmation (whose status
+    still names the previous checkpoint, or none), and the daemon names it by an absolute
+    path whatever its working directory (issue 56, item 7)."""
+    ep, work = daemon
+    with RobotClient(ep, robot="aibo", daemon_id="tooltest") as robot:
+        robot.wait_daemon(30)
+        for _ in range(2):
+            before = int(robot.wait_status(timeout=30).info.get("checkpoints_written", 0))
+            st = robot.checkpoint(30)
+            assert st.info["checkpoints_written"] == before + 1, st.info
+            path = Path(str(st.info["checkpoint"]))
+            newest = sorted((work / "checkpoints" / "aibo").glob("ckpt-*.npz"))[-1]
+            assert path.is_absolute() and path == newest.absolute(), (path, newest)
+
+
+def test_robot_client_on_a_given_session_leaves_it_open(daemon: tuple[str, Path]) -> None:
+    """What roger control does: RobotClient on the session the connection options opened,
+    the robot's sizes unknown (dims=None); closing the client leaves the session to its
+    owner."""
+    from roger_daemon.config import ZenohSettings
+    from roger_daemon.transport import open_session
+
+    ep, _ = daemon
+    session = open_session(ZenohSettings(connect=(ep,), listen=()))
+    try:
+        with RobotClient(session=session, robot="aibo", dims=None) as client:
+            assert client.wait_status(timeout=30).robot == "aibo"
+        replies = session.liveliness().get(keys.daemon_liveliness_all(), timeout=10)
+        assert any(r.ok is not None for r in replies)  # still open, still connected
+        assert client.errors == []
+    finally:
+        session.close()
+
+
+def test_checkpoint_outcome_is_decided_by_the_status_counters() -> None:
+    before = {"checkpoints_written": 2, "checkpoint_errors": 0}
+    assert checkpoint_outcome(before, before) is None
+    assert checkpoint_outcome(before, {**before, "checkpoints_written": 3}) == "written"
+    assert checkpoint_outcome(before, {**before, "checkpoint_errors": 1}) == "failed"
+    assert checkpoint_outcome({}, {"checkpoints_written": 1}) == "written"
 
 
 def test_control_without_confirmation_exits_non_zero(

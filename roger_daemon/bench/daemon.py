@@ -5,18 +5,18 @@ this process is the robot and the demonstrator, feeding the shipped synthetic st
 (:func:`roger_daemon.learner.synthetic.subtask_stream`, 23-D perception, 9-D actions with
 subtask labels). Three phases, each with a fresh daemon and model:
 
-1. **lockstep** (``--seconds``): at ``--rate`` Hz the client publishes perception(t), waits
+1. **lockstep** (``--duration``): at ``--rate`` Hz the client publishes perception(t), waits
    for prediction(t), then publishes action(t). ``latency_*`` is perception published ->
    prediction received, measured in this process (same clock at both ends). It includes the
    time a perception waits while the loop finishes a ``learn_one`` (reported as
    ``learn_ms_*``); then a few seconds in mode ``predict`` give the latency without learning
    (``predict_only_latency_*``: transport and daemon overhead only).
-2. **realtime** (``--seconds``): the client publishes perception/action pairs at ``--rate``
+2. **realtime** (``--duration``): the client publishes perception/action pairs at ``--rate``
    Hz; the daemon publishes on its own 30 Hz timer. ``period_jitter_p99_ms`` is the daemon's
    own measurement of its publisher (|actual period - 1/rate|, from its status);
    ``client_period_jitter_p99_ms`` is the same seen at the receiver (adds transport noise).
    ``updates_per_s`` is the learning rate sustained meanwhile (it cannot exceed the feed rate).
-3. **saturate** (``--saturate-seconds``, 0 to skip): pairs are fed at ``--saturate-rate`` Hz
+3. **saturate** (``--saturate-duration``, 0 to skip): pairs are fed at ``--saturate-rate`` Hz
    in realtime mode; ``updates_per_s_max`` is what the daemon learns per second while still
    publishing at 30 Hz (the queue overflows and drops are counted, as they should be).
 
@@ -53,8 +53,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         metavar="S", help="measured seconds of the lockstep and realtime phases "
                                           "(default 10; --seconds: the deprecated spelling)")
     parser.add_argument("--rate", type=float, default=30.0, help="feed and prediction rate (Hz)")
-    parser.add_argument("--saturate-seconds", type=float, default=5.0,
-                        help="length of the saturation phase (0 skips it; default 5)")
+    parser.add_argument("--saturate-duration", "--saturate-seconds", dest="saturate_seconds",
+                        type=float, default=5.0, metavar="S",
+                        help="length of the saturation phase in seconds (0 skips it; default "
+                             "5; --saturate-seconds: the deprecated spelling)")
     parser.add_argument("--saturate-rate", type=float, default=300.0,
                         help="feed rate of the saturation phase (Hz, default 300)")
     parser.add_argument("--recording", action="store_true",

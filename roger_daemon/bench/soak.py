@@ -9,7 +9,7 @@ every ``--interval`` seconds samples the resident set size (``VmRSS`` in ``/proc
 daemon's process and of its children (the learner workers), with the model size from status.
 
 Reported: the samples; the growth of the total RSS from the end of the warm-up
-(``--warmup-minutes``, default 10, or a third of a shorter run) to the end, in % (target
+(``--warmup-duration``, default 600 s, or a third of a shorter run) to the end, in % (target
 < 5 %); the same for the loop process and the workers; and the newest checkpoint of each
 robot: its size, its distinct experts (every particle's, shared ones counted once), bytes per
 expert, and which arrays take the bytes (the per-point history grows with the data learned,
@@ -46,9 +46,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="length in seconds (default 3600)")
     parser.add_argument("--minutes", type=float, default=None, metavar="MIN",
                         help="deprecated: the length in minutes (use --duration S)")
-    parser.add_argument("--warmup-minutes", type=float, default=None,
-                        help="growth is measured from here (default 10, or a third of the run "
-                             "if shorter than 30 minutes)")
+    parser.add_argument("--warmup-duration", dest="warmup_s", type=float, default=None,
+                        metavar="S", help="growth is measured from here, in seconds (default "
+                                          "600, or a third of the run if shorter than 30 min)")
+    parser.add_argument("--warmup-minutes", type=float, default=None, metavar="MIN",
+                        help="deprecated: the same in minutes (use --warmup-duration S)")
     parser.add_argument("--robots", type=int, default=1, help="robots fed (default 1)")
     parser.add_argument("--stream", choices=FLEET_STREAMS, default="aibo",
                         help="aibo: the recorded AIBO demonstrations, cycled (default); "
@@ -166,9 +168,14 @@ def run(args: argparse.Namespace) -> int:
     args.minutes = args.duration / 60.0
     require(args.robots >= 1, "--robots", "an integer >= 1", args.robots)
     require(args.interval > 0, "--interval", "a number > 0", args.interval)
-    warm = args.warmup_minutes
-    if warm is None:
-        warm = 10.0 if args.minutes >= 30 else args.minutes / 3.0
+    if args.warmup_minutes is not None:  # the deprecated spelling, in minutes
+        require(args.warmup_s is None, "--warmup-minutes", "not given with --warmup-duration",
+                args.warmup_minutes)
+        args.warmup_s = args.warmup_minutes * 60.0
+    require(args.warmup_s is None or args.warmup_s >= 0, "--warmup-duration", "a number >= 0",
+            args.warmup_s)
+    warm = (10.0 if args.minutes >= 30 else args.minutes / 3.0) if args.warmup_s is None else (
+        args.warmup_s / 60.0)
     machine = machine_record()
     with tempfile.TemporaryDirectory(prefix="roger-bench-soak-") as tmp:
         workdir = args.keep or Path(tmp)

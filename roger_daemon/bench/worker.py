@@ -10,7 +10,7 @@ request with the pair, then, as the worker does when no request waits, the exper
 counted ahead (``idle``), then a ``predict`` request for the next perception; requests and
 replies go through msgpack as over the pipe. ``--rate`` paces the ticks (default 30 Hz:
 between ticks the process sleeps and its caches go cold, as in the daemon; 0: back to back).
-Every robot first learns ``--warmup`` pairs, then ``--seconds`` are measured.
+Every robot first learns ``--warmup`` pairs, then ``--duration`` seconds are measured.
 
 Reported: the process's CPU time per robot-tick (everything above, for one robot), and the
 wall-time p50/p99 of the learn, labels and predict parts; the machine record. BLAS and the

@@ -195,6 +195,14 @@ def _read_json(path: Path) -> dict[str, Any]:
     return doc
 
 
+def _names(names: Any) -> Any:
+    """A feature's entry names: a list, or the one list of a map such as ``{"motors": [...]}``
+    (how datasets converted from LeRobot's older versions name them)."""
+    if isinstance(names, dict) and len(names) == 1:
+        return next(iter(names.values()))
+    return names
+
+
 def _profile(info: dict[str, Any], roger: dict[str, Any], x_key: str, y_key: str,
              dx: int, dy: int) -> RobotProfile:
     from protocols.messages import Dims
@@ -203,7 +211,7 @@ def _profile(info: dict[str, Any], roger: dict[str, Any], x_key: str, y_key: str
         prof = RobotProfile.from_mapping(roger["profile"])
         if prof.dims == Dims(dx, dy):
             return prof
-    names = [info["features"][k].get("names") for k in (x_key, y_key)]
+    names = [_names(info["features"][k].get("names")) for k in (x_key, y_key)]
     base = generic_profile(Dims(dx, dy), name=str(info.get("robot_type") or ""))
     if all(isinstance(n, list) and all(isinstance(s, str) for s in n) for n in names) and \
             [len(n) for n in names] == [dx, dy]:

@@ -45,7 +45,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--flush-interval", type=float, default=1.0, metavar="S",
                         help="close the open chunk at least this often (default 1 s)")
     parser.add_argument("--rotate-mb", type=float, default=256.0, help="new part after this size")
-    parser.add_argument("--rotate-s", type=float, default=3600.0, help="new part after this age")
+    parser.add_argument("--rotate-every", "--rotate-s", dest="rotate_s", type=float,
+                        default=3600.0, metavar="S",
+                        help="new part after this many seconds (default 3600, 0: never; "
+                             "--rotate-s: the deprecated spelling)")
     parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
                         help="MCAP chunk compression (default zstd)")
     parser.add_argument("--queue", type=int, default=4096, help="subscriber FIFO capacity")

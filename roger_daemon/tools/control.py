@@ -8,6 +8,8 @@ applied the request; ``protocols/README.md``, control). For ``checkpoint`` it th
 ``info.checkpoints_written`` grows (the file is written in the background) and prints the path,
 or fails if ``info.checkpoint_errors`` grows. Exit 0 when confirmed, 1 without confirmation
 (the request may or may not have been applied: check ``roger status``), 2 for a bad request.
+Every step is :class:`roger_daemon.client.RobotClient`'s (``request``, ``wait_checkpoint``):
+the robot-side client's code, on the session the connection options open.
 """
 
 from __future__ import annotations
@@ -15,17 +17,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import Any
 
-from protocols import Control, encode, keys
+from protocols import Status, keys
 from protocols.errors import ProtocolError
 from protocols.messages import MODES
-from roger_daemon.tools.common import (
-    Listener,
-    UsageError,
-    add_connection_args,
-    open_from_args,
-)
+from roger_daemon.client import RobotClient
+from roger_daemon.tools.common import UsageError, add_connection_args, open_from_args
 
 OPS = ("mode", "reset", "checkpoint")
 
@@ -53,19 +50,15 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError(f"control {args.op} takes no MODE, got {args.mode!r}")
 
 
-def _wait(listener: Listener, deadline: float, pred: Any) -> dict[str, Any] | None:
-    return next((st for st in listener.decoded(deadline) if pred(st)), None)
-
-
 def run(args: argparse.Namespace) -> int:
-    """Send the request and wait for its confirmation."""
+    """Send the request and wait for its confirmation (through :class:`RobotClient`, the
+    robot-side client, on the session the command line asked for)."""
     _check(args)
     session = open_from_args(args)
-    listener = Listener(session, keys.status(args.robot))
     try:
-        return _control(session, listener, args)
+        with RobotClient(session=session, robot=args.robot, dims=None) as client:
+            return _control(client, args)
     finally:
-        listener.close()
         session.close()
 
 
@@ -74,41 +67,39 @@ def _fail(text: str) -> int:
     return 1
 
 
-def _control(session: Any, listener: Listener, args: argparse.Namespace) -> int:
-    import zenoh
+def _control(client: RobotClient, args: argparse.Namespace) -> int:
+    deadline = time.monotonic() + float(args.timeout)
 
-    deadline = time.monotonic() + args.timeout
-    if _wait(listener, deadline, lambda st: True) is None:
+    def left() -> float:
+        return max(deadline - time.monotonic(), 0.0)
+
+    try:
+        client.wait_status(timeout=left())
+    except TimeoutError:
         return _fail(f"no daemon serving {args.robot!r} was heard within {args.timeout:g} s "
                      f"(nothing sent; see roger list)")
-    msg = Control(args.robot, 0, 0.0, op=args.op, mode=args.mode)
-    session.put(keys.control(args.robot), encode(msg),
-                congestion_control=zenoh.CongestionControl.BLOCK, express=True)
-    ack = _wait(listener, deadline,
-                lambda st: st["info"].get("control_stamp_ns") == msg.stamp_ns)
-    if ack is None:
+    try:
+        ack = client.request(args.op, args.mode, timeout=left())
+    except TimeoutError:
         return _fail(f"sent {args.op} to {args.robot} but the daemon did not confirm it within "
                      f"{args.timeout:g} s; it may or may not have been applied (roger status)")
     if args.op == "checkpoint":
-        return _checkpoint_written(listener, deadline, ack, args)
-    what = f"mode {ack['mode']}" if args.op == "mode" else f"reset ({ack['updates']} updates)"
-    print(f"{args.robot}: {what}, confirmed by daemon {ack['daemon']}")
+        return _checkpoint_written(client, ack, left(), args)
+    what = f"mode {ack.mode}" if args.op == "mode" else f"reset ({ack.updates} updates)"
+    print(f"{args.robot}: {what}, confirmed by daemon {ack.daemon}")
     return 0
 
 
-def _checkpoint_written(listener: Listener, deadline: float, ack: dict[str, Any],
+def _checkpoint_written(client: RobotClient, ack: Status, timeout: float,
                         args: argparse.Namespace) -> int:
-    written = int(ack["info"].get("checkpoints_written", 0))
-    errors = int(ack["info"].get("checkpoint_errors", 0))
-    done = _wait(listener, deadline, lambda st: (
-        int(st["info"].get("checkpoints_written", 0)) > written
-        or int(st["info"].get("checkpoint_errors", 0)) > errors))
-    if done is None:
+    try:
+        done = client.wait_checkpoint(ack, timeout)
+    except TimeoutError:
         return _fail(f"the daemon accepted the checkpoint request but reported no checkpoint "
                      f"written within {args.timeout:g} s")
-    if int(done["info"].get("checkpoint_errors", 0)) > errors:
+    except RuntimeError:
         return _fail("the daemon reported that the checkpoint failed (see its log)")
-    print(f"{args.robot}: checkpoint {done['info'].get('checkpoint')} "
-          f"({done['info'].get('checkpoint_updates')} updates), confirmed by daemon "
-          f"{done['daemon']}")
+    print(f"{args.robot}: checkpoint {done.info.get('checkpoint')} "
+          f"({done.info.get('checkpoint_updates')} updates), confirmed by daemon "
+          f"{done.daemon}")
     return 0

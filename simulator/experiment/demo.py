@@ -51,7 +51,7 @@ OUTCOME_MEANING = {
     "goal": "the ball crossed the opponent's goal line: success",
     "own_goal": "the ball went into the robot's own goal",
     "out": "the ball left the field over a sideline or an end line",
-    "timeout": "no goal within the time limit (--time-limit). The learned controller often "
+    "timeout": "no goal within the time limit (--episode-duration). The learned controller often "
                "ends this way here: a few short demonstrations teach far less than the "
                "goal-scoring experiment's 130 (README, the paper's experiment)",
     "stopped": "the simulator was stopped before the episode ended",

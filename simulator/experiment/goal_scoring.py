@@ -200,7 +200,7 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
     if bad:
         raise ValueError(f"unknown controller(s) {bad}; choose from {list(CONTROLLERS)}")
     if attempts < 1 or per_subtask < 1 or time_limit <= 0:
-        raise ValueError("--attempts and --per-subtask must be >= 1, --time-limit > 0")
+        raise ValueError("--attempts and --per-subtask must be >= 1, --episode-duration > 0")
     for o in overrides:
         if not o.startswith("learner."):
             raise ValueError(f"--set {o!r}: only learner.KEY=VALUE overrides are used here")

@@ -4,10 +4,10 @@ Starts ``roger teach --clock lockstep`` (a subprocess: the page's server, the si
 ``roger daemon``), connects :class:`~simulator.teach.scripted.ScriptedTeacher` to the page's
 own WebSocket and teaches as a person would, through the same channel:
 
-1. ``--demonstrate-minutes`` of simulated time in demonstrate mode (episodes cycling through
-   the 13 start locations);
-2. ``--correct-minutes`` in correct mode (the robot drives, the teacher takes over where the
-   robot's command disagrees with its own);
+1. ``--demonstrate-duration`` seconds of simulated time in demonstrate mode (episodes
+   cycling through the 13 start locations);
+2. ``--correct-duration`` seconds in correct mode (the robot drives, the teacher takes over
+   where the robot's command disagrees with its own);
 3. autonomous mode: the daemon's newest learned transitions loaded, then one episode
    from each of the 13 start locations (``--locations``), goals counted.
 
@@ -39,10 +39,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger experiment teach``."""
     parser.add_argument("--out", type=Path, default=Path("runs/experiment-teach"),
                         metavar="DIR", help="output directory (default runs/experiment-teach)")
-    parser.add_argument("--demonstrate-minutes", type=non_negative, default=10.0, metavar="M",
-                        help="simulated minutes of demonstration (default 10)")
-    parser.add_argument("--correct-minutes", type=non_negative, default=0.0, metavar="M",
-                        help="simulated minutes of correction after it (default 0)")
+    parser.add_argument("--demonstrate-duration", dest="demonstrate_s", type=non_negative,
+                        default=None, metavar="S",
+                        help="simulated seconds of demonstration (default 600)")
+    parser.add_argument("--correct-duration", dest="correct_s", type=non_negative,
+                        default=None, metavar="S",
+                        help="simulated seconds of correction after it (default 0)")
+    for phase in ("demonstrate", "correct"):  # docs/cli.md: one word for a duration
+        parser.add_argument(f"--{phase}-minutes", dest=f"{phase}_minutes", type=non_negative,
+                            default=None, metavar="M",
+                            help=f"deprecated: the same in minutes (use --{phase}-duration S)")
     parser.add_argument("--locations", default="all",
                         help="the evaluation's start locations (default all 13)")
     parser.add_argument("--episode-duration", dest="time_limit", type=non_negative,
@@ -99,12 +105,12 @@ def _teach(url: str, args: argparse.Namespace, locations: list[int]) -> dict[str
     try:
         t0 = time.monotonic()
         teacher.until(lambda m: m.get("type") == "state")
-        if args.demonstrate_minutes > 0:
-            teacher.teach("demonstrate", round(args.demonstrate_minutes * 60 * HZ))
+        if args.demonstrate_s > 0:
+            teacher.teach("demonstrate", round(args.demonstrate_s * HZ))
         times["demonstrate_s"] = time.monotonic() - t0
-        if args.correct_minutes > 0:
+        if args.correct_s > 0:
             t1 = time.monotonic()
-            teacher.teach("correct", round(args.correct_minutes * 60 * HZ))
+            teacher.teach("correct", round(args.correct_s * HZ))
             times["correct_s"] = time.monotonic() - t1
         t2 = time.monotonic()
         fitted = teacher.wait_transitions()
@@ -130,10 +136,25 @@ def _teach(url: str, args: argparse.Namespace, locations: list[int]) -> dict[str
     }
 
 
+def phase_durations(args: argparse.Namespace) -> None:
+    """``args.demonstrate_s`` and ``args.correct_s`` in seconds, from ``--PHASE-duration`` or
+    the deprecated ``--PHASE-minutes`` (not both); ``UsageError`` naming the clash."""
+    from roger_daemon.tools.common import UsageError
+
+    for phase, default in (("demonstrate", 600.0), ("correct", 0.0)):
+        seconds, minutes = getattr(args, f"{phase}_s"), getattr(args, f"{phase}_minutes")
+        if seconds is not None and minutes is not None:
+            raise UsageError(f"give --{phase}-duration S or the deprecated --{phase}-minutes "
+                             f"M, not both (got {seconds:g} s and {minutes:g} min)")
+        setattr(args, f"{phase}_s", default if seconds is None and minutes is None
+                else seconds if minutes is None else minutes * 60.0)
+
+
 def run(args: argparse.Namespace) -> int:
     """Teach, evaluate, write ``OUT/results.json``; 0, or 1 if the session failed."""
     from simulator.episodes import parse_locations
 
+    phase_durations(args)
     try:
         locations = parse_locations(args.locations)
     except ValueError as exc:
@@ -147,8 +168,8 @@ def run(args: argparse.Namespace) -> int:
         result = _teach(url, args, locations)
     finally:
         code = stop_teach(proc)
-    result.update({"settings": {"demonstrate_minutes": args.demonstrate_minutes,
-                                "correct_minutes": args.correct_minutes,
+    result.update({"settings": {"demonstrate_s": args.demonstrate_s,
+                                "correct_s": args.correct_s,
                                 "episode_duration_s": args.time_limit, "seed": args.seed,
                                 "clock": "lockstep", "vision": "fast"},
                    "teach_exit": code})

@@ -150,9 +150,7 @@ class TeachSession:
         if req.type == "record":
             return self._start_take() if req.on else self._stop_take()
         if req.type == "checkpoint":
-            last = self.client.statuses[-1].msg if self.client.statuses else None
-            st = self._checkpoint_written(int(last.info.get("checkpoints_written", 0))
-                                          if last is not None else 0)
+            st = self._checkpoint_written()
             return (f"checkpoint {st.info.get('checkpoint')} at "
                     f"{st.info.get('checkpoint_updates')} pairs")
         return ""
@@ -217,13 +215,14 @@ class TeachSession:
         while True:
             try:
                 st = self.client.wait_status(lambda s: s.queue_depth == 0, 120)
-                st = self._checkpoint_written(int(st.info.get("checkpoints_written", 0)))
+                st = self._checkpoint_written()
                 self.autonomy.load(self.out / "checkpoints", int(st.info.get(
                     "checkpoint_updates", st.updates)), self.client.robot)
                 self.autonomy.fitted["checkpoint"] = Path(str(st.info.get("checkpoint"))).name
                 log.info("playing the transitions of %s (%s pairs)",
                          st.info.get("checkpoint"), st.info.get("checkpoint_updates"))
-            except (TimeoutError, ValueError, OSError) as exc:  # the previous ones act on
+            except (TimeoutError, RuntimeError, ValueError, OSError) as exc:
+                # the previous ones act on
                 log.warning("loading the learned transitions failed: %s", exc)
             with self._load_lock:
                 if not self._load_again:
@@ -269,11 +268,9 @@ class TeachSession:
         return {"predictions": round(recent / 2.0, 1),
                 "ticks": round(sum(1 for v in ticks if t - v <= 2.0) / 2.0, 1)}
 
-    def _checkpoint_written(self, written: int) -> Any:
-        """Ask for a checkpoint; the status once it is on disk (``written`` were before)."""
-        self.client.checkpoint(60)
-        return self.client.wait_status(
-            lambda s: int(s.info.get("checkpoints_written", 0)) > written, 60)
+    def _checkpoint_written(self) -> Any:
+        """Ask for a checkpoint; the status once it is on disk (RobotClient.checkpoint)."""
+        return self.client.checkpoint(60)
 
     # -- the camera image ----------------------------------------------------------------------
 
@@ -299,7 +296,7 @@ def camera_rgb(sim: Any) -> np.ndarray:
     frame when it has one, else a render of the same view. The carpet has no colour of its
     own in the simulator (the vision only segments), so it is painted green here, and what
     the camera sees of no body grey."""
-    import pybullet as p
+    from simulator.bullet import p
 
     cam = sim.cfg.camera
     rgb = getattr(sim.vision, "last_rgb", None)

@@ -69,7 +69,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="address of the WebSocket server (default 127.0.0.1, this host only)")
     parser.add_argument("--port", type=port, default=8765,
                         help="port of the WebSocket server (default 8765, Foxglove's; 0: any)")
-    parser.add_argument("--record", type=Path, default=None, metavar="OUT",
+    parser.add_argument("--record", type=Path, default=None, metavar="FILE",
                         help="also write the live channels to this MCAP file")
     parser.add_argument("--log", type=Path, default=None, metavar="FILE",
                         help="deprecated spelling of the positional LOG")
@@ -212,6 +212,10 @@ def _live(args: argparse.Namespace) -> int:
         keys.validate_robot_id(args.robot)
     except ValueError as exc:
         raise UsageError(f"--robot: {exc}") from None
+    # SIGTERM (roger up's stop) from now on ends the loop below and closes what it opened,
+    # however early it comes: exit 0 (docs/cli.md, exit statuses), never killed mid-setup
+    stop: list[int] = []
+    signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
     sinks = Sinks()
     try:
         server = sinks.fg.start_server(name=f"roger view {args.robot}", host=args.host,
@@ -230,8 +234,6 @@ def _live(args: argparse.Namespace) -> int:
     print(f"roger view: ws://{args.host}:{server.port}", flush=True)
     conv = Converter()
     start = time.monotonic()
-    stop: list[int] = []
-    signal.signal(signal.SIGTERM, lambda signum, _frame: stop.append(signum))
     heard = False
     try:
         while not stop and (not args.duration or time.monotonic() - start < args.duration):
