@@ -32,29 +32,16 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-import time
 from typing import Any
 
 import numpy as np
 
-from protocols import Action, Command, EpisodeEvent, Perception, Prediction, keys
-from protocols.aibo import DIMS
-from roger_daemon.tools.common import count, seconds
+from protocols import Action, Command, Perception, keys
 from simulator.config import load_config
 from simulator.controllers.hcc import HCC, HCCParams, HeadModel
+from simulator.controllers.node import PerceptionNode, add_node_args, hold
 from simulator.controllers.transitioner import DEFAULT_RULE, RULES, transition_command
-from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
-from simulator.transport import (
-    EPHEMERAL,
-    InvalidCounter,
-    StopFlag,
-    Subscription,
-    add_zenoh_args,
-    publisher,
-    put,
-    serve,
-    wait_for,
-)
+from simulator.transport import StopFlag, publisher, put, serve
 
 __all__ = ["configure", "hcc_from_config", "run"]
 
@@ -66,36 +53,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--role", choices=("demonstrator", "transitioner"), default="demonstrator",
                         help="demonstrator: the FSM drives and publishes its actions to learn "
                              "from (default); transitioner: executes the daemon's predictions")
-    parser.add_argument("--robot", default="aibo", help="robot id in the key expressions")
-    parser.add_argument(
-        "--clock",
-        choices=("lockstep", "realtime"),
-        default="lockstep",
-        help="how the transitioner matches predictions to perceptions",
-    )
     parser.add_argument(
         "--config", default=None, help="task TOML (its [sim] camera/robot/motion, [hcc])"
-    )
-    parser.add_argument(
-        "--prediction-timeout",
-        type=seconds,
-        default=2.0,
-        help="transitioner, lockstep: seconds to wait for prediction(t)",
-    )
-    parser.add_argument(
-        "--max-prediction-age",
-        type=count,
-        default=3,
-        help="transitioner, realtime: newest prediction at most this many ticks old",
-    )
-    parser.add_argument(
-        "--exit-when-done", action="store_true", help="exit when the simulator's run is complete"
-    )
-    parser.add_argument(
-        "--idle-exit",
-        type=seconds,
-        default=0.0,
-        help="exit after this many seconds without perception (0: never)",
     )
     parser.add_argument(
         "--rule",
@@ -105,8 +64,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         f"(mixture, default {DEFAULT_RULE}), the one with the most points (support), the "
         "lowest predictive variance, or the highest gate probability",
     )
-    parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
-    add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
+    add_node_args(parser, who="transitioner")
 
 
 def hcc_from_config(path: str | None) -> HCC:
@@ -135,85 +93,29 @@ def hcc_from_config(path: str | None) -> HCC:
     return HCC(params, HeadModel(cfg.robot, cfg.camera), cfg.motion)
 
 
-class HCCNode:
-    """One session, one loop."""
+class HCCNode(PerceptionNode):
+    """The FSM's step in the nodes' one loop (:mod:`simulator.controllers.node`)."""
 
     def __init__(self, args: argparse.Namespace, hcc: HCC, stop: StopFlag) -> None:
-        self.args = args
+        super().__init__(args, stop, args.role, log,
+                         ("label", "fallback_top", "fallback_mean", "no_prediction"), "hcc")
         self.hcc = hcc
-        self.stop = stop
-        self.robot = keys.validate_robot_id(args.robot)
-        self.invalid = InvalidCounter("hcc")
-        self.counts: dict[str, int] = {
-            "perceptions": 0,
-            "commands": 0,
-            "resent": 0,
-            "stale_perceptions": 0,
-            "episodes": 0,
-            "label": 0,
-            "fallback_top": 0,
-            "fallback_mean": 0,
-            "no_prediction": 0,
-        }
         self.subtask_ticks: dict[str, int] = {}
-        self.last_tick = -1
-        self.last_command: Command | None = None
-        self._pred_cache: Prediction | None = None
+        self.pub_act: Any = None
 
     def run(self, session: Any) -> dict[str, Any]:
         transitioner = self.args.role == "transitioner"
-        self.perc = Subscription(session, self.robot, "perception", DIMS, self.invalid,
-                                 capacity=256)
-        self.events = Subscription(session, self.robot, "episode", None, self.invalid, capacity=256)
-        self.preds = (
-            Subscription(session, self.robot, "prediction", DIMS, self.invalid, capacity=64)
-            if transitioner
-            else None
-        )
-        self.pub_cmd = publisher(session, keys.command(self.robot))
-        self.pub_act = None if transitioner else publisher(session, keys.action(self.robot))
-        last_seen = time.monotonic()
-        done = False
-        while not self.stop.stopped and not done:
-            msg = wait_for(self.perc.poll, 0.1, self.stop)
-            for ev in self.events.drain():
-                assert isinstance(ev, EpisodeEvent)
-                if ev.event == "end" and ev.data.get("run_complete") and self.args.exit_when_done:
-                    done = True
-            if msg is None:
-                if self.args.idle_exit > 0 and time.monotonic() - last_seen > self.args.idle_exit:
-                    log.info("no perception for %.1f s; exiting", self.args.idle_exit)
-                    break
-                continue
-            last_seen = time.monotonic()
-            assert isinstance(msg, Perception)
-            self._on_perception(msg)
-        for inbox in (self.perc, self.events, self.preds):
-            if inbox is not None:
-                inbox.close()
-        return {
-            "role": self.args.role,
-            "robot": self.robot,
-            **self.counts,
-            "subtask_ticks": self.subtask_ticks,
-            "invalid_messages": self.invalid.total(),
-            "invalid_by_reason": dict(self.invalid.counts),
-        }
+        if not transitioner:
+            self.pub_act = publisher(session, keys.action(self.robot))
+        self.serve_perceptions(session, predictions=transitioner)
+        return self.summary(subtask_ticks=self.subtask_ticks)
 
-    def _on_perception(self, msg: Perception) -> None:
-        self.counts["perceptions"] += 1
-        new_episode = msg.t == 0.0 and msg.tick != self.last_tick
-        if not new_episode and msg.tick == self.last_tick and self.last_command is not None:
-            self.counts["resent"] += 1
-            put(self.pub_cmd, self.last_command)
-            return
-        if not new_episode and msg.tick < self.last_tick:
-            self.counts["stale_perceptions"] += 1
-            return
-        if new_episode:
-            self.hcc.reset()
-            self.counts["episodes"] += 1
-        self.last_tick = msg.tick
+    def new_episode(self) -> None:
+        """The FSM restarts."""
+        self.hcc.reset()
+
+    def command_for(self, msg: Perception) -> Command:
+        """The FSM's action (demonstrator) or the expert of its subtask (transitioner)."""
         y, label = self.hcc.decide(np.asarray(msg.x))
         self.subtask_ticks[label] = self.subtask_ticks.get(label, 0) + 1
         if self.pub_act is not None:
@@ -223,38 +125,13 @@ class HCCNode:
             y, source = self._transition(msg, label)
             cmd = Command(self.robot, msg.tick, msg.t, y=y, source=source)
         self.hcc.commit(np.asarray(cmd.y))
-        self.last_command = cmd
-        put(self.pub_cmd, cmd)
-        self.counts["commands"] += 1
-
-    def _prediction_for(self, msg: Perception) -> Prediction | None:
-        assert self.preds is not None
-        lockstep = self.args.clock == "lockstep"
-
-        def newest() -> Prediction | None:
-            for m in self.preds.drain() if self.preds is not None else []:
-                assert isinstance(m, Prediction)
-                if self._pred_cache is None or m.tick >= self._pred_cache.tick:
-                    self._pred_cache = m
-            c = self._pred_cache
-            if c is None:
-                return None
-            if lockstep:
-                return c if c.tick == msg.tick else None
-            return c if 0 <= msg.tick - c.tick <= self.args.max_prediction_age else None
-
-        if lockstep:
-            got: Prediction | None = wait_for(newest, self.args.prediction_timeout, self.stop)
-            return got
-        return newest()
+        return cmd
 
     def _transition(self, msg: Perception, subtask: str) -> tuple[np.ndarray, str]:
-        pred = self._prediction_for(msg)
+        pred = self.prediction_for(msg)
         if pred is None:
             self.counts["no_prediction"] += 1
-            y = np.zeros(DIMS.y)
-            y[3:8] = np.asarray(msg.x)[18:23]
-            return y, f"hcc:transitioner:{subtask}:-1:no_prediction"
+            return hold(np.asarray(msg.x)), f"hcc:transitioner:{subtask}:-1:no_prediction"
         y, how, expert = transition_command(pred.multimap, np.asarray(pred.mean), subtask,
                                             self.args.rule)
         self.counts[how] += 1

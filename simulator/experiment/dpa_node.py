@@ -26,7 +26,6 @@ import io
 import logging
 import os
 import sys
-import time
 from typing import Any
 
 import numpy as np
@@ -34,19 +33,8 @@ import numpy as np
 from protocols import Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
 from roger_daemon.atomic import write_bytes
-from roger_daemon.tools.common import seconds
-from simulator.sim_node import DAEMON_ENDPOINT, DEFAULT_LISTEN
-from simulator.transport import (
-    EPHEMERAL,
-    InvalidCounter,
-    StopFlag,
-    Subscription,
-    add_zenoh_args,
-    publisher,
-    put,
-    serve,
-    wait_for,
-)
+from simulator.controllers.node import NodeLoop, add_node_args
+from simulator.transport import StopFlag, Subscription, publisher, put, serve
 
 __all__ = ["CommandTrace", "configure", "read_trace", "run"]
 
@@ -55,82 +43,55 @@ log = logging.getLogger("roger.dpa")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``roger experiment dpa``."""
-    parser.add_argument("--robot", default="aibo", help="robot id in the key expressions")
     parser.add_argument("--model", default="unimap", help="name in the command's source")
-    parser.add_argument(
-        "--exit-when-done", action="store_true", help="exit when the simulator's run is complete"
-    )
-    parser.add_argument(
-        "--idle-exit",
-        type=seconds,
-        default=0.0,
-        help="exit after this many seconds without a prediction (0: never)",
-    )
-    parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
     parser.add_argument("--trace", default=None,
                         help="write each tick's perception and command (.npz) here at exit")
-    add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
+    add_node_args(parser, predictions=False, idle_of="prediction")
 
 
-class DPANode:
-    """One session, one loop: prediction(t) -> command(t)."""
+class DPANode(NodeLoop):
+    """prediction(t) -> command(t), in the nodes' one loop (:mod:`simulator.controllers.node`)."""
 
     def __init__(self, args: argparse.Namespace, stop: StopFlag) -> None:
-        self.args = args
-        self.stop = stop
-        self.robot = keys.validate_robot_id(args.robot)
-        self.invalid = InvalidCounter("dpa")
+        super().__init__(args, stop, "dpa", log)
         self.counts = {"predictions": 0, "commands": 0, "repeated_ticks": 0, "episodes": 0}
         self.last_tick = -1
         self.trace = CommandTrace() if args.trace else None
+        self.source = f"dpa:{args.model}"
+        self.percs: Subscription | None = None
 
     def run(self, session: Any) -> dict[str, Any]:
         preds = Subscription(session, self.robot, "prediction", DIMS, self.invalid, capacity=256)
         events = Subscription(session, self.robot, "episode", None, self.invalid, capacity=256)
-        percs = (Subscription(session, self.robot, "perception", DIMS, self.invalid, capacity=256)
-                 if self.trace is not None else None)
-        pub = publisher(session, keys.command(self.robot))
-        source = f"dpa:{self.args.model}"
-        last_seen = time.monotonic()
-        done = False
-        while not self.stop.stopped and not done:
-            msg = wait_for(preds.poll, 0.1, self.stop)
-            for ev in events.drain():
-                assert isinstance(ev, EpisodeEvent)
-                if ev.event == "start":
-                    self.counts["episodes"] += 1
-                if ev.event == "end" and ev.data.get("run_complete") and self.args.exit_when_done:
-                    done = True
-            if msg is None:
-                if self.args.idle_exit > 0 and time.monotonic() - last_seen > self.args.idle_exit:
-                    log.info("no prediction for %.1f s; exiting", self.args.idle_exit)
-                    break
-                continue
-            last_seen = time.monotonic()
-            assert isinstance(msg, Prediction)
-            self.counts["predictions"] += 1
-            if msg.tick == self.last_tick:
-                self.counts["repeated_ticks"] += 1
-            self.last_tick = msg.tick
-            y = np.asarray(msg.mean)
-            put(pub, Command(self.robot, msg.tick, msg.t, y=y, source=source))
-            self.counts["commands"] += 1
-            if self.trace is not None and percs is not None:
-                self.trace.perceptions(percs.drain())
-                self.trace.command(msg.tick, y)
+        if self.trace is not None:
+            self.percs = Subscription(session, self.robot, "perception", DIMS, self.invalid,
+                                      capacity=256)
+        self.pub = publisher(session, keys.command(self.robot))
+        self.loop(preds, events, self._on_prediction, "prediction")
         preds.close()
         events.close()
-        if self.trace is not None and percs is not None:
-            self.trace.perceptions(percs.drain())
-            percs.close()
+        if self.trace is not None and self.percs is not None:
+            self.trace.perceptions(self.percs.drain())
+            self.percs.close()
             self.trace.write(self.args.trace)
-        return {
-            "role": "dpa",
-            "robot": self.robot,
-            **self.counts,
-            "invalid_messages": self.invalid.total(),
-            "invalid_by_reason": dict(self.invalid.counts),
-        }
+        return self.summary()
+
+    def on_event(self, ev: EpisodeEvent) -> None:
+        if ev.event == "start":
+            self.counts["episodes"] += 1
+
+    def _on_prediction(self, msg: Any) -> None:
+        assert isinstance(msg, Prediction)
+        self.counts["predictions"] += 1
+        if msg.tick == self.last_tick:
+            self.counts["repeated_ticks"] += 1
+        self.last_tick = msg.tick
+        y = np.asarray(msg.mean)
+        put(self.pub, Command(self.robot, msg.tick, msg.t, y=y, source=self.source))
+        self.counts["commands"] += 1
+        if self.trace is not None and self.percs is not None:
+            self.trace.perceptions(self.percs.drain())
+            self.trace.command(msg.tick, y)
 
 
 class CommandTrace:
