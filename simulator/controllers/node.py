@@ -30,17 +30,9 @@ from protocols import Command, EpisodeEvent, Perception, Prediction, keys
 from protocols.aibo import DIMS
 from protocols.messages import Message
 from roger_daemon.tools.common import count, seconds
+from simulator import transport
 from simulator.sim_args import DAEMON_ENDPOINT, DEFAULT_LISTEN
-from simulator.transport import (
-    EPHEMERAL,
-    InvalidCounter,
-    StopFlag,
-    Subscription,
-    add_zenoh_args,
-    publisher,
-    put,
-    wait_for,
-)
+from simulator.transport import StopFlag, Subscription
 
 __all__ = ["NodeLoop", "PerceptionNode", "add_node_args", "hold"]
 
@@ -71,7 +63,8 @@ def add_node_args(parser: argparse.ArgumentParser, *, predictions: bool = True,
     parser.add_argument("--idle-exit", type=seconds, default=0.0,
                         help=f"exit after this many seconds without a {idle_of} (0: never)")
     parser.add_argument("--stats", default=None, help="write the exit counters (JSON) here")
-    add_zenoh_args(parser, listen=(EPHEMERAL,), connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
+    transport.add_zenoh_args(parser, listen=(transport.EPHEMERAL,),
+                             connect=(DEFAULT_LISTEN, DAEMON_ENDPOINT))
 
 
 def hold(x: np.ndarray) -> np.ndarray:
@@ -91,7 +84,7 @@ class NodeLoop:
         self.role = role
         self.log = log
         self.robot = keys.validate_robot_id(args.robot)
-        self.invalid = InvalidCounter(name or role)
+        self.invalid = transport.InvalidCounter(name or role)
         self.counts: dict[str, int] = {}
 
     def loop(self, inbox: Subscription, events: Subscription,
@@ -100,7 +93,7 @@ class NodeLoop:
         last_seen = time.monotonic()
         done = False
         while not self.stop.stopped and not done:
-            msg = wait_for(inbox.poll, 0.1, self.stop)
+            msg = transport.wait_for(inbox.poll, 0.1, self.stop)
             for ev in events.drain():
                 assert isinstance(ev, EpisodeEvent)
                 self.on_event(ev)
@@ -154,7 +147,7 @@ class PerceptionNode(NodeLoop):
         if predictions:
             self.preds = Subscription(session, self.robot, "prediction", DIMS, self.invalid,
                                       capacity=64)
-        self.pub_cmd = publisher(session, keys.command(self.robot))
+        self.pub_cmd = transport.publisher(session, keys.command(self.robot))
         self.loop(self.perc, self.events, self._on_message, "perception")
         for inbox in (self.perc, self.events, self.preds):
             if inbox is not None:
@@ -166,7 +159,7 @@ class PerceptionNode(NodeLoop):
         new_episode = msg.t == 0.0 and msg.tick != self.last_tick
         if not new_episode and msg.tick == self.last_tick and self.last_command is not None:
             self.counts["resent"] += 1
-            put(self.pub_cmd, self.last_command)
+            transport.put(self.pub_cmd, self.last_command)
             return
         if not new_episode and msg.tick < self.last_tick:
             self.counts["stale_perceptions"] += 1
@@ -177,7 +170,7 @@ class PerceptionNode(NodeLoop):
         self.last_tick = msg.tick
         cmd = self.command_for(msg)
         self.last_command = cmd
-        put(self.pub_cmd, cmd)
+        transport.put(self.pub_cmd, cmd)
         self.counts["commands"] += 1
 
     def prediction_for(self, msg: Perception) -> Prediction | None:
@@ -200,6 +193,7 @@ class PerceptionNode(NodeLoop):
             return c if 0 <= msg.tick - c.tick <= self.args.max_prediction_age else None
 
         if lockstep:
-            got: Prediction | None = wait_for(newest, self.args.prediction_timeout, self.stop)
+            timeout = self.args.prediction_timeout
+            got: Prediction | None = transport.wait_for(newest, timeout, self.stop)
             return got
         return newest()
