@@ -148,6 +148,10 @@ class RobotRuntime(RobotIntake):
             self._latency_ns = recv_ns
             self.latency.add(latency_ms)
 
+    def _dropped(self, tick: int, reason: str) -> None:
+        if self.decisions is not None:
+            self.decisions.dropped(self, tick, reason)
+
     def _label_code(self, label: str) -> int:
         code = self._vocab_index.get(label)
         if code is None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter, deque
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -27,23 +27,19 @@ from roger_daemon.daemon.pairing import LEARN_MODES, Pairing
 from roger_daemon.daemon.robot_state import Pair
 from roger_daemon.daemon.tick_gaps import TickGaps
 
-if TYPE_CHECKING:
-    from roger_daemon.daemon.robot import Decisions
-
 __all__ = ["RobotIntake"]
 
 log = logging.getLogger("roger_daemon.daemon.robot")  # the runtime's logger, as before the split
 
 
 class RobotIntake:
-    """Intake state and methods of a robot runtime (its ``robot``, ``mode``, ``queue_size``,
-    ``wal`` and ``decisions`` are the runtime's; ``_label_code`` its label vocabulary)."""
+    """Intake state and methods of a robot runtime (its ``robot``, ``mode``, ``queue_size`` and
+    ``wal`` are the runtime's, and so are ``_label_code`` and ``_dropped``)."""
 
     robot: str
     mode: str
     queue_size: int
     wal: Any
-    decisions: Decisions | None
 
     def _init_intake(self, robot: str, pair_window: int) -> None:
         """The intake's queue, pairing windows and counters, empty."""
@@ -70,6 +66,11 @@ class RobotIntake:
 
     def _label_code(self, label: str) -> int:
         """The code of ``label`` in the runtime's vocabulary (the runtime defines it)."""
+        raise NotImplementedError
+
+    def _dropped(self, tick: int, reason: str) -> None:
+        """Report a pair not queued to the runtime's ``decisions`` (the runtime defines it:
+        :class:`~roger_daemon.daemon.robot.Decisions` takes the runtime)."""
         raise NotImplementedError
 
     @property
@@ -151,10 +152,6 @@ class RobotIntake:
         self.queue.append(Pair(perc.x, act.y, self._label_code(act.label), act.tick, perc.t))
         self.sources[act.source] += 1
         self.corrections += bool(act.correction)
-
-    def _dropped(self, tick: int, reason: str) -> None:
-        if self.decisions is not None:
-            self.decisions.dropped(self, tick, reason)
 
     def enqueue_recovered(self, x: np.ndarray, y: np.ndarray, label: str, tick: int) -> None:
         """Queue a pair read back from the session log (start-up recovery; no size limit)."""
