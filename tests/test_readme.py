@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import json
 import re
 import shlex
 import subprocess
@@ -222,3 +223,20 @@ def test_the_architecture_map_is_the_import_structure() -> None:
                     upward.append(f"{module} -> {target}")
     assert unplaced == [], f"modules the README's map does not place: {unplaced}"
     assert upward == [], "imports that go up the README's map:\n" + "\n".join(sorted(upward))
+
+
+def test_the_results_tables_are_the_commands_output() -> None:
+    """The README's results (between its ``results`` markers) are ``roger experiment table``'s
+    output for the files the block names, not typed by hand."""
+    from simulator.experiment.table import markdown, peers_table
+
+    text = README.read_text(encoding="utf-8")
+    block = text[text.index("<!-- results:begin -->"):text.index("<!-- results:end -->")]
+    tables = "\n".join(line for line in block.splitlines() if line.startswith("|"))
+    figures = ROOT / "docs" / "figures"
+    results = json.loads((figures / "streams" / "results.json").read_text())
+    peers = [json.loads((figures / "peers" / f"results-{p}.json").read_text())
+             for p in ("act", "diffusion")]
+    assert "docs/figures/streams/results.json" in block
+    expected = markdown(results) + "\n" + peers_table(peers)
+    assert tables == expected

@@ -38,9 +38,12 @@ def _share(text: str) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     """Compile every kernel family in ``--processes`` child processes (or, with the internal
     ``--share I/N``, this process's share); exit 1 if a child failed."""
-    from roger_daemon.learner.engine.jit_warm import WARMERS, warm
+    from roger_daemon.fsm import jit_fsm
+    from roger_daemon.learner.engine.jit_warm import ALSO_WITH_THE_REST, WARMERS, warm
 
     if args.share is not None:
+        if jit_fsm.warm not in ALSO_WITH_THE_REST:  # the learned transitions' kernels
+            ALSO_WITH_THE_REST.append(jit_fsm.warm)
         warm(*_share(args.share))
         return 0
     require(args.processes is None or args.processes >= 1, "--processes", "an integer >= 1",

@@ -110,7 +110,8 @@ def _warm_resampling() -> None:
 
 def _warm_the_rest() -> None:
     """Copies, the packed helpers, the small experts' kernels, the gates and the lineages; the
-    learned transitions' kernels (:mod:`roger_daemon.fsm.jit_fsm`)."""
+    learned transitions' kernels (:mod:`roger_daemon.fsm.jit_fsm`, added to
+    :data:`ALSO_WITH_THE_REST` by ``roger compile``: the engine imports nothing above it)."""
     from roger_daemon.learner.engine import jit_batch as bk
     from roger_daemon.learner.engine import jit_cholesky as chk
     from roger_daemon.learner.engine import jit_kernels as k
@@ -164,10 +165,12 @@ def _warm_the_rest() -> None:
     bk.copy_batch(padded([sym], 0), padded([sym.copy()], 0), 1,
                   np.zeros(1, dtype=np.int64), 1)
     bk.balanced_owners(np.array([-1, 0]), np.array([1, 2]), 2, True)
-    from roger_daemon.fsm import jit_fsm
+    for warmer in ALSO_WITH_THE_REST:  # kernels of the layers above (roger compile adds them)
+        warmer()
 
-    jit_fsm.warm()  # the learned transitions' kernels (roger+fsm, roger play)
 
+#: warmers of compiled kernels outside the learner, run with the rest's family
+ALSO_WITH_THE_REST: list[Callable[[], None]] = []
 
 #: the families and what compiling each took on a cold cache, in seconds (2-core AMD EPYC, one
 #: process, 2026-11-28: 58 s in all; the learned transitions' kernels 3.8 s more, 2026-12-02 at
