@@ -1,5 +1,8 @@
 """The message types of the ROGER wire (frozen dataclasses), their limits, and ``encode``.
 
+A prediction's bytes without the dataclasses (a learner worker's fast path) are in
+:mod:`protocols.prediction_bytes`.
+
 The field tables live in ``protocols/README.md``; decoding and validation are in
 :mod:`protocols.decoding`; :mod:`protocols.messages` has both. Each field's description and
 constraints sit next to it (``field(metadata=spec(...))``, :mod:`protocols.field_specs`), and
@@ -10,17 +13,16 @@ them (``roger_daemon.recording.schemas``).
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-import msgpack
 import numpy as np
 import numpy.typing as npt
 
 from protocols.field_specs import spec
 from protocols.keys import ROBOT_ID_PATTERN
-from protocols.packing import packb, walker
+from protocols.packing import packb
 
 __all__ = [
     "CONTROL_OPS",
@@ -47,12 +49,10 @@ __all__ = [
     "FloatArray",
     "as_vector",
     "encode",
-    "encode_prediction",
     "expert_output_map",
     "header_map",
     "now_ns",
     "prediction_body",
-    "stamp_prediction",
 ]
 
 SCHEMA_VERSION = 1
@@ -374,68 +374,3 @@ def prediction_body(mean: Any, var: Any, expert: int, multimap: list[dict[str, A
     return {"mean": _float_list(mean), "var": _float_list(var), "expert": int(expert),
             "multimap": multimap, "latency_ms": float(latency_ms), "mode": mode,
             "updates": int(updates)}
-
-
-ExpertRow = tuple[int, float, Any, Any, int, str]
-
-
-def encode_prediction(robot: str, tick: int, t: float, *, mean: Any, var: Any, expert: int,
-                      multimap: Iterable[ExpertRow], updates: int,
-                      mode: str = "learn+predict", latency_ms: float = 0.0,
-                      stamp_ns: int | None = None) -> bytes:
-    """``encode(Prediction(...))`` without building the dataclasses, the same bytes
-    (tested): each ``multimap`` row is an :class:`ExpertOutput`'s fields in order. For a
-    publisher's own model outputs (a learner worker's reply, ~0.15 ms less per prediction with
-    13 experts); like the dataclass it checks nothing (``decode`` validates)."""
-    body = prediction_body(mean, var, expert, [expert_output_map(*row) for row in multimap],
-                           latency_ms, mode, updates)
-    head = header_map(robot, tick, t, now_ns() if stamp_ns is None else stamp_ns)
-    return packb({**head, **body})
-
-
-_PREDICTION_FIELDS = frozenset({"v", "robot", "tick", "stamp_ns", "mean", "var", "expert",
-                                "multimap", "latency_ms", "mode", "updates"})
-
-
-def stamp_prediction(payload: bytes, *, robot: str, tick: int, latency_ms: float, mode: str,
-                     stamp_ns: int) -> bytes:
-    """Fill the fields a publisher sets at publish time (``latency_ms``, ``mode``,
-    ``stamp_ns``) in a prediction this process's own code encoded with :func:`encode` (a
-    learner worker's reply): the same bytes as decoding, ``dataclasses.replace`` and encoding
-    again, without validating every vector a second time. Not for payloads from the network
-    (use ``decode``). Raises ``ValueError`` if ``payload`` is not a prediction of ``robot``'s
-    ``tick``.
-
-    The map is walked, not decoded: the encodings of the three fields are replaced and every
-    other value's bytes are kept as they are (msgpack encodes a value one way, so re-encoding
-    them would give the same bytes), a quarter of the time of decoding and encoding a
-    prediction with 13 experts."""
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
-    stamped = {"latency_ms": float(latency_ms), "mode": mode, "stamp_ns": int(stamp_ns)}
-    expected = {"robot": robot, "tick": tick}
-    walk = walker(payload)
-    parts: list[bytes] = []
-    seen: set[Any] = set()
-    kept_from = 0
-    try:
-        for _ in range(walk.read_map_header()):
-            key = walk.unpack()
-            seen.add(key)
-            if key in stamped:
-                parts.append(payload[kept_from:walk.tell()])
-                walk.skip()
-                kept_from = walk.tell()
-                parts.append(packb(stamped[key]))
-            elif key in expected:
-                if walk.unpack() != expected[key]:
-                    raise ValueError(key)
-            else:
-                walk.skip()
-        complete = walk.tell() == len(payload)
-    except (ValueError, TypeError, msgpack.UnpackException):  # OutOfData is not a ValueError
-        complete = False
-    if not complete or not _PREDICTION_FIELDS <= seen:
-        raise ValueError(f"not the prediction of {robot} tick {tick}")
-    parts.append(payload[kept_from:])
-    return b"".join(parts)

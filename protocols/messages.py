@@ -33,10 +33,9 @@ from protocols.message_types import (
     Prediction,
     Status,
     encode,
-    encode_prediction,
     now_ns,
-    stamp_prediction,
 )
+from protocols.prediction_bytes import encode_prediction, stamp_prediction
 
 __all__ = [
     "CONTROL_OPS",

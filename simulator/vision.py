@@ -34,6 +34,16 @@ from protocols.aibo import COLOURS, NOT_SEEN
 from simulator.bullet import p
 from simulator.config import CameraConfig, VisionNoiseConfig
 from simulator.linalg3 import dot3, norm3, rows_dot3
+from simulator.vision_patches import (
+    CYL_OFFS,
+    DISC,
+    UP,
+    Patches,
+    box_patches,
+    concat_patches,
+    cross3,
+    no_patches,
+)
 from simulator.world import World
 
 __all__ = ["FastVision", "RenderedVision", "Vision", "apply_noise", "make_vision"]
@@ -135,50 +145,7 @@ class RenderedVision(Vision):
         return out
 
 
-# --- fast analytic path ---------------------------------------------------------------------
-
-_DISC = np.array(
-    [(0.0, 0.0)] + [(0.68 * math.cos(a), 0.68 * math.sin(a)) for a in np.arange(6) * math.pi / 3]
-)  # 7 equal-area-ish samples of the unit disc
-
-
-def _box_patches(
-    centre: tuple[float, float, float], half: tuple[float, float, float], spacing: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Patch centres, outward normals and areas on the four vertical faces of a box."""
-    pts, nrm, area = [], [], []
-    c = np.asarray(centre)
-    hx, hy, hz = half
-    for axis, other, h_n, h_o in ((0, 1, hx, hy), (1, 0, hy, hx)):
-        for sign in (-1.0, 1.0):
-            n_o = max(1, round(2 * h_o / spacing))
-            n_z = max(1, round(2 * hz / spacing))
-            for i in range(n_o):
-                for j in range(n_z):
-                    q = c.copy()
-                    q[axis] += sign * h_n
-                    q[other] += -h_o + (i + 0.5) * 2 * h_o / n_o
-                    q[2] += -hz + (j + 0.5) * 2 * hz / n_z
-                    n = np.zeros(3)
-                    n[axis] = sign
-                    pts.append(q)
-                    nrm.append(n)
-                    area.append((2 * h_o / n_o) * (2 * hz / n_z))
-    return np.array(pts), np.array(nrm), np.array(area)
-
-
-def _cross3(a: tuple[float, ...], b: tuple[float, ...]) -> np.ndarray:
-    """``np.cross`` of two 3-vectors with the same operations in the same order (bit-equal)."""
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
-
-
-_UP = (0.0, 0.0, 1.0)
-_CYL_OFFS = [(s, t) for s in (-2 / 3, 0.0, 2 / 3) for t in (-0.5, 0.5)]
-
-Patches = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-
+# --- fast analytic path (its surface patches: simulator/vision_patches.py) ------------------
 
 class FastVision(Vision):
     """Analytic projection of surface patches with ray-cast occlusion (no rendering).
@@ -195,7 +162,7 @@ class FastVision(Vision):
         super().__init__(world, cam)
         self.spacing = spacing
         self._static_for: tuple[int, ...] = ()
-        self._static: Patches = _no_patches()
+        self._static: Patches = no_patches()
         self._dyn_for: list[Any] | None = None
         self._fn2 = self.fn**2
 
@@ -204,12 +171,12 @@ class FastVision(Vision):
         parts: list[Patches] = []
         for k, ins in enumerate(self.world.instances):
             if ins.shape == "boxes":
-                boxes = [_box_patches(c, h, self.spacing) for c, h in ins.boxes]
+                boxes = [box_patches(c, h, self.spacing) for c, h in ins.boxes]
                 a = np.concatenate([q[2] for q in boxes])
                 parts.append((np.concatenate([q[0] for q in boxes]),
                               np.concatenate([q[1] for q in boxes]), a,
                               np.full(len(a), k), np.full(len(a), 0.01)))
-        self._static = _concat(parts)
+        self._static = concat_patches(parts)
         self._static_for = tuple(i.body for i in self.world.instances)
 
     def _prepare_dynamic(self) -> None:
@@ -224,11 +191,11 @@ class FastVision(Vision):
         self._cyl_k = np.array([k for k, _ in cyl], dtype=np.int64)
         self._cyl_c = np.array([np.asarray(i.centre) for _, i in cyl], dtype=np.float64)
         self._cyl_c = self._cyl_c.reshape(-1, 3)
-        self._cyl_sr = np.array([[s * i.radius for s, _ in _CYL_OFFS] for _, i in cyl])
+        self._cyl_sr = np.array([[s * i.radius for s, _ in CYL_OFFS] for _, i in cyl])
         self._cyl_off = np.array(
-            [[[0, 0, t * i.half_height * 2] for _, t in _CYL_OFFS] for _, i in cyl]
-        ).reshape(-1, len(_CYL_OFFS), 3)
-        n = len(_CYL_OFFS)
+            [[[0, 0, t * i.half_height * 2] for _, t in CYL_OFFS] for _, i in cyl]
+        ).reshape(-1, len(CYL_OFFS), 3)
+        n = len(CYL_OFFS)
         self._cyl_a = np.array([np.full(n, 4 * i.radius * i.half_height / n) for _, i in cyl])
         self._cyl_e = np.array([np.full(n, i.radius + 0.01) for _, i in cyl])
         self._cyl_own = np.array([np.full(n, k) for k, _ in cyl], dtype=np.int64)
@@ -239,7 +206,7 @@ class FastVision(Vision):
     def _cylinder_patches(self, eye: np.ndarray) -> Patches:
         """Six patches per beacon band facing the camera, bands in instance order."""
         if len(self._cyl_k) == 0:
-            return _no_patches()
+            return no_patches()
         dh = self._cyl_c - eye
         dh[:, 2] = 0.0
         nh = np.array([norm3(row) for row in dh])  # = np.linalg.norm per row, BLAS-free
@@ -255,7 +222,7 @@ class FastVision(Vision):
         perp[:, 1] = dh[:, 0]
         q = c[:, None, :] + sr[:, :, None] * perp[:, None, :]
         q += off
-        nrm = np.repeat(-dh, len(_CYL_OFFS), axis=0)
+        nrm = np.repeat(-dh, len(CYL_OFFS), axis=0)
         return q.reshape(-1, 3), nrm, area.ravel(), own.ravel(), ext.ravel()
 
     def _sphere_patches(self, eye: np.ndarray) -> list[Patches]:
@@ -268,14 +235,14 @@ class FastVision(Vision):
             if dist <= r:
                 continue
             dn = d / dist
-            u = _cross3(tuple(dn.tolist()), _UP)
+            u = cross3(tuple(dn.tolist()), UP)
             nu = norm3(u)
             if nu < 1e-6:
                 u = np.array([1.0, 0.0, 0.0])
                 nu = norm3(u)
             u /= nu
-            v = _cross3(tuple(u.tolist()), tuple(dn.tolist()))
-            q = centre + r * (_DISC[:, :1] * u + _DISC[:, 1:] * v)
+            v = cross3(tuple(u.tolist()), tuple(dn.tolist()))
+            q = centre + r * (DISC[:, :1] * u + DISC[:, 1:] * v)
             m = len(q)
             out.append((q, np.repeat(-dn[None, :], m, axis=0), np.full(m, math.pi * r * r / m),
                         np.full(m, k), np.full(m, r + 0.01)))
@@ -289,7 +256,7 @@ class FastVision(Vision):
         if self._dyn_for is not self.world.instances:
             self._prepare_dynamic()
         parts = [self._static, self._cylinder_patches(eye), *self._sphere_patches(eye)]
-        out = _concat(parts)
+        out = concat_patches(parts)
         if self._dyn_sorted:
             return out
         n = len(self._static[0])
@@ -363,20 +330,6 @@ class FastVision(Vision):
             best[ins.cls] = frac
             out[ins.cls] = (sum_x[k] / seen_area[k], sum_y[k] / seen_area[k], math.sqrt(frac))
         return out
-
-
-def _no_patches() -> Patches:
-    z3 = np.zeros((0, 3))
-    z1 = np.zeros(0)
-    return z3, z3, z1, z1.astype(np.int64), z1
-
-
-def _concat(parts: list[Patches]) -> Patches:
-    """Row-wise concatenation of patch sets (owner as int64)."""
-    if not parts:
-        return _no_patches()
-    pts, nrm, area, owner, ext = (np.concatenate(c) for c in zip(*parts, strict=True))
-    return pts, nrm, area, owner.astype(np.int64), ext
 
 
 def make_vision(world: World, cam: CameraConfig, kind: str) -> Vision:

@@ -15,7 +15,8 @@ import pytest
 
 from protocols.messages import Dims
 from roger_daemon.learner import Roger, RogerParams, UnimapGP
-from simulator.experiment.goal_scoring import configure, learner_params, plan_from_args
+from simulator.experiment.goal_plan import configure, plan_from_args
+from simulator.experiment.goal_scoring import learner_params
 from simulator.experiment.jobs import EpisodeJob, load_finished
 from simulator.experiment.metrics import majority_labels
 from simulator.experiment.report import check_results

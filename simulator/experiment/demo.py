@@ -42,7 +42,7 @@ from simulator.experiment.demo_play import (
     play_rows,
     play_summary,
 )
-from simulator.experiment.goal_scoring import DEFAULT_TIME_LIMIT
+from simulator.experiment.goal_plan import DEFAULT_TIME_LIMIT
 
 __all__ = ["MERGED_MEANING", "OUTCOME_MEANING", "configure", "run"]
 

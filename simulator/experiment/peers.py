@@ -125,7 +125,7 @@ def _positive(n: int) -> int:
 
 def _plan(args: argparse.Namespace) -> Any:
     """goal-scoring's plan for the same demonstrations and evaluation seeds."""
-    from simulator.experiment.goal_scoring import plan_from_args
+    from simulator.experiment.goal_plan import plan_from_args
 
     quick = bool(args.smoke)
     ns = argparse.Namespace(

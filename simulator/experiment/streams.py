@@ -61,7 +61,7 @@ def parse_streams(text: str) -> tuple[int, ...]:
 
 def stream_plan(plan: Any, stream: int) -> Any:
     """The single-stream plan of demonstration stream ``stream`` (as ``--seed stream``)."""
-    from simulator.experiment.goal_scoring import derived_seeds
+    from simulator.experiment.goal_plan import derived_seeds
 
     return replace(plan, seed=stream, seeds=derived_seeds(stream), streams=(),
                    out=plan.out / f"stream-{stream}", in_process=True)
