@@ -25,7 +25,7 @@ pytestmark = pytest.mark.integration
 
 ROOT = Path(__file__).resolve().parents[1]
 ROLES = Path(__file__).with_name("zenoh_stall_roles.py")
-SECONDS = 14.0
+SECONDS = 8.0  # bursts at 0, 2, 4, 6 s: a stalled router's 5 s gap fits
 
 
 def _role(role: str, endpoint: str, seconds: float) -> subprocess.Popen[str]:
@@ -56,7 +56,7 @@ def test_a_block_burst_to_a_busy_subscriber_does_not_stall_the_router(tmp_path: 
         router.stop()
     report = json.loads(out.strip().splitlines()[-1])
     sent, got = report["sent"], report["got"]
-    assert sent > 200  # the stream ran (30 Hz for 14 s: ~400)
+    assert sent > 150  # the stream ran (30 Hz for 8 s: ~240)
     # generous margins: a stalled router lost ~50 % and went 5 s without delivering
     assert got >= 0.9 * sent, report
     assert report["max_gap_s"] < 2.5, report
