@@ -12,8 +12,8 @@ from __future__ import annotations
 DAEMON = (
     ("roger_daemon.daemon.service.loop", "Service.step", "step"),
     ("roger_daemon.daemon.service.loop", "Service._commit_all", "commit_all"),
-    ("roger_daemon.daemon.service.status", "robot_status", "status_robot"),
-    ("roger_daemon.daemon.service.loop", "publish_status", "status"),
+    ("roger_daemon.daemon.service.status", "StatusPublisher.robot_status", "status_robot"),
+    ("roger_daemon.daemon.service.status", "StatusPublisher.publish", "status"),
     ("roger_daemon.daemon.service.recording", "Recorders.write_held", "recording_writes"),
     ("roger_daemon.recording.writer", "SessionRecorder.flush", "recorder_flush"),
     ("roger_daemon.daemon.service.checkpoints", "Checkpoints.write", "checkpoint_take"),

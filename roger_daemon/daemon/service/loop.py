@@ -54,15 +54,7 @@ from roger_daemon.daemon.service.outbox import Outbox
 from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
 from roger_daemon.daemon.service.schedule import LoopStats, TickSchedule
 from roger_daemon.daemon.service.shutdown import abort, shutdown
-from roger_daemon.daemon.service.status import (
-    StatusRound,
-    invalid_counts,
-    publish_status,
-    quiet_moment,
-    robot_status,
-    status_deadline,
-    status_due,
-)
+from roger_daemon.daemon.service.status import StatusParts, StatusPublisher, invalid_counts
 from roger_daemon.daemon.standby import Replication
 from roger_daemon.transport import Inbox, Incoming, Transport
 
@@ -132,11 +124,7 @@ class Service:
         self.answers = Answers(self.outbox, self.clock, self.stats, self._commit_all)
         self.schedule = TickSchedule(int(round(1e9 / config.rate_hz)), self.stats)
         self._commit_ns = int(config.checkpoint.wal_commit_ms * _MS)
-        self._status_period_ns = int(round(1e9 / config.status_hz))
         self._realtime = config.clock == "realtime"
-        self._next_status = 0
-        self.status_round = StatusRound()
-        self.started_ns = 0
         self._stop = False
         #: set once started (gc_policy.hold_collections): collect at quiet moments only
         self.gc_thresholds: Thresholds | None = None
@@ -153,13 +141,23 @@ class Service:
         self.acks = self.controls.acks
         #: which robots this daemon serves and which it follows (docs/daemon.md, Hot standby)
         self.replication = Replication(self)
+        #: the status schedule and messages (status.StatusPublisher)
+        self.status = StatusPublisher(
+            config, self.robots, timer_active=self._timer_active, commit=self._commit,
+            commit_all=self._commit_all, parts=StatusParts(
+                stats=self.stats, inbox=self.inbox, schedule=self.schedule,
+                learners=self.learners, checkpoints=self.checkpoints,
+                recorders=self.recorders, link=self.link, health=self.health,
+                acks=self.acks, resumed=self.resumed, unserved=lambda: self.unserved,
+                replication_info=self.replication.info, transport=self.transport,
+                outbox=self.outbox, notifier=self.notifier))
 
     # --- life cycle ----------------------------------------------------------------------
 
     def start(self) -> None:
         """Declare publishers, subscribers and the liveliness token; then READY=1."""
         now = self.clock.monotonic_ns()
-        self.started_ns = now
+        self.status.start(now)
         self.outbox.declare(self.transport, self.robots)
         # One subscriber (one callback thread) for everything: samples from one sender keep
         # their order (action(t) before perception(t+1)), which lockstep determinism needs.
@@ -176,7 +174,6 @@ class Service:
             self._committer = ThreadPoolExecutor(max_workers=min(8, len(self.robots)),
                                                  thread_name_prefix="roger-wal")
         self.schedule.start(now)
-        self._next_status = now + self._status_period_ns
         for rt in self.robots.values():  # the baseline that health changes are judged from
             self.health[rt.robot].assess(self.status_of(rt, now).to_map(), now)
         summary = ", ".join(
@@ -247,14 +244,14 @@ class Service:
         self.learners.learn(now, self._tick_deadline())
         now = self.clock.monotonic_ns()
         self.replication.poll(now)
-        if status_due(self, now):  # one robot's at a time (status.StatusRound)
-            publish_status(self, now)
+        if self.status.due(now):  # one robot's at a time (status.StatusRound)
+            self.status.publish(now)
         for rt in self.robots.values():
             if rt.wal is not None:  # due: now; else started in the background (docs/durability)
                 rt.wal.commit_early(now, self._commit_ns, self._committer)
                 rt.wal.poll_space(now)  # a full disk: space again? (docs/durability.md)
         # work that can wait for a quiet moment (docs/fleet.md, *Work at quiet moments*)
-        quiet = quiet_moment(self, self.clock.monotonic_ns())
+        quiet = self.status.quiet_moment(self.clock.monotonic_ns())
         self.checkpoints.poll(now, quiet, lambda rt: self._checkpoint(rt, "periodic"))
         self.recorders.poll(self.clock.monotonic_ns, quiet=quiet)
         self.notifier.watchdog(now)
@@ -281,7 +278,7 @@ class Service:
         self.learners.new_tick(self.schedule.next_tick, published=published)
 
     def _next_deadline(self, now: int) -> int:
-        deadline = status_deadline(self, now)
+        deadline = self.status.deadline(now)
         if self._realtime and self._timer_active():
             deadline = min(deadline, self.schedule.next_tick)
         wake = self.learners.wake_ns()
@@ -326,7 +323,7 @@ class Service:
 
     def status_of(self, rt: RobotRuntime, now: int) -> Status:
         """The status message of one robot at ``now`` (monotonic ns)."""
-        return robot_status(self, rt, now)
+        return self.status.robot_status(rt, now)
 
     # --- checkpoints and recording ---------------------------------------------------------
 
