@@ -3,6 +3,7 @@ host has the models, so it has no mode branches."""
 
 from __future__ import annotations
 
+import ast
 import inspect
 import re
 from pathlib import Path
@@ -46,6 +47,30 @@ def test_the_daemon_never_asks_which_host_it_has() -> None:
     loop = (DAEMON / "service" / "loop.py").read_text()
     for gone in ("_learn_once", "_can_learn", "_learned_since_tick", "_learn_est_ns"):
         assert gone not in loop, gone
+
+
+def _takes_the_service(source: str) -> list[str]:
+    """The top-level functions of ``source`` whose first parameter is annotated ``Service``."""
+    hits = []
+    for node in ast.parse(source).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            params = [*node.args.posonlyargs, *node.args.args]
+            note = params[0].annotation if params else None
+            if note is not None and ast.unparse(note).strip("'\"").endswith("Service"):
+                hits.append(node.name)
+    return hits
+
+
+def test_no_service_part_is_a_free_function_of_the_service() -> None:
+    """The service's parts are objects built with what they need (issue 58): no module of the
+    service but its loop has a free function that is handed the whole ``Service``."""
+    assert _takes_the_service("def f(svc: Service, now: int) -> None: ...") == ["f"]
+    assert _takes_the_service("def f(svc: 'loop.Service') -> None: ...") == ["f"]
+    assert _takes_the_service("def f(rt: RobotRuntime, svc: Service) -> None: ...") == []
+    hits = [f"{path.name}: {name}" for path in sorted((DAEMON / "service").glob("*.py"))
+            if path.name != "loop.py"
+            for name in _takes_the_service(path.read_text())]
+    assert not hits, hits
 
 
 def test_inline_learners_refuse_to_answer_before_attach() -> None:

@@ -53,7 +53,7 @@ from roger_daemon.daemon.service.link import LinkWatch
 from roger_daemon.daemon.service.outbox import Outbox
 from roger_daemon.daemon.service.recording import DecisionLog, Recorder, Recorders
 from roger_daemon.daemon.service.schedule import LoopStats, TickSchedule
-from roger_daemon.daemon.service.shutdown import abort, shutdown
+from roger_daemon.daemon.service.shutdown import Shutdown
 from roger_daemon.daemon.service.status import StatusParts, StatusPublisher, invalid_counts
 from roger_daemon.daemon.standby import Replication
 from roger_daemon.transport import Inbox, Incoming, Transport
@@ -128,7 +128,6 @@ class Service:
         self._stop = False
         #: set once started (gc_policy.hold_collections): collect at quiet moments only
         self.gc_thresholds: Thresholds | None = None
-        self._stopping = False
         # where the models live (learner_host.Learners): the loop's own thread, or worker
         # processes (roger_daemon.daemon.learners.ProcessLearners)
         self.learners: Learners = learners or InlineLearners(self.robots)
@@ -151,6 +150,13 @@ class Service:
                 acks=self.acks, resumed=self.resumed, unserved=lambda: self.unserved,
                 replication_info=self.replication.info, transport=self.transport,
                 outbox=self.outbox, notifier=self.notifier))
+        #: the way out (shutdown.Shutdown); ``stopping`` once it began
+        self.closer = Shutdown(
+            config.checkpoint, self.robots, notifier=self.notifier, transport=transport,
+            inbox=self.inbox, checkpoints=self.checkpoints, learners=self.learners,
+            recorders=self.recorders, handle=self._handle,
+            checkpoint=lambda rt, reason: self._checkpoint(rt, reason, sync=True),
+            committer=lambda: self._committer)
 
     # --- life cycle ----------------------------------------------------------------------
 
@@ -204,7 +210,7 @@ class Service:
 
     def abort(self) -> None:
         """Close everything without checkpointing (after an unexpected error in the loop)."""
-        abort(self)
+        self.closer.abort()
 
     @property
     def final_checkpoints_ok(self) -> bool:
@@ -272,7 +278,7 @@ class Service:
         robot (inline computed now; workers prepared them as the perceptions arrived:
         docs/fleet.md, *Prepared predictions*)."""
         due = [rt for rt in self.robots.values()
-               if rt.predicting and rt.newest is not None and not self._stopping]
+               if rt.predicting and rt.newest is not None and not self.closer.stopping]
         published = self.learners.publish_tick(due)
         self.schedule.fired(now, bool(due))
         self.learners.new_tick(self.schedule.next_tick, published=published)
@@ -304,7 +310,7 @@ class Service:
             self.replication.take(rt, msg, item.recv_ns)
         elif isinstance(msg, Perception):
             rt.on_perception(msg, item.recv_ns)
-            if rt.predicting and not self._stopping:
+            if rt.predicting and not self.closer.stopping:
                 if not self._realtime:  # lockstep: its complete pairs learned first, so
                     # prediction(t+1) includes pair t when action(t) came first (and no pair
                     # that came after it: the causal order of a lock-stepped simulator)
@@ -376,4 +382,4 @@ class Service:
 
     def shutdown(self) -> None:
         """Stop intake, drain, learn what fits, checkpoint, close recorders and transport."""
-        shutdown(self)
+        self.closer.shutdown()
