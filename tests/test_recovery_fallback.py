@@ -10,7 +10,7 @@ from pathlib import Path
 
 from test_recovery import Life, assert_same, make_cfg, reference
 
-from roger_daemon.daemon.checkpoint import list_checkpoints, read_checkpoint
+from roger_daemon.daemon.checkpoint import Checkpoint, list_checkpoints, read_checkpoint
 from roger_daemon.daemon.wal import read_log, segments, wal_dir
 
 
@@ -73,16 +73,22 @@ def test_without_the_recordings_the_lost_pair_is_named_and_the_rest_kept(tmp_pat
     b.stop()
 
 
-def test_two_unreadable_checkpoints_fall_back_to_the_third_and_lose_nothing(
-        tmp_path: Path) -> None:
+def _two_newest_spoiled(tmp_path: Path) -> tuple[Path, list[Path], Checkpoint]:
+    """A life of 100 pairs (checkpoints every 20, 5 kept) killed; its two newest checkpoints
+    unreadable: the next life's logs, the checkpoints and the third one read."""
     a = Life(make_cfg(tmp_path, tmp_path / "logs1", wal=True))
-    a.pairs(range(100))  # checkpoints every 20 pairs, 5 kept
+    a.pairs(range(100))
     a.flush()
     logs2 = a.crash(tmp_path / "logs2")
     ckpts = list_checkpoints(tmp_path / "ckpt", "sim")
     for p in ckpts[:2]:
         _spoil(p)
-    third = read_checkpoint(ckpts[2])
+    return logs2, ckpts, read_checkpoint(ckpts[2])
+
+
+def test_two_unreadable_checkpoints_fall_back_to_the_third_and_lose_nothing(
+        tmp_path: Path) -> None:
+    logs2, ckpts, third = _two_newest_spoiled(tmp_path)
     b = Life(make_cfg(tmp_path, logs2, wal=True))
     assert b.rt.updates == 100
     assert_same(b.rt.model, reference(list(range(100))))
@@ -96,14 +102,7 @@ def test_two_unreadable_checkpoints_fall_back_to_the_third_and_lose_nothing(
 
 def test_a_log_pruned_past_the_fallback_checkpoint_is_filled_from_the_recordings(
         tmp_path: Path) -> None:
-    a = Life(make_cfg(tmp_path, tmp_path / "logs1", wal=True))
-    a.pairs(range(100))
-    a.flush()
-    logs2 = a.crash(tmp_path / "logs2")
-    ckpts = list_checkpoints(tmp_path / "ckpt", "sim")
-    for p in ckpts[:2]:
-        _spoil(p)
-    third = read_checkpoint(ckpts[2])
+    logs2, ckpts, third = _two_newest_spoiled(tmp_path)
     assert third.meta.wal_seq is not None
     d = wal_dir(tmp_path / "ckpt", "sim")
     segs = segments(d)
