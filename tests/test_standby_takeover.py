@@ -26,6 +26,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -178,6 +179,38 @@ def test_kill_9_of_the_primary_the_standby_serves_on_with_every_pair(
     assert "took over from prim" in spare.log() and "took over from spare" in back.log()
 
 
+def _take_over_via(tmp_path: Path, via: dict[str, Any],
+                   client_of: Callable[[], RobotClient],
+                   followed_of: Callable[[RobotClient], dict[str, Any]],
+                   ) -> tuple[dict[str, Any], Sender, str]:
+    """Primary ``prim`` and standby ``spare`` connected ``via`` a router: 20 ticks, the
+    standby's status info (``followed_of``), ``kill -9`` of the primary, 10 more ticks; the
+    status info, the sender and the standby's log."""
+    procs = []
+    client = None
+    try:
+        procs.append(harness.DaemonProcess(_config(tmp_path, "prim", 0, 0, zenoh=via)))
+        procs[0].wait_ready()
+        procs.append(harness.DaemonProcess(_config(tmp_path, "spare", 0, 0, zenoh=via,
+                                                   role="standby")))
+        procs[1].wait_ready()
+        client = client_of()
+        client.wait_daemon(30)
+        sender = Sender(client, 30)
+        for t in range(20):
+            sender.tick(t)
+        followed = followed_of(client)
+        procs[0].proc.kill()
+        for t in range(20, 30):
+            sender.tick(t)
+    finally:
+        for proc in procs:
+            proc.kill()
+        if client is not None:
+            client.close()
+    return followed, sender, procs[1].log()
+
+
 def test_the_standby_takes_over_through_the_acl_router(tmp_path: Path) -> None:
     """Both daemons and the robot clients of ``roger router`` with
     configs/zenoh/router-acl.json5: its rules let the decision records and the active tokens
@@ -187,33 +220,17 @@ def test_the_standby_takes_over_through_the_acl_router(tmp_path: Path) -> None:
     port = harness.free_port()
     router = Router(ROOT / "configs/zenoh/router-acl.json5", port, tmp_path / "router.log")
     via = {"mode": "client", "connect": [f"tcp/127.0.0.1:{port}"], "listen": []}
-    procs = []
-    client = None
     try:
-        procs.append(harness.DaemonProcess(_config(tmp_path, "prim", 0, 0, zenoh=via)))
-        procs[0].wait_ready()
-        procs.append(harness.DaemonProcess(_config(tmp_path, "spare", 0, 0, zenoh=via,
-                                                   role="standby")))
-        procs[1].wait_ready()
-        client = RobotClient(f"tcp/127.0.0.1:{port}", robot="sim", dims=DIMS, mode="client")
-        client.wait_daemon(30)
-        sender = Sender(client, 30)
-        for t in range(20):
-            sender.tick(t)
-        followed = _status(port, "spare")["info"]
-        procs[0].proc.kill()
-        for t in range(20, 30):
-            sender.tick(t)
+        followed, sender, log = _take_over_via(
+            tmp_path, via,
+            lambda: RobotClient(f"tcp/127.0.0.1:{port}", robot="sim", dims=DIMS, mode="client"),
+            lambda _client: _status(port, "spare")["info"])
     finally:
-        for proc in procs:
-            proc.kill()
-        if client is not None:
-            client.close()
         router.stop()
     assert followed["role"] == "standby" and followed["standby_in_sync"]
     assert followed["standby_followed"] == 20 and followed["standby_syncs"] == 1
     assert sender.answers == {t: t + 1 for t in range(30)}
-    assert "took over from prim" in procs[1].log()
+    assert "took over from prim" in log
 
 
 def test_the_standby_takes_over_in_the_secure_deployment(tmp_path: Path) -> None:
@@ -224,31 +241,16 @@ def test_the_standby_takes_over_in_the_secure_deployment(tmp_path: Path) -> None
     dep = Deployment(tmp_path)
     via = {"config_file": dep.client_file("daemon"), "mode": "client",
            "connect": [dep.endpoint], "listen": []}
-    procs = []
-    client = None
     try:
-        procs.append(harness.DaemonProcess(_config(tmp_path, "prim", 0, 0, zenoh=via)))
-        procs[0].wait_ready()
-        procs.append(harness.DaemonProcess(_config(tmp_path, "spare", 0, 0, zenoh=via,
-                                                   role="standby")))
-        procs[1].wait_ready()
-        client = RobotClient(dep.endpoint, robot="sim", dims=DIMS, mode="client",
-                             zenoh_config=str(dep.client_file("robot")))
-        client.wait_daemon(30)
-        sender = Sender(client, 30)
-        for t in range(20):
-            sender.tick(t)
-        followed = client.wait_status(
-            lambda st: st.daemon == "spare" and st.info["standby_followed"] == 20, 60).info
-        procs[0].proc.kill()
-        for t in range(20, 30):
-            sender.tick(t)
+        followed, sender, log = _take_over_via(
+            tmp_path, via,
+            lambda: RobotClient(dep.endpoint, robot="sim", dims=DIMS, mode="client",
+                                zenoh_config=str(dep.client_file("robot"))),
+            lambda client: client.wait_status(
+                lambda st: st.daemon == "spare" and st.info["standby_followed"] == 20,
+                60).info)
     finally:
-        for proc in procs:
-            proc.kill()
-        if client is not None:
-            client.close()
         dep.close()
     assert followed["role"] == "standby" and followed["standby_syncs"] == 1
     assert sender.answers == {t: t + 1 for t in range(30)}
-    assert "took over from prim" in procs[1].log()
+    assert "took over from prim" in log
