@@ -81,20 +81,31 @@ def _single_table(res: dict[str, Any]) -> str:
 PEER_NAMES = {"act": "ACT (LeRobot)", "diffusion": "Diffusion Policy (LeRobot)"}
 
 
+PEERS_HEAD = ("| peer (acts alone) | goals | success (95 % CI) | ratio to HCC | held-out poses "
+              "| train CPU s | infer p99 ms |\n|---|---|---|---|---|---|---|")
+
+
+def peer_rows(res: dict[str, Any]) -> list[str]:
+    """The rows of one ``roger experiment peers`` results file (docs/peers.md)."""
+    lines = []
+    for key, b in res["peers"].items():
+        held = b.get("held_out") or {}
+        held_s = f"{held['successes']}/{held['trials']}" if held.get("trials") else "-"
+        lines.append(
+            f"| {PEER_NAMES.get(key, key)}, {b['steps']:,} steps | {b['successes']}/"
+            f"{b['trials']} | {_f(b['success_rate'], pct=True)} ({_f(b['ci95_low'], True)}"
+            f" - {_f(b['ci95_high'], True)}) | {_f(b.get('ratio_to_hcc'))} | {held_s} | "
+            f"{b['train_cpu_s']:,.0f} | {b['infer_p99_ms']:.1f} |")
+    return lines
+
+
 def peers_table(runs: list[dict[str, Any]]) -> str:
-    """The peers' rows of ``roger experiment peers`` results files (docs/peers.md)."""
-    lines = ["| peer (acts alone) | goals | success (95 % CI) | ratio to HCC | held-out poses "
-             "| train CPU s | infer p99 ms |", "|---|---|---|---|---|---|---|"]
-    for res in runs:
-        for key, b in res["peers"].items():
-            held = b.get("held_out") or {}
-            held_s = f"{held['successes']}/{held['trials']}" if held.get("trials") else "-"
-            lines.append(
-                f"| {PEER_NAMES.get(key, key)}, {b['steps']:,} steps | {b['successes']}/"
-                f"{b['trials']} | {_f(b['success_rate'], pct=True)} ({_f(b['ci95_low'], True)}"
-                f" - {_f(b['ci95_high'], True)}) | {_f(b.get('ratio_to_hcc'))} | {held_s} | "
-                f"{b['train_cpu_s']:,.0f} | {b['infer_p99_ms']:.1f} |")
-    return "\n".join(lines)
+    """The peers' table of ``roger experiment peers`` results files."""
+    return _peers_of([row for res in runs for row in peer_rows(res)])
+
+
+def _peers_of(rows: list[str]) -> str:
+    return "\n".join([PEERS_HEAD, *rows])
 
 
 def markdown(res: dict[str, Any]) -> str:
@@ -120,19 +131,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"roger experiment table: {args.results}: not a goal-scoring results.json "
               f"({exc})", file=sys.stderr)
         return 2
-    runs = []
+    rows: list[str] = []
     for path in args.peers:
         try:
             peer = json.loads(path.read_text(encoding="utf-8"))
             if not isinstance(peer, dict) or not isinstance(peer.get("peers"), dict):
                 raise ValueError("no 'peers' object")
-            runs.append(peer)
-            peers_table([peer])
+            rows += peer_rows(peer)
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             print(f"roger experiment table: --peers {path}: not a roger experiment peers "
                   f"results.json ({exc})", file=sys.stderr)
             return 2
-    if runs:
-        text += "\n\n" + peers_table(runs)
+    if args.peers:
+        text += "\n\n" + _peers_of(rows)
     print(text)
     return 0
