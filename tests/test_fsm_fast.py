@@ -88,7 +88,7 @@ def test_the_student_t_terms_equal_the_readable_ones_to_rounding(taught) -> None
         _, mu, prec, lognorm, half = tr._predictives(rows.tolist())
         c = buf["lnorm"][rows, 3]
         for k, r in enumerate(rows):
-            w = buf["linv"][r]
+            w = buf["linv"][r].T  # stored transposed: L^-1
             np.testing.assert_allclose(w.T @ w / c[k], prec[k], rtol=1e-8, atol=1e-8)
         np.testing.assert_allclose(buf["lnorm"][rows, 0], lognorm, rtol=1e-10)
         np.testing.assert_array_equal(buf["lnorm"][rows, 1:3], half)

@@ -11,8 +11,9 @@ are the same bits, and the scores the same to rounding (docs/autonomy.md, *Cost*
 * :func:`observe` is :func:`advance` then :meth:`.TransitionModel.learn_one`'s rank-1 NIW
   update (docs/learner-math.md §3.2), the same products in the same order;
 * :func:`choose` is :func:`advance` then the scores of :meth:`.TransitionModel.log_scores`
-  from the pairs' Student-t terms (§3.3), computed from ``Lambda_n`` by a Cholesky factor of
-  its own when a pair has learned since (``valid``), and :meth:`.LearnedFSM.choose`'s pick. Its
+  from the pairs' Student-t terms (§3.3), computed from ``Lambda_n`` by the learner's
+  compiled Cholesky factor and inverse (engine/jit_cholesky.py) when a pair has learned since
+  (``valid``), and :meth:`.LearnedFSM.choose`'s pick. Its
   floats differ from LAPACK's factor and inverse in the last bits only (a quadratic form
   ``|L^-1 u|^2`` instead of ``u' P u``); they enter no state and no replay.
 
@@ -27,6 +28,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from roger_daemon.learner.engine.jit_cholesky import cholesky_lower, lower_inverse_transposed
 from roger_daemon.learner.engine.jit_compile import compiled
 
 __all__ = ["CFG_FIELDS", "AdvanceArgs", "advance", "choose", "observe", "predictive", "warm"]
@@ -148,36 +150,20 @@ def observe(x: FloatArray, cmd: FloatArray, has_cmd: bool, blob_x: IntArray, pro
 def predictive(r: int, count: IntArray, lam: FloatArray, linv: FloatArray, lnorm: FloatArray,
                kappa0: float, nu0: float) -> None:  # pragma: no cover - compiled
     """Row ``r``'s Student-t terms (§3.3): ``linv`` the inverse of the Cholesky factor of
-    ``Lambda_n`` (lower), ``lnorm = [log normaliser, (nu_t + D) / 2, nu_t, c]``."""
+    ``Lambda_n``, stored transposed (``linv[r][j, i] = (L^-1)[i, j]``, as the learner's
+    :func:`.lower_inverse_transposed` writes it), ``lnorm = [log normaliser, (nu_t + D) / 2,
+    nu_t, c]``."""
     d = lam.shape[1]
-    a = lam[r]
     chol = np.zeros((d, d))
-    logdiag = 0.0
-    for j in range(d):
-        s = a[j, j]
-        for k in range(j):
-            s -= chol[j, k] * chol[j, k]
-        chol[j, j] = math.sqrt(s)
-        logdiag += math.log(chol[j, j])
-        for i in range(j + 1, d):
-            t = a[i, j]
-            for k in range(j):
-                t -= chol[i, k] * chol[j, k]
-            chol[i, j] = t / chol[j, j]
-    w = linv[r]
-    w[:, :] = 0.0
-    for j in range(d):
-        w[j, j] = 1.0 / chol[j, j]
-        for i in range(j + 1, d):
-            t = 0.0
-            for k in range(j, i):
-                t -= chol[i, k] * w[k, j]
-            w[i, j] = t / chol[i, i]
+    # the learner's own factor and inverse (engine/jit_cholesky.py), the textbook loops' floats
+    logdet_lam = cholesky_lower(lam[r], d, 0.0, chol)
+    linv[r, :, :] = 0.0
+    lower_inverse_transposed(chol, d, linv[r])  # linv[r][j, i] = (L^-1)[i, j]
     n = float(count[r])
     kappa = kappa0 + n
     nu_t = nu0 + n - d + 1.0
     c = (kappa + 1.0) / (kappa * nu_t)
-    logdet = d * math.log(c) + 2.0 * logdiag
+    logdet = d * math.log(c) + logdet_lam
     lnorm[r, 0] = (math.lgamma((nu_t + d) / 2.0) - math.lgamma(nu_t / 2.0)
                    - 0.5 * d * math.log(nu_t * math.pi) - 0.5 * logdet)
     lnorm[r, 1] = (nu_t + d) / 2.0
@@ -212,7 +198,7 @@ def _best(rows: IntArray, phi: FloatArray, pairs: IntArray, count: IntArray, mu:
         for i in range(d):
             acc = 0.0
             for j in range(i + 1):
-                acc += linv[r, i, j] * u[j]
+                acc += linv[r, j, i] * u[j]  # (L^-1)[i, j], stored transposed
             delta += acc * acc
         delta /= lnorm[r, 3]
         score = (math.log(float(count[r])) + lnorm[r, 0]

@@ -45,11 +45,13 @@ __all__ = ["ADDED", "BATCH_LOCK", "BATCH_MIN_ENTRIES", "DRIFTED", "EVALUATION_WI
            "warm_up"]
 
 KERNELS = ("add_basis_vector", "balanced_owners", "cholesky_inverse", "cholesky_inverse_logdet",
-           "copy_batch", "dot_column", "evaluate_expert", "evaluate_experts", "evaluate_slab",
+           "cholesky_lower", "copy_batch", "dot_column", "evaluate_expert", "evaluate_experts",
+           "evaluate_slab",
            "expert_terms", "fearnhead_split", "fused_delete_index", "fused_step", "gate_constants",
            "gate_crp_log_terms", "gate_log_predictive", "gate_update", "gaussian_log_density",
            "gram_matrix", "grow_slab", "growth_step", "keeps_basis_vectors", "kernel_vector",
-           "learn_batch", "learn_full_expert", "lineage_assignments", "log_sum_exp", "min_argmax",
+           "learn_batch", "learn_full_expert", "lineage_assignments", "log_sum_exp",
+           "lower_inverse_transposed", "min_argmax",
            "novelty_margin", "novelty_step", "novelty_test", "packed_add_lowrank", "projection",
            "putative_layout", "putative_log_weights", "rank_update_cq", "refresh_inverse",
            "shift_mean", "slab_views", "slot_log_likelihoods", "sorted_threshold", "sparse_update",

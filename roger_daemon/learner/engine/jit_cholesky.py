@@ -18,13 +18,14 @@ import numpy.typing as npt
 
 from roger_daemon.learner.engine.jit_compile import compiled as _compiled
 
-__all__ = ["cholesky_inverse", "cholesky_inverse_logdet"]
+__all__ = ["cholesky_inverse", "cholesky_inverse_logdet", "cholesky_lower",
+           "lower_inverse_transposed"]
 
 FloatArray = npt.NDArray[np.float64]
 
 
 @_compiled(nogil=True)
-def _cholesky_lower(gram: FloatArray, n: int, jitter: float, low: FloatArray) -> float:
+def cholesky_lower(gram: FloatArray, n: int, jitter: float, low: FloatArray) -> float:
     """``low`` (zeros, n x n) becomes ``L`` with ``L L^T = K + jitter I``; returns
     ``log|K + jitter I|``, NaN at a pivot that is not positive.  Rows ``r..r+3`` of a column
     side by side (:func:`cholesky_inverse_logdet`)."""
@@ -59,7 +60,7 @@ def _cholesky_lower(gram: FloatArray, n: int, jitter: float, low: FloatArray) ->
 
 
 @_compiled(nogil=True)
-def _lower_inverse_transposed(low: FloatArray, n: int, wt: FloatArray) -> None:
+def lower_inverse_transposed(low: FloatArray, n: int, wt: FloatArray) -> None:
     """``wt[j, r] = W[r, j]`` for ``W = L^{-1}`` (lower triangular; ``wt`` zeros): row ``r``
     of ``W`` from those before it, ``W[r, j] = -sum_{p=j}^{r-1} L[r, p] W[p, j] / L[r, r]``,
     four entries of the row side by side (the sum of ``j + k`` starts at ``p = j + k``)."""
@@ -131,11 +132,11 @@ def cholesky_inverse_logdet(gram: FloatArray, n: int, jitter: float, out: FloatA
     instead of waiting on one: 2.3x as fast at n = 300, the same bits (docs/performance.md,
     *A faster compiled re-inversion*)."""
     low = np.zeros((n, n))
-    logdet = _cholesky_lower(gram, n, jitter, low)
+    logdet = cholesky_lower(gram, n, jitter, low)
     if logdet != logdet:
         return math.nan
     wt = np.zeros((n, n))
-    _lower_inverse_transposed(low, n, wt)
+    lower_inverse_transposed(low, n, wt)
     _transposed_gram(wt, n, out)
     return logdet
 
