@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from roger_daemon.learner.partition import fit_partition
 
-__all__ = ["ContinuityRule", "continuity_groups", "consolidate"]
+__all__ = ["ContinuityRule", "command_groups", "consolidate", "continuity_groups"]
 
 
 @dataclass(frozen=True)
@@ -115,6 +115,33 @@ def continuity_groups(assignments: npt.ArrayLike, y: npt.ArrayLike, location: np
             ri, rj = find(pair[0]), find(pair[1])
             parent[max(ri, rj)] = min(ri, rj)
     return {k: find(k) for k in sorted(parent)}
+
+
+def command_groups(assignments: npt.ArrayLike, y: npt.ArrayLike, *,
+                   y_scale: npt.ArrayLike | None, tau: float) -> dict[int, int]:
+    """Expert id -> group id (smallest expert id of its cluster): complete-linkage clusters
+    of the experts' median commands (scaled by ``y_scale``, Chebyshev distance) at ``tau``.
+
+    >>> command_groups([0, 0, 1, 1, 2, 2], [[0.0], [0.1], [0.02], [0.1], [1.0], [1.1]],
+    ...                y_scale=None, tau=0.05)
+    {0: 0, 1: 0, 2: 2}
+    """
+    from scipy.cluster.hierarchy import fcluster, linkage
+
+    a = np.asarray(assignments, dtype=np.int64).reshape(-1)
+    ya = np.asarray(y, dtype=np.float64).reshape(len(a), -1)
+    scale = np.broadcast_to(np.asarray(1.0 if y_scale is None else y_scale, dtype=np.float64),
+                            (ya.shape[1],))
+    ids = [int(k) for k in np.unique(a)]
+    if len(ids) < 2:
+        return {k: k for k in ids}
+    med = np.array([np.median(ya[a == k] / scale, axis=0) for k in ids])
+    cluster = fcluster(linkage(med, method="complete", metric="chebyshev"), tau,
+                       criterion="distance")
+    first: dict[int, int] = {}
+    for k, c in zip(ids, cluster.tolist(), strict=True):
+        first.setdefault(int(c), k)
+    return {k: first[int(c)] for k, c in zip(ids, cluster.tolist(), strict=True)}
 
 
 def consolidate(x: npt.ArrayLike, y: npt.ArrayLike, location: npt.ArrayLike,

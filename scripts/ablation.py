@@ -41,6 +41,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
     "choice-oracle": ("choice oracle: among the subtask's experts, the one closest to the "
                       "demonstrator's own command (uses the demonstrator; a diagnostic, not a "
                       "controller)", {}, "choice-oracle"),
+    "consolidated": ("ROGER's experts consolidated by the continuity of the command at switches "
+                     "between consecutive ticks (label-free; roger_daemon/consolidate.py)", {},
+                     "consolidated"),
+    "commands-0.05": ("ROGER's experts clustered by their median command, tau 0.05 (label-free; "
+                      "roger_daemon/consolidate.py)", {}, "commands"),
     "particles-10": ("10 particles", {"particles": 10}, DEFAULT_RULE),
     "particles-30": ("30 particles", {"particles": 30}, DEFAULT_RULE),
     "min-support-0": ("no minimum support (every expert's gate competes)",
@@ -90,6 +95,27 @@ class _ChoiceOracle:
         return y, subtask
 
 
+def _consolidated(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed: int) -> Any:
+    """The transitioner over ROGER's experts consolidated without labels (the labels only name
+    the consolidated experts' groups afterwards)."""
+    from roger_daemon.consolidate import command_groups, consolidate
+    from roger_daemon.labels import majority_labels
+    from roger_daemon.learner.partition import fit_partition
+    from simulator.experiment import inprocess as ip
+    from simulator.experiment.pipeline import make_hcc
+
+    if rule == "consolidated":
+        merged, _ = consolidate(stream["x"], stream["y"], stream["location"], stream["tick"],
+                                model, params=params, seed=seed)
+    else:
+        a = np.asarray(model.assignments())
+        group = command_groups(a, stream["y"], y_scale=params.y_scale, tau=0.05)
+        merged = fit_partition(stream["x"], stream["y"], [group[int(k)] for k in a],
+                               params=params, seed=seed)
+    names = majority_labels(np.asarray(merged.assignments()).tolist(), stream["labels"])
+    return ip.TransitionerController(make_hcc(plan), merged, names, DEFAULT_RULE)
+
+
 def _controller(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed: int) -> Any:
     from roger_daemon.labels import majority_labels
     from simulator.experiment import inprocess as ip
@@ -99,6 +125,8 @@ def _controller(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed
     groups = majority_labels(np.asarray(model.assignments()).tolist(), stream["labels"])
     if rule == "choice-oracle":
         return _ChoiceOracle(make_hcc(plan), model, groups, params.y_scale)
+    if rule in ("consolidated", "commands"):
+        return _consolidated(rule, plan, model, stream, params, seed)
     if rule == "merged":
         n = len(stream["labels"])
         demos = Demonstrations(x=stream["x"], y=stream["y"], labels=list(stream["labels"]),
@@ -188,6 +216,9 @@ def main() -> int:
         ap.error(f"--out: {args.out} exists; choose another path")
     with np.load(args.stream) as data:
         stream = {"x": data["x"], "y": data["y"], "labels": [str(s) for s in data["labels"]]}
+        n = len(stream["labels"])  # older files: one demonstration, consecutive ticks
+        stream["location"] = data["location"] if "location" in data.files else np.zeros(n)
+        stream["tick"] = data["tick"] if "tick" in data.files else np.arange(n)
     seeds = [int(s) for s in args.seeds.split(",")]
     rows = []
     t0 = time.monotonic()
