@@ -100,8 +100,7 @@ class FleetClient:
     :mod:`.fleet_receiver`)."""
 
     def __init__(self, connect: str, robots: list[str], *, predictions: bool = True) -> None:
-        import zenoh
-
+        from roger_daemon.client import robot_publisher
         from roger_daemon.zenoh_session import ZenohSettings, open_session
 
         self.session = open_session(ZenohSettings(listen=(), connect=(connect,)))
@@ -113,10 +112,9 @@ class FleetClient:
         self.answered: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         self._raw: list[tuple[int, str, bytes]] = []  # (received, key, payload)
         self.errors = 0
-        cc = zenoh.CongestionControl.BLOCK  # the feed must not lose its own messages
-        self._pubs = {(r, k): self.session.declare_publisher(
-            keys.key(r, k), congestion_control=cc, priority=zenoh.Priority.REAL_TIME,
-            express=True) for r in robots for k in ("perception", "action")}
+        # a robot's own messages, published as RobotClient publishes them (never lost)
+        self._pubs = {(r, k): robot_publisher(self.session, keys.key(r, k))
+                      for r in robots for k in ("perception", "action")}
         self._subs = [self.session.declare_subscriber(keys.all_of_kind("status"),
                                                       self._on_status)]
         if predictions:
