@@ -1,6 +1,12 @@
 """The client side of ``roger bench fleet`` and ``soak``: one Zenoh session playing N robots,
 the feeder that publishes their streams, and the ``/proc`` readings of the daemon's CPU and
-children (docs/fleet.md)."""
+children (docs/fleet.md).
+
+It is not a :class:`roger_daemon.client.RobotClient`: a RobotClient is one robot in a session of
+its own, while the benchmark plays N robots on one session and one wildcard subscriber, and
+stamps every prediction's raw bytes on arrival before decoding them (the latency it measures).
+It publishes through RobotClient's own publisher rule (:func:`roger_daemon.client.robot_publisher`)
+and encodes with :mod:`protocols`, so no rule of the robot side has a second copy here."""
 
 from __future__ import annotations
 
