@@ -44,7 +44,7 @@ from protocols import Action, Control, Perception, Prediction, Status, decode, e
 from protocols.messages import Dims
 from roger_daemon.zenoh_session import DAEMON_ENDPOINT
 
-__all__ = ["Received", "RobotClient", "checkpoint_outcome"]
+__all__ = ["Received", "RobotClient", "checkpoint_outcome", "robot_publisher"]
 
 FloatArray = npt.NDArray[np.float64]
 _ACTION_FIELDS = {f.name for f in dataclasses.fields(Action)}
@@ -62,6 +62,17 @@ def checkpoint_outcome(before: Mapping[str, Any], now: Mapping[str, Any]) -> str
     if grew("checkpoint_errors"):
         return "failed"
     return "written" if grew("checkpoints_written") else None
+
+
+def robot_publisher(session: Any, key: str) -> Any:
+    """A publisher of a robot's own messages to the daemon (perception, action, control):
+    congestion control BLOCK, priority ``REAL_TIME``, express (module docstring;
+    ``docs/zenoh-notes.md`` §4.1). The one definition of that rule: :class:`RobotClient` and
+    the fleet benchmark's client (one session playing many robots) both publish through it."""
+    import zenoh
+
+    return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK,
+                                     priority=zenoh.Priority.REAL_TIME, express=True)
 
 
 @dataclass(frozen=True)
@@ -129,13 +140,9 @@ class RobotClient:
                                                       self._on("prediction")),
                       self.session.declare_subscriber(keys.status(self.robot),
                                                       self._on("status"))]
-        self._cc = zenoh.CongestionControl.BLOCK
-        self._pubs = {
-            kind: self.session.declare_publisher(
-                keys.key(self.robot, kind), congestion_control=self._cc,
-                priority=zenoh.Priority.REAL_TIME, express=True)
-            for kind in ("perception", "action", "control")
-        }
+        self._cc = zenoh.CongestionControl.BLOCK  # send_raw to another robot: the same rule
+        self._pubs = {kind: robot_publisher(self.session, keys.key(self.robot, kind))
+                      for kind in ("perception", "action", "control")}
 
     # --- context manager ----------------------------------------------------------------------
 

@@ -35,7 +35,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from protocols import Command, EpisodeEvent, Perception, keys
 from protocols.aibo import DIMS
@@ -48,6 +47,7 @@ from simulator.transport import (
     StopFlag,
     Subscription,
     config_from_args,
+    episode_publisher,
     has_subscribers,
     open_session,
     publisher,
@@ -62,12 +62,6 @@ log = logging.getLogger("roger.sim")
 RESEND_S = 0.25
 #: After the final episode event, wait at most this long (s) for its subscribers to leave.
 LINGER_S = 2.0
-
-
-def _matching(pub: Any) -> bool:
-    """Whether a publisher has a matching subscriber (stub: bool; 1.10 returns an object)."""
-    status = pub.matching_status
-    return bool(getattr(status, "matching", status))
 
 
 class SimNode:
@@ -100,15 +94,12 @@ class SimNode:
     def run(self, session: Any) -> dict[str, Any]:
         args = self.args
         self.pub_x = publisher(session, keys.perception(self.robot))
-        # DROP like every stream of the simulator (a BLOCK event waiting in a router for a busy
-        # subscriber stalled the perceptions behind it for 5 s: docs/zenoh-notes.md §4.1), at a
-        # priority of its own so that perceptions never take its send queue's batches
-        self.pub_ep = publisher(session, keys.episode(self.robot),
-                                priority=zenoh.Priority.INTERACTIVE_HIGH)
+        self.pub_ep = episode_publisher(session, self.robot)
         self.cmds = Subscription(session, self.robot, "command", DIMS, self.invalid, capacity=256)
         t_wait = time.monotonic()
         while not self.stop.stopped and time.monotonic() - t_wait < args.wait_subscribers:
-            if _matching(self.pub_x) and len(list(session.info.peers_zid())) >= args.wait_peers:
+            peers = len(list(session.info.peers_zid()))
+            if has_subscribers(self.pub_x) and peers >= args.wait_peers:
                 if args.wait_peers > 0:
                     time.sleep(0.3)  # let the peers' subscriber declarations arrive
                 break

@@ -55,6 +55,7 @@ __all__ = [
     "StopFlag",
     "add_zenoh_args",
     "config_from_args",
+    "episode_publisher",
     "has_subscribers",
     "loopback_config",
     "open_session",
@@ -111,11 +112,19 @@ def publisher(session: zenoh.Session, key: str, *,
                                      else priority)
 
 
+def episode_publisher(session: zenoh.Session, robot: str) -> zenoh.Publisher:
+    """The simulator's ``episode`` publisher (``roger sim`` and ``roger teach``): DROP like
+    every stream of the simulator (a BLOCK event waiting in a router for a busy subscriber
+    stalled the perceptions behind it for 5 s: docs/zenoh-notes.md §4.1), at a priority of its
+    own so that perceptions never take its send queue's batches."""
+    return publisher(session, keys.episode(robot), priority=zenoh.Priority.INTERACTIVE_HIGH)
+
+
 def has_subscribers(pub: zenoh.Publisher) -> bool:
     """Whether any subscriber matches ``pub``'s key now (zenoh's ``MatchingStatus``; its type
-    stub says ``bool``, the object has ``.matching``)."""
+    stub says ``bool``, the object of zenoh 1.10 has ``.matching``: either is read)."""
     status: Any = pub.matching_status
-    return bool(status.matching)
+    return bool(getattr(status, "matching", status))
 
 
 def put(pub: zenoh.Publisher, msg: Message) -> None:

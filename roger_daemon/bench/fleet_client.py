@@ -1,6 +1,12 @@
 """The client side of ``roger bench fleet`` and ``soak``: one Zenoh session playing N robots,
 the feeder that publishes their streams, and the ``/proc`` readings of the daemon's CPU and
-children (docs/fleet.md)."""
+children (docs/fleet.md).
+
+It is not a :class:`roger_daemon.client.RobotClient`: a RobotClient is one robot in a session of
+its own, while the benchmark plays N robots on one session and one wildcard subscriber, and
+stamps every prediction's raw bytes on arrival before decoding them (the latency it measures).
+It publishes through RobotClient's own publisher rule (:func:`roger_daemon.client.robot_publisher`)
+and encodes with :mod:`protocols`, so no rule of the robot side has a second copy here."""
 
 from __future__ import annotations
 
@@ -100,8 +106,7 @@ class FleetClient:
     :mod:`.fleet_receiver`)."""
 
     def __init__(self, connect: str, robots: list[str], *, predictions: bool = True) -> None:
-        import zenoh
-
+        from roger_daemon.client import robot_publisher
         from roger_daemon.zenoh_session import ZenohSettings, open_session
 
         self.session = open_session(ZenohSettings(listen=(), connect=(connect,)))
@@ -113,10 +118,9 @@ class FleetClient:
         self.answered: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
         self._raw: list[tuple[int, str, bytes]] = []  # (received, key, payload)
         self.errors = 0
-        cc = zenoh.CongestionControl.BLOCK  # the feed must not lose its own messages
-        self._pubs = {(r, k): self.session.declare_publisher(
-            keys.key(r, k), congestion_control=cc, priority=zenoh.Priority.REAL_TIME,
-            express=True) for r in robots for k in ("perception", "action")}
+        # a robot's own messages, published as RobotClient publishes them (never lost)
+        self._pubs = {(r, k): robot_publisher(self.session, keys.key(r, k))
+                      for r in robots for k in ("perception", "action")}
         self._subs = [self.session.declare_subscriber(keys.all_of_kind("status"),
                                                       self._on_status)]
         if predictions:

@@ -35,10 +35,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from protocols import Command, EpisodeEvent, Prediction, encode, keys
+from protocols import Command, EpisodeEvent, Prediction, keys
 from simulator.episodes import START_LOCATIONS, SoccerSim, StartLocation
 from simulator.teach.autonomy import Autonomy, hold_command
 from simulator.teach.channel import MODES, PageInput
+from simulator.transport import episode_publisher, publisher, put
 
 __all__ = ["LoopSettings", "TeachLoop", "TeacherInbox"]
 
@@ -150,8 +151,10 @@ class TeachLoop:
         self._snapshot: dict[str, Any] = {}
         self._next_location = settings.location
         self._last_applied: PageInput | None = None
-        self._pub_cmd = client.session.declare_publisher(keys.command(self.robot))
-        self._pub_ep = client.session.declare_publisher(keys.episode(self.robot))
+        # the simulator's own outputs, published as roger sim publishes them (the daemon's
+        # messages go through the client)
+        self._pub_cmd = publisher(client.session, keys.command(self.robot))
+        self._pub_ep = episode_publisher(client.session, self.robot)
         self.x = self._start_episode(settings.location, None)
 
     # -- the server's side -----------------------------------------------------------------
@@ -180,8 +183,8 @@ class TeachLoop:
                 "repetition": self.episode, "seed": self.s.seed, "tick": self.tick,
                 "clock": self.s.clock,
                 **{n: truth[n] for n in ("robot_x", "robot_y", "robot_yaw", "ball_x", "ball_y")}}
-        self._pub_ep.put(encode(EpisodeEvent(self.robot, self.tick, 0.0, event="start",
-                                             episode=self.episode, data=data)))
+        put(self._pub_ep, EpisodeEvent(self.robot, self.tick, 0.0, event="start",
+                                       episode=self.episode, data=data))
         return x
 
     def _end_episode(self, outcome: str) -> None:
@@ -193,9 +196,8 @@ class TeachLoop:
                                        "sim_time_s": round(res.sim_time_s, 4)}),
                             ("end", record)):
             if event in ("goal", "own_goal", "out", "timeout", "end"):
-                self._pub_ep.put(encode(EpisodeEvent(self.robot, self.tick, self.sim.time,
-                                                     event=event, episode=self.episode,
-                                                     data=data)))
+                put(self._pub_ep, EpisodeEvent(self.robot, self.tick, self.sim.time,
+                                               event=event, episode=self.episode, data=data))
         log.info("episode %d location %d (%s): %s after %.1f s", self.episode, res.location,
                  self.mode, outcome, res.sim_time_s)
         if self.on_tick is not None:
@@ -282,7 +284,7 @@ class TeachLoop:
             self.counts["pairs_sent"] += 1
             self.counts["corrections"] += int(correction)
         self.autonomy.commit(y)  # the executed command drives the acting memories
-        self._pub_cmd.put(encode(Command(self.robot, tick, t, y=y, source=source)))
+        put(self._pub_cmd, Command(self.robot, tick, t, y=y, source=source))
         self.counts[f"ticks_{source}"] += 1
         if self._correcting and not correction and self.on_correction_end is not None:
             self.on_correction_end()
