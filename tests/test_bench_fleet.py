@@ -21,7 +21,7 @@ def test_bench_fleet_runs_both_phases_against_a_real_daemon() -> None:
     decodes (they are validated after the phase, not in Zenoh's callback)."""
     out = subprocess.run(
         [sys.executable, "-m", "roger_daemon", "bench", "fleet", "--robots", "2",
-         "--seconds", "2", "--warmup", "1", "--json"],
+         "--seconds", "1", "--warmup", "1", "--json"],
         capture_output=True, text=True, timeout=240, check=True)
     report = json.loads(out.stdout)
     for clock in ("realtime", "lockstep"):

@@ -3,7 +3,10 @@ transitioner on the learned experts, as separate processes over Zenoh; a summary
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -21,11 +24,24 @@ ROGER = [sys.executable, "-m", "roger_daemon"]
 
 def _demo(out: Path, *extra: str, timeout: float = 240.0) -> tuple[dict[str, Any], str, float]:
     t0 = time.monotonic()
-    proc = subprocess.run([*ROGER, "demo", "--out", str(out), *extra], capture_output=True,
-                          text=True, timeout=timeout)
+    # its own process group: a demo past the timeout is stopped with every process it started
+    # (subprocess.run's kill reached the demo only; its last daemon ran on for half an hour)
+    proc = subprocess.Popen([*ROGER, "demo", "--out", str(out), *extra], text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.terminate()  # the demo stops its children on SIGTERM
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.communicate(timeout=30)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        raise
     wall = time.monotonic() - t0
-    assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
-    return json.loads((out / "summary.json").read_text()), proc.stdout, wall
+    assert proc.returncode == 0, stdout[-4000:] + stderr[-4000:]
+    return json.loads((out / "summary.json").read_text()), stdout, wall
 
 
 def _check(summary: dict[str, Any], stdout: str, locations: list[int]) -> None:

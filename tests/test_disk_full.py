@@ -30,11 +30,13 @@ harness = pytest.importorskip("roger_daemon.harness")
 
 pytestmark = pytest.mark.integration
 
-#: ~0.45 kB a record (16 floats and a label of the protocol's longest): the log's reserve
-#: runs low after ~1,700 pairs; the checkpoints stay small (they grow with x_dim squared)
+#: ~0.45 kB a record (16 floats and a label of the protocol's longest): with a reserve of
+#: RESERVE_KB the log runs low after ~30-110 pairs (the default 1 MiB took ~1,700, 17 s);
+#: the checkpoints stay small (they grow with x_dim squared)
 X_DIM = 16
 LABEL = ("seek-" * 52)[:256]
 DIMS = Dims(X_DIM, 1)
+RESERVE_KB = 64  # checkpoint.wal_reserve_kb's smallest
 
 
 @pytest.fixture
@@ -74,8 +76,11 @@ def _fill(where: Path) -> Path:
 def _config(tmp_path: Path, disk: Path, port: int) -> Path:
     return harness.write_config(
         tmp_path / f"daemon-{port}.toml", port=port, workdir=disk,  # its log: outside
-        daemon={"clock": "lockstep", "seed": 3},
-        checkpoint={"every_updates": 100, "every_s": 0.0, "keep": 2},
+        # status at 20 Hz: the test waits for a fresh one every 10 pairs (at 1 Hz each wait
+        # took up to a second, half of the test's time)
+        daemon={"clock": "lockstep", "seed": 3, "status_hz": 20},
+        checkpoint={"every_updates": 100, "every_s": 0.0, "keep": 2,
+                    "wal_reserve_kb": RESERVE_KB},
         # the recordings elsewhere: the space freed is then the filler's, and the final
         # checkpoint fits (with them on the small disk it may not: exit status 75)
         recording={"enabled": True, "dir": str(tmp_path / "recordings")},
@@ -119,9 +124,9 @@ def test_a_full_disk_stops_learning_not_the_daemon_and_space_resumes_it(
         assert acked == 20
         filler = _fill(small_disk)
         status: Any = None
-        for _ in range(6000):  # the log's reserve: ~1,700 pairs of this size
+        for _ in range(1000):  # the log's reserve: ~30-110 pairs of this size
             acked = max(acked, s.pair())
-            if s.t % 100 == 0:
+            if s.t % 10 == 0:
                 status = client.wait_status()
                 if status.info["learning_stopped"]:
                     break

@@ -68,6 +68,8 @@ def test_recording_retention_deletes_oldest_sessions_first(tmp_path: Path) -> No
     ("recording", "max_bytes", 1.5, "an integer >= 0"),
     ("checkpoint", "wal_commit_ms", 200, "a number in (0, 50]"),
     ("checkpoint", "wal", "yes", "true or false"),
+    ("checkpoint", "wal_reserve_kb", 32, "an integer >= 64"),
+    ("checkpoint", "wal_reserve_kb", 1 << 20, "an integer in [64, 65536]"),
 ])
 def test_retention_and_durability_keys_are_validated(section: str, key: str, value: object,
                                                      expected: str) -> None:

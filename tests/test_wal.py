@@ -292,3 +292,35 @@ def test_an_appends_age_is_judged_on_the_daemons_clock(tmp_path: Path) -> None:
     clock.advance(0.002)
     assert wal.due(clock.monotonic_ns(), 10**6)
     wal.close()
+
+
+def test_a_smaller_reserve_stops_learning_on_a_full_disk_below_its_quarter(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``checkpoint.wal_reserve_kb`` (here 64 kB): the segment is zero-filled that much at a
+    time; once it cannot grow (ENOSPC) the log learns on its reserve and stops accepting
+    while less than a quarter of it (16 kB) is left, then resumes when space is back."""
+    import errno
+    import os
+
+    from roger_daemon.daemon import wal as wal_mod
+
+    w = WriteAheadLog(tmp_path, 0, preallocate=64 << 10)
+    assert w.reserve == 64 << 10 and w.low_water == 16 << 10
+    real = wal_mod._zero_fill
+
+    def disk_full(fd: int, start: int, size: int) -> int:
+        raise wal_mod._Partial(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)), start)
+
+    monkeypatch.setattr(wal_mod, "_zero_fill", disk_full)
+    big = np.zeros(500)  # ~8 kB a record
+    appended = 0
+    while w.accepting:
+        w.append_pair(appended, appended, big, big, "")
+        appended += 1
+    assert w.full and w.reserve < 16 << 10
+    assert 4 <= appended <= 7  # 64 kB less a quarter, 8 kB at a time: nowhere near 1 MiB's
+    monkeypatch.setattr(wal_mod, "_zero_fill", real)
+    assert w.poll_space(w.clock() + wal_mod.RETRY_NS)
+    assert w.accepting and not w.full and w.reserve >= 64 << 10
+    w.close()
+    assert len(read_records(tmp_path)) == appended

@@ -307,12 +307,16 @@ def _checkpoint_section(c: Table) -> CheckpointConfig:
                                   lo_open=False),
         wal=c.boolean("wal", d.wal),
         wal_commit_ms=c.number("wal_commit_ms", d.wal_commit_ms),
+        wal_reserve_kb=c.integer("wal_reserve_kb", d.wal_reserve_kb, lo=64),
         max_bytes=c.integer("max_bytes", d.max_bytes, lo=0),
         max_age_days=c.number("max_age_days", d.max_age_days, lo=0.0, lo_open=False),
     )
     if ckpt.wal_commit_ms > 50.0:
         raise bad("checkpoint.wal_commit_ms", "a number in (0, 50] (milliseconds)",
                   ckpt.wal_commit_ms)
+    if ckpt.wal_reserve_kb > 65536:
+        raise bad("checkpoint.wal_reserve_kb", "an integer in [64, 65536] (kB)",
+                  ckpt.wal_reserve_kb)
     if ckpt.shutdown_learn_s > 3.0:
         raise bad("checkpoint.shutdown_learn_s", "a number in [0, 3] (seconds)",
                   ckpt.shutdown_learn_s)

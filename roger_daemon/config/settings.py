@@ -84,6 +84,9 @@ class CheckpointConfig:
     #: prediction/status that reports them, and at least every ``wal_commit_ms``
     wal: bool = True
     wal_commit_ms: float = 50.0
+    #: the log's zero-filled reserve ahead of its records (kB, in [64, 65536]); on a full
+    #: disk learning stops below a quarter of it (docs/durability.md, *Disk full*)
+    wal_reserve_kb: int = 1024
     #: retention: delete the oldest checkpoints beyond these (0: no limit); ``keep`` still
     #: bounds the count and the newest checkpoint is never deleted
     max_bytes: int = 0

@@ -279,7 +279,8 @@ def _start_wal(cfg: DaemonConfig, robot: RobotConfig, rt: RobotRuntime,
     copies = None if fresh else session_log_copies(cfg, robot, rt, ckpt)
     rep = wal.start(rt, d, checkpoint_seq=seq,
                     replay=has_log and not fresh,
-                    fresh=fresh or (ckpt is None and not has_log), copies=copies)
+                    fresh=fresh or (ckpt is None and not has_log), copies=copies,
+                    preallocate=cfg.checkpoint.wal_reserve_kb << 10)
     _report(rt, d, ckpt, rep)
     where = _position(ckpt)
     if rep.pairs or rep.fresh or rep.stopped or rep.copied or rep.lost:  # durable at once

@@ -26,12 +26,10 @@ its commit had not returned). Segments are never appended to after the life that
 each start opens a new one, and a segment is cut to its records when the next one starts.
 
 With the disk full the log cannot grow: the robot learns on what is left of the zero-filled
-reserve, stops learning (:attr:`WriteAheadLog.accepting`) while :data:`LOW_WATER` is left, so
-that nothing learned goes unlogged, and tries to grow again every :data:`RETRY_NS`
-(docs/durability.md, *Disk full*).
-
-The record is the daemon's decision, not its input, so it is also what a session log needs to
-replay the daemon without re-deriving its pairing (see ``docs/durability.md``).
+reserve, stops learning (:attr:`WriteAheadLog.accepting`) while a quarter of it is left
+(:data:`LOW_WATER` by default), so that nothing learned goes unlogged, and tries to grow again
+every :data:`RETRY_NS` (docs/durability.md, *Disk full*). The record is the daemon's decision,
+not its input: what a session log needs to replay the daemon without re-deriving its pairing.
 """
 
 from __future__ import annotations
@@ -67,16 +65,16 @@ __all__ = ["DISK_FULL_ERRNOS", "Copies", "Replayed", "WalDamage", "WalRecord", "
 
 log = logging.getLogger(__name__)
 
-#: Segments are zero-filled ahead of the records, this much at a time: overwriting blocks
-#: that exist lets ``fdatasync`` flush data only, without a journal commit for a new file
-#: size (measured on ext4 under load: the sync's p99 13-18 ms instead of 17-95 ms).
+#: Segments are zero-filled ahead of the records, by default this much at a time: overwriting
+#: blocks that exist lets ``fdatasync`` flush data only, without a journal commit for a new
+#: file size (measured on ext4 under load: the sync's p99 13-18 ms instead of 17-95 ms).
 PREALLOCATE = 1 << 20
 #: the errors that mean "no space" (a full file system, a user's quota)
 DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
-#: with the disk full, learning stops once less than this is left of the zero-filled reserve:
-#: what is left takes the pairs already learned or in flight to a learner worker (a few
-#: records of ~0.3 kB each), so nothing learned goes unlogged (docs/durability.md, *Disk full*)
-LOW_WATER = 256 << 10
+#: with the disk full, learning stops once less than a quarter of the reserve is left (this,
+#: by default): what is left takes the pairs already learned or in flight to a learner worker
+#: (~0.3 kB a record), so nothing learned goes unlogged (docs/durability.md, *Disk full*)
+LOW_WATER = PREALLOCATE // 4
 #: how often a full log tries to grow again (on the loop's clock)
 RETRY_NS = 1_000_000_000
 
@@ -98,12 +96,16 @@ class WriteAheadLog:
     sync
         ``False`` skips ``fdatasync`` (records still reach the OS: they survive kill -9 but
         not power loss). For benchmarks of the cost only.
+    preallocate
+        Bytes zero-filled ahead of the records at a time (``checkpoint.wal_reserve_kb``)
     """
 
-    def __init__(self, directory: Path, next_seq: int, *, sync: bool = True) -> None:
+    def __init__(self, directory: Path, next_seq: int, *, sync: bool = True,
+                 preallocate: int = PREALLOCATE) -> None:
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         self.sync = sync
+        self.preallocate, self.low_water = preallocate, preallocate // 4
         self.next_seq = next_seq
         self.durable_seq = next_seq - 1  # every record <= this is on disk
         self.commits = 0
@@ -135,7 +137,7 @@ class WriteAheadLog:
         # into it (else next_seq would be past it): whatever it holds is a torn write.
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
-            size = _zero_fill(fd, 0, PREALLOCATE)
+            size = _zero_fill(fd, 0, self.preallocate)
             os.fsync(fd)
             fsync_dir(self.directory)
         except OSError as exc:
@@ -150,7 +152,7 @@ class WriteAheadLog:
         """Zero-fill the segment past ``_end`` (a frame of zeros reads as the end); what was
         written before an error still counts."""
         try:
-            self._end = _zero_fill(self._fd, self._end, max(PREALLOCATE, at_least))
+            self._end = _zero_fill(self._fd, self._end, max(self.preallocate, at_least))
         except _Partial as part:
             self._end = part.end
             raise part.error from None
@@ -164,14 +166,14 @@ class WriteAheadLog:
     @property
     def accepting(self) -> bool:
         """Whether the robot may learn: the log can take what it learns (it can grow, or its
-        reserve has more than :data:`LOW_WATER` left)."""
-        return not self.full or self.reserve >= LOW_WATER
+        reserve has more than a quarter of a preallocation left)."""
+        return not self.full or self.reserve >= self.low_water
 
     def _grow(self, need: int) -> None:
         """Keep half a preallocation ahead of the records; with the disk full, try again at
         most every :data:`RETRY_NS` (and in :meth:`poll_space`). Raises only if ``need``
         bytes do not fit in what is left."""
-        if self.reserve - need >= PREALLOCATE // 2:
+        if self.reserve - need >= self.preallocate // 2:
             return
         if not self.full or self.clock() >= self._retry_ns:
             try:
@@ -191,7 +193,7 @@ class WriteAheadLog:
             log.error("write-ahead log %s cannot grow (%s): %d kB of reserve left; learning "
                       "stops below %d kB, predictions go on; retried every %g s",
                       self.directory, exc.strerror or exc, self.reserve >> 10,
-                      LOW_WATER >> 10, RETRY_NS / 1e9)
+                      self.low_water >> 10, RETRY_NS / 1e9)
 
     def poll_space(self, now_ns: int) -> bool:
         """With the disk full, try to grow (at most every :data:`RETRY_NS`); True once the log
@@ -199,7 +201,7 @@ class WriteAheadLog:
         if not self.full or now_ns < self._retry_ns:
             return False
         try:
-            self._extend(PREALLOCATE)
+            self._extend(self.preallocate)
         except OSError as exc:
             if exc.errno not in DISK_FULL_ERRNOS:
                 raise
@@ -371,10 +373,11 @@ def _zero_fill(fd: int, start: int, size: int) -> int:
 
 
 def start(rt: Any, directory: Path, *, checkpoint_seq: int | None, replay: bool,
-          fresh: bool, copies: Copies | None = None) -> Replayed:
+          fresh: bool, copies: Copies | None = None,
+          preallocate: int = PREALLOCATE) -> Replayed:
     """Start-up of one robot's log: replay what follows the checkpoint (``replay``), then
     attach a new segment to ``rt`` (``rt.wal``). ``copies``: where pairs the log lost may
-    still be found (the session logs; :func:`replay_into`).
+    still be found (the session logs; :func:`replay_into`); ``preallocate``: its reserve.
 
     ``checkpoint_seq`` is the checkpoint's ``wal_seq`` (None: no checkpoint, or one written
     without the log; then every record is replayed, from the first ``fresh`` one). A model
@@ -386,7 +389,7 @@ def start(rt: Any, directory: Path, *, checkpoint_seq: int | None, replay: bool,
                        copies=copies)
            if replay else Replayed(next_seq=_next_seq(directory)))
     rt.session_resets = 0
-    rt.wal = WriteAheadLog(directory, rep.next_seq)
+    rt.wal = WriteAheadLog(directory, rep.next_seq, preallocate=preallocate)
     if fresh:
         rt.wal.append_fresh()
         rt.wal.commit()
