@@ -140,7 +140,7 @@ class RobotClient:
                                                       self._on("prediction")),
                       self.session.declare_subscriber(keys.status(self.robot),
                                                       self._on("status"))]
-        self._cc = zenoh.CongestionControl.BLOCK  # send_raw to another robot: the same rule
+        self._cc = zenoh.CongestionControl.BLOCK  # send_raw to another robot: BLOCK too
         self._pubs = {kind: robot_publisher(self.session, keys.key(self.robot, kind))
                       for kind in ("perception", "action", "control")}
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from roger_daemon.learner.partition import fit_partition
+from roger_daemon.groups import refit_groups
 
 __all__ = ["ContinuityRule", "command_groups", "consolidate", "continuity_groups"]
 
@@ -149,7 +149,7 @@ def consolidate(x: npt.ArrayLike, y: npt.ArrayLike, location: npt.ArrayLike,
                 rule: ContinuityRule | None = None) -> tuple[Any, list[int]]:
     """``(consolidated model, group of every point)`` for a ROGER ``model`` that learned the
     pairs ``(x[i], y[i])`` in that order (its whole history): one expert per continuity
-    group, refitted in stream order by :func:`fit_partition`.
+    group, refitted in stream order by :func:`~roger_daemon.groups.refit_groups`.
     """
     assignments = np.asarray(model.assignments(), dtype=np.int64).reshape(-1)
     if len(assignments) != len(np.asarray(x)):
@@ -157,6 +157,4 @@ def consolidate(x: npt.ArrayLike, y: npt.ArrayLike, location: npt.ArrayLike,
                          f"{len(np.asarray(x))} were given")
     group_of = continuity_groups(assignments, y, location, tick,
                                  y_scale=params.y_scale, rule=rule)
-    group_of_point = [group_of[int(k)] for k in assignments]
-    merged = fit_partition(x, y, group_of_point, params=params, seed=seed)
-    return merged, group_of_point
+    return refit_groups(x, y, model, group_of, params=params, seed=seed)

@@ -12,8 +12,8 @@ transitioner. The experiment (``groups:K``) and ``roger replay --merge-groups`` 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Hashable, Mapping, Sequence
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -21,7 +21,23 @@ import numpy.typing as npt
 from roger_daemon.labels import majority_labels
 from roger_daemon.learner.partition import fit_partition
 
-__all__ = ["merge_groups"]
+__all__ = ["merge_groups", "refit_groups"]
+
+G = TypeVar("G", bound=Hashable)
+
+
+def refit_groups(x: npt.ArrayLike, y: npt.ArrayLike, model: Any,
+                 group_of_expert: Mapping[int, G], *, params: Any,
+                 seed: int | None) -> tuple[Any, list[G]]:
+    """``(refitted model, group of every point)``: the points a ROGER ``model`` learned from
+    ``(x[i], y[i])``, in that order, each given the group of the expert its MAP particle
+    assigned it to, learned by one expert per group (:func:`fit_partition`). The grouping is
+    the caller's: by majority label (:func:`merge_groups`) or from the data alone
+    (:mod:`roger_daemon.consolidate`).
+    """
+    assignments = np.asarray(model.assignments()).tolist()
+    group_of_point = [group_of_expert[k] for k in assignments]
+    return fit_partition(x, y, group_of_point, params=params, seed=seed), group_of_point
 
 
 def merge_groups(x: npt.ArrayLike, y: npt.ArrayLike, labels: Sequence[str], model: Any, *,
@@ -35,7 +51,6 @@ def merge_groups(x: npt.ArrayLike, y: npt.ArrayLike, labels: Sequence[str], mode
     if not len(assignments) == len(labels) == len(np.asarray(x)):
         raise ValueError(f"merge_groups: the model learned {len(assignments)} pairs; "
                          f"{len(labels)} labels and {len(np.asarray(x))} pairs were given")
-    names = majority_labels(assignments, labels)
-    group_of_point = [names[k] for k in assignments]
-    merged = fit_partition(x, y, group_of_point, params=params, seed=seed)
+    merged, group_of_point = refit_groups(x, y, model, majority_labels(assignments, labels),
+                                          params=params, seed=seed)
     return merged, group_of_point

@@ -99,8 +99,8 @@ def _consolidated(rule: str, plan: Any, model: Any, stream: Any, params: Any, se
     """The transitioner over ROGER's experts consolidated without labels (the labels only name
     the consolidated experts' groups afterwards)."""
     from roger_daemon.consolidate import command_groups, consolidate
+    from roger_daemon.groups import refit_groups
     from roger_daemon.labels import majority_labels
-    from roger_daemon.learner.partition import fit_partition
     from simulator.experiment import inprocess as ip
     from simulator.experiment.pipeline import make_hcc
 
@@ -108,10 +108,10 @@ def _consolidated(rule: str, plan: Any, model: Any, stream: Any, params: Any, se
         merged, _ = consolidate(stream["x"], stream["y"], stream["location"], stream["tick"],
                                 model, params=params, seed=seed)
     else:
-        a = np.asarray(model.assignments())
-        group = command_groups(a, stream["y"], y_scale=params.y_scale, tau=0.05)
-        merged = fit_partition(stream["x"], stream["y"], [group[int(k)] for k in a],
-                               params=params, seed=seed)
+        group = command_groups(model.assignments(), stream["y"], y_scale=params.y_scale,
+                               tau=0.05)
+        merged, _ = refit_groups(stream["x"], stream["y"], model, group, params=params,
+                                 seed=seed)
     names = majority_labels(np.asarray(merged.assignments()).tolist(), stream["labels"])
     return ip.TransitionerController(make_hcc(plan), merged, names, DEFAULT_RULE)
 
