@@ -64,6 +64,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
     "lambda0-100-gate": ("gate prior scatter lambda0 = 100, rule gate", {"lambda0": 100.0},
                          "gate"),
     "lambda0-0.1": ("gate prior scatter lambda0 = 0.1", {"lambda0": 0.1}, DEFAULT_RULE),
+    "shared-0.25": ("each expert also serves every subtask holding >= 25 % of its points "
+                    "(labels group experts for the transitioner, as the majority rule does)",
+                    {}, "shared-0.25"),
     "beacons-dropped": ("input weights 0 on the beacons (and the tail)",
                         {"input_weights": (1.0,) * 9 + (0.0,) * 9 + (1.0,) * 3 + (0.0,) * 2},
                         DEFAULT_RULE),
@@ -102,6 +105,45 @@ class _ChoiceOracle:
         return y, subtask
 
 
+class _Shared:
+    """The transitioner over experts that may serve several subtasks: an expert belongs to
+    its majority label and to every label holding at least ``share`` of its points. At each
+    tick the experts serving the FSM's subtask carry that subtask as their label, so the
+    default rule's mixture runs over them (labels group experts only, as for the majority
+    rule; nothing is learned from them)."""
+
+    def __init__(self, hcc: Any, model: Any, labels: list[str], share: float) -> None:
+        from roger_daemon.labels import majority_labels
+
+        self.hcc, self.model = hcc, model
+        assignments = np.asarray(model.assignments()).tolist()
+        self.majority = majority_labels(assignments, labels)
+        counts: dict[int, Counter[str]] = {}
+        for e, lab in zip(assignments, labels, strict=True):
+            counts.setdefault(int(e), Counter())[lab] += 1
+        self.serves = {e: {lab for lab, n in c.items() if lab and n >= share * sum(c.values())}
+                       for e, c in counts.items()}
+
+    def reset(self) -> None:
+        self.hcc.reset()
+
+    def act(self, x: Any) -> tuple[Any, str]:
+        from protocols import ExpertOutput
+        from simulator.controllers.transitioner import transition_command
+
+        _, subtask = self.hcc.decide(x)
+        multimap = tuple(
+            ExpertOutput(expert=int(e.expert_id), p=float(e.gate_prob), mean=e.mean, var=e.var,
+                         n=int(e.n_points),
+                         label=subtask if subtask in self.serves.get(int(e.expert_id), ())
+                         else self.majority.get(int(e.expert_id), ""))
+            for e in self.model.predict_multimap(x))
+        fallback = None if multimap else np.asarray(self.model.predict_one(x).mean)
+        y, _, _ = transition_command(multimap, fallback, subtask, DEFAULT_RULE)
+        self.hcc.commit(y)
+        return y, subtask
+
+
 def _consolidated(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed: int) -> Any:
     """The transitioner over ROGER's experts consolidated without labels (the labels only name
     the consolidated experts' groups afterwards)."""
@@ -132,6 +174,9 @@ def _controller(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed
     groups = majority_labels(np.asarray(model.assignments()).tolist(), stream["labels"])
     if rule == "choice-oracle":
         return _ChoiceOracle(make_hcc(plan), model, groups, params.y_scale)
+    if rule.startswith("shared-"):
+        return _Shared(make_hcc(plan), model, list(stream["labels"]),
+                       float(rule.removeprefix("shared-")))
     if rule in ("consolidated", "commands"):
         return _consolidated(rule, plan, model, stream, params, seed)
     if rule == "merged":
