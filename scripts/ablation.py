@@ -67,6 +67,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
     "shared-0.25": ("each expert also serves every subtask holding >= 25 % of its points "
                     "(labels group experts for the transitioner, as the majority rule does)",
                     {}, "shared-0.25"),
+    "alpha-0.05": ("CRP concentration alpha = 0.05 (new experts 10x less readily)",
+                   {"alpha": 0.05}, DEFAULT_RULE),
     "beacons-dropped": ("input weights 0 on the beacons (and the tail)",
                         {"input_weights": (1.0,) * 9 + (0.0,) * 9 + (1.0,) * 3 + (0.0,) * 2},
                         DEFAULT_RULE),
