@@ -22,11 +22,23 @@ browser:
 	    >/dev/null; else echo "==> no $(CHROMIUM): the browser test is skipped (apt-get \
 	install chromium)"; fi; }
 
+# The learner's kernels compile (`roger compile`, below: ~90 s of CPU) while pip installs the
+# rest on one core: the few packages their modules import go in first, with pyproject.toml's
+# constraints (KERNEL_DEPS), then `python -m roger_daemon compile` runs from the source tree
+# beside the main install (docs/testing.md, *Budget*). If it fails, the `roger compile` of
+# `make test` and `make demo` compiles instead (its log: .venv/compile.log).
+KERNEL_DEPS := numpy numba scipy msgpack
 $(STAMP): pyproject.toml
 	@echo "==> creating $(VENV) and installing roger with its dependencies (about 1.5 min the first time)"
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --progress-bar on -e '.[test]'
+	$(BIN)/python -m pip install --quiet $$($(BIN)/python -c "import tomllib; \
+	  deps = tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']; \
+	  print(' '.join(d for d in deps if d.split('>')[0].split('=')[0] in '$(KERNEL_DEPS)'.split()))")
+	$(BIN)/python -m roger_daemon compile >$(VENV)/compile.log 2>&1 & compiling=$$!; \
+	  $(BIN)/python -m pip install --progress-bar on -e '.[test]'; installed=$$?; \
+	  wait $$compiling || echo "==> the kernels were not compiled yet (.venv/compile.log)"; \
+	  test $$installed -eq 0
 	touch $(STAMP)
 	@echo "==> installed: run commands as $(BIN)/roger, or '. $(BIN)/activate' first"
 
