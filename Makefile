@@ -27,7 +27,7 @@ browser:
 # constraints (KERNEL_DEPS), then `python -m roger_daemon compile` runs from the source tree
 # beside the main install (docs/testing.md, *Budget*). If it fails, the `roger compile` of
 # `make test` and `make demo` compiles instead (its log: .venv/compile.log).
-KERNEL_DEPS := numpy numba scipy msgpack
+KERNEL_DEPS := numpy numba scipy msgpack threadpoolctl
 $(STAMP): pyproject.toml
 	@echo "==> creating $(VENV) and installing roger with its dependencies (about 1.5 min the first time)"
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
