@@ -3,7 +3,10 @@
 Usage (after a ``roger experiment goal-scoring`` run, whose stream it reuses)::
 
     python scripts/ablation.py --stream RUN/training-data.npz --out ablation.json \
-        [--seeds 0,1,2] [--attempts 1] [--only NAME,...]
+        [--seeds 0,1,2] [--attempts 1] [--only NAME,...] [--seed S]
+
+``--stream`` also takes a multi-stream run's ``OUT/stream-S/prepared.npz``; ``--seed S`` then
+evaluates on that stream's own evaluation seeds (the experiment's ``--seed S``).
 
 For every variant (the default configuration, then one lever changed at a time) it trains
 ROGER once per learner seed on the same downsampled demonstration stream, groups the experts
@@ -137,7 +140,8 @@ def _controller(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed
     return ip.TransitionerController(make_hcc(plan), model, groups, rule)
 
 
-def _variant_rows(name: str, stream: Any, seeds: list[int], attempts: int) -> dict[str, Any]:
+def _variant_rows(name: str, stream: Any, seeds: list[int], attempts: int, master: int = 0
+                  ) -> dict[str, Any]:
     from roger_daemon.learner import Roger
     from simulator.experiment import goal_scoring as gs
     from simulator.experiment import inprocess as ip
@@ -148,7 +152,8 @@ def _variant_rows(name: str, stream: Any, seeds: list[int], attempts: int) -> di
     what, changes, rule = VARIANTS[name]
     parser = argparse.ArgumentParser()
     gs.configure(parser)
-    argv = ["--out", "unused", "--in-process", "--attempts", str(attempts)]
+    argv = ["--out", "unused", "--in-process", "--attempts", str(attempts),
+            "--seed", str(master)]
     argv += ["--rule", rule] if rule in RULES else []
     plan = gs.plan_from_args(parser.parse_args(argv))
     params = replace(gs.learner_params(plan), **changes)  # validated again by the dataclass
@@ -198,6 +203,18 @@ def _markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _load_stream(path: Path) -> dict[str, Any]:
+    """x, y, labels, location, tick of a ``training-data.npz`` or a ``prepared.npz``."""
+    with np.load(path, allow_pickle=False) as data:
+        pre = "stream/" if "stream/x" in data.files else ""
+        stream = {k: data[pre + k] for k in ("x", "y")}
+        stream["labels"] = [str(s) for s in data[pre + "labels"]]
+        n = len(stream["labels"])  # older files: one demonstration, consecutive ticks
+        for k, default in (("location", np.zeros(n)), ("tick", np.arange(n))):
+            stream[k] = data[pre + k] if pre + k in data.files else default
+    return stream
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--stream", type=Path, required=True,
@@ -206,6 +223,8 @@ def main() -> int:
     ap.add_argument("--seeds", default="0,1,2", help="learner seeds (default 0,1,2)")
     ap.add_argument("--attempts", type=int, default=1, help="attempts per location (default 1)")
     ap.add_argument("--only", default=",".join(VARIANTS), help="variants to run")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="the experiment's master seed: its evaluation seeds (default 0)")
     args = ap.parse_args()
     pin_blas_threads()
     names = [n for n in args.only.split(",") if n]
@@ -214,16 +233,12 @@ def main() -> int:
         ap.error(f"--only: unknown variants {bad}; expected some of {sorted(VARIANTS)}")
     if args.out.exists():
         ap.error(f"--out: {args.out} exists; choose another path")
-    with np.load(args.stream) as data:
-        stream = {"x": data["x"], "y": data["y"], "labels": [str(s) for s in data["labels"]]}
-        n = len(stream["labels"])  # older files: one demonstration, consecutive ticks
-        stream["location"] = data["location"] if "location" in data.files else np.zeros(n)
-        stream["tick"] = data["tick"] if "tick" in data.files else np.arange(n)
+    stream = _load_stream(args.stream)
     seeds = [int(s) for s in args.seeds.split(",")]
     rows = []
     t0 = time.monotonic()
     for name in names:
-        rows.append(_variant_rows(name, stream, seeds, args.attempts))
+        rows.append(_variant_rows(name, stream, seeds, args.attempts, args.seed))
         args.out.write_text(json.dumps({"stream": str(args.stream), "seeds": seeds,
                                         "attempts": args.attempts, "rows": rows,
                                         "wall_s": round(time.monotonic() - t0, 1)}, indent=1))
