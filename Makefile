@@ -4,9 +4,10 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 # test processes (pytest-xdist): the suite is mostly single-threaded Python and subprocesses, so
-# two use both cores of the 2-core machines it must pass on (`make test TEST_WORKERS=1`: one)
+# two use both cores of the 2-core machines it must pass on (`make test TEST_WORKERS=1`: one);
+# the 15 longest tests are listed at the end (docs/testing.md, *Keeping it*)
 TEST_WORKERS ?= 2
-PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal
+PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal --durations=15
 
 .PHONY: demo test test-all lint typecheck bench clean venv browser venv-peers
 
