@@ -54,6 +54,8 @@ LONG_FIRST = (
     "tests/test_durability.py::test_kill_9_loses_no_acknowledged_pair",
     "tests/test_workers.py::test_with_workers_only_the_workers_load_the_compiled_kernels",
     "tests/test_experiment_streams.py::test_two_streams_run_end_to_end",
+    "tests/test_experiment_inprocess.py::test_the_in_process_path_writes_results",
+    "tests/test_sim_world.py::test_kick_distance_and_heading_match_the_calibration",
     "tests/test_play_node.py::test_the_robot_moves_under_roger_play_on_loopback",
     "tests/test_script_shared_base.py::test_shared_base_split_is_exact",
     "tests/test_disk_full.py::test_a_full_disk_stops_learning",
@@ -62,6 +64,7 @@ LONG_FIRST = (
     "tests/test_daemon_integration.py::test_sigterm_checkpoints_and_restart",
     "tests/test_standby_takeover.py::test_the_standby_takes_over",
     "tests/test_workers.py::test_worker_equals_in_process_model_bit_for_bit",
+    "tests/test_examples.py::test_your_own_robot_learns_and_predicts",
 )
 
 
