@@ -63,6 +63,10 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
     "lambda0-100": ("gate prior scatter lambda0 = 100", {"lambda0": 100.0}, DEFAULT_RULE),
     "lambda0-100-gate": ("gate prior scatter lambda0 = 100, rule gate", {"lambda0": 100.0},
                          "gate"),
+    "lambda0-0.1": ("gate prior scatter lambda0 = 0.1", {"lambda0": 0.1}, DEFAULT_RULE),
+    "beacons-dropped": ("input weights 0 on the beacons (and the tail)",
+                        {"input_weights": (1.0,) * 9 + (0.0,) * 9 + (1.0,) * 3 + (0.0,) * 2},
+                        DEFAULT_RULE),
 }
 
 
