@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -32,11 +33,37 @@ __all__ = ["Client", "DaemonProcess", "Received", "free_port", "interruptible_ch
            "write_config"]
 
 
+#: where :func:`free_port` looks when the kernel's ephemeral range is unreadable (Linux's default
+#: range starts at 32768)
+_BELOW_EPHEMERAL = (20000, 32768)
+
+
+def _ephemeral_low() -> int:
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return _BELOW_EPHEMERAL[1]
+    return low
+
+
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    """A TCP port on 127.0.0.1 that nothing listens on right now, drawn at random from below the
+    kernel's ephemeral range (docs/testing.md, *Ports*): ``bind(0)`` hands out ports of that
+    range, which every outgoing connection also takes its local port from, so a port found
+    free there could be some process's connection by the time the daemon or simulator it is
+    for listens on it ("Address already in use" under load)."""
+    low = _ephemeral_low()
+    first = _BELOW_EPHEMERAL[0] if low > _BELOW_EPHEMERAL[0] + 1000 else 1024
+    draw = random.SystemRandom()
+    for _ in range(200):
+        port = draw.randrange(first, low) if low > first else 0
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return int(s.getsockname()[1])
+    raise RuntimeError(f"no free TCP port on 127.0.0.1 in {first}-{low - 1}")
 
 
 def _toml(value: Any) -> str:

@@ -19,7 +19,6 @@ import argparse
 import json
 import math
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -45,11 +44,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that is free right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
+    """A TCP port on 127.0.0.1 that is free right now (:func:`roger_daemon.harness.free_port`)."""
+    from roger_daemon.harness import free_port as harness_free_port
+
+    return harness_free_port()
 
 
 def _roger() -> list[str]:

@@ -37,29 +37,34 @@ def _learner_kernels_compiled() -> None:
     jit.warm_up()
 
 
-#: The longest tests of `make test`, longest first (``--durations``, 2026-12-02: 17-60 s each
-#: on 2 loaded cores). They are run first, dealt in turn to the start of each xdist worker's
-#: share: a long test begun last leaves the other worker idle until it ends, and stealing
-#: (``--dist worksteal``) moves only tests that have not started. A name that no longer
-#: matches just loses its place; a prefix matches every test it starts.
+#: The longest tests of `make test`, longest first (``--durations``, 2026-12-03: 10-40 s each
+#: on 2 cores at load 2-4, the short demo ~40 s when its stages do not stall; docs/testing.md).
+#: They are run first, dealt in turn to the start of each xdist worker's share: a long test
+#: begun last leaves the other worker idle until it ends, and stealing (``--dist
+#: worksteal``) moves only tests that have not started. A name that no longer matches just
+#: loses its place; a prefix matches every test it starts.
 LONG_FIRST = (
     "tests/test_demo.py::test_short_demo",
     "tests/test_bench_fleet.py::test_bench_fleet_runs_both_phases",
-    "tests/test_workers.py::test_worker_equals_in_process_model_bit_for_bit",
-    "tests/test_script_parallel_bound.py::test_step_reads_every_version",
-    "tests/test_workers.py::test_shutdown_learns_queue_and_checkpoints",
-    "tests/test_standby_takeover.py::test_kill_9_of_the_primary",
-    "tests/test_disk_full.py::test_a_full_disk_stops_learning",
-    "tests/test_workers.py::test_workers_run_nicer_than_the_loop",
     "tests/test_teach_browser.py::test_teach_in_a_browser",
-    "tests/test_standby_takeover.py::test_the_standby_takes_over",
-    "tests/test_durability.py::test_kill_9_loses_no_acknowledged_pair",
-    "tests/test_daemon_integration.py::test_sigterm_checkpoints_and_restart",
     "tests/test_durability_perception_first.py::",
+    "tests/test_script_parallel_bound.py::test_step_reads_every_version",
     "tests/test_recovery_integration.py::test_sigkill_twice",
+    "tests/test_standby_takeover.py::test_kill_9_of_the_primary",
+    "tests/test_durability.py::test_kill_9_loses_no_acknowledged_pair",
+    "tests/test_workers.py::test_with_workers_only_the_workers_load_the_compiled_kernels",
+    "tests/test_experiment_streams.py::test_two_streams_run_end_to_end",
+    "tests/test_experiment_inprocess.py::test_the_in_process_path_writes_results",
+    "tests/test_sim_world.py::test_kick_distance_and_heading_match_the_calibration",
+    "tests/test_play_node.py::test_the_robot_moves_under_roger_play_on_loopback",
     "tests/test_script_shared_base.py::test_shared_base_split_is_exact",
-    "tests/test_workers.py::test_a_pair_queued_before_a_reset",
-    "tests/test_workers.py::test_nothing_goes_to_a_worker_in_the_delivery_window",
+    "tests/test_disk_full.py::test_a_full_disk_stops_learning",
+    "tests/test_router_stall.py::test_a_block_burst_to_a_busy_subscriber",
+    "tests/test_daemon_integration.py::test_realtime_predictions_at_30_hz",
+    "tests/test_daemon_integration.py::test_sigterm_checkpoints_and_restart",
+    "tests/test_standby_takeover.py::test_the_standby_takes_over",
+    "tests/test_workers.py::test_worker_equals_in_process_model_bit_for_bit",
+    "tests/test_examples.py::test_your_own_robot_learns_and_predicts",
 )
 
 

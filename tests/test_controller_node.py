@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from protocols import Command, Perception
+from protocols import Command, Perception, Prediction
 from protocols.aibo import DIMS
 from simulator.controllers import hcc_node, node, play_node
 from simulator.experiment import dpa_node
@@ -69,3 +69,34 @@ def test_a_repeated_tick_is_resent_an_older_one_stale_and_t0_a_new_episode(
                         "episodes": 2}
     assert n.resets == 2
     assert n.summary(extra=1)["extra"] == 1 and n.summary()["role"] == "echo"
+
+
+class _Inbox:
+    """A prediction inbox that hands out the given messages once."""
+
+    def __init__(self, msgs: list[Prediction]) -> None:
+        self.msgs = msgs
+
+    def drain(self) -> list[Prediction]:
+        out, self.msgs = self.msgs, []
+        return out
+
+
+def test_lockstep_takes_prediction_t_past_one_of_a_higher_tick() -> None:
+    """A prediction of a higher tick (a stray daemon's on a reused port; the short demo's play
+    stage once held none but its first this way) hides neither prediction(t) nor later ones."""
+    n = _Echo()
+    n.args.prediction_timeout = 0.05
+    x, mean, var = np.zeros(DIMS.x), np.zeros(DIMS.y), np.ones(DIMS.y)
+
+    def pred(tick: int) -> Prediction:
+        return Prediction("aibo", tick, tick / 30, mean=mean, var=var, expert=-1)
+
+    n.preds = _Inbox([pred(0), pred(500)])  # type: ignore[assignment]
+    got = n.prediction_for(Perception("aibo", 0, 0.0, x=x))
+    assert got is not None and got.tick == 0
+    n.preds = _Inbox([pred(501), pred(1)])  # type: ignore[assignment]
+    got = n.prediction_for(Perception("aibo", 1, 1 / 30, x=x))
+    assert got is not None and got.tick == 1
+    n.preds = _Inbox([pred(502)])  # type: ignore[assignment]
+    assert n.prediction_for(Perception("aibo", 2, 2 / 30, x=x)) is None  # timed out

@@ -22,6 +22,14 @@ pytestmark = pytest.mark.integration
 ROGER = [sys.executable, "-m", "roger_daemon"]
 
 
+def _tails(out: Path, lines: int = 8) -> str:
+    """The last lines of every log and stats file the demo wrote (what a hung stage did)."""
+    files = sorted([*out.rglob("*.log"), *out.rglob("*.json")])
+    return "".join(f"--- {f.relative_to(out)}\n" + "\n".join(
+        f.read_text(errors="replace").splitlines()[-lines:]) + "\n"
+        for f in files if "wal" not in f.parts)
+
+
 def _demo(out: Path, *extra: str, timeout: float = 240.0) -> tuple[dict[str, Any], str, float]:
     t0 = time.monotonic()
     # its own process group: a demo past the timeout is stopped with every process it started
@@ -38,7 +46,8 @@ def _demo(out: Path, *extra: str, timeout: float = 240.0) -> tuple[dict[str, Any
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate()
-        raise
+        raise AssertionError(f"roger demo still ran after {timeout} s; its logs:\n"
+                             + _tails(out)) from None
     wall = time.monotonic() - t0
     assert proc.returncode == 0, stdout[-4000:] + stderr[-4000:]
     return json.loads((out / "summary.json").read_text()), stdout, wall

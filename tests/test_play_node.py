@@ -154,11 +154,11 @@ sim = 0
 [sim]
 locations = "0"
 time_limit = 6.0
-args = ["--vision", "fast", "--results", "results.json"]
+args = ["--vision", "fast", "--results", "results.json", "--command-timeout", "20"]
 [controller]
 role = "play"
-args = ["--stats", "play.json"]
-""", encoding="utf-8")
+args = ["--stats", "play.json", "--prediction-timeout", "20"]
+""", encoding="utf-8")  # 20 s, not 2: a round trip past 2 s on loaded cores was a hold tick
     out = subprocess.run([sys.executable, "-m", "roger_daemon", "up", str(launch)],
                          capture_output=True, text=True, timeout=240)
     assert out.returncode == 0, out.stdout + out.stderr

@@ -183,7 +183,13 @@ class PerceptionNode(NodeLoop):
         def newest() -> Prediction | None:
             for m in preds.drain():
                 assert isinstance(m, Prediction)
-                if self._pred_cache is None or m.tick >= self._pred_cache.tick:
+                # lockstep: only prediction(t) is kept, so that one of a higher tick (from
+                # a daemon of another run on a reused port) cannot hide it for the rest of
+                # the run (docs/testing.md, *Ports*)
+                if lockstep:
+                    if m.tick == msg.tick:
+                        self._pred_cache = m
+                elif self._pred_cache is None or m.tick >= self._pred_cache.tick:
                     self._pred_cache = m
             c = self._pred_cache
             if c is None:
