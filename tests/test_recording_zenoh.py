@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -19,19 +18,13 @@ import numpy as np
 import pytest
 
 from protocols import Action, Perception, encode, keys
+from roger_daemon.harness import free_port
 from roger_daemon.recording import is_complete, read_metadata
 from roger_daemon.recording.mcapio import LogReader
 
 zenoh = pytest.importorskip("zenoh")
 
 pytestmark = pytest.mark.integration
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def _config(*, listen: list[str], connect: list[str]):  # type: ignore[no-untyped-def]
@@ -51,7 +44,7 @@ def _wait(cond, timeout: float, what: str) -> None:  # type: ignore[no-untyped-d
 def test_roger_record_records_published_messages_and_finishes_on_sigterm(
     tmp_path: Path,
 ) -> None:
-    port = _free_port()
+    port = free_port()
     err = open(tmp_path / "stderr.txt", "w")  # closed below
     proc = subprocess.Popen(
         [sys.executable, "-m", "roger_daemon", "record", "--key", "roger/**", "--out",
@@ -110,7 +103,7 @@ def test_replay_publish_resends_the_recorded_inputs(tmp_path: Path) -> None:
     s = record_session(tmp_path / "logs", n_ticks=30, modes={10: "learn+predict"})
     inputs = [(lm.topic, lm.message.data) for lm in LogReader(s.paths[0]).messages()
               if lm.topic.rsplit("/", 1)[1] in ("perception", "action", "control")]
-    port = _free_port()
+    port = free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "roger_daemon", "replay", str(s.paths[0]), "--publish",
          "--speed", "0", "--connect", f"tcp/127.0.0.1:{port}", "--listen", "none",
