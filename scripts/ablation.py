@@ -189,10 +189,10 @@ def _controller(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed
         return _Shared(make_hcc(plan), model, list(stream["labels"]),
                        float(rule.removeprefix("shared-")))
     if rule.startswith("split-gates"):
-        from roger_daemon.gate_split import SplitGates
+        from roger_daemon.gate_split import SPLIT_LAMBDA0, SplitGates
 
         opts = rule.removeprefix("split-gates").split("-")[1:]  # [prior scatter[, parts]]
-        split = SplitGates(model, stream["x"], lambda0=float(opts[0]) if opts else None,
+        split = SplitGates(model, stream["x"], lambda0=float(opts[0]) if opts else SPLIT_LAMBDA0,
                            max_parts=int(opts[1]) if len(opts) > 1 else 4)
         names = majority_labels(split.assignments().tolist(), stream["labels"])
         print(f"    split gates: {len(split.parts)} parts", flush=True)

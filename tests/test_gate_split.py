@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from roger_daemon.gate_split import SplitGates, niw_log_marginal, split_points
+from roger_daemon.gate_split import SPLIT_LAMBDA0, SplitGates, niw_log_marginal, split_points
 from roger_daemon.learner import RogerParams
 from roger_daemon.learner.engine.gates import GatePool
 from roger_daemon.learner.partition import fit_partition
@@ -99,6 +99,19 @@ def test_an_expert_spanning_two_clusters_is_split_and_keeps_its_gp() -> None:
         probe = x[truth == k][0]
         owner = split.point_part[np.flatnonzero(truth == k)[0]]
         assert int(np.argmax(split.part_probs(probe))) == owner
+
+
+def test_the_default_prior_scatter_splits_a_model_with_the_papers_gate_prior() -> None:
+    """The split test's own prior scatter (``SPLIT_LAMBDA0``), not the model's: a model with
+    the default gate prior (``lambda0 = 1``) still has its spanning expert split, which the
+    model's own scatter would not do on inputs this tight."""
+    x, _ = _blobs(5, gap=0.5)
+    y = np.ones((len(x), 1))
+    model = fit_partition(x, y, [0] * len(x), params=RogerParams(), seed=0)
+    assert model.terms.params.lambda0 == 1.0  # type: ignore[attr-defined]
+    assert SPLIT_LAMBDA0 < 1.0
+    assert len(SplitGates(model, x, min_points=5).parts) == 2
+    assert len(SplitGates(model, x, min_points=5, lambda0=1.0).parts) == 1
 
 
 def test_the_zenoh_path_refuses_split_gates(tmp_path: Path) -> None:
