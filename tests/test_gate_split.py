@@ -108,7 +108,7 @@ def test_the_default_prior_scatter_splits_a_model_with_the_papers_gate_prior() -
     x, _ = _blobs(5, gap=0.5)
     y = np.ones((len(x), 1))
     model = fit_partition(x, y, [0] * len(x), params=RogerParams(), seed=0)
-    assert model.terms.params.lambda0 == 1.0  # type: ignore[attr-defined]
+    assert model.terms.params.lambda0 == 1.0
     assert SPLIT_LAMBDA0 < 1.0
     assert len(SplitGates(model, x, min_points=5).parts) == 2
     assert len(SplitGates(model, x, min_points=5, lambda0=1.0).parts) == 1
@@ -145,7 +145,7 @@ def test_split_gates_reach_the_roger_and_autonomous_rows() -> None:
     assert seed == 0 and isinstance(view, SplitGates) and len(view.parts) == 2
     probe = x[0]
     _, table = view.predict_table(probe)
-    own = model.predict_one(probe)  # type: ignore[attr-defined]
+    own = model.predict_one(probe)
     assert table.expert_ids == [0, 1] and sum(table.gate_probs) == pytest.approx(1.0)
     for row in range(2):  # both parts answer with expert 0's GP
         assert np.array_equal(table.means[row], own.mean)
