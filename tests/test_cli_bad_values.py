@@ -5,9 +5,10 @@ failed before its fix (docs/cli.md)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
+import logging
 import warnings
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +20,36 @@ ROOT = Path(__file__).resolve().parents[1]
 SESSION = ROOT / "tests" / "data" / "sessions" / "sim-loc7-seed0.mcap"
 
 
-def run(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "roger_daemon", *argv], capture_output=True,
-                          text=True, timeout=300, cwd=cwd)
+@dataclass
+class Ran:
+    """What ``roger ARGV`` did: its exit status and what it wrote."""
+
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def run(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+        ) -> Iterator[Callable[..., Ran]]:
+    """``roger ARGV`` run in this process, in directory ``cwd`` (the command line's own code
+    path, :func:`roger_daemon.cli.main`, without a second interpreter's start-up; a traceback
+    would fail the test here instead of reaching stderr)."""
+
+    def ran(*argv: str, cwd: Path) -> Ran:
+        monkeypatch.chdir(cwd)
+        capsys.readouterr()
+        try:
+            code = roger(list(argv))
+        except SystemExit as exc:  # argparse's usage errors
+            code = int(exc.code or 0)
+        out = capsys.readouterr()
+        return Ran(code, out.out, out.err)
+
+    root = logging.getLogger()  # the command's stderr handler (roger_daemon.console) goes
+    handlers, level = list(root.handlers), root.level  # with the captured stream: restored
+    yield ran
+    root.handlers[:], root.level = handlers, level
 
 
 def _usage_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
@@ -34,7 +62,8 @@ def _usage_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
     return err
 
 
-def test_save_checkpoint_into_a_file_exits_2_and_leaves_it(tmp_path: Path) -> None:
+def test_save_checkpoint_into_a_file_exits_2_and_leaves_it(tmp_path: Path,
+                                                          run: Callable[..., Ran]) -> None:
     notes = tmp_path / "notes.txt"
     notes.write_text("my notes\n")
     for target in (notes, notes / "sub"):
@@ -48,7 +77,8 @@ def test_save_checkpoint_into_a_file_exits_2_and_leaves_it(tmp_path: Path) -> No
 
 
 @pytest.mark.parametrize("content", [b"my notes\n", b"", b"\x93NUMPY"])
-def test_a_checkpoint_that_is_no_archive_is_named(tmp_path: Path, content: bytes) -> None:
+def test_a_checkpoint_that_is_no_archive_is_named(tmp_path: Path, content: bytes,
+                                                  run: Callable[..., Ran]) -> None:
     notes = tmp_path / "notes.txt"
     notes.write_bytes(content)
     p = run("replay", str(SESSION), "--checkpoint", str(notes), "--no-progress", cwd=tmp_path)
@@ -102,7 +132,8 @@ def test_the_defaults_still_parse(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.parametrize("override", ['recording.dir=""', 'checkpoint.dir=""',
                                       'recording.dir=" "'])
-def test_an_empty_directory_in_the_config_is_refused(tmp_path: Path, override: str) -> None:
+def test_an_empty_directory_in_the_config_is_refused(tmp_path: Path, override: str,
+                                                     run: Callable[..., Ran]) -> None:
     p = run("daemon", "--check", "--set", override, cwd=tmp_path)
     assert p.returncode == 2, p.stdout + p.stderr
     key = override.split("=")[0]
@@ -119,7 +150,8 @@ def test_a_directory_in_the_config_is_still_taken(tmp_path: Path) -> None:
     assert cfg.checkpoint.dir == Path("ck").absolute()
 
 
-def test_exporting_a_cut_short_head_fails_and_writes_nothing(tmp_path: Path) -> None:
+def test_exporting_a_cut_short_head_fails_and_writes_nothing(tmp_path: Path,
+                                                            run: Callable[..., Ran]) -> None:
     head = tmp_path / "head.mcap"
     head.write_bytes(SESSION.read_bytes()[:300])
     p = run("log", "export", str(head), cwd=tmp_path)
