@@ -5,14 +5,13 @@ failed before its fix (docs/cli.md)."""
 
 from __future__ import annotations
 
-import logging
 import warnings
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_testing import Ran, in_process
 
 from roger_daemon.cli import main as roger
 
@@ -20,36 +19,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SESSION = ROOT / "tests" / "data" / "sessions" / "sim-loc7-seed0.mcap"
 
 
-@dataclass
-class Ran:
-    """What ``roger ARGV`` did: its exit status and what it wrote."""
-
-    returncode: int
-    stdout: str
-    stderr: str
-
-
 @pytest.fixture
 def run(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
         ) -> Iterator[Callable[..., Ran]]:
-    """``roger ARGV`` run in this process, in directory ``cwd`` (the command line's own code
-    path, :func:`roger_daemon.cli.main`, without a second interpreter's start-up; a traceback
-    would fail the test here instead of reaching stderr)."""
-
-    def ran(*argv: str, cwd: Path) -> Ran:
-        monkeypatch.chdir(cwd)
-        capsys.readouterr()
-        try:
-            code = roger(list(argv))
-        except SystemExit as exc:  # argparse's usage errors
-            code = int(exc.code or 0)
-        out = capsys.readouterr()
-        return Ran(code, out.out, out.err)
-
-    root = logging.getLogger()  # the command's stderr handler (roger_daemon.console) goes
-    handlers, level = list(root.handlers), root.level  # with the captured stream: restored
-    yield ran
-    root.handlers[:], root.level = handlers, level
+    """``roger ARGV`` in this process (tests/cli_testing.py)."""
+    yield from in_process(capsys, monkeypatch)
 
 
 def _usage_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
