@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,9 +29,10 @@ class Ran:
     stderr: str
 
 
+@contextmanager
 def in_process(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
                ) -> Iterator[Callable[..., Ran]]:
-    """The body of a fixture: yields ``run(*argv, cwd=None) -> Ran``."""
+    """``with in_process(capsys, monkeypatch) as run``: ``run(*argv, cwd=None) -> Ran``."""
 
     def run(*argv: str, cwd: Path | None = None) -> Ran:
         if cwd is not None:

@@ -23,7 +23,8 @@ SESSION = ROOT / "tests" / "data" / "sessions" / "sim-loc7-seed0.mcap"
 def run(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
         ) -> Iterator[Callable[..., Ran]]:
     """``roger ARGV`` in this process (tests/cli_testing.py)."""
-    yield from in_process(capsys, monkeypatch)
+    with in_process(capsys, monkeypatch) as run:
+        yield run
 
 
 def _usage_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:

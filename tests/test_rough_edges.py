@@ -46,7 +46,8 @@ def here(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
          ) -> Iterator[Callable[..., Ran]]:
     """``roger ARGV`` in this process (tests/cli_testing.py): for the commands that only read
     and write files; those that serve, listen or take signals run as processes (:func:`run`)."""
-    yield from in_process(capsys, monkeypatch)
+    with in_process(capsys, monkeypatch) as run:
+        yield run
 
 
 @pytest.fixture
