@@ -69,6 +69,15 @@ VARIANTS: dict[str, tuple[str, dict[str, Any], str]] = {
                     {}, "shared-0.25"),
     "alpha-0.05": ("CRP concentration alpha = 0.05 (new experts 10x less readily)",
                    {"alpha": 0.05}, DEFAULT_RULE),
+    "split-gates": ("each expert's gate split where its inputs form clusters (label-free, "
+                    "roger_daemon/gate_split.py); the labels name each part's group",
+                    {}, "split-gates"),
+    "split-gates-0.1": ("split gates, the split test's prior scatter 0.1", {},
+                        "split-gates-0.1"),
+    "split-gates-0.01": ("split gates, the split test's prior scatter 0.01", {},
+                         "split-gates-0.01"),
+    "split-gates-0.1-8": ("split gates, prior scatter 0.1, up to 8 parts per expert", {},
+                          "split-gates-0.1-8"),
     "beacons-dropped": ("input weights 0 on the beacons (and the tail)",
                         {"input_weights": (1.0,) * 9 + (0.0,) * 9 + (1.0,) * 3 + (0.0,) * 2},
                         DEFAULT_RULE),
@@ -179,6 +188,15 @@ def _controller(rule: str, plan: Any, model: Any, stream: Any, params: Any, seed
     if rule.startswith("shared-"):
         return _Shared(make_hcc(plan), model, list(stream["labels"]),
                        float(rule.removeprefix("shared-")))
+    if rule.startswith("split-gates"):
+        from roger_daemon.gate_split import SplitGates
+
+        opts = rule.removeprefix("split-gates").split("-")[1:]  # [prior scatter[, parts]]
+        split = SplitGates(model, stream["x"], lambda0=float(opts[0]) if opts else None,
+                           max_parts=int(opts[1]) if len(opts) > 1 else 4)
+        names = majority_labels(split.assignments().tolist(), stream["labels"])
+        print(f"    split gates: {len(split.parts)} parts", flush=True)
+        return ip.TransitionerController(make_hcc(plan), split, names, DEFAULT_RULE)
     if rule in ("consolidated", "commands"):
         return _consolidated(rule, plan, model, stream, params, seed)
     if rule == "merged":

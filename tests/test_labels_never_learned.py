@@ -3,7 +3,9 @@
 The experiment's training (``pipeline.train_models``: ROGER per learner seed and the unimap
 GP) and its learned transitions (``pipeline.fit_transitions``) take a stream whose labels are
 carried beside the pairs; permuting the labels changes neither the models' state dicts nor
-the FSM's. (The downsampling picks points by label, as in the paper; it runs before this.)
+the FSM's, with the experts' own gates or with split gates (``--gates split``, whose parts
+the FSM learns over). (The downsampling picks points by label, as in the paper; it runs
+before this.)
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pytest
 
 from roger_daemon.daemon.checkpoint import array_digest
 from roger_daemon.learner import RogerParams
@@ -24,6 +27,7 @@ class _Plan:
     learner_seeds: int = 2
     seeds: dict[str, int] = field(default_factory=lambda: {"learner": 5})
     controllers: tuple[str, ...] = ("roger", "autonomous")
+    gates: str = "niw"
 
 
 def _stream(labels: list[str]) -> Demonstrations:
@@ -38,22 +42,23 @@ def _stream(labels: list[str]) -> Demonstrations:
     return Demonstrations(x, y, labels, np.zeros(n, dtype=np.int64), tick, 0)
 
 
-def _digests(labels: list[str]) -> tuple[list[str], str, list[str]]:
+def _digests(labels: list[str], gates: str = "niw") -> tuple[list[str], str, list[str]]:
     stream = _stream(labels)
     params = RogerParams.preset("default").replace(particles=5, beta=20)
-    plan: Any = _Plan()
+    plan: Any = _Plan(gates=gates)
     models, unimap, _ = train_models(stream, params, plan)
-    fsms = fit_transitions(stream, models, plan)
+    fsms = fit_transitions(stream, models, plan, stream)
     return ([array_digest(m.state_dict()) for _, m in models],
             array_digest(unimap.state_dict()), [array_digest(f.state_dict()) for f in fsms])
 
 
-def test_shuffled_labels_give_the_same_models_and_transitions() -> None:
+@pytest.mark.parametrize("gates", ["niw", "split"])
+def test_shuffled_labels_give_the_same_models_and_transitions(gates: str) -> None:
     n = 160
     labels = [("seek", "approach", "kick", "aim")[(i // 10) % 4] for i in range(n)]
     shuffled = list(np.random.default_rng(2).permutation(labels))
     assert shuffled != labels
-    first = _digests(labels)
+    first = _digests(labels, gates)
     assert len(first[0]) == 2 and len(first[2]) == 2
-    assert _digests(shuffled) == first
-    assert _digests(["x"] * n) == first
+    assert _digests(shuffled, gates) == first
+    assert _digests(["x"] * n, gates) == first

@@ -70,7 +70,7 @@ def prepare_stream(plan: Any, params: Any) -> dict[str, float]:
     merged = pl.merge_all(stream, models, params, plan)
     timings["training"] = round(time.monotonic() - t0, 2)
     t0 = time.monotonic()
-    fsms = pl.fit_transitions(data, models, plan)
+    fsms = pl.fit_transitions(data, models, plan, stream)
     timings["transitions"] = round(time.monotonic() - t0, 2)
     out: dict[str, np.ndarray] = {
         "stream/x": stream.x, "stream/y": stream.y, "stream/location": stream.location,

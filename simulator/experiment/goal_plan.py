@@ -15,10 +15,14 @@ from typing import Any
 
 from simulator.controllers.transitioner import DEFAULT_RULE, RULES
 
-__all__ = ["CONTROLLERS", "DEFAULT_TIME_LIMIT", "Plan", "configure", "derived_seeds",
+__all__ = ["CONTROLLERS", "DEFAULT_TIME_LIMIT", "GATES", "Plan", "configure", "derived_seeds",
            "plan_from_args"]
 
 CONTROLLERS = ("hcc", "roger", "dpa", "oracle", "groups", "autonomous")
+#: The gates the ``roger`` and ``autonomous`` rows choose experts by (``--gates``): ``niw``,
+#: each expert's own NIW gate (paper Algorithm 2); ``split``, each expert's gate split where
+#: its inputs form clusters, without labels (roger_daemon/gate_split.py, docs/goal-scoring.md)
+GATES = ("niw", "split")
 #: Defaults of the full run (docs/goal-scoring.md says why they differ from the paper's).
 DEFAULT_SHOTS = 10
 DEFAULT_TIME_LIMIT = 60.0
@@ -62,6 +66,7 @@ class Plan:
     start_poses: str | None = None
     preset: str | None = None
     streams: tuple[int, ...] = ()
+    gates: str = "niw"
 
     def to_json(self) -> dict[str, Any]:
         """The plan as plain JSON (paths as strings)."""
@@ -120,6 +125,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rule", choices=RULES, default=DEFAULT_RULE,
                         help="transitioner rule among the subtask's experts (default "
                         f"{DEFAULT_RULE})")
+    parser.add_argument("--gates", choices=GATES, default="niw",
+                        help="how the roger and autonomous rows choose among the experts: niw "
+                        "(each expert's gate, paper Algorithm 2; default) or split (each gate "
+                        "split where its inputs form clusters, label-free; in-process only)")
     parser.add_argument("--preset", default=None,
                         help="learner preset (e.g. 'paper': the paper's literal numbers, every "
                         "lever off); same as --set learner.preset=NAME")
@@ -173,6 +182,10 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
     from simulator.experiment.streams import parse_streams
 
     streams = parse_streams(args.streams) if args.streams else ()
+    gates = getattr(args, "gates", "niw")
+    if gates != "niw" and not (args.in_process or streams):
+        raise ValueError(f"--gates {gates}: the daemon serves its experts' own gates, so this "
+                         "is evaluated in-process only; add --in-process or --streams")
     return Plan(
         out=Path(args.out), seed=seed, jobs=jobs, quick=quick, locations=tuple(locations),
         attempts=attempts, per_subtask=per_subtask, time_limit=float(time_limit),
@@ -181,7 +194,7 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         retries=max(0, int(args.retries)), resume=bool(args.resume), seeds=seeds,
         shots=shots, learner_seeds=learner_seeds, rule=args.rule,
         in_process=bool(args.in_process) or bool(streams), start_poses=args.start_poses,
-        preset=args.preset, streams=streams,
+        preset=args.preset, streams=streams, gates=gates,
     )
 
 

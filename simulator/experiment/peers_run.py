@@ -202,8 +202,8 @@ class PeersRun:
             # the whole stream of those demonstrations, in the curve's order (docs/autonomy.md)
             order = np.concatenate([np.flatnonzero(episode == d)
                                     for d in pd.curve_order(records)[:n]])
-            fsms = fit_transitions(data.subset(order), [(0, snap)], self.plan)
             sub = stream.subset(np.arange(upto))
+            fsms = fit_transitions(data.subset(order), [(0, snap)], self.plan, sub)
             ctl = controllers_for(self.plan, sub, [(0, snap)], None, None, (), fsms)
             for key in ("roger", "autonomous"):
                 eps = self._evaluate(f"{key}@{n}", ctl[f"{key}:0"], self.curve_attempts,

@@ -39,6 +39,7 @@ __all__ = [
     "merge_all",
     "merge_expert_groups",
     "fit_segmentation_oracle",
+    "gated",
     "group_controllers",
     "make_hcc",
     "make_sim",
@@ -130,18 +131,33 @@ class MergedGroups:
     labels: dict[int, str]  # merged expert id -> group name
 
 
+def gated(plan: Any, stream: Demonstrations, models: Sequence[tuple[int, Any]]
+          ) -> list[tuple[int, Any]]:
+    """The models the ``roger`` and ``autonomous`` rows act with: each ROGER model itself
+    (``--gates niw``), or its experts with split gates (``--gates split``,
+    :class:`roger_daemon.gate_split.SplitGates` over ``stream``, the points it learned; no
+    label is read)."""
+    if getattr(plan, "gates", "niw") == "niw":
+        return list(models)
+    from roger_daemon.gate_split import SplitGates
+
+    return [(seed, SplitGates(model, stream.x, seed=seed)) for seed, model in models]
+
+
 def fit_transitions(data: Demonstrations, models: Sequence[tuple[int, Any]],
-                    plan: Any) -> list[Any]:
-    """A learned FSM over each ROGER model's experts (docs/autonomy.md), from every
-    demonstration tick in order (``data``: the whole stream, before downsampling; an
-    episode starts where its tick is 0). Labels are not read. None unless the plan
-    evaluates ``autonomous``."""
+                    plan: Any, stream: Demonstrations) -> list[Any]:
+    """A learned FSM over each ROGER model's experts (the parts of their split gates with
+    ``--gates split``, :func:`gated`; docs/autonomy.md), from every demonstration tick in
+    order (``data``: the whole stream, before downsampling; an episode starts where its tick
+    is 0; ``stream``: the points the models learned). Labels are not read. None unless the
+    plan evaluates ``autonomous``."""
     if "autonomous" not in plan.controllers:
         return []
     from roger_daemon.fsm import aibo_memory, fit_fsm
 
     spec = aibo_memory()
-    return [fit_fsm(model, data.x, data.y, data.tick == 0, spec) for _, model in models]
+    return [fit_fsm(model, data.x, data.y, data.tick == 0, spec)
+            for _, model in gated(plan, stream, models)]
 
 
 def merge_expert_groups(stream: Demonstrations, model: Any, params: Any,
@@ -174,6 +190,7 @@ def controllers_for(plan: Any, stream: Demonstrations, models: Sequence[tuple[in
         out["hcc"] = make_hcc(plan)
     if "oracle" in plan.controllers and oracle is not None:
         out["oracle"] = ip.OracleController(make_hcc(plan), oracle)
+    models = gated(plan, stream, models)
     if "roger" in plan.controllers:
         for k, (_, model) in enumerate(models):
             groups = majority_labels(np.asarray(model.assignments()).tolist(), stream.labels)
@@ -260,7 +277,7 @@ def run_in_process(plan: Any, params: Any, console: Any,
     merged = merge_all(stream, models, params, plan)
     timings["training"] = round(time.monotonic() - t0, 2)
     t0 = time.monotonic()
-    fsms = fit_transitions(data, models, plan)
+    fsms = fit_transitions(data, models, plan, stream)
     timings["transitions"] = round(time.monotonic() - t0, 2)
     save_training_data(plan.out, stream, models[0][1])
     if context is not None:

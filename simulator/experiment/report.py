@@ -186,11 +186,21 @@ def build_results(*, plan: Any, params: Any, demos: Sequence[dict[str, Any]], da
                                  "label, learning ROGER's partition of that group)")
     hcc_rate = out.get("hcc", {}).get("success_rate")
     out["roger_seeds"] = _seed_blocks(episodes, models, stream.labels, hcc_rate)
+    if getattr(plan, "gates", "niw") == "split":  # docs/goal-scoring.md, "Split gates"
+        out["gates"] = "split: each expert's gate split where its inputs form clusters"
+        from simulator.experiment.goal_scoring import CONTROLLER_NAMES
+
+        for c in ("roger", "autonomous"):
+            if c in out:
+                out[c]["name"] = f"{CONTROLLER_NAMES[c]}, split gates"
     if "autonomous" in out:
         out["autonomous"]["name"] = ("ROGER experts chosen by learned transitions: no HCC, no "
                                      "label at run time (docs/autonomy.md)")
-        out["autonomous_seeds"] = autonomous_seed_blocks(episodes, models, hcc_rate, fsms,
-                                                         stream, data)
+        from simulator.experiment.pipeline import gated
+
+        out["autonomous_seeds"] = autonomous_seed_blocks(
+            episodes, gated(plan, stream, models) if fsms else models, hcc_rate, fsms,
+            stream, data)
         if fsms:
             from simulator.experiment.fsm_graph import mean_agreement
 

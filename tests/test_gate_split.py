@@ -1,0 +1,138 @@
+"""Split gates (roger_daemon/gate_split.py): exact marginals, splits from the inputs alone."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from roger_daemon.gate_split import SplitGates, niw_log_marginal, split_points
+from roger_daemon.learner import RogerParams
+from roger_daemon.learner.engine.gates import GatePool
+from roger_daemon.learner.partition import fit_partition
+from simulator.experiment.goal_plan import configure, plan_from_args
+from simulator.experiment.pipeline import gated
+from simulator.experiment.training import Demonstrations
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(1, 40), d=st.integers(1, 4), seed=st.integers(0, 10_000),
+       lambda0=st.sampled_from([0.01, 0.1, 1.0]))
+def test_the_marginal_is_the_chain_of_the_gate_predictives(n: int, d: int, seed: int,
+                                                           lambda0: float) -> None:
+    """``log p(X)`` in closed form equals the sum of the gate's sequential Student-t
+    predictives ``log t(x_i | x_<i)`` (the chain rule; the gate's own recursion)."""
+    x = np.random.default_rng(seed).normal(size=(n, d))
+    gate = GatePool(d, 0.0, 0.1, lambda0, d + 1.0, capacity=1)
+    gate.set_prior(0)
+    chain = 0.0
+    for row in x:
+        chain += float(gate.log_predictive(np.zeros(1, dtype=np.int64), row)[0])
+        gate.update(0, row)
+    assert niw_log_marginal(x, 0.0, 0.1, lambda0, d + 1.0) == pytest.approx(chain, rel=1e-9,
+                                                                          abs=1e-9)
+
+
+def _blobs(seed: int, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    a = rng.normal(scale=0.05, size=(60, 3))
+    b = rng.normal(scale=0.05, size=(40, 3)) + np.array([gap, 0.0, 0.0])
+    order = rng.permutation(100)
+    return np.vstack([a, b])[order], np.array([0] * 60 + [1] * 40)[order]
+
+
+def test_two_separate_clusters_become_two_parts_and_one_stays_one() -> None:
+    prior = (0.0, 0.1, 0.1, 4.0)
+    x, truth = _blobs(0, gap=1.0)
+    parts = split_points(x, prior, math.log(0.5), max_parts=4, min_points=5, seed=0)
+    assert len(set(parts.tolist())) == 2
+    assert all(len(set(parts[truth == k].tolist())) == 1 for k in (0, 1))
+    one = split_points(x[truth == 0], prior, math.log(0.5), max_parts=4, min_points=5, seed=0)
+    assert set(one.tolist()) == {0}
+
+
+def test_max_parts_one_never_splits_and_min_points_is_kept() -> None:
+    x, _ = _blobs(1, gap=1.0)
+    prior = (0.0, 0.1, 0.1, 4.0)
+    assert set(split_points(x, prior, 0.0, max_parts=1, min_points=5, seed=0).tolist()) == {0}
+    # the smaller cluster (40 points) cannot be a part of at least 41
+    assert set(split_points(x, prior, 0.0, max_parts=4, min_points=41, seed=0).tolist()) == {0}
+
+
+def _model(x: np.ndarray, groups: list[int]) -> object:
+    y = np.array([[1.0] if g == 0 else [-1.0] for g in groups])
+    params = RogerParams(lambda0=0.1, nu0=4.0)
+    return fit_partition(x, y, groups, params=params, seed=0)
+
+
+def test_without_a_split_the_parts_are_the_experts_gates() -> None:
+    """``max_parts = 1``: one part per expert, whose gate probabilities are the model's own
+    ``p(k | x)`` (paper Algorithm 2)."""
+    x, truth = _blobs(2, gap=1.0)
+    model = _model(x, truth.tolist())
+    split = SplitGates(model, x, max_parts=1)
+    assert [q.expert for q in split.parts] == [0, 1]
+    for probe in x[:10] + 0.01:
+        mine = split.part_probs(probe)
+        theirs = {e.expert_id: e.gate_prob for e in model.predict_multimap(probe)}  # type: ignore[attr-defined]
+        assert mine == pytest.approx([theirs[0], theirs[1]], rel=1e-9, abs=1e-12)
+
+
+def test_an_expert_spanning_two_clusters_is_split_and_keeps_its_gp() -> None:
+    """One expert holding both blobs: two parts, both of expert 0, each gate owning its
+    blob; the labels of the points are not an argument (the split uses the inputs only)."""
+    x, truth = _blobs(3, gap=1.0)
+    model = _model(x, [0] * len(x))
+    split = SplitGates(model, x, max_parts=4, min_points=5)
+    assert [q.expert for q in split.parts] == [0, 0]
+    assert sorted(q.n for q in split.parts) == [40, 60]
+    for k in (0, 1):
+        probe = x[truth == k][0]
+        owner = split.point_part[np.flatnonzero(truth == k)[0]]
+        assert int(np.argmax(split.part_probs(probe))) == owner
+
+
+def test_the_zenoh_path_refuses_split_gates(tmp_path: Path) -> None:
+    """The daemon serves its experts' own gates: ``--gates split`` without ``--in-process``
+    exits 2 naming the option, with no traceback and nothing written."""
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "roger_daemon", "experiment", "goal-scoring",
+                           "--out", str(out), "--gates", "split", "--plan"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "--gates split" in proc.stderr and "Traceback" not in proc.stderr
+    assert not out.exists()
+    parser = argparse.ArgumentParser()
+    configure(parser)
+    plan = plan_from_args(parser.parse_args(["--out", str(out), "--in-process",
+                                             "--gates", "split"]))
+    assert plan.gates == "split" and plan.to_json()["gates"] == "split"
+
+
+def test_split_gates_reach_the_roger_and_autonomous_rows() -> None:
+    """``gated``: the models themselves with ``niw``, their split views with ``split``; the
+    transitioner's controller acts with the same object."""
+    x, truth = _blobs(4, gap=1.0)
+    model = _model(x, [0] * len(x))
+    stream = Demonstrations(x, np.zeros((len(x), 1)), ["a"] * len(x),
+                            np.zeros(len(x), dtype=np.int64), np.arange(len(x)), 0)
+    niw: Any = SimpleNamespace(gates="niw", controllers=("roger",))
+    split: Any = SimpleNamespace(gates="split", controllers=("roger",))
+    assert gated(niw, stream, [(0, model)])[0][1] is model
+    ((seed, view),) = gated(split, stream, [(0, model)])
+    assert seed == 0 and isinstance(view, SplitGates) and len(view.parts) == 2
+    probe = x[0]
+    _, table = view.predict_table(probe)
+    own = model.predict_one(probe)  # type: ignore[attr-defined]
+    assert table.expert_ids == [0, 1] and sum(table.gate_probs) == pytest.approx(1.0)
+    for row in range(2):  # both parts answer with expert 0's GP
+        assert np.array_equal(table.means[row], own.mean)
