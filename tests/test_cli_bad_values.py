@@ -5,13 +5,13 @@ failed before its fix (docs/cli.md)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_testing import Ran, in_process
 
 from roger_daemon.cli import main as roger
 
@@ -19,9 +19,12 @@ ROOT = Path(__file__).resolve().parents[1]
 SESSION = ROOT / "tests" / "data" / "sessions" / "sim-loc7-seed0.mcap"
 
 
-def run(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "roger_daemon", *argv], capture_output=True,
-                          text=True, timeout=300, cwd=cwd)
+@pytest.fixture
+def run(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+        ) -> Iterator[Callable[..., Ran]]:
+    """``roger ARGV`` in this process (tests/cli_testing.py)."""
+    with in_process(capsys, monkeypatch) as run:
+        yield run
 
 
 def _usage_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
@@ -34,7 +37,8 @@ def _usage_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
     return err
 
 
-def test_save_checkpoint_into_a_file_exits_2_and_leaves_it(tmp_path: Path) -> None:
+def test_save_checkpoint_into_a_file_exits_2_and_leaves_it(tmp_path: Path,
+                                                          run: Callable[..., Ran]) -> None:
     notes = tmp_path / "notes.txt"
     notes.write_text("my notes\n")
     for target in (notes, notes / "sub"):
@@ -48,7 +52,8 @@ def test_save_checkpoint_into_a_file_exits_2_and_leaves_it(tmp_path: Path) -> No
 
 
 @pytest.mark.parametrize("content", [b"my notes\n", b"", b"\x93NUMPY"])
-def test_a_checkpoint_that_is_no_archive_is_named(tmp_path: Path, content: bytes) -> None:
+def test_a_checkpoint_that_is_no_archive_is_named(tmp_path: Path, content: bytes,
+                                                  run: Callable[..., Ran]) -> None:
     notes = tmp_path / "notes.txt"
     notes.write_bytes(content)
     p = run("replay", str(SESSION), "--checkpoint", str(notes), "--no-progress", cwd=tmp_path)
@@ -102,7 +107,8 @@ def test_the_defaults_still_parse(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.parametrize("override", ['recording.dir=""', 'checkpoint.dir=""',
                                       'recording.dir=" "'])
-def test_an_empty_directory_in_the_config_is_refused(tmp_path: Path, override: str) -> None:
+def test_an_empty_directory_in_the_config_is_refused(tmp_path: Path, override: str,
+                                                     run: Callable[..., Ran]) -> None:
     p = run("daemon", "--check", "--set", override, cwd=tmp_path)
     assert p.returncode == 2, p.stdout + p.stderr
     key = override.split("=")[0]
@@ -119,7 +125,8 @@ def test_a_directory_in_the_config_is_still_taken(tmp_path: Path) -> None:
     assert cfg.checkpoint.dir == Path("ck").absolute()
 
 
-def test_exporting_a_cut_short_head_fails_and_writes_nothing(tmp_path: Path) -> None:
+def test_exporting_a_cut_short_head_fails_and_writes_nothing(tmp_path: Path,
+                                                            run: Callable[..., Ran]) -> None:
     head = tmp_path / "head.mcap"
     head.write_bytes(SESSION.read_bytes()[:300])
     p = run("log", "export", str(head), cwd=tmp_path)

@@ -70,20 +70,20 @@ def test_realtime_predictions_at_30_hz_while_learning(
         tick = 0
         while True:
             now = time.monotonic()
-            if now - t_begin >= 6.5:
+            if now - t_begin >= 3.5:  # 1 s to settle, a 2 s window, 0.5 s of margin
                 break
             client.perception(tick, STREAM.x[tick])
             client.action(tick, STREAM.y[tick], LABELS[STREAM.labels[tick]])
             tick += 1
             time.sleep(max(0.0, t_begin + tick * period - time.monotonic()))
         w0 = int((t_begin + 1.0) * 1e9)
-        w1 = w0 + 5_000_000_000
+        w1 = w0 + 2_000_000_000
         in_window = [r.msg for r in client.predictions if w0 <= r.recv_ns < w1]
-        rate = len(in_window) / 5.0
+        rate = len(in_window) / 2.0
         st = client.wait_status()
         # never faster than its 30 Hz timer; how close to 30 Hz it stays on a loaded machine is
         # measured by `roger bench daemon` (jitter), not asserted here
-        assert 10.0 <= rate <= 31.5, f"{rate} Hz over 5 s; daemon status info {st.info}"
+        assert 10.0 <= rate <= 31.5, f"{rate} Hz over 2 s; daemon status info {st.info}"
         for p in in_window:
             assert np.all(np.isfinite(p.mean)) and np.all(p.var > 0)
             assert math.isfinite(p.latency_ms) and p.latency_ms >= 0

@@ -11,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from cli_testing import in_process
 
 from protocols import ExpertOutput
 from roger_daemon.labels import majority_labels
@@ -80,21 +81,21 @@ def test_bad_start_poses_name_the_entry_the_form_and_the_value(data: object, nee
     assert needle in str(err.value)
 
 
-def test_bad_start_pose_file_exits_2_without_a_traceback(tmp_path: Path) -> None:
+def test_bad_start_pose_file_exits_2_without_a_traceback(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """In this process (tests/cli_testing.py: a traceback fails the test here)."""
     bad = tmp_path / "bad.toml"
     bad.write_text('[[pose]]\nrobot = [0, 0, 0]\nball = [9, 0]\n')
-    proc = subprocess.run(
-        [sys.executable, "-m", "roger_daemon", "experiment", "goal-scoring", "--out",
-         str(tmp_path / "o"), "--start-poses", str(bad)],
-        capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2
-    assert "pose[0].ball: expected a point inside the field" in proc.stderr
-    assert "got [9.0, 0.0]" in proc.stderr and "Traceback" not in proc.stderr
-    missing = subprocess.run(
-        [sys.executable, "-m", "roger_daemon", "experiment", "goal-scoring", "--out",
-         str(tmp_path / "o"), "--start-poses", str(tmp_path / "none.yaml")],
-        capture_output=True, text=True, timeout=120)
-    assert missing.returncode == 2 and ".toml or .json" in missing.stderr
+    with in_process(capsys, monkeypatch) as run:
+        proc = run("experiment", "goal-scoring", "--out", str(tmp_path / "o"),
+                   "--start-poses", str(bad))
+        assert proc.returncode == 2
+        assert "pose[0].ball: expected a point inside the field" in proc.stderr
+        assert "got [9.0, 0.0]" in proc.stderr
+        missing = run("experiment", "goal-scoring", "--out", str(tmp_path / "o"),
+                      "--start-poses", str(tmp_path / "none.yaml"))
+        assert missing.returncode == 2 and ".toml or .json" in missing.stderr
 
 
 def _e(i: int, p: float, label: str, var: float) -> ExpertOutput:

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from cli_testing import in_process
 
 from simulator.experiment.streams import CHOOSE, parse_streams, summarise
 from simulator.experiment.table import markdown
@@ -53,18 +54,20 @@ def test_summary_is_over_stream_and_seed_and_keeps_validation_apart() -> None:
     assert "stream 3" in table
 
 
-def test_table_command_refuses_a_file_that_is_not_results(tmp_path: Path) -> None:
+def test_table_command_refuses_a_file_that_is_not_results(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """In this process (tests/cli_testing.py: a traceback fails the test here)."""
     bad = tmp_path / "x.json"
     bad.write_text("[1, 2]")
-    proc = subprocess.run([sys.executable, "-m", "roger_daemon", "experiment", "table",
-                           str(bad)], capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert proc.returncode == 2
-    assert "not a goal-scoring results.json" in proc.stderr and "Traceback" not in proc.stderr
     good = tmp_path / "r.json"
     good.write_text(json.dumps(summarise({0: _stream(1.0, [0.5], [0.25])})))
-    proc = subprocess.run([sys.executable, "-m", "roger_daemon", "experiment", "table",
-                           str(good)], capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert proc.returncode == 0 and "learned transitions" in proc.stdout
+    with in_process(capsys, monkeypatch) as run:
+        proc = run("experiment", "table", str(bad), cwd=ROOT)
+        assert proc.returncode == 2
+        assert "not a goal-scoring results.json" in proc.stderr
+        proc = run("experiment", "table", str(good), cwd=ROOT)
+        assert proc.returncode == 0 and "learned transitions" in proc.stdout
 
 
 @pytest.mark.integration

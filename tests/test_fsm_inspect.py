@@ -4,12 +4,11 @@ experiment's transition-graph agreement with the HCC's (simulator/experiment/fsm
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_testing import in_process
 
 from roger_daemon.fsm import LearnedFSM, aibo_memory
 from roger_daemon.fsm.inspect import describe, format_fsm
@@ -46,24 +45,23 @@ def test_describe_counts_states_transitions_and_their_conditions() -> None:
     assert "4 states" in text and "0 -> 1" in text
 
 
-def test_roger_model_fsm_prints_and_writes(tmp_path: Path) -> None:
+def test_roger_model_fsm_prints_and_writes(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """In this process (tests/cli_testing.py: a traceback fails the test here)."""
     state = _fsm(SEQ).state_dict()
     np.savez(tmp_path / "s.npz", **{f"fsm.{k}": v for k, v in state.items()})
-    out = subprocess.run([sys.executable, "-m", "roger_daemon", "model", "fsm",
-                          str(tmp_path / "s.npz"), "--png", str(tmp_path / "f.png")],
-                         capture_output=True, text=True, cwd=ROOT, timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert "learned transitions: 4 states" in out.stdout
-    as_json = subprocess.run([sys.executable, "-m", "roger_daemon", "model", "fsm",
-                              str(tmp_path / "s.npz"), "--json"], capture_output=True,
-                             text=True, cwd=ROOT, timeout=120)
-    desc = json.loads(as_json.stdout)
-    assert desc["kind"] == "roger.fsm" and len(desc["states"]) == 4
-    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    bad = subprocess.run([sys.executable, "-m", "roger_daemon", "model", "fsm",
-                          str(tmp_path / "none.npz")], capture_output=True, text=True,
-                         timeout=120)
-    assert bad.returncode == 2 and "none.npz" in bad.stderr and "Traceback" not in bad.stderr
+    with in_process(capsys, monkeypatch) as run:
+        out = run("model", "fsm", str(tmp_path / "s.npz"), "--png", str(tmp_path / "f.png"),
+                  cwd=ROOT)
+        assert out.returncode == 0, out.stderr
+        assert "learned transitions: 4 states" in out.stdout
+        as_json = run("model", "fsm", str(tmp_path / "s.npz"), "--json")
+        desc = json.loads(as_json.stdout)
+        assert desc["kind"] == "roger.fsm" and len(desc["states"]) == 4
+        assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        bad = run("model", "fsm", str(tmp_path / "none.npz"))
+        assert bad.returncode == 2 and "none.npz" in bad.stderr
 
 
 def test_graph_agreement_maps_experts_to_majority_labels() -> None:

@@ -15,11 +15,12 @@ import sys
 import threading
 import time
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_testing import Ran, in_process
 
 from protocols import EpisodeEvent, Perception, encode, keys
 from roger_daemon.cli import build_parser
@@ -38,6 +39,15 @@ def run(*argv: str, timeout: float = 120, cwd: Path | None = None
         ) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*ROGER, *argv], capture_output=True, text=True, timeout=timeout,
                           cwd=cwd)
+
+
+@pytest.fixture
+def here(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+         ) -> Iterator[Callable[..., Ran]]:
+    """``roger ARGV`` in this process (tests/cli_testing.py): for the commands that only read
+    and write files; those that serve, listen or take signals run as processes (:func:`run`)."""
+    with in_process(capsys, monkeypatch) as run:
+        yield run
 
 
 @pytest.fixture
@@ -91,11 +101,12 @@ def test_02_view_warns_when_nothing_arrives_within_its_timeout() -> None:
     assert "nothing received on roger/aibo/* within 1 s" in out.stderr
 
 
-def test_03_view_of_a_file_that_is_not_mcap_is_refused_leaving_nothing(tmp_path: Path) -> None:
+def test_03_view_of_a_file_that_is_not_mcap_is_refused_leaving_nothing(
+        tmp_path: Path, here: Callable[..., Ran]) -> None:
     notes = tmp_path / "notes.mcap"
     notes.write_text("not a log\n")
     for argv in (["view", str(notes)], ["view", "--log", str(notes)]):
-        out = run(*argv, timeout=60)
+        out = here(*argv)
         assert out.returncode == 2 and "Traceback" not in out.stderr
         assert "is not an MCAP file" in out.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.mcap"]  # nothing left
@@ -119,12 +130,12 @@ def _small_log(directory: Path) -> Path:
 
 
 def test_04_05_18_view_converts_a_positional_log_keeps_metadata_and_overwrites_nothing(
-        tmp_path: Path) -> None:
+        tmp_path: Path, here: Callable[..., Ran]) -> None:
     from mcap.reader import make_reader
 
     log = _small_log(tmp_path / "logs")
     out_dir = tmp_path / "views"
-    done = run("view", str(log), "--out", str(out_dir), timeout=120)  # 5: positional
+    done = here("view", str(log), "--out", str(out_dir))  # 5: positional
     assert done.returncode == 0, done.stderr
     out = out_dir / f"{log.stem}.foxglove.mcap"
     with out.open("rb") as f:  # 18: the session metadata is kept
@@ -132,10 +143,10 @@ def test_04_05_18_view_converts_a_positional_log_keeps_metadata_and_overwrites_n
     assert meta["roger.session"]["robot"] == "aibo"
     assert meta["roger.session"]["session_id"] == log.stem
     before = out.read_bytes()
-    again = run("view", str(log), "--out", str(out_dir), timeout=120)  # 4: no --force
+    again = here("view", str(log), "--out", str(out_dir))  # 4: no --force
     assert again.returncode == 2 and "exists; pass --force" in again.stderr
     assert out.read_bytes() == before
-    assert run("view", str(log), "--out", str(out_dir), "--force").returncode == 0
+    assert here("view", str(log), "--out", str(out_dir), "--force").returncode == 0
 
 
 # 6 -------------------------------------------------------------------------------------------
@@ -181,8 +192,9 @@ def test_07_the_daemon_reports_absolute_paths(tmp_path: Path, monkeypatch) -> No
 
 # 8, 9 ----------------------------------------------------------------------------------------
 
-def test_08_export_to_dash_is_refused_and_writes_no_file_named_dash(tmp_path: Path) -> None:
-    out = run("log", "export", str(SESSION), "--out", "-", cwd=tmp_path, timeout=60)
+def test_08_export_to_dash_is_refused_and_writes_no_file_named_dash(
+        tmp_path: Path, here: Callable[..., Ran]) -> None:
+    out = here("log", "export", str(SESSION), "--out", "-", cwd=tmp_path)
     assert out.returncode == 2 and "--out must be a directory, got '-'" in out.stderr
     assert list(tmp_path.iterdir()) == []
 

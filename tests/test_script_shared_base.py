@@ -13,7 +13,9 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_shared_base.
 
 
 def test_shared_base_split_is_exact_to_rounding() -> None:
-    out = subprocess.run([sys.executable, str(SCRIPT), "--points", "400", "--repeats", "3",
+    # 150 points: ten versions whose genealogies have split (the property is exact at any
+    # size); one timing repeat, as the timings are only checked to exist
+    out = subprocess.run([sys.executable, str(SCRIPT), "--points", "150", "--repeats", "1",
                           "--json"], capture_output=True, text=True, timeout=600, check=True)
     report = json.loads(out.stdout)
     assert report["versions"] >= report["experts"] >= 1

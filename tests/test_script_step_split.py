@@ -13,11 +13,12 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "learner_step_split.p
 
 
 def test_one_sample_splits_each_step_into_kernels_and_the_rest() -> None:
-    out = subprocess.run([sys.executable, str(SCRIPT), "--minutes", "0", "--steps", "30",
-                          "--warm-points", "300", "--json"],
+    # a model of 60 points and 10 timed steps: enough for the kernels to run inside the steps
+    out = subprocess.run([sys.executable, str(SCRIPT), "--minutes", "0", "--steps", "10",
+                          "--warm-points", "60", "--json"],
                          capture_output=True, text=True, timeout=900, check=True)
     report = json.loads(out.stdout)
-    assert len(report["samples"]) == 1 and report["steps_per_timing"] == 30
+    assert len(report["samples"]) == 1 and report["steps_per_timing"] == 10
     for label in ("all_cores", "one_thread"):
         part = report["samples"][0][label]
         assert 0 < part["kernel_us"] < part["step_us"]  # the kernels ran, inside the steps

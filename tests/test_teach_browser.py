@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_testing import in_process
 
 from tests.process_testing import processes_naming
 
@@ -96,7 +97,9 @@ def _pose(page: Any) -> tuple[float, float, float]:
     return t["robot_x"], t["robot_y"], t["robot_yaw"]
 
 
-def test_teach_in_a_browser(teach: tuple[subprocess.Popen[str], str, Path]) -> None:
+def test_teach_in_a_browser(teach: tuple[subprocess.Popen[str], str, Path],
+                            capsys: pytest.CaptureFixture[str],
+                            monkeypatch: pytest.MonkeyPatch) -> None:
     from playwright.sync_api import sync_playwright
 
     proc, url, session = teach
@@ -181,10 +184,11 @@ def test_teach_in_a_browser(teach: tuple[subprocess.Popen[str], str, Path]) -> N
     assert proc.wait(60) == 130
     assert not processes_naming(str(session))  # the daemon and the take's recorder
     assert list((session / "takes").rglob("*.mcap"))
-    _check_log(session)
+    _check_log(session, capsys, monkeypatch)
 
 
-def _check_log(session: Path) -> None:
+def _check_log(session: Path, capsys: pytest.CaptureFixture[str],
+               monkeypatch: pytest.MonkeyPatch) -> None:
     """The session's MCAP log tags every learned pair's source; the corrections are there;
     ``roger log export`` keeps the source."""
     import pyarrow.parquet as pq
@@ -200,9 +204,8 @@ def _check_log(session: Path) -> None:
     corrections = sum(bool(a.correction) for a in actions)  # type: ignore[attr-defined]
     assert corrections > 10
     out = session / "export"
-    done = subprocess.run([sys.executable, "-m", "roger_daemon", "log", "export", str(logs[0]),
-                           "--format", "parquet", "--out", str(out)],
-                          capture_output=True, text=True, timeout=120)
+    with in_process(capsys, monkeypatch) as run:  # tests/cli_testing.py
+        done = run("log", "export", str(logs[0]), "--format", "parquet", "--out", str(out))
     assert done.returncode == 0, done.stderr
     table = pq.read_table(next(out.glob("*.parquet")))
     sources = set(table.column("source").to_pylist())

@@ -46,10 +46,13 @@ def make_config(tmp_path: Path, name: str, clock: str = "lockstep",
 
 
 class Loop:
-    """A service over the memory transport, inline or with worker processes."""
+    """A service over the memory transport, inline or with worker processes: one process
+    serving both robots unless ``processes`` asks for more (the daemon's default, one per
+    core, would make the pool, and each test's cost, depend on the machine's core count;
+    docs/testing.md, *Keeping it*)."""
 
     def __init__(self, cfg: DaemonConfig, *, process: bool, nice: int = 0,
-                 processes: int = 0) -> None:
+                 processes: int = 1) -> None:
         from roger_daemon.daemon import wal
 
         self.transport = MemoryTransport()
@@ -243,7 +246,7 @@ def test_nothing_goes_to_a_worker_in_the_delivery_window_after_a_tick(
 def test_lockstep_starts_no_learning_while_a_prediction_is_answered(tmp_path: Path) -> None:
     """Without a timer the answers go first: a pair queued while any robot's prediction is
     in flight waits in the queue; once answered, feeding sends it."""
-    proc = Loop(make_config(tmp_path, "hold"), process=True)
+    proc = Loop(make_config(tmp_path, "hold"), process=True, processes=2)  # a process each
     learners = proc.learners
     assert learners is not None
     try:
@@ -488,7 +491,8 @@ def test_with_workers_only_the_workers_load_the_compiled_kernels(tmp_path: Path)
     """A real daemon with two robots (worker processes): the workers warm up the learner's
     kernels and the loop's process does not load numba at all while it serves (docs/fleet.md,
     *The design*: ~124 MB of its memory, ~312 MB on a cold cache)."""
-    with _fed_daemon(tmp_path, 4) as (_, daemon, client):  # learning and predicting happen
+    # learning and predicting happen; one worker process serves both robots
+    with _fed_daemon(tmp_path, 4, worker_processes=1) as (_, daemon, client):
         st = client.wait_status(lambda s: s.info.get("workers") == "process" and s.updates >= 3,
                                 timeout=DEADLINE_S)
         assert _maps_numba(int(st.info["worker_pid"]))
