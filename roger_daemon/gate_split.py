@@ -30,6 +30,7 @@ from scipy.cluster.vq import kmeans2
 from scipy.special import gammaln, multigammaln
 
 from roger_daemon.learner.prediction import ExpertPrediction, MultimapTable, Prediction
+from roger_daemon.learner.roger_predict import drop_unsupported
 
 __all__ = ["SPLIT_LAMBDA0", "GatePart", "SplitGates", "niw_log_marginal", "split_points"]
 
@@ -139,7 +140,8 @@ class SplitGates:
     """
 
     def __init__(self, model: object, x: npt.ArrayLike, *, max_parts: int = 4,
-                 min_points: int = 10, seed: int = 0, lambda0: float = SPLIT_LAMBDA0) -> None:
+                 min_points: int | None = None, seed: int = 0,
+                 lambda0: float = SPLIT_LAMBDA0) -> None:
         terms = model.terms  # type: ignore[attr-defined]
         self.model = model
         self.terms = terms
@@ -148,6 +150,9 @@ class SplitGates:
                        for r in np.asarray(x, dtype=np.float64)])
         assignments = np.asarray(model.assignments(), dtype=np.int64)  # type: ignore[attr-defined]
         p = terms.params
+        self._support = p.min_support
+        # a part must be able to compete: at least the model's min_support points
+        least = max(10, p.min_support) if min_points is None else min_points
         prior = (p.mu0, p.kappa0, lambda0, p.nu0_for(terms.d_x))
         self.gates = terms.new_gates()
         self.parts: list[GatePart] = []
@@ -155,7 +160,7 @@ class SplitGates:
         for expert in np.unique(assignments):
             idx = np.flatnonzero(assignments == expert)
             split = split_points(xs[idx], prior, terms.log_alpha, max_parts=max_parts,
-                                 min_points=min_points, seed=seed + int(expert))
+                                 min_points=least, seed=seed + int(expert))
             for j in range(int(split.max()) + 1):
                 rows = idx[split == j]
                 slot = len(self.parts)
@@ -169,12 +174,14 @@ class SplitGates:
         self._counts = np.array([q.n for q in self.parts], dtype=np.int64)
 
     def part_probs(self, x: npt.ArrayLike) -> FloatArray:
-        """``p(part | x) ∝ n_part t_part(x)`` over every part (docs/learner-math.md §6)."""
+        """``p(part | x) ∝ n_part t_part(x)`` over every part, the parts below the model's
+        ``min_support`` out of the competition as its experts are (docs/learner-math.md §6)."""
         xs = self.terms.scaling.x_in(np.asarray(x, dtype=np.float64))
         lg = np.empty(len(self.parts))
         self.gates.crp_log_terms(self._slots, xs, self._counts, lg)
         if not lg.max() > -np.inf:
             lg = np.log(self._counts.astype(np.float64))
+        drop_unsupported(lg, self._counts, self._support)
         w = np.exp(lg - lg.max())
         out: FloatArray = w / w.sum()
         return out

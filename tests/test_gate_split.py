@@ -87,6 +87,26 @@ def test_without_a_split_the_parts_are_the_experts_gates() -> None:
         assert mine == pytest.approx([theirs[0], theirs[1]], rel=1e-9, abs=1e-12)
 
 
+def test_parts_below_the_models_min_support_do_not_compete_as_its_experts_do() -> None:
+    """With ``min_support = 20`` a 5-point expert has gate probability 0 in the model
+    (paper Algorithm 2 with the support rule); its part has 0 too, the others are the model's
+    probabilities, and no split makes a part smaller than the support."""
+    x, truth = _blobs(6, gap=1.0)
+    tiny = np.random.default_rng(7).normal(scale=0.05, size=(5, 3)) + np.array([0.0, 1.0, 0.0])
+    x = np.vstack([x, tiny])
+    groups = truth.tolist() + [2] * 5
+    y = np.array([[float(g)] for g in groups])
+    model = fit_partition(x, y, groups, params=RogerParams(lambda0=0.1, nu0=4.0, min_support=20),
+                          seed=0)
+    split = SplitGates(model, x, max_parts=1)
+    for probe in (x[0], tiny[0], tiny.mean(axis=0)):
+        theirs = {e.expert_id: e.gate_prob for e in model.predict_multimap(probe)}
+        assert theirs[2] == 0.0
+        assert split.part_probs(probe) == pytest.approx([theirs[0], theirs[1], theirs[2]],
+                                                        rel=1e-9, abs=1e-12)
+    assert min(q.n for q in SplitGates(model, x).parts if q.expert != 2) >= 20
+
+
 def test_an_expert_spanning_two_clusters_is_split_and_keeps_its_gp() -> None:
     """One expert holding both blobs: two parts, both of expert 0, each gate owning its
     blob; the labels of the points are not an argument (the split uses the inputs only)."""

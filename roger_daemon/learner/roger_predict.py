@@ -17,10 +17,19 @@ from roger_daemon.learner.roger_terms import Experts, ModelTerms
 from roger_daemon.learner.scaling import as_vector
 from roger_daemon.learner.sogp_batch import predict_many
 
-__all__ = ["gate_probs", "predict", "predict_table"]
+__all__ = ["drop_unsupported", "gate_probs", "predict", "predict_table"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+
+
+def drop_unsupported(lg: FloatArray, npts: IntArray, support: int) -> None:
+    """``lg[k] = -inf`` (in place) for the experts below ``support`` points: too small to
+    compete, unless no expert has the support (``min_support``, docs/learner-math.md §6)."""
+    if support > 1:
+        small = npts < support
+        if not small.all():
+            lg[small] = -np.inf
 
 
 def gate_probs(store: Experts, terms: ModelTerms, slots: IntArray, xs: FloatArray
@@ -38,11 +47,7 @@ def gate_probs(store: Experts, terms: ModelTerms, slots: IntArray, xs: FloatArra
         # experts apart, p(k | x) ∝ n_k (the CRP prior alone, docs/learner-math.md §6)
         lg = np.log(npts.astype(np.float64))
         empty = terms.log_alpha
-    support = terms.params.min_support
-    if support > 1:  # too small to compete, unless no expert has the support
-        small = npts < support
-        if not small.all():
-            lg[small] = -np.inf
+    drop_unsupported(lg, npts, terms.params.min_support)
     if with_empty:
         lg = np.append(lg, empty)
     w = np.exp(lg - lg.max())  # the methods: numpy's reductions without their wrappers
