@@ -67,6 +67,7 @@ class Plan:
     preset: str | None = None
     streams: tuple[int, ...] = ()
     gates: str = "niw"
+    demo_noise: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """The plan as plain JSON (paths as strings)."""
@@ -129,6 +130,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="how the roger and autonomous rows choose among the experts: niw "
                         "(each expert's gate, paper Algorithm 2; default) or split (each gate "
                         "split where its inputs form clusters, label-free; in-process only)")
+    parser.add_argument("--demo-noise", type=float, default=0.0, metavar="F",
+                        help="the demonstrator's executed walking and head commands disturbed "
+                        "by F x each range (held 0.5 s), its own commands learned; 0 = the "
+                        "paper's protocol (default); in-process only")
     parser.add_argument("--preset", default=None,
                         help="learner preset (e.g. 'paper': the paper's literal numbers, every "
                         "lever off); same as --set learner.preset=NAME")
@@ -186,6 +191,14 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
     if gates != "niw" and not (args.in_process or streams):
         raise ValueError(f"--gates {gates}: the daemon serves its experts' own gates, so this "
                          "is evaluated in-process only; add --in-process or --streams")
+    demo_noise = float(getattr(args, "demo_noise", 0.0))
+    if not 0.0 <= demo_noise <= 0.5:
+        raise ValueError(f"--demo-noise {demo_noise!r}: must be in [0, 0.5] (a fraction of "
+                         "each command's range)")
+    if demo_noise > 0 and not (args.in_process or streams):
+        raise ValueError(f"--demo-noise {demo_noise!r}: the Zenoh path's demonstrator is "
+                         "roger hcc, which executes its commands as given; add --in-process "
+                         "or --streams")
     return Plan(
         out=Path(args.out), seed=seed, jobs=jobs, quick=quick, locations=tuple(locations),
         attempts=attempts, per_subtask=per_subtask, time_limit=float(time_limit),
@@ -194,7 +207,7 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         retries=max(0, int(args.retries)), resume=bool(args.resume), seeds=seeds,
         shots=shots, learner_seeds=learner_seeds, rule=args.rule,
         in_process=bool(args.in_process) or bool(streams), start_poses=args.start_poses,
-        preset=args.preset, streams=streams, gates=gates,
+        preset=args.preset, streams=streams, gates=gates, demo_noise=demo_noise,
     )
 
 

@@ -37,6 +37,7 @@ from simulator.controllers.hcc import HCC
 from simulator.controllers.transitioner import DEFAULT_RULE, transition_command
 from simulator.episodes import EpisodeResult, SoccerSim, StartLocation, run_episode
 from simulator.experiment.averaging import MultimapNeighbourhood
+from simulator.experiment.demo_noise import DemoNoise
 from simulator.experiment.training import Demonstrations
 
 __all__ = [
@@ -53,12 +54,14 @@ __all__ = [
 
 
 def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, seed: int,
-                starts: Sequence[StartLocation] | None = None
+                starts: Sequence[StartLocation] | None = None, noise: DemoNoise | None = None
                 ) -> tuple[Demonstrations, list[EpisodeRecord]]:
     """The HCC demonstrating ``shots`` episodes from each location (repetition = shot index).
 
     Pairs in learning order: location by location, shot by shot, tick by tick; and each
-    demonstration's outcome (failures are demonstrations too, as in the paper).
+    demonstration's outcome (failures are demonstrations too, as in the paper).  With
+    ``noise`` the robot executes the HCC's command disturbed, the HCC's own command is the
+    pair's action (:mod:`.demo_noise`).
     """
     records: list[EpisodeRecord] = []
     xs: list[np.ndarray] = []
@@ -68,7 +71,7 @@ def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, 
     ticks: list[int] = []
     for loc in locations:
         for shot in range(shots):
-            rec = _Recorder(hcc)
+            rec = _Recorder(hcc, noise)
             res = run_episode(sim, rec, loc, seed, shot, start=_start(starts, loc))
             records.append(EpisodeRecord.of(res))
             xs.extend(rec.x)
@@ -89,21 +92,26 @@ def _start(starts: Sequence[StartLocation] | None, loc: int) -> StartLocation | 
 class _Recorder:
     """The HCC as demonstrator, keeping every (perception, action, label)."""
 
-    def __init__(self, hcc: HCC) -> None:
+    def __init__(self, hcc: HCC, noise: DemoNoise | None = None) -> None:
         self.hcc = hcc
+        self.noise = noise
         self.x: list[np.ndarray] = []
         self.y: list[np.ndarray] = []
         self.labels: list[str] = []
 
     def reset(self) -> None:
         self.hcc.reset()
+        if self.noise is not None:
+            self.noise.reset()
 
     def act(self, x: np.ndarray) -> tuple[np.ndarray, str]:
-        y, label = self.hcc.act(x)
+        y, label = self.hcc.decide(x)
+        executed = y if self.noise is None else self.noise(y)
+        self.hcc.commit(executed)  # the HCC's odometry follows what the robot did
         self.x.append(np.asarray(x, dtype=np.float64))
         self.y.append(np.asarray(y, dtype=np.float64))
         self.labels.append(label)
-        return y, label
+        return executed, label
 
 
 def fit_oracle(stream: Demonstrations, make_gp: Callable[[np.ndarray], Any]) -> dict[str, Any]:

@@ -1,0 +1,87 @@
+"""Perturbed demonstrations (simulator/experiment/demo_noise.py): the demonstrator's command is
+recorded, the disturbed one executed; ``--demo-noise 0`` is the paper's protocol exactly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_testing import in_process
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from protocols.aibo import ACTION_RANGES, DIMS
+from simulator.controllers.hcc import HCC
+from simulator.experiment.demo_noise import NOISY, DemoNoise
+from simulator.experiment.inprocess import _Recorder
+
+LOW = np.array([lo for lo, _ in ACTION_RANGES])
+HIGH = np.array([hi for _, hi in ACTION_RANGES])
+
+
+@settings(max_examples=25, deadline=None)
+@given(scale=st.floats(0.0, 0.5), hold=st.integers(1, 20), seed=st.integers(0, 1000))
+def test_the_noise_is_held_clipped_and_only_on_walking_and_head(scale: float, hold: int,
+                                                                seed: int) -> None:
+    noise = DemoNoise(scale, np.random.default_rng(seed), hold=hold)
+    y = np.random.default_rng(seed + 1).uniform(LOW, HIGH)
+    out = [noise(y) for _ in range(2 * hold + 1)]
+    quiet = [i for i in range(DIMS.y) if i not in NOISY]
+    for o in out:
+        assert np.array_equal(o[quiet], y[quiet])  # tail and motion indicator untouched
+        assert np.all(o >= LOW) and np.all(o <= HIGH)
+    for k in range(1, hold):  # one disturbance per hold ticks
+        assert np.array_equal(out[k], out[0])
+    if scale == 0.0:
+        assert all(np.array_equal(o, y) for o in out)
+    again = DemoNoise(scale, np.random.default_rng(seed), hold=hold)
+    assert all(np.array_equal(a, again(y)) for a in out)  # seeded: same draws
+
+
+def test_the_spread_is_scale_times_each_range() -> None:
+    noise = DemoNoise(0.1, np.random.default_rng(0), hold=1)
+    mid = 0.5 * (LOW + HIGH)
+    draws = np.array([noise(mid) for _ in range(4000)])
+    sd = draws.std(axis=0)
+    for i in NOISY:
+        assert sd[i] == pytest.approx(0.1 * (HIGH[i] - LOW[i]), rel=0.1)
+
+
+@pytest.mark.parametrize("scale", [-0.1, 0.6, float("nan")])
+def test_a_bad_scale_is_refused_naming_it(scale: float) -> None:
+    with pytest.raises(ValueError, match="demonstration noise"):
+        DemoNoise(scale, np.random.default_rng(0))
+
+
+def test_the_recorder_learns_the_demonstrators_command_and_executes_the_disturbed_one() -> None:
+    """The pair's action is the HCC's decision; the robot gets the disturbed command and the
+    HCC's odometry (its remembered ball bearing) follows the executed turn."""
+    x = np.zeros(DIMS.x)
+    x[[2, 5, 8, 11, 14, 17]] = -1.0  # nothing seen: the HCC seeks, turning
+    plain, noisy = HCC(), HCC()
+    quiet = _Recorder(plain)
+    rec = _Recorder(noisy, DemoNoise(0.3, np.random.default_rng(3), hold=5))
+    quiet.reset()
+    rec.reset()
+    for _ in range(12):
+        y0, _ = quiet.act(x)
+        y1, _ = rec.act(x)
+    assert np.array_equal(np.array(rec.y), np.array(quiet.y))  # same decisions recorded
+    assert not np.array_equal(y1, y0)
+    assert noisy.ball_bearing != plain.ball_bearing  # odometry of the executed turns
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--demo-noise", "0.1"], "--demo-noise 0.1: the Zenoh path"),
+    (["--in-process", "--demo-noise", "0.7"], "--demo-noise 0.7: must be in [0, 0.5]"),
+])
+def test_the_command_refuses_bad_noise_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                 monkeypatch: pytest.MonkeyPatch, argv: list[str],
+                                                 message: str) -> None:
+    out = tmp_path / "run"
+    with in_process(capsys, monkeypatch) as run:
+        ran = run("experiment", "goal-scoring", "--out", str(out), "--plan", *argv)
+    assert ran.returncode == 2, ran.stderr
+    assert message in ran.stderr and "Traceback" not in ran.stderr
+    assert not out.exists()
