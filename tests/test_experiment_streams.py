@@ -52,6 +52,10 @@ def test_summary_is_over_stream_and_seed_and_keeps_validation_apart() -> None:
     table = markdown(out)
     assert "| ROGER experts + HCC transitioner | 0.75 | 0.75 | 0.20 |" in table
     assert "stream 3" in table
+    split = markdown({**out, "plan": {"gates": "split"}})
+    assert "| ROGER experts (split gates) + HCC transitioner | 0.75 | 0.75 | 0.20 |" in split
+    assert "| ROGER experts (split gates) + learned transitions (no HCC) |" in split
+    assert "(split gates)" not in table
 
 
 def test_table_command_refuses_a_file_that_is_not_results(

@@ -26,6 +26,15 @@ ROWS = (("hcc", "HCC (the demonstrator)"), ("oracle", "segmentation oracle (labe
         ("dpa", "unimap GP (the paper's DPA)"))
 
 
+def _rows(res: dict[str, Any]) -> list[tuple[str, str]]:
+    """:data:`ROWS`, the ROGER rows naming split gates when the run used them."""
+    gates = res.get("plan", {}).get("gates") or str(res.get("gates", "")).split(":")[0]
+    if gates != "split":
+        return list(ROWS)
+    return [(key, name.replace("ROGER experts", "ROGER experts (split gates)"))
+            for key, name in ROWS]
+
+
 def _f(v: float | None, pct: bool = False) -> str:
     if v is None:
         return "-"
@@ -41,7 +50,7 @@ def _streams_table(res: dict[str, Any]) -> str:
     streams = res["streams"]
     head = ["row", *[f"stream {s}" for s in streams], "mean (0-2 / 3-4)", "worst", "95 % CI"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for key, name in ROWS:
+    for key, name in _rows(res):
         if key in ("hcc", "oracle", "dpa"):
             cells = [_f(row.get(key), pct=True) for row in streams.values()]
             if key == "oracle":
@@ -68,7 +77,7 @@ def _streams_table(res: dict[str, Any]) -> str:
 
 def _single_table(res: dict[str, Any]) -> str:
     lines = ["| row | goals | success | ratio to HCC |", "|---|---|---|---|"]
-    for key, name in ROWS:
+    for key, name in _rows(res):
         b = res.get(key)
         if not b:
             continue
