@@ -1,8 +1,9 @@
-"""Perturbed demonstrations (simulator/experiment/demo_noise.py): the demonstrator's command is
+"""Perturbed demonstrations (simulator/controllers/demo_noise.py): the demonstrator's command is
 recorded, the disturbed one executed; ``--demo-noise 0`` is the paper's protocol exactly."""
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +12,14 @@ from cli_testing import in_process
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from protocols import Action, Command, Perception
 from protocols.aibo import ACTION_RANGES, DIMS
+from simulator import transport
+from simulator.controllers import hcc_node
+from simulator.controllers.demo_noise import NOISY, DemoNoise, seeded
 from simulator.controllers.hcc import HCC
-from simulator.experiment.demo_noise import NOISY, DemoNoise
 from simulator.experiment.inprocess import _Recorder
+from simulator.transport import StopFlag
 
 LOW = np.array([lo for lo, _ in ACTION_RANGES])
 HIGH = np.array([hi for _, hi in ACTION_RANGES])
@@ -73,7 +78,7 @@ def test_the_recorder_learns_the_demonstrators_command_and_executes_the_disturbe
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--demo-noise", "0.1"], "--demo-noise 0.1: the Zenoh path"),
+    (["--demo-noise", "0.1"], "--demo-noise 0.1: the disturbance is drawn over the whole"),
     (["--in-process", "--demo-noise", "0.7"], "--demo-noise 0.7: must be in [0, 0.5]"),
 ])
 def test_the_command_refuses_bad_noise_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str],
@@ -85,3 +90,57 @@ def test_the_command_refuses_bad_noise_naming_it(tmp_path: Path, capsys: pytest.
     assert ran.returncode == 2, ran.stderr
     assert message in ran.stderr and "Traceback" not in ran.stderr
     assert not out.exists()
+
+
+def _hcc_args(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    hcc_node.configure(parser)
+    return parser.parse_args(list(argv))
+
+
+def test_roger_hcc_publishes_the_fsms_action_and_drives_the_robot_with_it_disturbed(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``roger hcc --demo-noise``: ``action`` is the FSM's decision, ``command`` the disturbed
+    vector, and the FSM is told the executed one; a new episode redraws the disturbance."""
+    sent: list[object] = []
+    monkeypatch.setattr(hcc_node, "put", lambda _pub, msg: sent.append(msg))
+    monkeypatch.setattr(transport, "put", lambda _pub, msg: sent.append(msg))
+    args = _hcc_args("--demo-noise", "0.3", "--demo-noise-seed", "5")
+    n = hcc_node.HCCNode(args, HCC(), StopFlag(install=False), seeded(0.3, 5))
+    n.pub_act, n.pub_cmd = object(), object()  # type: ignore[assignment]
+    twin, twin_noise = HCC(), seeded(0.3, 5)
+    assert twin_noise is not None
+    x = np.zeros(DIMS.x)
+    x[[2, 5, 8, 11, 14, 17]] = -1.0  # nothing seen: the HCC seeks on its remembered bearing
+    ticks = [(k, k / 30) for k in range(20)] + [(0, 0.0)] + [(k, k / 30) for k in range(1, 8)]
+    disturbed = 0
+    for tick, t in ticks:
+        n._on_message(Perception("aibo", tick, t, x=x))
+        if t == 0.0:
+            twin.reset()
+            twin_noise.reset()
+        y, label = twin.decide(x)
+        executed = twin_noise(y)
+        twin.commit(executed)
+        action, command = sent[-2:]
+        assert isinstance(action, Action) and isinstance(command, Command)
+        assert np.array_equal(action.y, y) and action.label == label
+        assert np.array_equal(command.y, executed)
+        assert command.source == f"hcc:demonstrator:{label}"
+        disturbed += not np.array_equal(command.y, action.y)
+    assert disturbed == len(ticks)
+    assert n.hcc.ball_bearing == twin.ball_bearing != HCC().ball_bearing
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--demo-noise", "0.7"], "--demo-noise 0.7: demonstration noise must be in [0, 0.5]"),
+    (["--role", "transitioner", "--demo-noise", "0.1"],
+     "--demo-noise 0.1: only the demonstrator is disturbed, not --role transitioner"),
+])
+def test_roger_hcc_refuses_bad_noise_naming_it(capsys: pytest.CaptureFixture[str],
+                                              monkeypatch: pytest.MonkeyPatch, argv: list[str],
+                                              message: str) -> None:
+    with in_process(capsys, monkeypatch) as run:
+        ran = run("hcc", *argv)
+    assert ran.returncode == 2, ran.stderr
+    assert message in ran.stderr and "Traceback" not in ran.stderr

@@ -2,7 +2,10 @@
 
 * ``--role demonstrator``: for every perception(t), publishes ``action``(t) (the FSM's 9-D
   action with its subtask ``label``) and ``command``(t) (the same vector, ``source =
-  "hcc:demonstrator:<subtask>"``), which drives the robot.
+  "hcc:demonstrator:<subtask>"``), which drives the robot. With ``--demo-noise F`` (DART,
+  :mod:`simulator.controllers.demo_noise`) the robot is driven by that vector disturbed, and
+  ``action`` stays the FSM's own: the demonstrations visit the states a learner's errors
+  lead to, and teach how the demonstrator recovers from them.
 * ``--role transitioner``: runs the FSM on perception(t) to know the current subtask, takes
   the daemon's ``prediction``(t) (``--prediction-timeout`` seconds at most, matched by tick;
   in ``--clock realtime`` the newest prediction not older than ``--max-prediction-age`` ticks),
@@ -38,6 +41,7 @@ import numpy as np
 
 from protocols import Action, Command, Perception, keys
 from simulator.config import load_config
+from simulator.controllers.demo_noise import DemoNoise, seeded
 from simulator.controllers.hcc import HCC, HCCParams, HeadModel
 from simulator.controllers.node import PerceptionNode, add_node_args, hold
 from simulator.controllers.transitioner import DEFAULT_RULE, RULES, transition_command
@@ -64,6 +68,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         f"(mixture, default {DEFAULT_RULE}), the one with the most points (support), the "
         "lowest predictive variance, or the highest gate probability",
     )
+    parser.add_argument("--demo-noise", type=float, default=0.0, metavar="F",
+                        help="demonstrator: drive the robot with the FSM's walk and head "
+                             "commands disturbed by F x each range (0-0.5, held 0.5 s; "
+                             "default 0: undisturbed); the FSM's own command is published "
+                             "to learn from")
+    parser.add_argument("--demo-noise-seed", type=int, default=0, metavar="N",
+                        help="the disturbance's seed (default 0)")
     add_node_args(parser, who="transitioner")
 
 
@@ -96,10 +107,12 @@ def hcc_from_config(path: str | None) -> HCC:
 class HCCNode(PerceptionNode):
     """The FSM's step in the nodes' one loop (:mod:`simulator.controllers.node`)."""
 
-    def __init__(self, args: argparse.Namespace, hcc: HCC, stop: StopFlag) -> None:
+    def __init__(self, args: argparse.Namespace, hcc: HCC, stop: StopFlag,
+                 noise: DemoNoise | None = None) -> None:
         super().__init__(args, stop, args.role, log,
                          ("label", "fallback_top", "fallback_mean", "no_prediction"), "hcc")
         self.hcc = hcc
+        self.noise = noise
         self.subtask_ticks: dict[str, int] = {}
         self.pub_act: Any = None
 
@@ -111,8 +124,10 @@ class HCCNode(PerceptionNode):
         return self.summary(subtask_ticks=self.subtask_ticks)
 
     def new_episode(self) -> None:
-        """The FSM restarts."""
+        """The FSM restarts (and the disturbance is redrawn)."""
         self.hcc.reset()
+        if self.noise is not None:
+            self.noise.reset()
 
     def command_for(self, msg: Perception) -> Command:
         """The FSM's action (demonstrator) or the expert of its subtask (transitioner)."""
@@ -120,7 +135,9 @@ class HCCNode(PerceptionNode):
         self.subtask_ticks[label] = self.subtask_ticks.get(label, 0) + 1
         if self.pub_act is not None:
             put(self.pub_act, Action(self.robot, msg.tick, msg.t, y=y, label=label))
-            cmd = Command(self.robot, msg.tick, msg.t, y=y, source=f"hcc:demonstrator:{label}")
+            executed = y if self.noise is None else self.noise(y)
+            cmd = Command(self.robot, msg.tick, msg.t, y=executed,
+                          source=f"hcc:demonstrator:{label}")
         else:
             y, source = self._transition(msg, label)
             cmd = Command(self.robot, msg.tick, msg.t, y=y, source=source)
@@ -139,12 +156,25 @@ class HCCNode(PerceptionNode):
         return y, f"hcc:transitioner:{subtask}:{shown}:{how}"
 
 
+def _noise(args: argparse.Namespace) -> DemoNoise | None:
+    """The demonstrator's disturbance of ``--demo-noise``; ValueError naming a bad value."""
+    try:
+        noise = seeded(args.demo_noise, args.demo_noise_seed)
+    except ValueError as exc:
+        raise ValueError(f"--demo-noise {args.demo_noise!r}: {exc}") from None
+    if noise is not None and args.role != "demonstrator":
+        raise ValueError(f"--demo-noise {args.demo_noise!r}: only the demonstrator is "
+                         f"disturbed, not --role {args.role}")
+    return noise
+
+
 def run(args: argparse.Namespace) -> int:
     """Serve until stopped (or the simulator's run is complete); print the counters."""
     try:
+        noise = _noise(args)
         hcc = hcc_from_config(args.config)
     except (ValueError, OSError, TypeError) as exc:
         print(f"roger hcc: {exc}", file=sys.stderr)
         return 2
-    serve(HCCNode(args, hcc, StopFlag()), args)
+    serve(HCCNode(args, hcc, StopFlag(), noise), args)
     return 0

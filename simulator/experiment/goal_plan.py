@@ -196,9 +196,9 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         raise ValueError(f"--demo-noise {demo_noise!r}: must be in [0, 0.5] (a fraction of "
                          "each command's range)")
     if demo_noise > 0 and not (args.in_process or streams):
-        raise ValueError(f"--demo-noise {demo_noise!r}: the Zenoh path's demonstrator is "
-                         "roger hcc, which executes its commands as given; add --in-process "
-                         "or --streams")
+        raise ValueError(f"--demo-noise {demo_noise!r}: the disturbance is drawn over the "
+                         "whole stream, which the Zenoh path demonstrates per location, so "
+                         "it is run in-process only; add --in-process or --streams")
     return Plan(
         out=Path(args.out), seed=seed, jobs=jobs, quick=quick, locations=tuple(locations),
         attempts=attempts, per_subtask=per_subtask, time_limit=float(time_limit),

@@ -33,11 +33,11 @@ import numpy as np
 
 from protocols import ExpertOutput
 from protocols.aibo import DIMS
+from simulator.controllers.demo_noise import DemoNoise
 from simulator.controllers.hcc import HCC
 from simulator.controllers.transitioner import DEFAULT_RULE, transition_command
 from simulator.episodes import EpisodeResult, SoccerSim, StartLocation, run_episode
 from simulator.experiment.averaging import MultimapNeighbourhood
-from simulator.experiment.demo_noise import DemoNoise
 from simulator.experiment.training import Demonstrations
 
 __all__ = [
@@ -61,7 +61,7 @@ def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, 
     Pairs in learning order: location by location, shot by shot, tick by tick; and each
     demonstration's outcome (failures are demonstrations too, as in the paper).  With
     ``noise`` the robot executes the HCC's command disturbed, the HCC's own command is the
-    pair's action (:mod:`.demo_noise`).
+    pair's action (:mod:`simulator.controllers.demo_noise`).
     """
     records: list[EpisodeRecord] = []
     xs: list[np.ndarray] = []

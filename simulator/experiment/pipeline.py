@@ -22,11 +22,11 @@ import numpy as np
 import numpy.typing as npt
 
 from roger_daemon.labels import majority_labels
+from simulator.controllers.demo_noise import seeded
 from simulator.controllers.hcc import HCC
 from simulator.episodes import SoccerSim, StartLocation
 from simulator.experiment import inprocess as ip
 from simulator.experiment.averaging import MultimapNeighbourhood
-from simulator.experiment.demo_noise import DemoNoise
 from simulator.experiment.metrics import downsample_per_label
 from simulator.experiment.training import Demonstrations, train
 
@@ -48,9 +48,6 @@ __all__ = [
     "save_training_data",
     "train_models",
 ]
-
-#: The demonstration noise generator's stream, beside the demonstration's seed.
-_NOISE_STREAM = 0x4441
 
 
 Episodes = dict[str, list[dict[str, Any]]]
@@ -76,12 +73,10 @@ def make_hcc(plan: Any) -> HCC:
 def demonstrate(plan: Any) -> tuple[Demonstrations, list[Any]]:
     """The plan's demonstrations (every tick) and their episode records: the HCC from
     ``plan.locations`` x ``plan.shots`` in a simulator of its own, closed afterwards; with
-    ``plan.demo_noise`` its executed commands disturbed (:mod:`.demo_noise`)."""
+    ``plan.demo_noise`` its executed commands disturbed
+    (:mod:`simulator.controllers.demo_noise`, its generator from the demonstration's seed)."""
     sim = make_sim(plan)
-    scale = getattr(plan, "demo_noise", 0.0)
-    # the disturbance's own generator, from the demonstration's seed (docs/goal-scoring.md)
-    noise = (DemoNoise(scale, np.random.default_rng([plan.seeds["demo_sim"], _NOISE_STREAM]))
-             if scale > 0 else None)
+    noise = seeded(getattr(plan, "demo_noise", 0.0), plan.seeds["demo_sim"])
     try:
         return ip.demonstrate(sim, make_hcc(plan), plan.locations, plan.shots,
                               plan.seeds["demo_sim"], noise=noise)

@@ -13,6 +13,10 @@ Noise: per walking and head command (``NOISY``), a Gaussian of standard deviatio
 (piecewise constant, so it moves the robot instead of averaging out at 30 Hz); the executed
 entries are clipped to their ranges.  The tail and the motion indicator are never perturbed.
 ``scale = 0`` is the paper's protocol exactly.
+
+Used by ``roger hcc --role demonstrator --demo-noise F`` and by ``roger experiment
+goal-scoring --in-process --demo-noise F`` (docs/goal-scoring.md, "Perturbed demonstrations").
+:func:`seeded` is the one place the noise's generator is made from a seed.
 """
 
 from __future__ import annotations
@@ -22,11 +26,14 @@ import numpy.typing as npt
 
 from protocols.aibo import ACTION_NAMES, ACTION_RANGES
 
-__all__ = ["NOISY", "DemoNoise"]
+__all__ = ["NOISE_STREAM", "NOISY", "DemoNoise", "seeded"]
 
 #: The perturbed action entries: walk forward, sideways, turn; head tilt, pan, nod.
 NOISY = tuple(ACTION_NAMES.index(n) for n in ("walk_forward", "walk_left", "walk_turn",
                                                "head_tilt", "head_pan", "head_nod"))
+
+#: The noise generator's stream beside a demonstration's seed: ``default_rng([seed, it])``.
+NOISE_STREAM = 0x4441
 
 _LOW = np.array([ACTION_RANGES[i][0] for i in NOISY])
 _HIGH = np.array([ACTION_RANGES[i][1] for i in NOISY])
@@ -61,3 +68,10 @@ class DemoNoise:
         idx = list(NOISY)
         out[idx] = np.clip(out[idx] + self._offset, _LOW, _HIGH)
         return out
+
+
+def seeded(scale: float, seed: int) -> DemoNoise | None:
+    """The disturbance of scale ``scale`` drawn from the stream :data:`NOISE_STREAM` of
+    ``seed``; None for ``scale == 0`` (nothing disturbed). A bad scale raises ValueError."""
+    noise = DemoNoise(scale, np.random.default_rng([int(seed), NOISE_STREAM]))
+    return noise if noise.scale > 0 else None
