@@ -78,8 +78,8 @@ def test_the_recorder_learns_the_demonstrators_command_and_executes_the_disturbe
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--demo-noise", "0.1"], "--demo-noise 0.1: the disturbance is drawn over the whole"),
-    (["--in-process", "--demo-noise", "0.7"], "--demo-noise 0.7: must be in [0, 0.5]"),
+    (["--demo-noise", "0.7"], "--demo-noise 0.7: must be in [0, 0.5]"),
+    (["--in-process", "--demo-noise", "-0.1"], "--demo-noise -0.1: must be in [0, 0.5]"),
 ])
 def test_the_command_refuses_bad_noise_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                  monkeypatch: pytest.MonkeyPatch, argv: list[str],
@@ -144,3 +144,26 @@ def test_roger_hcc_refuses_bad_noise_naming_it(capsys: pytest.CaptureFixture[str
         ran = run("hcc", *argv)
     assert ran.returncode == 2, ran.stderr
     assert message in ran.stderr and "Traceback" not in ran.stderr
+
+
+def test_the_zenoh_paths_demonstrators_are_disturbed_per_location(tmp_path: Path) -> None:
+    """``--demo-noise`` on the Zenoh path: each location's ``roger hcc`` demonstrator gets
+    the noise and a seed of its own (fixed by the demonstration seed), the evaluation's
+    controllers none; without noise the jobs are as before (their resume identity too)."""
+    from simulator.controllers.demo_noise import location_seed
+    from simulator.experiment.goal_plan import configure, plan_from_args
+    from simulator.experiment.goal_scoring import _demo_jobs
+    from simulator.experiment.jobs import _noise_args
+
+    parser = argparse.ArgumentParser()
+    configure(parser)
+    plan = plan_from_args(parser.parse_args(["--out", str(tmp_path), "--demo-noise", "0.1"]))
+    jobs = _demo_jobs(plan)
+    seeds = [location_seed(plan.seeds["demo_sim"], j.locations[0]) for j in jobs]
+    assert len(set(seeds)) == len(jobs) > 1
+    assert seeds == [location_seed(plan.seeds["demo_sim"], j.locations[0]) for j in jobs]
+    for job, seed in zip(jobs, seeds, strict=True):
+        assert _noise_args(job) == ["--demo-noise", "0.1", "--demo-noise-seed", str(seed)]
+        assert job.spec()["demo_noise"] == 0.1
+    quiet = _demo_jobs(plan_from_args(parser.parse_args(["--out", str(tmp_path)])))
+    assert all(_noise_args(j) == [] and "demo_noise" not in j.spec() for j in quiet)

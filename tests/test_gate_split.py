@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -134,21 +132,35 @@ def test_the_default_prior_scatter_splits_a_model_with_the_papers_gate_prior() -
     assert len(SplitGates(model, x, min_points=5, lambda0=1.0).parts) == 1
 
 
-def test_the_zenoh_path_refuses_split_gates(tmp_path: Path) -> None:
-    """The daemon serves its experts' own gates: ``--gates split`` without ``--in-process``
-    exits 2 naming the option, with no traceback and nothing written."""
-    out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "roger_daemon", "experiment", "goal-scoring",
-                           "--out", str(out), "--gates", "split", "--plan"],
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2, proc.stderr
-    assert "--gates split" in proc.stderr and "Traceback" not in proc.stderr
-    assert not out.exists()
+def test_the_zenoh_path_serves_split_gates_from_its_checkpoints(tmp_path: Path) -> None:
+    """``--gates split`` on the Zenoh path: models/roger-K is the split gates' one-particle
+    ROGER model (what the in-process row acts with, float for float), its points named by
+    the stream's labels; its evaluation jobs' daemons run one particle; merged groups as
+    before."""
+    from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+    from roger_daemon.gate_split_model import split_model
+    from simulator.experiment.goal_scoring import _eval_jobs
+    from simulator.experiment.zenoh_run import ZenohRun
+
     parser = argparse.ArgumentParser()
     configure(parser)
-    plan = plan_from_args(parser.parse_args(["--out", str(out), "--in-process",
-                                             "--gates", "split"]))
-    assert plan.gates == "split" and plan.to_json()["gates"] == "split"
+    plan = plan_from_args(parser.parse_args(["--out", str(tmp_path), "--gates", "split",
+                                             "--controllers", "hcc,roger"]))
+    assert plan.gates == "split" and not plan.in_process and plan.to_json()["gates"] == "split"
+    x, truth = _blobs(8, gap=1.0)
+    model = _model(x, [0] * len(x))
+    stream = Demonstrations(x, np.zeros((len(x), 1)), ["a" if t else "b" for t in truth],
+                            np.zeros(len(x), dtype=np.int64), np.arange(len(x)), 0)
+    run = ZenohRun(plan, RogerParams(), None, {}, {})
+    unimap: Any = _model(x, [0] * len(x))
+    digests = run._checkpoints(stream, [(0, model)], unimap, [])
+    want = split_model(SplitGates(model, x, seed=0))
+    assert want.n_experts == 2
+    ck = read_checkpoint(list_checkpoints(tmp_path / "models" / "roger-0", "aibo")[0])
+    assert ck.meta.model_digest == array_digest(want.state_dict()) == digests["roger:0"]
+    jobs = [j for j in _eval_jobs(plan, tmp_path / "models", RogerParams(), digests)
+            if j.name == "roger:0"]
+    assert jobs and all(j.learner["particles"] == 1 for j in jobs)
 
 
 def test_split_gates_reach_the_roger_and_autonomous_rows() -> None:

@@ -482,3 +482,42 @@ def test_merge_groups_saves_the_experts_merged_per_group(
     assert ck.meta.learner.params == want.params.to_mapping()  # one particle: the merged model's
     assert want.n_experts == len(set(groups)) == 2 < res.model.n_experts == 3
     assert sorted(report["merged_groups"].values()) == sorted(set(groups))
+
+
+def test_split_gates_saves_the_split_model_with_the_pairs_labels(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``roger replay --split-gates --save-checkpoint DIR`` saves the replayed model's split
+    gates as a one-particle ROGER model (:func:`roger_daemon.gate_split_model.split_model`),
+    the logged labels unchanged, and the checkpoint loads into a model answering as the split
+    gates do; without DIR, or with ``--merge-groups`` too, it exits 2."""
+    from roger_daemon.config.models import load_model
+    from roger_daemon.daemon.checkpoint import array_digest, list_checkpoints, read_checkpoint
+    from roger_daemon.daemon.robot_state import RobotState
+    from roger_daemon.gate_split import SplitGates
+    from roger_daemon.gate_split_model import split_model
+
+    s = record_session(tmp_path / "logs", n_ticks=150)
+    out = tmp_path / "split"
+    capsys.readouterr()
+    assert roger(["replay", str(s.paths[0]), "--split-gates", "--no-progress"]) == 2
+    assert "--split-gates needs --save-checkpoint DIR" in capsys.readouterr().err
+    assert roger(["replay", str(s.paths[0]), "--split-gates", "--merge-groups",
+                  "--save-checkpoint", str(out), "--no-progress"]) == 2
+    assert "choose one" in capsys.readouterr().err and not out.exists()
+    assert roger(["replay", str(s.paths[0]), "--split-gates", "--save-checkpoint", str(out),
+                  "--no-progress", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    res = replay_session(s.paths)
+    assert res.model is not None
+    x = np.array([p.x for p in res.pairs])
+    gates = SplitGates(res.model, x, seed=int(res.seed or 0))
+    want = split_model(gates)
+    ck = read_checkpoint(list_checkpoints(out, res.robot)[0])
+    assert ck.meta.model_digest == array_digest(want.state_dict())
+    assert RobotState.from_arrays(ck.daemon).labels() == res.labels
+    assert ck.meta.learner.params == want.params.to_mapping()
+    assert len(report["split_gates"]) == len(gates.parts) == want.n_experts
+    served = load_model(ck.model)
+    for probe in x[::25]:
+        assert served.predict_table(probe)[1].means.tolist() == \
+            gates.predict_table(probe)[1].means.tolist()

@@ -14,7 +14,6 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from roger_daemon.config.settings import FSM_MODEL
 from roger_daemon.replay.compare import REL_TOL
 from roger_daemon.tools.common import non_negative, seconds
 
@@ -49,6 +48,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "groups') instead of the replayed model; for a daemon in predict "
                              "mode driving the HCC transitioner. Needs the session from the "
                              "model's first pair")
+    parser.add_argument("--split-gates", action="store_true",
+                        help="with --save-checkpoint: save the model with each expert's gate "
+                             "split where its inputs form clusters (no labels; one expert per "
+                             "part, docs/goal-scoring.md) instead of the replayed model. Needs "
+                             "the session from the model's first pair")
     parser.add_argument("--check", action="store_true",
                         help="exit 1 unless every recorded prediction is reproduced")
     parser.add_argument("--tolerance", type=non_negative, default=REL_TOL,
@@ -193,9 +197,7 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
             )
         res.warnings.extend(notes)
         saved = ""
-        if args.merge_groups and not args.save_checkpoint:
-            raise ReplayError("--merge-groups needs --save-checkpoint DIR")
-        merged = _merged(res) if args.merge_groups else None
+        merged = _served(args, res)
         if args.save_checkpoint:
             saved = str(_save(merged or res, args.save_checkpoint,
                               args.checkpoint if initial is not None else None, queued))
@@ -205,16 +207,20 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     summary = res.summary(args.tolerance)
     if saved:
         summary["saved_checkpoint"] = saved
-    if merged is not None:  # what the checkpoint holds: one expert per group
-        summary["merged_groups"] = {str(k): v for k, v in sorted(merged.expert_labels.items())}
+    if merged is not None:  # what the checkpoint holds: one expert per group, or per part
+        key = "merged_groups" if args.merge_groups else "split_gates"
+        summary[key] = {str(k): v for k, v in sorted(merged.expert_labels.items())}
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
         _print_summary(summary, res)
-        if merged is not None:
+        if merged is not None and args.merge_groups:
             print(f"merged:       {len(merged.expert_labels)} experts, one per group "
                   f"({', '.join(sorted(merged.expert_labels.values()))}); saved, not the "
                   "replayed model")
+        elif merged is not None:
+            print(f"split gates:  {merged.n_experts} experts, one per part of "
+                  f"{res.n_experts} experts' gates; saved, not the replayed model")
     if not args.check:
         return 0
     if not res.diffs:
@@ -223,30 +229,20 @@ def _replay(args: argparse.Namespace, files: list[Path]) -> int:
     return 0 if res.ok(args.tolerance) else 1
 
 
-def _merged(res: Any) -> Any:
-    """``res`` with its model replaced by the model's experts merged per group
-    (:func:`roger_daemon.groups.merge_groups`) and each pair labelled with its group."""
-    from dataclasses import replace
-
-    import numpy as np
-
-    from roger_daemon.groups import merge_groups
-    from roger_daemon.labels import majority_labels
+def _served(args: argparse.Namespace, res: Any) -> Any:
+    """The model ``--merge-groups`` or ``--split-gates`` saves instead of the replayed one
+    (:mod:`roger_daemon.replay.served`), or None."""
+    from roger_daemon.replay import served
     from roger_daemon.replay.session import ReplayError
 
-    model = res.model
-    if model is None or res.model_kind not in ("roger", FSM_MODEL):
-        raise ReplayError("--merge-groups needs a ROGER model (model kind 'roger')")
-    if int(model.n_learned) != len(res.pairs):
-        raise ReplayError(
-            f"--merge-groups needs the session from the model's first pair: the model learned "
-            f"{model.n_learned} pairs, the replayed log holds {len(res.pairs)} of them")
-    merged, groups = merge_groups(np.array([p.x for p in res.pairs]),
-                                  np.array([p.y for p in res.pairs]), res.labels, model,
-                                  params=model.params, seed=res.seed)
-    return replace(res, model=merged, labels=groups, params=merged.params.to_mapping(),
-                   expert_labels=majority_labels(np.asarray(merged.assignments()).tolist(),
-                                                 groups))
+    if args.merge_groups and args.split_gates:
+        raise ReplayError("--merge-groups and --split-gates: choose one")
+    for flag, make in (("merge_groups", served.merged), ("split_gates", served.split)):
+        if getattr(args, flag):
+            if not args.save_checkpoint:
+                raise ReplayError(f"--{flag.replace('_', '-')} needs --save-checkpoint DIR")
+            return make(res)
+    return None
 
 
 def _save(res: Any, directory: Path, checkpoint: Path | None, queued: list[Any]) -> Path:

@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from protocols.aibo import ACTION_NAMES, ACTION_RANGES
 
-__all__ = ["NOISE_STREAM", "NOISY", "DemoNoise", "seeded"]
+__all__ = ["NOISE_STREAM", "NOISY", "DemoNoise", "location_seed", "seeded"]
 
 #: The perturbed action entries: walk forward, sideways, turn; head tilt, pan, nod.
 NOISY = tuple(ACTION_NAMES.index(n) for n in ("walk_forward", "walk_left", "walk_turn",
@@ -75,3 +75,11 @@ def seeded(scale: float, seed: int) -> DemoNoise | None:
     ``seed``; None for ``scale == 0`` (nothing disturbed). A bad scale raises ValueError."""
     noise = DemoNoise(scale, np.random.default_rng([int(seed), NOISE_STREAM]))
     return noise if noise.scale > 0 else None
+
+
+def location_seed(seed: int, location: int) -> int:
+    """The ``--demo-noise-seed`` of one start location's demonstrations when each location
+    runs in a process of its own (the experiment's Zenoh path): distinct per location, fixed
+    by the demonstration's ``seed``."""
+    return int(np.random.SeedSequence([int(seed), NOISE_STREAM, int(location)])
+               .generate_state(1, dtype=np.uint32)[0])

@@ -129,11 +129,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gates", choices=GATES, default="niw",
                         help="how the roger and autonomous rows choose among the experts: niw "
                         "(each expert's gate, paper Algorithm 2; default) or split (each gate "
-                        "split where its inputs form clusters, label-free; in-process only)")
+                        "split where its inputs form clusters, label-free; on the Zenoh path "
+                        "the daemon serves them as a one-particle ROGER model)")
     parser.add_argument("--demo-noise", type=float, default=0.0, metavar="F",
                         help="the demonstrator's executed walking and head commands disturbed "
                         "by F x each range (held 0.5 s), its own commands learned; 0 = the "
-                        "paper's protocol (default); in-process only")
+                        "paper's protocol (default); on the Zenoh path roger hcc "
+                        "--demo-noise, drawn per start location")
     parser.add_argument("--preset", default=None,
                         help="learner preset (e.g. 'paper': the paper's literal numbers, every "
                         "lever off); same as --set learner.preset=NAME")
@@ -188,17 +190,10 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
 
     streams = parse_streams(args.streams) if args.streams else ()
     gates = getattr(args, "gates", "niw")
-    if gates != "niw" and not (args.in_process or streams):
-        raise ValueError(f"--gates {gates}: the daemon serves its experts' own gates, so this "
-                         "is evaluated in-process only; add --in-process or --streams")
     demo_noise = float(getattr(args, "demo_noise", 0.0))
     if not 0.0 <= demo_noise <= 0.5:
         raise ValueError(f"--demo-noise {demo_noise!r}: must be in [0, 0.5] (a fraction of "
                          "each command's range)")
-    if demo_noise > 0 and not (args.in_process or streams):
-        raise ValueError(f"--demo-noise {demo_noise!r}: the disturbance is drawn over the "
-                         "whole stream, which the Zenoh path demonstrates per location, so "
-                         "it is run in-process only; add --in-process or --streams")
     return Plan(
         out=Path(args.out), seed=seed, jobs=jobs, quick=quick, locations=tuple(locations),
         attempts=attempts, per_subtask=per_subtask, time_limit=float(time_limit),

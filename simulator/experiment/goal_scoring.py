@@ -72,7 +72,7 @@ def _demo_jobs(plan: Plan) -> list[EpisodeJob]:
     return [
         EpisodeJob("demo", (loc,), plan.shots, plan.seeds["demo_sim"], plan.time_limit,
                    plan.vision, plan.out / "work" / "demo" / f"loc-{loc:02d}",
-                   task_config=plan.task_config)
+                   task_config=plan.task_config, demo_noise=plan.demo_noise)
         for loc in plan.locations
     ]
 
@@ -86,6 +86,12 @@ def location_chunks(locations: tuple[int, ...], size: int) -> list[tuple[int, ..
     n = max(1, -(-len(locations) // size))
     bounds = [round(i * len(locations) / n) for i in range(n + 1)]
     return [locations[a:b] for a, b in zip(bounds, bounds[1:], strict=False) if b > a]
+
+
+def _one_particle(plan: Plan, key: str) -> bool:
+    """Whether the checkpoint of ``key`` is a one-particle model: merged groups, and ROGER's
+    split gates (``--gates split``, :func:`roger_daemon.gate_split_model.split_model`)."""
+    return key.startswith("groups") or (key.startswith("roger") and plan.gates == "split")
 
 
 def _eval_jobs(plan: Plan, models: Path, params: Any,
@@ -109,7 +115,7 @@ def _eval_jobs(plan: Plan, models: Path, params: Any,
                 c, locs, plan.attempts, plan.seeds["eval_sim"], plan.time_limit, plan.vision,
                 plan.out / "work" / "eval" / key.replace(":", "-") / f"loc-{name}",
                 checkpoint_dir=models / key.replace(":", "-") if c != "hcc" else None,
-                learner=learner_table(replace(params, particles=1) if key.startswith("groups")
+                learner=learner_table(replace(params, particles=1) if _one_particle(plan, key)
                                       else params),
                 learner_seed=plan.seeds["learner"] + k,
                 task_config=plan.task_config, model_digest=digests.get(key, ""),

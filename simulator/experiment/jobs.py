@@ -65,6 +65,7 @@ class EpisodeJob:
     model_digest: str = ""  # of the checkpoint resumed from (part of the job's identity)
     name: str = ""  # result key (e.g. "roger:1" for the model of the second learner seed)
     rule: str = DEFAULT_RULE  # the transitioner's rule (roger hcc --rule)
+    demo_noise: float = 0.0  # demo: roger hcc --demo-noise (simulator/controllers/demo_noise.py)
 
     @property
     def key(self) -> str:
@@ -90,6 +91,7 @@ class EpisodeJob:
             "learner_seed": self.learner_seed, "task_config": self.task_config,
             "model_digest": self.model_digest, "name": self.name,
             "rule": self.rule if self.controller == "roger" else "",
+            **({"demo_noise": self.demo_noise} if self.demo_noise else {}),
         }
 
     def timeout_s(self) -> float:
@@ -215,6 +217,16 @@ def _wait_sim(group: ProcessGroup, timeout: float) -> int:
     return int(sim.returncode)
 
 
+def _noise_args(job: EpisodeJob) -> list[str]:
+    """``roger hcc``'s disturbance options for a demonstration job (none without noise)."""
+    if not job.demo_noise:
+        return []
+    from simulator.controllers.demo_noise import location_seed
+
+    return ["--demo-noise", repr(job.demo_noise),
+            "--demo-noise-seed", str(location_seed(job.seed, job.locations[0]))]
+
+
 def run_job(job: EpisodeJob) -> JobResult:
     """Run one job's processes to completion; return the simulator's and controller's JSON."""
     job.workdir.mkdir(parents=True, exist_ok=True)
@@ -237,7 +249,7 @@ def run_job(job: EpisodeJob) -> JobResult:
                 "--listen", f"tcp/127.0.0.1:{aux_port}", "--connect", "none",
             ))
             group.wait_for_log("record", "recording ", 60)
-            controller = roger_argv("hcc", "--role", "demonstrator")
+            controller = roger_argv("hcc", "--role", "demonstrator", *_noise_args(job))
             peers = 2
         elif job.controller == "hcc":
             controller = roger_argv("hcc", "--role", "demonstrator")

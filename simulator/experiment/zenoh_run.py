@@ -156,14 +156,21 @@ class ZenohRun:
                      merged: list[Any]) -> dict[str, str]:
         """Write every model as a daemon checkpoint (models/roger-K, models/groups-K,
         models/dpa); a merged model's points carry their group's name, so that the daemon
-        names each merged expert by its group."""
-        from simulator.experiment.pipeline import save_training_data
+        names each merged expert by its group. With ``--gates split`` models/roger-K holds
+        the split gates as a one-particle ROGER model
+        (:func:`roger_daemon.gate_split_model.split_model`: the in-process row's multimap,
+        float for float)."""
+        from roger_daemon.gate_split import SplitGates
+        from roger_daemon.gate_split_model import split_model
+        from simulator.experiment.pipeline import gated, save_training_data
         from simulator.experiment.training import write_model_checkpoint
 
         plan = self.plan
         t0 = time.monotonic()
         root = plan.out / "models"
-        todo = [(f"roger:{k}", m, "roger", s, stream.labels) for k, (s, m) in enumerate(models)]
+        served = [(s, split_model(m) if isinstance(m, SplitGates) else m)
+                  for s, m in gated(plan, stream, models)]
+        todo = [(f"roger:{k}", m, "roger", s, stream.labels) for k, (s, m) in enumerate(served)]
         todo += [(f"groups:{k}", g.model, "roger", g.seed, g.group_of_point)
                  for k, g in enumerate(merged)]
         todo.append(("dpa", unimap, "unimap", plan.seeds["learner"], stream.labels))
@@ -265,7 +272,9 @@ class ZenohRun:
         from simulator.experiment.pipeline import controllers_for, evaluate_in_process
 
         plan = self.plan
-        sub = replace(plan, attempts=1)
+        # the rows both paths run (the learned transitions are fitted in-process only)
+        sub = replace(plan, attempts=1, controllers=tuple(
+            c for c in plan.controllers if c in ("hcc", "roger", "groups", "dpa")))
         ctl = {k: c for k, c in controllers_for(sub, stream, models[:1], unimap, None,
                                                  merged[:1]).items()
                if k in ("hcc", "roger:0", "groups:0", "dpa")}
