@@ -121,7 +121,8 @@ class HCCNode(PerceptionNode):
         if not transitioner:
             self.pub_act = publisher(session, keys.action(self.robot))
         self.serve_perceptions(session, predictions=transitioner)
-        return self.summary(subtask_ticks=self.subtask_ticks)
+        noise = 0.0 if self.noise is None else self.noise.scale
+        return self.summary(subtask_ticks=self.subtask_ticks, demo_noise=noise)
 
     def new_episode(self) -> None:
         """The FSM restarts (and the disturbance is redrawn)."""
