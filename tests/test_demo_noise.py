@@ -167,3 +167,79 @@ def test_the_zenoh_paths_demonstrators_are_disturbed_per_location(tmp_path: Path
         assert job.spec()["demo_noise"] == 0.1
     quiet = _demo_jobs(plan_from_args(parser.parse_args(["--out", str(tmp_path)])))
     assert all(_noise_args(j) == [] and "demo_noise" not in j.spec() for j in quiet)
+
+
+def test_the_recorder_keeps_what_was_executed_beside_what_was_demonstrated() -> None:
+    x = np.zeros(DIMS.x)
+    x[[2, 5, 8, 11, 14, 17]] = -1.0
+    rec = _Recorder(HCC(), DemoNoise(0.3, np.random.default_rng(4), hold=3))
+    rec.reset()
+    sent = [rec.act(x)[0] for _ in range(9)]
+    assert all(np.array_equal(a, b) for a, b in zip(rec.executed, sent, strict=True))
+    assert not any(np.array_equal(e, y) for e, y in zip(rec.executed, rec.y, strict=True))
+    quiet = _Recorder(HCC())
+    quiet.reset()
+    quiet.act(x)
+    assert np.array_equal(quiet.executed[0], quiet.y[0])
+
+
+def test_the_learned_fsms_memories_follow_the_executed_turns_and_y_picks_the_state() -> None:
+    """fit_fsm(executed=...): the transitions' features come from memories advanced by what
+    the robot executed (its odometry, as when it acts), the states from the demonstrated
+    command; without it the demonstrated command is the executed one."""
+    from roger_daemon.fsm import LearnedFSM, aibo_memory, fit_fsm
+    from roger_daemon.learner.prediction import MultimapTable
+
+    class TwoExperts:
+        def predict_table(self, x: np.ndarray) -> tuple[None, MultimapTable]:
+            means = np.zeros((2, DIMS.y))
+            means[1, 2] = 1.0  # expert 7 turns
+            return None, MultimapTable([3, 7], [0.5, 0.5], means, np.full((2, DIMS.y), 0.01),
+                                       [5, 5])
+
+    x = np.zeros((60, DIMS.x))
+    x[:, [2, 5, 8, 11, 14, 17]] = -1.0  # nothing seen: the bearings are carried by the turns
+    x[:5, 2] = 1.0  # the ball seen at first, then lost
+    y = np.zeros((60, DIMS.y))
+    y[30:, 2] = 1.0  # the demonstrator turns from tick 30 on: expert 7
+    executed = y.copy()
+    executed[:, 2] += 0.8  # the robot turned more than it was told
+    starts = np.zeros(60, dtype=bool)
+    starts[0] = True
+    spec = aibo_memory()
+    got = fit_fsm(TwoExperts(), x, y, starts, spec, executed=executed)
+    want = LearnedFSM(spec)
+    for t in range(60):
+        want.observe(x[t], executed[t], 7 if t >= 30 else 3, bool(starts[t]))
+    plain = fit_fsm(TwoExperts(), x, y, starts, spec)
+    same = fit_fsm(TwoExperts(), x, y, starts, spec, executed=y)
+    for k, v in want.state_dict().items():
+        assert np.array_equal(got.state_dict()[k], v), k
+    assert all(np.array_equal(plain.state_dict()[k], v) for k, v in same.state_dict().items())
+    assert not np.array_equal(plain.state_dict()["transitions.mu"],
+                              got.state_dict()["transitions.mu"])
+    with pytest.raises(ValueError, match="executed"):
+        fit_fsm(TwoExperts(), x, y, starts, spec, executed=executed[:10])
+
+
+def test_perturbed_demonstrations_keep_both_commands_and_the_quiet_ones_only_y() -> None:
+    """``demonstrate`` in the simulator (pybullet DIRECT, 2 s episodes): with noise the
+    stream carries the executed commands beside the demonstrated ones, differing on the
+    walking and head entries only; without noise ``executed`` is None (``y`` was executed)."""
+    from types import SimpleNamespace
+
+    from simulator.experiment import inprocess as ip
+    from simulator.experiment.pipeline import make_hcc, make_sim
+
+    plan = SimpleNamespace(task_config=None, vision="fast", time_limit=2.0)
+    sim = make_sim(plan)
+    try:
+        noisy, _ = ip.demonstrate(sim, make_hcc(plan), [0], 1, 0, noise=seeded(0.1, 0))
+        quiet, _ = ip.demonstrate(sim, make_hcc(plan), [0], 1, 0)
+    finally:
+        sim.close()
+    assert quiet.executed is None
+    assert noisy.executed is not None and noisy.executed.shape == noisy.y.shape
+    moved = np.flatnonzero(np.any(noisy.executed != noisy.y, axis=0)).tolist()
+    assert moved and set(moved) <= set(NOISY)
+    assert noisy.subset(np.arange(5)).executed is not None

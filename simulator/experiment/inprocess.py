@@ -66,6 +66,7 @@ def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, 
     records: list[EpisodeRecord] = []
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
+    executed: list[np.ndarray] = []
     labels: list[str] = []
     locs: list[int] = []
     ticks: list[int] = []
@@ -76,12 +77,14 @@ def demonstrate(sim: SoccerSim, hcc: HCC, locations: Sequence[int], shots: int, 
             records.append(EpisodeRecord.of(res))
             xs.extend(rec.x)
             ys.extend(rec.y)
+            executed.extend(rec.executed)
             labels.extend(rec.labels)
             locs.extend([loc] * len(rec.x))
             ticks.extend(range(len(rec.x)))
     data = Demonstrations(np.array(xs).reshape(-1, DIMS.x), np.array(ys).reshape(-1, DIMS.y),
                           labels, np.array(locs, dtype=np.int64),
-                          np.array(ticks, dtype=np.int64), 0)
+                          np.array(ticks, dtype=np.int64), 0,
+                          None if noise is None else np.array(executed).reshape(-1, DIMS.y))
     return data, records
 
 
@@ -97,6 +100,7 @@ class _Recorder:
         self.noise = noise
         self.x: list[np.ndarray] = []
         self.y: list[np.ndarray] = []
+        self.executed: list[np.ndarray] = []
         self.labels: list[str] = []
 
     def reset(self) -> None:
@@ -110,6 +114,7 @@ class _Recorder:
         self.hcc.commit(executed)  # the HCC's odometry follows what the robot did
         self.x.append(np.asarray(x, dtype=np.float64))
         self.y.append(np.asarray(y, dtype=np.float64))
+        self.executed.append(np.asarray(executed, dtype=np.float64))
         self.labels.append(label)
         return executed, label
 

@@ -161,7 +161,7 @@ def fit_transitions(data: Demonstrations, models: Sequence[tuple[int, Any]],
     from roger_daemon.fsm import aibo_memory, fit_fsm
 
     spec = aibo_memory()
-    return [fit_fsm(model, data.x, data.y, data.tick == 0, spec)
+    return [fit_fsm(model, data.x, data.y, data.tick == 0, spec, executed=data.executed)
             for _, model in gated(plan, stream, models)]
 
 

@@ -56,6 +56,9 @@ class Demonstrations:
     location: npt.NDArray[np.int64]  # start location of the episode of each pair
     tick: npt.NDArray[np.int64]
     unpaired: int  # perceptions/actions left without a partner in the logs
+    #: the commands the robot executed, where they differ from ``y`` (perturbed
+    #: demonstrations, simulator/controllers/demo_noise.py); None: ``y`` was executed
+    executed: FloatArray | None = None
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -63,7 +66,8 @@ class Demonstrations:
     def subset(self, idx: npt.NDArray[np.int64]) -> Demonstrations:
         """The demonstrations at indices ``idx``, in that order."""
         return Demonstrations(self.x[idx], self.y[idx], [self.labels[i] for i in idx],
-                              self.location[idx], self.tick[idx], self.unpaired)
+                              self.location[idx], self.tick[idx], self.unpaired,
+                              None if self.executed is None else self.executed[idx])
 
 
 def load_demonstrations(sessions: Sequence[tuple[int, Sequence[Path]]]) -> Demonstrations:
