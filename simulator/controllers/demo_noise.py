@@ -15,7 +15,8 @@ entries are clipped to their ranges.  The tail and the motion indicator are neve
 ``scale = 0`` is the paper's protocol exactly.
 
 Used by ``roger hcc --role demonstrator --demo-noise F`` and by ``roger experiment
-goal-scoring --in-process --demo-noise F`` (docs/goal-scoring.md, "Perturbed demonstrations").
+goal-scoring --demo-noise F`` (in-process one generator for the stream, on the Zenoh path one
+per start location: :func:`location_seed`; docs/goal-scoring.md, "Perturbed demonstrations").
 :func:`seeded` is the one place the noise's generator is made from a seed.
 """
 

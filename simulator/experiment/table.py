@@ -28,8 +28,9 @@ ROWS = (("hcc", "HCC (the demonstrator)"), ("oracle", "segmentation oracle (labe
 
 def _rows(res: dict[str, Any]) -> list[tuple[str, str]]:
     """:data:`ROWS`, the ROGER rows naming split gates when the run used them."""
-    gates = res.get("plan", {}).get("gates") or str(res.get("gates", "")).split(":")[0]
-    if gates != "split":
+    # the run's plan: a multi-stream file's "plan", a single stream's config.experiment
+    plan = res.get("plan") or res.get("config", {}).get("experiment", {})
+    if plan.get("gates", "niw") != "split":
         return list(ROWS)
     return [(key, name.replace("ROGER experts", "ROGER experts (split gates)"))
             for key, name in ROWS]
